@@ -1,0 +1,171 @@
+//! The inference interface every world model implements and every caller (server, trainer,
+//! evaluator, client) uses.
+//!
+//! Conventions: metres, seconds, z up, ground plane at z = 0. A pose maps body coordinates
+//! (origin at the centre of mass) to world coordinates: `x_world = R x_body + p`. Quaternions
+//! are `[x, y, z, w]`. A *step* advances `dt_steps` recorded frames of the model's
+//! `dt_frame` (see [`ModelConfig`](crate::ModelConfig)).
+
+use nalgebra::{UnitQuaternion, Vector3};
+
+use crate::{ModelConfig, ModelError};
+
+/// Rigid pose of one object: centre-of-mass position (metres, world frame) and orientation
+/// (unit quaternion `[x, y, z, w]`, body to world).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Pose {
+    /// Centre of mass in the world frame, metres.
+    pub translation: [f32; 3],
+    /// Unit quaternion `[x, y, z, w]`, body to world.
+    pub rotation: [f32; 4],
+}
+
+impl Pose {
+    /// The identity pose at the origin.
+    pub const IDENTITY: Pose = Pose {
+        translation: [0.0; 3],
+        rotation: [0.0, 0.0, 0.0, 1.0],
+    };
+
+    /// Orientation as an nalgebra unit quaternion (renormalised).
+    pub fn unit_quaternion(&self) -> UnitQuaternion<f32> {
+        let [x, y, z, w] = self.rotation;
+        UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z))
+    }
+
+    /// Builds a pose from an nalgebra rotation and a translation in metres.
+    pub fn from_parts(translation: Vector3<f32>, rotation: UnitQuaternion<f32>) -> Pose {
+        let c = rotation.coords;
+        Pose {
+            translation: [translation.x, translation.y, translation.z],
+            rotation: [c.x, c.y, c.z, c.w],
+        }
+    }
+
+    /// Maps a body-frame point (metres) to the world frame.
+    pub fn transform_point(&self, x: [f32; 3]) -> [f32; 3] {
+        let y = self.unit_quaternion() * Vector3::from(x) + Vector3::from(self.translation);
+        [y.x, y.y, y.z]
+    }
+}
+
+/// One rigid object as a model input: its surface point cloud in the body frame and its
+/// physical parameters.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ObjectInput {
+    /// Surface points `[n, 3]` in the body frame (origin at the centre of mass), metres.
+    pub reference: Vec<[f32; 3]>,
+    /// Mass in kilograms.
+    pub mass: f32,
+    /// Coulomb friction coefficient (dimensionless).
+    pub friction: f32,
+    /// Coefficient of restitution in `[0, 1]`.
+    pub restitution: f32,
+}
+
+/// The two most recent poses of every object, `dt_steps` frames apart: the state a step
+/// advances. `previous[j]` and `current[j]` belong to object `j`.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct SceneState {
+    /// Poses one step (`dt_steps` frames) before `current`.
+    pub previous: Vec<Pose>,
+    /// The latest poses.
+    pub current: Vec<Pose>,
+}
+
+impl SceneState {
+    /// Builds a state from current poses and velocities by stepping back `dt_seconds`
+    /// (`dt_steps * dt_frame`): `p_prev = p - v dt`, `R_prev = exp(-w dt) R`.
+    ///
+    /// `linear`: `[objects, 3]` m/s; `angular`: `[objects, 3]` rad/s, world frame.
+    pub fn from_velocities(
+        current: Vec<Pose>,
+        linear: &[[f32; 3]],
+        angular: &[[f32; 3]],
+        dt_seconds: f32,
+    ) -> Result<SceneState, ModelError> {
+        if linear.len() != current.len() || angular.len() != current.len() {
+            return Err(ModelError::InvalidInput(format!(
+                "velocities: expected {} objects, got {} linear and {} angular",
+                current.len(),
+                linear.len(),
+                angular.len()
+            )));
+        }
+        let previous = current
+            .iter()
+            .zip(linear.iter().zip(angular))
+            .map(|(pose, (v, w))| {
+                let p = Vector3::from(pose.translation) - Vector3::from(*v) * dt_seconds;
+                let back = UnitQuaternion::from_scaled_axis(-Vector3::from(*w) * dt_seconds);
+                Pose::from_parts(p, back * pose.unit_quaternion())
+            })
+            .collect();
+        Ok(SceneState { previous, current })
+    }
+
+    /// Number of objects.
+    pub fn len(&self) -> usize {
+        self.current.len()
+    }
+
+    /// True for a scene without objects.
+    pub fn is_empty(&self) -> bool {
+        self.current.is_empty()
+    }
+}
+
+/// One scene's request inside a batched step.
+#[derive(Clone, Copy, Debug)]
+pub struct StepItem<'a> {
+    /// The prepared (validated, cached) scene.
+    pub scene: &'a crate::PreparedScene,
+    /// Its two most recent poses, `dt_steps` frames apart.
+    pub state: &'a SceneState,
+    /// Step size in recorded frames (the model's `dt_frame` units), `>= 1`.
+    pub dt_steps: u32,
+}
+
+/// A learned world model that advances rigid scenes one step at a time.
+///
+/// Implementations are resident in memory, thread-safe, and give every scene of a batch the
+/// same result it would get alone (up to floating-point reassociation, about 1e-5 m).
+pub trait WorldModel: Send + Sync {
+    /// The model's name (its checkpoint directory name).
+    fn name(&self) -> &str;
+    /// Architecture and data conventions (from `config.json`).
+    fn config(&self) -> &ModelConfig;
+    /// Validates a scene and computes what stays fixed over a rollout (anchors, grouping).
+    fn prepare(&self, objects: Vec<ObjectInput>) -> Result<crate::PreparedScene, ModelError>;
+    /// Advances every scene of `batch` by one step in one pass. `output[i][j]` is the new pose
+    /// of object `j` of scene `i`, `batch[i].dt_steps` frames after `batch[i].state.current`.
+    fn step(&self, batch: &[StepItem<'_>]) -> Result<Vec<Vec<Pose>>, ModelError>;
+}
+
+/// Rolls a scene forward `steps` steps of `dt_steps` frames from `state`, calling
+/// `on_step(step_index, poses)` after each (step indices start at 1). Returns the poses of
+/// every step, `[steps][objects]`.
+pub fn rollout(
+    model: &dyn WorldModel,
+    scene: &crate::PreparedScene,
+    mut state: SceneState,
+    dt_steps: u32,
+    steps: usize,
+    mut on_step: impl FnMut(usize, &[Pose]),
+) -> Result<Vec<Vec<Pose>>, ModelError> {
+    let mut out = Vec::with_capacity(steps);
+    for step in 1..=steps {
+        let next = model
+            .step(&[StepItem {
+                scene,
+                state: &state,
+                dt_steps,
+            }])?
+            .pop()
+            .ok_or_else(|| ModelError::Internal("model returned no scene".into()))?;
+        on_step(step, &next);
+        state.previous = std::mem::replace(&mut state.current, next.clone());
+        out.push(next);
+    }
+    Ok(out)
+}

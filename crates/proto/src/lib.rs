@@ -1,0 +1,1 @@
+//! Generated gRPC types for the Dynaserve WorldModel API (dynaserve.v1).

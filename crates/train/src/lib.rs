@@ -1,0 +1,1 @@
+//! Training loops, evaluation, baselines and reports for Dynaserve's world models.

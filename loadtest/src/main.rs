@@ -1,0 +1,2 @@
+//! Load generator for Dynaserve (in progress).
+fn main() {}

@@ -1,0 +1,31 @@
+//! `dynaserve`: the one binary. Each subcommand lives in the crate that owns the concern; this
+//! file only dispatches.
+
+use clap::{Parser, Subcommand};
+
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
+/// Serve, train, evaluate and generate data for learned physics world models.
+#[derive(Parser)]
+#[command(name = "dynaserve", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Print the version and the crates this binary is built from.
+    Version,
+}
+
+fn main() -> anyhow::Result<()> {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Version => {
+            println!("dynaserve {}", env!("CARGO_PKG_VERSION"));
+            Ok(())
+        }
+    }
+}
