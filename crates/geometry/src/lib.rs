@@ -4,8 +4,10 @@
 //! needs double precision (Kabsch works in `f64`). Quaternions stored as arrays are
 //! `[x, y, z, w]` (scalar last).
 
+pub mod fps;
 pub mod kabsch;
 
+pub use fps::farthest_point_sampling;
 pub use kabsch::{KabschSolution, kabsch, kabsch_backward};
 
 /// A point or displacement in metres.
