@@ -4,9 +4,11 @@
 //! needs double precision (Kabsch works in `f64`). Quaternions stored as arrays are
 //! `[x, y, z, w]` (scalar last).
 
+pub mod contact;
 pub mod fps;
 pub mod kabsch;
 
+pub use contact::{ContactConfig, contact_features, contact_features_brute_force};
 pub use fps::farthest_point_sampling;
 pub use kabsch::{KabschSolution, kabsch, kabsch_backward};
 

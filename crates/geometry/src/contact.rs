@@ -1,0 +1,778 @@
+//! Contact features: for every point of every object, the displacement to the nearest point of
+//! any *other* object or to the ground plane, clipped at a contact radius.
+//!
+//! # Definition
+//!
+//! Objects are contiguous ranges of `points` (`[n, 3]`, metres, world frame) given by
+//! `offsets` (`[objects + 1]`): object `i` owns `points[offsets[i]..offsets[i + 1]]`. With
+//! `r = radius`, for a point `x` of object `i`:
+//!
+//! - the ground displacement is `g = (0, 0, ground_z - x_z)`; the ground is a candidate when
+//!   `g_z^2 < r^2`;
+//! - a point `y` of another object `j != i` is a candidate when `|y - x|^2 < r^2` and
+//!   `|y - x|^2 < g_z^2` (a point beats the ground only when strictly nearer);
+//! - the result is `y - x` for the nearest point candidate (ties: the smallest index into
+//!   `points`), else `g` if the ground is a candidate, else `g` clipped to length `r`, i.e.
+//!   `(0, 0, +-r)` pointing towards the ground plane; with no ground (`ground_z = None`) the
+//!   fallback is the zero vector.
+//!
+//! Squared distances are computed in `f32` as `dx*dx + dy*dy + dz*dz` by both
+//! [`contact_features`] and [`contact_features_brute_force`], so the two return bit-identical
+//! results. Points with a non-finite coordinate are never candidates; their own result is the
+//! fallback. A radius that is not finite and positive is treated as 0 (every result is then a
+//! zero vector). Empty objects (`offsets[i] == offsets[i + 1]`) are allowed and produce no rows.
+//!
+//! # Algorithm of [`contact_features`]
+//!
+//! 1. Per-object axis-aligned bounding boxes; sort-and-sweep on x finds the pairs of objects
+//!    whose boxes come within the radius of each other (the broad phase). For each object, the
+//!    union of its neighbours' boxes, expanded by the radius, bounds where its points can have
+//!    a candidate (its *interest box*).
+//! 2. Only points inside their object's interest box enter a hashed uniform grid (cell edge
+//!    slightly larger than the radius) and only those points search the 27 surrounding cells.
+//!    Every other point gets its ground fallback directly.
+//! 3. The per-point searches run on rayon's pool when the scene has at least
+//!    [`PARALLEL_MIN_POINTS`] points; smaller scenes run serially.
+//!
+//! The cost is `O(n)` plus the work inside near pairs. Scratch buffers live in a per-thread
+//! [`ContactWorkspace`], so repeated calls do not allocate except for the returned vector
+//! (use [`contact_features_into`] to reuse that too).
+
+use std::cell::RefCell;
+
+use rayon::prelude::*;
+
+use crate::{GeometryError, Point};
+
+/// Scenes with at least this many points search in parallel on rayon's pool; smaller ones run
+/// serially (for them the pool hand-off costs more than the work; see the contact bench).
+pub const PARALLEL_MIN_POINTS: usize = 4096;
+
+/// Broad-phase and grid margin: boxes are expanded and cells sized by `radius * MARGIN`, so
+/// that rounding can never hide a candidate the brute force would see.
+const MARGIN: f32 = 1.05;
+
+/// Maximum grid cells along one axis; the cell edge grows for very large scenes so that cell
+/// coordinates stay exact enough in `f32`.
+const MAX_CELLS_PER_AXIS: f32 = 65536.0;
+
+/// Points handed to one rayon task.
+const CHUNK: usize = 512;
+
+/// Parameters of the contact features.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
+pub struct ContactConfig {
+    /// Contact radius in metres (finite, > 0): displacements are clipped to this length.
+    pub radius: f32,
+    /// Height of the ground plane's top (metres), or `None` for no ground.
+    pub ground_z: Option<f32>,
+}
+
+impl Default for ContactConfig {
+    /// Radius 0.25 m, ground at z = 0.
+    fn default() -> Self {
+        ContactConfig {
+            radius: 0.25,
+            ground_z: Some(0.0),
+        }
+    }
+}
+
+impl ContactConfig {
+    /// Checks that the radius is finite and positive and the ground height finite.
+    pub fn validate(&self) -> Result<(), GeometryError> {
+        if !(self.radius.is_finite() && self.radius > 0.0) {
+            return Err(GeometryError::Invalid(format!(
+                "contact radius must be finite and > 0, got {}",
+                self.radius
+            )));
+        }
+        if let Some(z) = self.ground_z
+            && !z.is_finite()
+        {
+            return Err(GeometryError::NonFinite("contact ground_z"));
+        }
+        Ok(())
+    }
+
+    fn effective_radius(&self) -> f32 {
+        if self.radius.is_finite() && self.radius > 0.0 {
+            self.radius
+        } else {
+            0.0
+        }
+    }
+}
+
+/// Checks that `offsets` (`[objects + 1]`) splits `n_points` points into contiguous objects:
+/// starts at 0, never decreases, ends at `n_points`.
+pub fn validate_offsets(n_points: usize, offsets: &[usize]) -> Result<(), GeometryError> {
+    if offsets.is_empty() {
+        return Err(GeometryError::Empty("object offsets"));
+    }
+    if offsets[0] != 0 {
+        return Err(GeometryError::Invalid(format!(
+            "object offsets must start at 0, got {}",
+            offsets[0]
+        )));
+    }
+    if offsets.windows(2).any(|w| w[1] < w[0]) {
+        return Err(GeometryError::Invalid(
+            "object offsets must not decrease".into(),
+        ));
+    }
+    let last = offsets[offsets.len() - 1];
+    if last != n_points {
+        return Err(GeometryError::LengthMismatch {
+            what: "points (object offsets end)",
+            expected: last,
+            got: n_points,
+        });
+    }
+    if n_points > u32::MAX as usize || offsets.len() > u32::MAX as usize {
+        return Err(GeometryError::Invalid(
+            "too many points or objects for contact features".into(),
+        ));
+    }
+    Ok(())
+}
+
+#[inline(always)]
+fn dist2(a: &Point, b: &Point) -> f32 {
+    let dx = b[0] - a[0];
+    let dy = b[1] - a[1];
+    let dz = b[2] - a[2];
+    dx * dx + dy * dy + dz * dz
+}
+
+/// The squared distance a point candidate must beat and the result when none does.
+#[inline(always)]
+fn ground_fallback(x: &Point, r: f32, ground_z: Option<f32>) -> (f32, Point) {
+    let r2 = r * r;
+    match ground_z {
+        None => (r2, [0.0; 3]),
+        Some(gz) => {
+            let g = gz - x[2];
+            let g2 = g * g;
+            if g2 < r2 {
+                (g2, [0.0, 0.0, g])
+            } else {
+                (r2, [0.0, 0.0, r.copysign(g)])
+            }
+        }
+    }
+}
+
+/// Reference implementation of [`contact_features`] by exhaustive search, `O(n^2)`; same
+/// definition and bit-identical results (see the module docs). For tests and benchmarks.
+///
+/// # Panics
+/// If `offsets` is malformed (see [`validate_offsets`]).
+pub fn contact_features_brute_force(
+    points: &[Point],
+    offsets: &[usize],
+    cfg: &ContactConfig,
+) -> Vec<Point> {
+    if let Err(e) = validate_offsets(points.len(), offsets) {
+        panic!("contact_features_brute_force: {e}");
+    }
+    let r = cfg.effective_radius();
+    let mut out = Vec::with_capacity(points.len());
+    for i in 0..offsets.len() - 1 {
+        for x in &points[offsets[i]..offsets[i + 1]] {
+            let (mut best_d2, fallback) = ground_fallback(x, r, cfg.ground_z);
+            let mut best = None;
+            for j in 0..offsets.len() - 1 {
+                if j == i {
+                    continue;
+                }
+                for y in &points[offsets[j]..offsets[j + 1]] {
+                    let d2 = dist2(x, y);
+                    if d2 < best_d2 {
+                        best_d2 = d2;
+                        best = Some(y);
+                    }
+                }
+            }
+            out.push(match best {
+                Some(y) => [y[0] - x[0], y[1] - x[1], y[2] - x[2]],
+                None => fallback,
+            });
+        }
+    }
+    out
+}
+
+/// Contact features of a multi-object scene (see the module docs for the exact definition
+/// and the algorithm). `points`: `[n, 3]` metres; `offsets`: `[objects + 1]`; returns
+/// `[n, 3]` displacements in metres, world frame, each no longer than the radius.
+///
+/// # Panics
+/// If `offsets` is malformed (see [`validate_offsets`]); callers handling untrusted input
+/// validate first.
+pub fn contact_features(points: &[Point], offsets: &[usize], cfg: &ContactConfig) -> Vec<Point> {
+    let mut out = Vec::new();
+    contact_features_into(points, offsets, cfg, &mut out);
+    out
+}
+
+/// [`contact_features`] writing into `out` (cleared and resized to `[n, 3]`), so a caller in
+/// a loop reuses its allocation. Uses this thread's [`ContactWorkspace`].
+///
+/// # Panics
+/// If `offsets` is malformed (see [`validate_offsets`]).
+pub fn contact_features_into(
+    points: &[Point],
+    offsets: &[usize],
+    cfg: &ContactConfig,
+    out: &mut Vec<Point>,
+) {
+    thread_local! {
+        static WORKSPACE: RefCell<ContactWorkspace> = RefCell::new(ContactWorkspace::default());
+    }
+    WORKSPACE.with(|ws| match ws.try_borrow_mut() {
+        Ok(mut ws) => ws.compute(points, offsets, cfg, out),
+        // Re-entered from inside a computation on this thread (only possible through rayon
+        // work stealing): use a fresh workspace.
+        Err(_) => ContactWorkspace::default().compute(points, offsets, cfg, out),
+    });
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Aabb {
+    lo: [f32; 3],
+    hi: [f32; 3],
+}
+
+impl Aabb {
+    const EMPTY: Aabb = Aabb {
+        lo: [f32::INFINITY; 3],
+        hi: [f32::NEG_INFINITY; 3],
+    };
+
+    fn is_empty(&self) -> bool {
+        self.lo[0] > self.hi[0]
+    }
+
+    #[inline(always)]
+    fn grow_point(&mut self, p: &Point) {
+        for (d, v) in p.iter().enumerate() {
+            self.lo[d] = self.lo[d].min(*v);
+            self.hi[d] = self.hi[d].max(*v);
+        }
+    }
+
+    fn grow_box(&mut self, b: &Aabb, pad: f32) {
+        for d in 0..3 {
+            self.lo[d] = self.lo[d].min(b.lo[d] - pad);
+            self.hi[d] = self.hi[d].max(b.hi[d] + pad);
+        }
+    }
+
+    /// False for NaN coordinates.
+    #[inline(always)]
+    fn contains(&self, p: &Point) -> bool {
+        (0..3).all(|d| p[d] >= self.lo[d] && p[d] <= self.hi[d])
+    }
+}
+
+/// One point in the grid: its coordinates, its index into `points` and its object.
+#[derive(Clone, Copy, Debug)]
+struct Entry {
+    p: Point,
+    index: u32,
+    object: u32,
+}
+
+/// Reusable scratch memory for [`contact_features`]. One lives in each thread that calls the
+/// free functions; hold your own to control where the memory lives. It keeps the capacity of
+/// the largest scene seen.
+#[derive(Debug, Default)]
+pub struct ContactWorkspace {
+    object_of: Vec<u32>,
+    boxes: Vec<Aabb>,
+    interest: Vec<Aabb>,
+    order: Vec<u32>,
+    inserted: Vec<u32>,
+    cell_start: Vec<u32>,
+    entries: Vec<Entry>,
+}
+
+struct Grid<'a> {
+    origin: [f32; 3],
+    inv_cell: f32,
+    mask: u64,
+    cell_start: &'a [u32],
+    entries: &'a [Entry],
+}
+
+#[inline(always)]
+fn hash_cell(c: [i64; 3], mask: u64) -> usize {
+    let h = (c[0] as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ (c[1] as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
+        ^ (c[2] as u64).wrapping_mul(0x1656_67B1_9E37_79F9);
+    ((h ^ (h >> 31)) & mask) as usize
+}
+
+impl Grid<'_> {
+    #[inline(always)]
+    fn cell_of(&self, p: &Point) -> [i64; 3] {
+        [
+            ((p[0] - self.origin[0]) * self.inv_cell).floor() as i64,
+            ((p[1] - self.origin[1]) * self.inv_cell).floor() as i64,
+            ((p[2] - self.origin[2]) * self.inv_cell).floor() as i64,
+        ]
+    }
+}
+
+impl ContactWorkspace {
+    /// Computes the contact features of one scene into `out` (see [`contact_features`]).
+    ///
+    /// # Panics
+    /// If `offsets` is malformed (see [`validate_offsets`]).
+    pub fn compute(
+        &mut self,
+        points: &[Point],
+        offsets: &[usize],
+        cfg: &ContactConfig,
+        out: &mut Vec<Point>,
+    ) {
+        if let Err(e) = validate_offsets(points.len(), offsets) {
+            panic!("contact_features: {e}");
+        }
+        let n = points.len();
+        let objects = offsets.len() - 1;
+        let r = cfg.effective_radius();
+        let ground_z = cfg.ground_z;
+        out.clear();
+        out.resize(n, [0.0; 3]);
+        if n == 0 {
+            return;
+        }
+
+        // Per-object boxes over finite points, and the object of every point.
+        self.object_of.clear();
+        self.boxes.clear();
+        for i in 0..objects {
+            let mut b = Aabb::EMPTY;
+            for p in &points[offsets[i]..offsets[i + 1]] {
+                if p.iter().all(|v| v.is_finite()) {
+                    b.grow_point(p);
+                }
+            }
+            self.boxes.push(b);
+            self.object_of
+                .extend(std::iter::repeat_n(i as u32, offsets[i + 1] - offsets[i]));
+        }
+
+        // Broad phase: sort-and-sweep on x; every near pair widens both interest boxes.
+        let pad = r * MARGIN;
+        self.interest.clear();
+        self.interest.resize(objects, Aabb::EMPTY);
+        self.order.clear();
+        self.order
+            .extend((0..objects as u32).filter(|&i| !self.boxes[i as usize].is_empty()));
+        let boxes = &self.boxes;
+        self.order
+            .sort_unstable_by(|&a, &b| boxes[a as usize].lo[0].total_cmp(&boxes[b as usize].lo[0]));
+        let mut any_pair = false;
+        if r > 0.0 {
+            for (s, &a) in self.order.iter().enumerate() {
+                let ba = self.boxes[a as usize];
+                for &b in &self.order[s + 1..] {
+                    let bb = self.boxes[b as usize];
+                    if bb.lo[0] > ba.hi[0] + pad {
+                        break;
+                    }
+                    let near =
+                        (1..3).all(|d| bb.lo[d] <= ba.hi[d] + pad && ba.lo[d] <= bb.hi[d] + pad);
+                    if near {
+                        any_pair = true;
+                        self.interest[a as usize].grow_box(&bb, pad);
+                        self.interest[b as usize].grow_box(&ba, pad);
+                    }
+                }
+            }
+        }
+
+        let interest = &self.interest;
+        let object_of = &self.object_of;
+        if !any_pair {
+            fill_fallback(points, r, ground_z, out);
+            return;
+        }
+
+        // Points that can be a candidate for some other object: those inside their own
+        // object's interest box. The same set searches the grid.
+        self.inserted.clear();
+        let mut span = Aabb::EMPTY;
+        for (idx, p) in points.iter().enumerate() {
+            if interest[object_of[idx] as usize].contains(p) {
+                self.inserted.push(idx as u32);
+                span.grow_point(p);
+            }
+        }
+
+        // Hashed uniform grid, cell edge >= radius * MARGIN, filled by counting sort.
+        let extent = (0..3)
+            .map(|d| span.hi[d] - span.lo[d] + 2.0 * pad)
+            .fold(0.0f32, f32::max);
+        let cell = pad.max(extent / MAX_CELLS_PER_AXIS);
+        let table = (2 * self.inserted.len()).next_power_of_two().max(64);
+        let mask = (table - 1) as u64;
+        let origin = [span.lo[0] - pad, span.lo[1] - pad, span.lo[2] - pad];
+        let grid_shape = Grid {
+            origin,
+            inv_cell: 1.0 / cell,
+            mask,
+            cell_start: &[],
+            entries: &[],
+        };
+        self.cell_start.clear();
+        self.cell_start.resize(table + 1, 0);
+        for &idx in &self.inserted {
+            let b = hash_cell(grid_shape.cell_of(&points[idx as usize]), mask);
+            self.cell_start[b + 1] += 1;
+        }
+        for b in 0..table {
+            self.cell_start[b + 1] += self.cell_start[b];
+        }
+        self.entries.clear();
+        self.entries.resize(
+            self.inserted.len(),
+            Entry {
+                p: [0.0; 3],
+                index: 0,
+                object: 0,
+            },
+        );
+        // Fill using `order` as the per-bucket write cursor (reused scratch).
+        self.order.clear();
+        self.order.extend_from_slice(&self.cell_start[..table]);
+        for &idx in &self.inserted {
+            let p = points[idx as usize];
+            let b = hash_cell(grid_shape.cell_of(&p), mask);
+            let slot = self.order[b] as usize;
+            self.order[b] += 1;
+            self.entries[slot] = Entry {
+                p,
+                index: idx,
+                object: object_of[idx as usize],
+            };
+        }
+        let grid = Grid {
+            cell_start: &self.cell_start,
+            entries: &self.entries,
+            ..grid_shape
+        };
+
+        let query = |idx: usize, o: &mut Point| {
+            let x = &points[idx];
+            let (limit2, fallback) = ground_fallback(x, r, ground_z);
+            let obj = object_of[idx];
+            if !interest[obj as usize].contains(x) {
+                *o = fallback;
+                return;
+            }
+            let c = grid.cell_of(x);
+            let mut best_d2 = limit2;
+            let mut best_index = 0u32;
+            let mut best: Option<Point> = None;
+            for dz in -1..=1 {
+                for dy in -1..=1 {
+                    for dx in -1..=1 {
+                        let b = hash_cell([c[0] + dx, c[1] + dy, c[2] + dz], grid.mask);
+                        let range = grid.cell_start[b] as usize..grid.cell_start[b + 1] as usize;
+                        for e in &grid.entries[range] {
+                            if e.object == obj {
+                                continue;
+                            }
+                            let d2 = dist2(x, &e.p);
+                            if d2 < best_d2 || (d2 == best_d2 && e.index < best_index) {
+                                best_d2 = d2;
+                                best_index = e.index;
+                                best = Some(e.p);
+                            }
+                        }
+                    }
+                }
+            }
+            *o = match best {
+                Some(y) => [y[0] - x[0], y[1] - x[1], y[2] - x[2]],
+                None => fallback,
+            };
+        };
+
+        if n >= PARALLEL_MIN_POINTS && rayon::current_num_threads() > 1 {
+            out.par_chunks_mut(CHUNK)
+                .enumerate()
+                .for_each(|(c, chunk)| {
+                    for (k, o) in chunk.iter_mut().enumerate() {
+                        query(c * CHUNK + k, o);
+                    }
+                });
+        } else {
+            for (idx, o) in out.iter_mut().enumerate() {
+                query(idx, o);
+            }
+        }
+    }
+}
+
+fn fill_fallback(points: &[Point], r: f32, ground_z: Option<f32>, out: &mut [Point]) {
+    for (x, o) in points.iter().zip(out.iter_mut()) {
+        *o = ground_fallback(x, r, ground_z).1;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    fn assert_bit_identical(fast: &[Point], brute: &[Point], what: &str) {
+        assert_eq!(fast.len(), brute.len(), "{what}: length");
+        for (k, (a, b)) in fast.iter().zip(brute).enumerate() {
+            let same = (0..3).all(|d| a[d].to_bits() == b[d].to_bits());
+            assert!(same, "{what}: point {k}: fast {a:?} vs brute force {b:?}");
+        }
+    }
+
+    /// Random objects: blobs of points around random centres; some scenes are crowded so that
+    /// objects touch and overlap, some objects sit below or straddle the ground.
+    fn random_scene(rng: &mut ChaCha8Rng) -> (Vec<Point>, Vec<usize>) {
+        let objects = rng.random_range(1..12);
+        let area = rng.random_range(0.5..6.0f32);
+        let mut points = Vec::new();
+        let mut offsets = vec![0];
+        for _ in 0..objects {
+            let c = [
+                rng.random_range(-area..area),
+                rng.random_range(-area..area),
+                rng.random_range(-0.6..2.0f32),
+            ];
+            let size = rng.random_range(0.05..0.8f32);
+            let n = rng.random_range(1..80);
+            for _ in 0..n {
+                points.push([
+                    c[0] + rng.random_range(-size..size),
+                    c[1] + rng.random_range(-size..size),
+                    c[2] + rng.random_range(-size..size),
+                ]);
+            }
+            offsets.push(points.len());
+        }
+        (points, offsets)
+    }
+
+    #[test]
+    fn equals_brute_force_on_random_scenes() {
+        let mut rng = ChaCha8Rng::seed_from_u64(42);
+        let configs = [
+            ContactConfig::default(),
+            ContactConfig {
+                radius: 0.5,
+                ground_z: None,
+            },
+            ContactConfig {
+                radius: 0.1,
+                ground_z: Some(0.3),
+            },
+        ];
+        for s in 0..300 {
+            let (points, offsets) = random_scene(&mut rng);
+            for cfg in &configs {
+                let fast = contact_features(&points, &offsets, cfg);
+                let brute = contact_features_brute_force(&points, &offsets, cfg);
+                assert_bit_identical(&fast, &brute, &format!("scene {s}, {cfg:?}"));
+                // Every displacement is within the radius.
+                for v in &fast {
+                    let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                    assert!(len <= cfg.radius * 1.0001, "{v:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn equals_brute_force_on_large_scene_in_parallel() {
+        // Above PARALLEL_MIN_POINTS: exercises the rayon path.
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let mut points = Vec::new();
+        let mut offsets = vec![0];
+        for i in 0..6 {
+            for j in 0..6 {
+                for _ in 0..150 {
+                    points.push([
+                        i as f32 + rng.random_range(-0.5..0.5f32),
+                        j as f32 + rng.random_range(-0.5..0.5f32),
+                        rng.random_range(0.0..1.0f32),
+                    ]);
+                }
+                offsets.push(points.len());
+            }
+        }
+        assert!(points.len() >= PARALLEL_MIN_POINTS);
+        let cfg = ContactConfig::default();
+        let fast = contact_features(&points, &offsets, &cfg);
+        let brute = contact_features_brute_force(&points, &offsets, &cfg);
+        assert_bit_identical(&fast, &brute, "grid of touching blobs");
+    }
+
+    #[test]
+    fn touching_cubes_and_ties() {
+        // Two lattices 0.1 m apart along x, on a 0.1 m lattice: many exactly tied distances.
+        let mut points = Vec::new();
+        for i in 0..4 {
+            for j in 0..4 {
+                points.push([0.0, i as f32 * 0.1, j as f32 * 0.1 + 0.5]);
+            }
+        }
+        let split = points.len();
+        for i in 0..4 {
+            for j in 0..4 {
+                points.push([0.1, i as f32 * 0.1, j as f32 * 0.1 + 0.5]);
+            }
+        }
+        let offsets = vec![0, split, points.len()];
+        let cfg = ContactConfig::default();
+        let fast = contact_features(&points, &offsets, &cfg);
+        assert_bit_identical(
+            &fast,
+            &contact_features_brute_force(&points, &offsets, &cfg),
+            "lattice",
+        );
+        for (k, v) in fast.iter().enumerate() {
+            let expect = if k < split { 0.1f32 } else { -0.1 };
+            assert!((v[0] - expect).abs() < 1e-6 && v[1] == 0.0 && v[2] == 0.0);
+        }
+    }
+
+    #[test]
+    fn exact_ties_pick_the_smallest_index() {
+        // The query point sits exactly between two points of other objects; whatever order the
+        // grid visits them in, the smaller index into `points` wins, as in the brute force.
+        let cfg = ContactConfig::default();
+        let points = vec![[0.1, 0.0, 1.0], [-0.1, 0.0, 1.0], [0.0, 0.0, 1.0]];
+        for offsets in [vec![0, 1, 2, 3], vec![0, 2, 3]] {
+            let got = contact_features(&points, &offsets, &cfg);
+            assert_eq!(got[2], [0.1, 0.0, 0.0]);
+            assert_bit_identical(
+                &got,
+                &contact_features_brute_force(&points, &offsets, &cfg),
+                "tie",
+            );
+        }
+        // A point exactly as near as the ground loses to the ground.
+        let points = vec![[0.0, 0.0, 0.125], [0.125, 0.0, 0.125]];
+        let got = contact_features(&points, &[0, 1, 2], &cfg);
+        assert_eq!(got[0], [0.0, 0.0, -0.125]);
+    }
+
+    #[test]
+    fn ground_and_clipping() {
+        let cfg = ContactConfig::default();
+        // One object: high above, near, exactly on and below the ground.
+        let points = vec![
+            [0.0, 0.0, 3.0],
+            [0.0, 0.0, 0.1],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, -0.5],
+        ];
+        let offsets = vec![0, points.len()];
+        let got = contact_features(&points, &offsets, &cfg);
+        assert_eq!(got[0], [0.0, 0.0, -0.25]);
+        assert_eq!(got[1], [0.0, 0.0, -0.1]);
+        assert_eq!(got[2], [0.0, 0.0, 0.0]);
+        assert_eq!(got[3], [0.0, 0.0, 0.25]);
+        // No ground: a lone object has no candidates at all.
+        let none = ContactConfig {
+            ground_z: None,
+            ..cfg
+        };
+        assert!(
+            contact_features(&points, &offsets, &none)
+                .iter()
+                .all(|v| *v == [0.0; 3])
+        );
+    }
+
+    #[test]
+    fn nearer_object_beats_ground_and_own_points_are_ignored() {
+        let cfg = ContactConfig::default();
+        // Object 0 at z = 0.2 (ground 0.2 away); object 1 just 0.05 m to its side.
+        let points = vec![[0.0, 0.0, 0.2], [0.01, 0.0, 0.2], [0.05, 0.0, 0.2]];
+        let offsets = vec![0, 2, 3];
+        let got = contact_features(&points, &offsets, &cfg);
+        assert!((got[0][0] - 0.05).abs() < 1e-7 && got[0][2] == 0.0);
+        assert!((got[1][0] - 0.04).abs() < 1e-7);
+        // Object 1's nearest other point is object 0's second point.
+        assert!((got[2][0] + 0.04).abs() < 1e-7);
+        assert_bit_identical(
+            &got,
+            &contact_features_brute_force(&points, &offsets, &cfg),
+            "small",
+        );
+    }
+
+    #[test]
+    fn empty_objects_and_non_finite_points() {
+        let cfg = ContactConfig::default();
+        let points = vec![
+            [0.0, 0.0, 0.5],
+            [f32::NAN, 0.0, 0.5],
+            [0.1, 0.0, 0.5],
+            [f32::INFINITY, 0.0, 0.5],
+        ];
+        let offsets = vec![0, 0, 2, 2, 4, 4];
+        let fast = contact_features(&points, &offsets, &cfg);
+        assert_bit_identical(
+            &fast,
+            &contact_features_brute_force(&points, &offsets, &cfg),
+            "empty objects",
+        );
+        assert!((fast[0][0] - 0.1).abs() < 1e-7);
+        assert!(contact_features(&[], &[0], &cfg).is_empty());
+        assert!(contact_features(&[], &[0, 0, 0], &cfg).is_empty());
+    }
+
+    #[test]
+    fn bad_radius_gives_zero_vectors_and_validation_reports() {
+        let points = vec![[0.0, 0.0, 0.5], [0.1, 0.0, 0.5]];
+        for radius in [0.0, -1.0, f32::NAN] {
+            let cfg = ContactConfig {
+                radius,
+                ground_z: Some(0.0),
+            };
+            assert!(cfg.validate().is_err());
+            let got = contact_features(&points, &[0, 1, 2], &cfg);
+            assert!(got.iter().flatten().all(|v| *v == 0.0));
+        }
+        assert!(ContactConfig::default().validate().is_ok());
+        assert!(validate_offsets(2, &[0, 1]).is_err());
+        assert!(validate_offsets(2, &[1, 2]).is_err());
+        assert!(validate_offsets(2, &[0, 2, 1, 2]).is_err());
+        assert!(validate_offsets(2, &[]).is_err());
+        assert!(validate_offsets(2, &[0, 2]).is_ok());
+    }
+
+    #[test]
+    fn far_apart_large_coordinates_still_match() {
+        // Large coordinates force a coarser grid (cell cap); results must not change.
+        let cfg = ContactConfig::default();
+        let points = vec![
+            [0.0, 0.0, 0.3],
+            [0.2, 0.0, 0.3],
+            [50_000.0, 0.0, 0.3],
+            [50_000.1, 0.0, 0.3],
+        ];
+        let offsets = vec![0, 1, 2, 3, 4];
+        assert_bit_identical(
+            &contact_features(&points, &offsets, &cfg),
+            &contact_features_brute_force(&points, &offsets, &cfg),
+            "large coordinates",
+        );
+    }
+}
