@@ -7,10 +7,12 @@
 pub mod contact;
 pub mod fps;
 pub mod kabsch;
+pub mod mesh;
 
 pub use contact::{ContactConfig, contact_features, contact_features_brute_force};
 pub use fps::farthest_point_sampling;
 pub use kabsch::{KabschSolution, kabsch, kabsch_backward};
+pub use mesh::{TriMesh, convex_hull, sample_surface};
 
 /// A point or displacement in metres.
 pub type Point = [f32; 3];
