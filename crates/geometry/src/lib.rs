@@ -8,11 +8,18 @@ pub mod contact;
 pub mod fps;
 pub mod kabsch;
 pub mod mesh;
+pub mod metrics;
+pub mod quat;
 
 pub use contact::{ContactConfig, contact_features, contact_features_brute_force};
 pub use fps::farthest_point_sampling;
 pub use kabsch::{KabschSolution, kabsch, kabsch_backward};
 pub use mesh::{TriMesh, convex_hull, sample_surface};
+pub use metrics::{
+    RmseAccumulator, momentum_drift_ratio, orientation_rmse_deg, rigidity_residual,
+    translation_rmse,
+};
+pub use quat::geodesic_angle;
 
 /// A point or displacement in metres.
 pub type Point = [f32; 3];
