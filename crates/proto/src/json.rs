@@ -335,7 +335,7 @@ fn pose_from(p: Option<&v1::Pose>, field: &str) -> Result<Pose, FieldError> {
 }
 
 fn triples<T: Copy>(flat: &[T], field: &str) -> Result<Vec<[T; 3]>, FieldError> {
-    if flat.len() % 3 != 0 {
+    if !flat.len().is_multiple_of(3) {
         return Err(FieldError::new(
             field,
             format!("length {} is not a multiple of 3", flat.len()),
