@@ -11,6 +11,7 @@
 #   docker compose       (the compose plugin if present, else Debian's `docker-compose`)
 #                        `config`; plus the compose-spec JSON schema (check-jsonschema, PyPI)
 #   dockerfile           (PyPI, BuildKit's Dockerfile parser)  the Dockerfile
+#   envoy-data-plane     (PyPI, Envoy's v3 API as Python classes)  the gateway's Envoy config
 #   tools/check_deploy.py  structure and cross-file consistency (dashboard layout and queries,
 #                        ports, probes, drain vs. grace period, selectors, HPA vs. adapter,
 #                        Envoy vs. Services)
@@ -123,6 +124,7 @@ else
     echo "skip kubectl kustomize (no kubectl here; check_deploy.py compares the resource list instead)"
 fi
 check "Kubernetes cross-checks: probes, grace > preStop + drain, selectors, HPA vs adapter, Envoy vs Services" structure k8s
+check "Envoy gateway config parsed into Envoy's v3 API types (envoy-data-plane)" structure envoy
 check "${compose[*]} config" "${compose[@]}" --project-directory "$deploy" -f compose.yaml config -q
 check "compose-spec schema (check-jsonschema vendor.compose-spec)" \
     "$bin/check-jsonschema" --builtin-schema vendor.compose-spec compose.yaml
