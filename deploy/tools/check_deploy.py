@@ -38,6 +38,9 @@ import yaml
 
 HTTP_PORT = 8080
 GRPC_PORT = 50051
+# After the drain deadline the server gives connections this long to close before it exits
+# (CLOSE_GRACE in crates/server/src/server.rs).
+SERVER_CLOSE_GRACE_S = 5.0
 GRAFANA_BUILTINS = {"__rate_interval", "__interval", "__range", "__interval_ms", "__range_s"}
 METRIC_RE = re.compile(r"\bdynaserve_[a-z0-9_]+\b")
 
@@ -69,7 +72,7 @@ def parse_duration_s(text: str) -> float:
 REQUIRED_PANELS = {
     # what the dashboard must show -> a regex one of its expressions must match
     "FPS as the rate of scene-steps": r"rate\(dynaserve_scene_steps_total",
-    "step latency quantiles": r"histogram_quantile\(0\.99, .*dynaserve_step_duration_seconds_bucket",
+    "step latency quantiles": r"histogram_quantile\(0\.99, .*dynaserve_forward_duration_seconds_bucket",
     "request latency quantiles": r"histogram_quantile\(0\.99, .*dynaserve_request_duration_seconds_bucket",
     "queue wait quantiles": r"histogram_quantile\(0\.99, .*dynaserve_queue_wait_seconds_bucket",
     "batch size in scenes": r"dynaserve_batch_scenes_bucket",
@@ -238,7 +241,10 @@ def check_compose(deploy: Path, out: Path) -> str:
     expect(ds["url"] == "http://prometheus:9090", "Grafana datasource must point at the prometheus service")
     grace = parse_duration_s(services["dynaserve"]["stop_grace_period"])
     drain = drain_timeout_s(deploy)
-    expect(grace > drain, f"compose stop_grace_period {grace}s must exceed the drain deadline {drain}s")
+    env = services["dynaserve"]["environment"]
+    expect(float(env.get("DYNASERVE_DRAIN_TIMEOUT_S", -1)) == drain, "compose and Kubernetes drain deadlines differ")
+    expect(grace > drain + SERVER_CLOSE_GRACE_S,
+           f"compose stop_grace_period {grace}s must exceed drain {drain}s + close {SERVER_CLOSE_GRACE_S}s")
     return f"{len(services)} services, {mounts} bind mounts exist, ports and scrape target agree, grace {grace:.0f}s > drain {drain:.0f}s"
 
 
@@ -297,8 +303,8 @@ def check_dockerfile(deploy: Path, out: Path) -> str:
 def drain_timeout_s(deploy: Path) -> float:
     dep = k8s_objects(deploy)[("Deployment", "dynaserve")]
     env = {e["name"]: e.get("value") for e in dep["spec"]["template"]["spec"]["containers"][0].get("env", [])}
-    expect("DYNASERVE_DRAIN_TIMEOUT" in env, "Deployment must set DYNASERVE_DRAIN_TIMEOUT")
-    return parse_duration_s(env["DYNASERVE_DRAIN_TIMEOUT"])
+    expect("DYNASERVE_DRAIN_TIMEOUT_S" in env, "Deployment must set DYNASERVE_DRAIN_TIMEOUT_S")
+    return float(env["DYNASERVE_DRAIN_TIMEOUT_S"])
 
 
 def k8s_objects(deploy: Path) -> dict[tuple[str, str], dict]:
@@ -324,12 +330,16 @@ def check_k8s(deploy: Path, out: Path) -> str:
     c = pod["spec"]["containers"][0]
     ports = {p["name"]: p["containerPort"] for p in c["ports"]}
     expect(ports == {"http": HTTP_PORT, "grpc": GRPC_PORT}, f"container ports {ports}")
+    # In this server the gRPC health status and /ready both mean "warmed up and not draining";
+    # /health means "the process serves HTTP". So readiness uses either of the former and
+    # liveness must use /health (a draining server must not be restarted).
     rp = c["readinessProbe"]
-    expect(rp.get("httpGet", {}).get("path") == "/ready", "readiness must use GET /ready")
+    expect(rp.get("grpc", {}).get("port") == GRPC_PORT or rp.get("httpGet", {}).get("path") == "/ready",
+           "readiness must use the gRPC health service or GET /ready")
     lp = c["livenessProbe"]
-    expect(lp.get("grpc", {}).get("port") == GRPC_PORT or lp.get("httpGet", {}).get("path") == "/health",
-           "liveness must use the gRPC health service or /health")
-    expect("startupProbe" in c, "a startup probe must cover model loading")
+    expect(lp.get("httpGet", {}).get("path") == "/health", "liveness must use GET /health")
+    expect(c.get("startupProbe", {}).get("httpGet", {}).get("path") == "/health",
+           "a startup probe on /health must cover model loading (listeners bind after it)")
     req = c["resources"]["requests"]
     expect("memory" in req and "cpu" in req, "resource requests must set memory and cpu")
     expect("memory" in c["resources"].get("limits", {}), "a memory limit must be set")
@@ -337,7 +347,8 @@ def check_k8s(deploy: Path, out: Path) -> str:
     pre_s = float(pre[1]) if pre[0] == "sleep" else 0.0
     drain = drain_timeout_s(deploy)
     grace = pod["spec"]["terminationGracePeriodSeconds"]
-    expect(grace > pre_s + drain, f"terminationGracePeriodSeconds {grace} must exceed preStop {pre_s}s + drain {drain}s")
+    expect(grace > pre_s + drain + SERVER_CLOSE_GRACE_S,
+           f"terminationGracePeriodSeconds {grace} must exceed preStop {pre_s}s + drain {drain}s + close {SERVER_CLOSE_GRACE_S}s")
     expect(pod["metadata"]["annotations"]["prometheus.io/port"] == str(HTTP_PORT), "scrape annotation port")
 
     servers = [o for (k, _), o in objs.items() if k == "Service" and selects(o["spec"]["selector"], labels)]
@@ -395,7 +406,7 @@ def check_k8s(deploy: Path, out: Path) -> str:
     kust = load_yaml_docs(deploy / "k8s/kustomization.yaml")[0]
     files = {f.name for f in (deploy / "k8s").glob("*.yaml")} - {"kustomization.yaml"}
     expect(set(kust["resources"]) == files, f"kustomization resources {kust['resources']} != files {sorted(files)}")
-    return (f"{len(objs)} objects; probes ok; grace {grace}s > preStop {pre_s:.0f}s + drain {drain:.0f}s; "
+    return (f"{len(objs)} objects; probes ok; grace {grace}s > preStop {pre_s:.0f}s + drain {drain:.0f}s + close {SERVER_CLOSE_GRACE_S:.0f}s; "
             f"HPA metrics {sorted(kinds)}; Envoy {len(clusters)} clusters -> {hs['metadata']['name']}")
 
 
