@@ -4,7 +4,7 @@
 //! Conventions: metres, seconds, z up, ground plane at z = 0. A pose maps body coordinates
 //! (origin at the centre of mass) to world coordinates: `x_world = R x_body + p`. Quaternions
 //! are `[x, y, z, w]`. A *step* advances `dt_steps` recorded frames of the model's
-//! `dt_frame` (see [`ModelConfig`](crate::ModelConfig)).
+//! `dt_frame` (see [`ModelConfig`]).
 
 use nalgebra::{UnitQuaternion, Vector3};
 

@@ -1,1 +1,29 @@
-//! Learned physics world models in candle for Dynaserve: RigidFormer (anchors, ARoPE, differentiable Kabsch) with a batched multi-scene step API and checkpoint loading.
+//! Learned physics world models in candle for Dynaserve: RigidFormer (anchors, ARoPE,
+//! differentiable Kabsch) with a batched multi-scene step API and checkpoint loading.
+//!
+//! Callers use the [`WorldModel`] trait: [`WorldModel::prepare`] a scene once (validation,
+//! anchors, encoder grouping), then [`WorldModel::step`] many scenes at once, or [`rollout`].
+//! Trainers use [`RigidFormer::train_forward`] and [`RigidFormer::varmap`].
+//! Units: metres, seconds, kilograms; z up; ground plane at z = 0; quaternions `[x, y, z, w]`.
+
+pub mod api;
+pub mod checkpoint;
+pub mod config;
+pub mod error;
+mod inputs;
+pub mod kabsch_op;
+pub mod layers;
+mod prepare;
+pub mod rigidformer;
+
+pub use api::{ObjectInput, Pose, SceneState, StepItem, WorldModel, rollout};
+pub use checkpoint::{load_model, load_rigidformer, read_config};
+pub use config::{FeatureNormalization, LossConfig, ModelConfig};
+pub use error::ModelError;
+pub use kabsch_op::KabschOp;
+pub use layers::Mode;
+pub use prepare::{MAX_DT_STEPS, PreparedScene};
+pub use rigidformer::{RigidFormer, StepProfile, TrainItem, TrainOutput};
+
+/// Re-exported so callers can name devices and dtypes without depending on candle directly.
+pub use candle_core::{DType, Device};

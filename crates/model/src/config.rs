@@ -1,0 +1,365 @@
+//! Model configuration: architecture sizes and the data conventions a checkpoint was trained
+//! with. Stored as `config.json` in every checkpoint directory.
+
+use serde::{Deserialize, Serialize};
+
+use crate::ModelError;
+
+/// Name of the only architecture this crate implements so far.
+pub const RIGIDFORMER: &str = "rigidformer";
+
+/// Current `config.json` format version.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// Number of per-point input features: contact displacement (3), per-step increment (3),
+/// offset from the reference cloud (3), physical parameters (3).
+pub const POINT_FEATURES: usize = 12;
+
+/// Affine normalisation of the 12 per-point input features: `(raw - mean) / std`.
+///
+/// Layout of the 12 values: `[contact_x, contact_y, contact_z, v_x, v_y, v_z, r_x, r_y, r_z,
+/// ln(mass / 1 kg), friction, restitution]`. Contact displacement, increment and offset are in
+/// metres (the increment per step of `dt_steps` frames); mass enters as its natural logarithm.
+/// The trainer fits these from data; the defaults are sensible for MOVi-like scenes.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FeatureNormalization {
+    /// Per-feature mean subtracted first.
+    pub mean: [f32; POINT_FEATURES],
+    /// Per-feature scale divided by afterwards (must be finite and > 0).
+    pub std: [f32; POINT_FEATURES],
+}
+
+impl Default for FeatureNormalization {
+    fn default() -> Self {
+        FeatureNormalization {
+            mean: [
+                0.0, 0.0, -0.1, // contact (the ground pulls the mean down)
+                0.0, 0.0, 0.0, // per-step increment
+                0.0, 0.0, 1.0, // offset from the reference cloud ~ world position
+                0.5, 0.6, 0.5, // ln mass, friction, restitution
+            ],
+            std: [
+                0.1, 0.1, 0.1, //
+                0.05, 0.05, 0.05, //
+                2.5, 2.5, 1.0, //
+                1.0, 0.2, 0.2,
+            ],
+        }
+    }
+}
+
+/// Weights of the one-step training loss (NOTES.md: equal weights).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LossConfig {
+    /// Smooth L1 transition point, in units of `scale` (dimensionless).
+    pub beta: f32,
+    /// Differences (metres, or metres per step^2) are divided by this before the Smooth L1, so
+    /// the loss sees O(1) numbers. Metres.
+    pub scale: f32,
+    /// Weights of `[pos_pre, acc_pre, pos_post, acc_post]`.
+    pub weights: [f32; 4],
+}
+
+impl Default for LossConfig {
+    fn default() -> Self {
+        LossConfig {
+            beta: 1.0,
+            scale: 0.01,
+            weights: [1.0; 4],
+        }
+    }
+}
+
+/// Architecture and data conventions of a RigidFormer checkpoint (`config.json`).
+///
+/// Every size is a value here; nothing about the network shape is hard-coded.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelConfig {
+    /// Architecture name; `"rigidformer"`.
+    pub architecture: String,
+    /// `config.json` format version ([`FORMAT_VERSION`]).
+    pub format_version: u32,
+
+    // ---- data conventions ----
+    /// Interval of one recorded frame in seconds (MOVi-like: 1/24).
+    pub dt_frame: f32,
+    /// Gravity of the training data, m/s^2 (z up).
+    pub gravity: [f32; 3],
+    /// Nominal number of surface points per object the model was trained with (a hint for
+    /// clients; any count from 1 to `max_points_per_object` is accepted).
+    pub points_per_object: usize,
+    /// Largest accepted point count per object.
+    pub max_points_per_object: usize,
+    /// Largest accepted number of objects in one scene.
+    pub max_objects: usize,
+    /// Contact feature radius, metres (NOTES.md: 0.25).
+    pub contact_radius: f32,
+    /// Height of the ground plane's top in metres, or `None` for no ground.
+    pub ground_z: Option<f32>,
+    /// Normalisation of the 12 per-point features.
+    pub normalization: FeatureNormalization,
+    /// Scale dividing relative point positions inside the encoder, metres.
+    pub position_scale: f32,
+
+    // ---- encoder ----
+    /// Width of the per-point features (shared point MLP output; pooled by AVP).
+    pub point_dim: usize,
+    /// Number of set-abstraction centres per object (farthest point sampling).
+    pub sa_centres: usize,
+    /// Neighbours grouped around each centre (nearest points on the reference cloud).
+    pub sa_neighbours: usize,
+    /// Width of the first set-abstraction level.
+    pub sa_dim: usize,
+
+    // ---- decoder ----
+    /// Token width D.
+    pub width: usize,
+    /// Attention heads; `width` must be divisible by it.
+    pub heads: usize,
+    /// Decoder blocks L.
+    pub blocks: usize,
+    /// Learned register tokens R.
+    pub registers: usize,
+    /// SwiGLU hidden width.
+    pub ffn_hidden: usize,
+    /// Hidden width of the FiLM MLPs (one pair per block).
+    pub film_hidden: usize,
+    /// Width of each head's rotary part (ARoPE); a multiple of 6 (x, y, z pairs), at most the
+    /// head width. The rest of the head passes through.
+    pub rope_dim: usize,
+    /// Lowest ARoPE frequency, radians per metre.
+    pub rope_freq_min: f32,
+    /// Highest ARoPE frequency, radians per metre.
+    pub rope_freq_max: f32,
+    /// RMSNorm epsilon.
+    pub norm_eps: f32,
+
+    // ---- anchors ----
+    /// Anchors per object K.
+    pub anchors: usize,
+    /// Initial AVP bandwidth sigma, metres (learned as log sigma).
+    pub avp_sigma: f32,
+    /// Decoder depths (block indices, 0-based) whose outputs the anchor queries attend to.
+    pub anchor_taps: Vec<usize>,
+    /// Acceleration output scale, metres per step^2: the head predicts `a / accel_scale`.
+    pub accel_scale: f32,
+
+    /// Training loss settings.
+    pub loss: LossConfig,
+}
+
+impl ModelConfig {
+    /// The CPU-trainable configuration (width 128, 4 heads of 32, 4 blocks, 8 registers, K = 8).
+    pub fn small() -> ModelConfig {
+        ModelConfig {
+            architecture: RIGIDFORMER.into(),
+            format_version: FORMAT_VERSION,
+            dt_frame: 1.0 / 24.0,
+            gravity: [0.0, 0.0, -10.0],
+            points_per_object: 512,
+            max_points_per_object: 8192,
+            max_objects: 1024,
+            contact_radius: 0.25,
+            ground_z: Some(0.0),
+            normalization: FeatureNormalization::default(),
+            position_scale: 0.5,
+            point_dim: 32,
+            sa_centres: 32,
+            sa_neighbours: 16,
+            sa_dim: 64,
+            width: 128,
+            heads: 4,
+            blocks: 4,
+            registers: 8,
+            ffn_hidden: 512,
+            film_hidden: 32,
+            rope_dim: 24,
+            rope_freq_min: 0.5,
+            rope_freq_max: 16.0,
+            norm_eps: 1e-6,
+            anchors: 8,
+            avp_sigma: 0.2,
+            anchor_taps: vec![1, 3],
+            accel_scale: 0.02,
+            loss: LossConfig::default(),
+        }
+    }
+
+    /// The paper's main configuration (width 256, 8 heads of 32, SwiGLU 4x, 8 blocks,
+    /// 16 registers, K = 8).
+    pub fn paper() -> ModelConfig {
+        ModelConfig {
+            point_dim: 64,
+            sa_dim: 128,
+            width: 256,
+            heads: 8,
+            blocks: 8,
+            registers: 16,
+            ffn_hidden: 1024,
+            anchor_taps: vec![1, 3, 5, 7],
+            ..ModelConfig::small()
+        }
+    }
+
+    /// A very small configuration for tests (width 32, 2 heads, 2 blocks).
+    pub fn tiny() -> ModelConfig {
+        ModelConfig {
+            point_dim: 16,
+            sa_centres: 8,
+            sa_neighbours: 8,
+            sa_dim: 16,
+            width: 32,
+            heads: 2,
+            blocks: 2,
+            registers: 2,
+            ffn_hidden: 64,
+            film_hidden: 8,
+            rope_dim: 12,
+            anchors: 4,
+            anchor_taps: vec![0, 1],
+            ..ModelConfig::small()
+        }
+    }
+
+    /// Width of one attention head.
+    pub fn head_dim(&self) -> usize {
+        self.width / self.heads.max(1)
+    }
+
+    /// Checks internal consistency; every violation is named.
+    pub fn validate(&self) -> Result<(), ModelError> {
+        let bad = |m: String| Err(ModelError::Checkpoint(format!("config.json: {m}")));
+        if self.architecture != RIGIDFORMER {
+            return bad(format!(
+                "architecture {:?} is not supported (expected {RIGIDFORMER:?})",
+                self.architecture
+            ));
+        }
+        if self.format_version != FORMAT_VERSION {
+            return bad(format!(
+                "format_version {} is not supported (expected {FORMAT_VERSION})",
+                self.format_version
+            ));
+        }
+        let positive = [
+            ("points_per_object", self.points_per_object),
+            ("max_points_per_object", self.max_points_per_object),
+            ("max_objects", self.max_objects),
+            ("point_dim", self.point_dim),
+            ("sa_centres", self.sa_centres),
+            ("sa_neighbours", self.sa_neighbours),
+            ("sa_dim", self.sa_dim),
+            ("width", self.width),
+            ("heads", self.heads),
+            ("blocks", self.blocks),
+            ("ffn_hidden", self.ffn_hidden),
+            ("film_hidden", self.film_hidden),
+            ("anchors", self.anchors),
+        ];
+        for (name, v) in positive {
+            if v == 0 {
+                return bad(format!("{name} must be > 0"));
+            }
+        }
+        if !self.width.is_multiple_of(self.heads) {
+            return bad(format!(
+                "width {} is not divisible by heads {}",
+                self.width, self.heads
+            ));
+        }
+        if !self.rope_dim.is_multiple_of(6) || self.rope_dim > self.head_dim() {
+            return bad(format!(
+                "rope_dim {} must be a multiple of 6 and at most the head width {}",
+                self.rope_dim,
+                self.head_dim()
+            ));
+        }
+        let finite_pos = [
+            ("dt_frame", self.dt_frame),
+            ("contact_radius", self.contact_radius),
+            ("position_scale", self.position_scale),
+            ("rope_freq_min", self.rope_freq_min),
+            ("rope_freq_max", self.rope_freq_max),
+            ("norm_eps", self.norm_eps),
+            ("avp_sigma", self.avp_sigma),
+            ("accel_scale", self.accel_scale),
+            ("loss.beta", self.loss.beta),
+            ("loss.scale", self.loss.scale),
+        ];
+        for (name, v) in finite_pos {
+            if !(v.is_finite() && v > 0.0) {
+                return bad(format!("{name} must be finite and > 0, got {v}"));
+            }
+        }
+        if self.rope_freq_max < self.rope_freq_min {
+            return bad("rope_freq_max must be >= rope_freq_min".into());
+        }
+        if self.anchor_taps.is_empty() {
+            return bad("anchor_taps must name at least one block".into());
+        }
+        if let Some(&t) = self.anchor_taps.iter().find(|&&t| t >= self.blocks) {
+            return bad(format!(
+                "anchor_taps entry {t} is not a block index (blocks = {})",
+                self.blocks
+            ));
+        }
+        if self
+            .normalization
+            .std
+            .iter()
+            .any(|s| !(s.is_finite() && *s > 0.0))
+            || self.normalization.mean.iter().any(|m| !m.is_finite())
+        {
+            return bad("normalization: means must be finite and stds finite and > 0".into());
+        }
+        if self.gravity.iter().any(|g| !g.is_finite())
+            || self.ground_z.is_some_and(|z| !z.is_finite())
+            || self
+                .loss
+                .weights
+                .iter()
+                .any(|w| !(w.is_finite() && *w >= 0.0))
+        {
+            return bad("gravity, ground_z and loss.weights must be finite".into());
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_are_valid_and_round_trip() {
+        for c in [
+            ModelConfig::small(),
+            ModelConfig::paper(),
+            ModelConfig::tiny(),
+        ] {
+            c.validate().unwrap();
+            let s = serde_json::to_string_pretty(&c).unwrap();
+            let back: ModelConfig = serde_json::from_str(&s).unwrap();
+            assert_eq!(back, c);
+        }
+        assert_eq!(ModelConfig::paper().head_dim(), 32);
+    }
+
+    #[test]
+    fn invalid_configs_are_named() {
+        let mut c = ModelConfig::small();
+        c.heads = 3;
+        assert!(c.validate().unwrap_err().to_string().contains("heads"));
+        let mut c = ModelConfig::small();
+        c.anchor_taps = vec![9];
+        assert!(
+            c.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("anchor_taps")
+        );
+    }
+}

@@ -1,0 +1,360 @@
+//! Per-scene input assembly: world points, the 12 per-point features (contact displacement,
+//! per-step increment, offset from the reference cloud, physical parameters), encoder
+//! grouping geometry, anchor kinematics and ARoPE descriptors, laid out for one batched pass.
+//! Scenes are processed in parallel with rayon; objects are laid out scene-major.
+
+use dynaserve_geometry::{ContactConfig, contact_features};
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+use rayon::prelude::*;
+
+use crate::api::Pose;
+use crate::config::POINT_FEATURES;
+use crate::prepare::PreparedScene;
+use crate::{ModelConfig, ModelError};
+
+/// One scene's request as the network sees it (poses already validated and normalised).
+pub(crate) struct SceneRequest<'a> {
+    pub scene: &'a PreparedScene,
+    pub previous: Vec<Pose>,
+    pub current: Vec<Pose>,
+    pub dt_steps: u32,
+}
+
+/// Everything one batched forward pass needs, as flat host buffers.
+pub(crate) struct BatchInputs {
+    /// Scenes.
+    pub b: usize,
+    /// Largest object count in the batch.
+    pub mmax: usize,
+    /// Largest point count per object in the batch.
+    pub nmax: usize,
+    /// Total objects.
+    pub o: usize,
+    /// First object row of each scene, `[b + 1]`.
+    pub scene_offsets: Vec<usize>,
+    /// Normalised features `[o, nmax, 12]` (zero padding).
+    pub feats: Vec<f32>,
+    /// Neighbour rows into `[o * nmax]`, `[o, S, G]`.
+    pub group_idx: Vec<u32>,
+    /// Neighbour minus centre, world frame, scaled, `[o, S, G, 3]`.
+    pub group_rel: Vec<f32>,
+    /// Centre minus object centroid, world frame, scaled, `[o, S, 3]`.
+    pub centre_rel: Vec<f32>,
+    /// Squared anchor-to-point distances `[o, K, nmax]`, m^2 (zero padding).
+    pub avp_d2: Vec<f32>,
+    /// 1 for a real point, 0 for padding, `[o, 1, nmax]`.
+    pub point_mask: Vec<f32>,
+    /// Anchor rows into `[o * nmax]`, `[o, K]`.
+    pub anchor_idx: Vec<u32>,
+    /// Anchor minus object centroid, world frame, scaled, `[o, K, 3]`.
+    pub anchor_rel: Vec<f32>,
+    /// Per-anchor rotary features `[o, K, 2P]`: P cosines then P sines.
+    pub anchor_rope: Vec<f32>,
+    /// Per-anchor cosines `[o, K, P]` and sines (for rotating anchor queries).
+    pub anchor_cos: Vec<f32>,
+    /// See `anchor_cos`.
+    pub anchor_sin: Vec<f32>,
+    /// Object ARoPE descriptors (mean over anchors), `[o, P]` cosines and sines.
+    pub object_cos: Vec<f32>,
+    /// See `object_cos`.
+    pub object_sin: Vec<f32>,
+    /// log2(dt_steps) per scene `[b]`.
+    pub tau: Vec<f32>,
+    /// Anchors at t, t-1 and in the reference frame, per object `[K]`, metres (f64).
+    pub anchors_t: Vec<Vec<[f64; 3]>>,
+    /// See `anchors_t`.
+    pub anchors_prev: Vec<Vec<[f64; 3]>>,
+    /// See `anchors_t`.
+    pub anchors_ref: Vec<Vec<[f64; 3]>>,
+    /// Current rotation per object (for the quaternion sign of the output).
+    pub current_rot: Vec<[f32; 4]>,
+}
+
+fn rot(p: &Pose) -> (Matrix3<f32>, Vector3<f32>) {
+    let [x, y, z, w] = p.rotation;
+    let q = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z));
+    (
+        q.to_rotation_matrix().into_inner(),
+        Vector3::from(p.translation),
+    )
+}
+
+/// ARoPE frequencies (radians per metre): `rope_dim / 6` per axis, log-spaced.
+pub(crate) fn rope_frequencies(cfg: &ModelConfig) -> Vec<f32> {
+    let f = cfg.rope_dim / 6;
+    (0..f)
+        .map(|i| {
+            if f == 1 {
+                cfg.rope_freq_min
+            } else {
+                let t = i as f32 / (f - 1) as f32;
+                cfg.rope_freq_min * (cfg.rope_freq_max / cfg.rope_freq_min).powf(t)
+            }
+        })
+        .collect()
+}
+
+/// Rotary angles of a position: `[x f.., y f.., z f..]`.
+fn angles(p: &[f32; 3], freqs: &[f32], out: &mut Vec<f32>) {
+    out.clear();
+    for c in p {
+        for f in freqs {
+            out.push(c * f);
+        }
+    }
+}
+
+struct SceneChunk {
+    feats: Vec<f32>,
+    group_idx: Vec<u32>,
+    group_rel: Vec<f32>,
+    centre_rel: Vec<f32>,
+    avp_d2: Vec<f32>,
+    point_mask: Vec<f32>,
+    anchor_idx: Vec<u32>,
+    anchor_rel: Vec<f32>,
+    anchor_rope: Vec<f32>,
+    anchor_cos: Vec<f32>,
+    anchor_sin: Vec<f32>,
+    object_cos: Vec<f32>,
+    object_sin: Vec<f32>,
+    anchors_t: Vec<Vec<[f64; 3]>>,
+    anchors_prev: Vec<Vec<[f64; 3]>>,
+    anchors_ref: Vec<Vec<[f64; 3]>>,
+}
+
+/// Builds the inputs of one batched pass. Checks that every scene was prepared for `cfg`.
+pub(crate) fn build_inputs(
+    cfg: &ModelConfig,
+    requests: &[SceneRequest<'_>],
+) -> Result<BatchInputs, ModelError> {
+    let key = (cfg.anchors, cfg.sa_centres, cfg.sa_neighbours);
+    for (i, r) in requests.iter().enumerate() {
+        if r.scene.key != key {
+            return Err(ModelError::InvalidInput(format!(
+                "batch[{i}]: the scene was prepared for a model with (anchors, centres, neighbours) = {:?}, this model uses {key:?}",
+                r.scene.key
+            )));
+        }
+    }
+    let b = requests.len();
+    let mmax = requests.iter().map(|r| r.scene.len()).max().unwrap_or(0);
+    let nmax = requests
+        .iter()
+        .flat_map(|r| r.scene.objects.iter().map(|o| o.reference.len()))
+        .max()
+        .unwrap_or(0);
+    let mut scene_offsets = Vec::with_capacity(b + 1);
+    scene_offsets.push(0);
+    for r in requests {
+        scene_offsets.push(scene_offsets.last().copied().unwrap_or(0) + r.scene.len());
+    }
+    let freqs = rope_frequencies(cfg);
+    let chunks: Vec<SceneChunk> = requests
+        .par_iter()
+        .zip(scene_offsets.par_iter())
+        .map(|(r, &first)| scene_chunk(cfg, r, first, nmax, &freqs))
+        .collect();
+    let o = scene_offsets[b];
+    let mut inp = BatchInputs {
+        b,
+        mmax,
+        nmax,
+        o,
+        scene_offsets,
+        feats: Vec::with_capacity(o * nmax * POINT_FEATURES),
+        group_idx: Vec::new(),
+        group_rel: Vec::new(),
+        centre_rel: Vec::new(),
+        avp_d2: Vec::with_capacity(o * cfg.anchors * nmax),
+        point_mask: Vec::with_capacity(o * nmax),
+        anchor_idx: Vec::new(),
+        anchor_rel: Vec::new(),
+        anchor_rope: Vec::new(),
+        anchor_cos: Vec::new(),
+        anchor_sin: Vec::new(),
+        object_cos: Vec::new(),
+        object_sin: Vec::new(),
+        tau: requests
+            .iter()
+            .map(|r| (r.dt_steps as f32).log2())
+            .collect(),
+        anchors_t: Vec::with_capacity(o),
+        anchors_prev: Vec::with_capacity(o),
+        anchors_ref: Vec::with_capacity(o),
+        current_rot: requests
+            .iter()
+            .flat_map(|r| r.current.iter().map(|p| p.rotation))
+            .collect(),
+    };
+    for c in chunks {
+        inp.feats.extend(c.feats);
+        inp.group_idx.extend(c.group_idx);
+        inp.group_rel.extend(c.group_rel);
+        inp.centre_rel.extend(c.centre_rel);
+        inp.avp_d2.extend(c.avp_d2);
+        inp.point_mask.extend(c.point_mask);
+        inp.anchor_idx.extend(c.anchor_idx);
+        inp.anchor_rel.extend(c.anchor_rel);
+        inp.anchor_rope.extend(c.anchor_rope);
+        inp.anchor_cos.extend(c.anchor_cos);
+        inp.anchor_sin.extend(c.anchor_sin);
+        inp.object_cos.extend(c.object_cos);
+        inp.object_sin.extend(c.object_sin);
+        inp.anchors_t.extend(c.anchors_t);
+        inp.anchors_prev.extend(c.anchors_prev);
+        inp.anchors_ref.extend(c.anchors_ref);
+    }
+    Ok(inp)
+}
+
+fn scene_chunk(
+    cfg: &ModelConfig,
+    r: &SceneRequest<'_>,
+    first: usize,
+    nmax: usize,
+    freqs: &[f32],
+) -> SceneChunk {
+    let scene = r.scene;
+    let m = scene.len();
+    let (k, s, g) = (cfg.anchors, cfg.sa_centres, cfg.sa_neighbours);
+    let p = cfg.rope_dim / 2;
+    let inv_scale = 1.0 / cfg.position_scale;
+    let norm = &cfg.normalization;
+    // World points at t and t-1.
+    let mut offsets = Vec::with_capacity(m + 1);
+    offsets.push(0usize);
+    let mut world = Vec::with_capacity(scene.total_points());
+    let mut world_prev = Vec::with_capacity(scene.total_points());
+    let poses: Vec<_> = r.current.iter().map(rot).collect();
+    let poses_prev: Vec<_> = r.previous.iter().map(rot).collect();
+    for (j, obj) in scene.objects.iter().enumerate() {
+        let (rc, pc) = poses[j];
+        let (rp, pp) = poses_prev[j];
+        for x in &obj.reference {
+            let xv = Vector3::from(*x);
+            let a = rc * xv + pc;
+            let b = rp * xv + pp;
+            world.push([a.x, a.y, a.z]);
+            world_prev.push([b.x, b.y, b.z]);
+        }
+        offsets.push(world.len());
+    }
+    let contact = contact_features(
+        &world,
+        &offsets,
+        &ContactConfig {
+            radius: cfg.contact_radius,
+            ground_z: cfg.ground_z,
+        },
+    );
+    let mut c = SceneChunk {
+        feats: vec![0.0; m * nmax * POINT_FEATURES],
+        group_idx: Vec::with_capacity(m * s * g),
+        group_rel: Vec::with_capacity(m * s * g * 3),
+        centre_rel: Vec::with_capacity(m * s * 3),
+        avp_d2: vec![0.0; m * k * nmax],
+        point_mask: vec![0.0; m * nmax],
+        anchor_idx: Vec::with_capacity(m * k),
+        anchor_rel: Vec::with_capacity(m * k * 3),
+        anchor_rope: Vec::with_capacity(m * k * 2 * p),
+        anchor_cos: Vec::with_capacity(m * k * p),
+        anchor_sin: Vec::with_capacity(m * k * p),
+        object_cos: Vec::with_capacity(m * p),
+        object_sin: Vec::with_capacity(m * p),
+        anchors_t: Vec::with_capacity(m),
+        anchors_prev: Vec::with_capacity(m),
+        anchors_ref: Vec::with_capacity(m),
+    };
+    let mut ang = Vec::with_capacity(3 * freqs.len());
+    for (j, obj) in scene.objects.iter().enumerate() {
+        let n = obj.reference.len();
+        let row = first + j;
+        let base = offsets[j];
+        let (rc, pc) = poses[j];
+        let wc = rc * Vector3::from(obj.centroid) + pc;
+        // Per-point features.
+        for i in 0..n {
+            let x = obj.reference[i];
+            let w = world[base + i];
+            let wp = world_prev[base + i];
+            let ct = contact[base + i];
+            let raw = [
+                ct[0],
+                ct[1],
+                ct[2],
+                w[0] - wp[0],
+                w[1] - wp[1],
+                w[2] - wp[2],
+                w[0] - x[0],
+                w[1] - x[1],
+                w[2] - x[2],
+                obj.params[0],
+                obj.params[1],
+                obj.params[2],
+            ];
+            let dst =
+                &mut c.feats[(j * nmax + i) * POINT_FEATURES..(j * nmax + i + 1) * POINT_FEATURES];
+            for f in 0..POINT_FEATURES {
+                dst[f] = (raw[f] - norm.mean[f]) / norm.std[f];
+            }
+            c.point_mask[j * nmax + i] = 1.0;
+        }
+        // Encoder grouping.
+        for (ci, &centre) in obj.centres.iter().enumerate() {
+            let cw = world[base + centre];
+            for d in 0..3 {
+                c.centre_rel.push((cw[d] - wc[d]) * inv_scale);
+            }
+            for &nb in &obj.neighbours[ci * g..(ci + 1) * g] {
+                c.group_idx.push((row * nmax + nb) as u32);
+                let nw = world[base + nb];
+                for d in 0..3 {
+                    c.group_rel.push((nw[d] - cw[d]) * inv_scale);
+                }
+            }
+        }
+        // Anchors.
+        c.avp_d2[j * k * nmax..(j * k) * nmax + k * nmax]
+            .chunks_mut(nmax)
+            .zip(obj.anchor_d2.chunks(n))
+            .for_each(|(dst, src)| dst[..n].copy_from_slice(src));
+        let (rp, pp) = poses_prev[j];
+        let mut at = Vec::with_capacity(k);
+        let mut ap = Vec::with_capacity(k);
+        let mut ar = Vec::with_capacity(k);
+        let mut mean_cos = vec![0f32; p];
+        let mut mean_sin = vec![0f32; p];
+        for &a in &obj.anchors {
+            c.anchor_idx.push((row * nmax + a) as u32);
+            let w = world[base + a];
+            for d in 0..3 {
+                c.anchor_rel.push((w[d] - wc[d]) * inv_scale);
+            }
+            angles(&w, freqs, &mut ang);
+            let cos: Vec<f32> = ang.iter().map(|t| t.cos()).collect();
+            let sin: Vec<f32> = ang.iter().map(|t| t.sin()).collect();
+            for i in 0..p {
+                mean_cos[i] += cos[i] / k as f32;
+                mean_sin[i] += sin[i] / k as f32;
+            }
+            c.anchor_rope.extend_from_slice(&cos);
+            c.anchor_rope.extend_from_slice(&sin);
+            c.anchor_cos.extend_from_slice(&cos);
+            c.anchor_sin.extend_from_slice(&sin);
+            // Anchor kinematics in f64 for Verlet and Kabsch.
+            let x = Vector3::from(obj.reference[a]).cast::<f64>();
+            let now = rc.cast::<f64>() * x + pc.cast::<f64>();
+            let before = rp.cast::<f64>() * x + pp.cast::<f64>();
+            at.push([now.x, now.y, now.z]);
+            ap.push([before.x, before.y, before.z]);
+            ar.push([x.x, x.y, x.z]);
+        }
+        c.object_cos.extend(mean_cos);
+        c.object_sin.extend(mean_sin);
+        c.anchors_t.push(at);
+        c.anchors_prev.push(ap);
+        c.anchors_ref.push(ar);
+    }
+    c
+}

@@ -1,0 +1,106 @@
+//! Scene generators shared by the integration tests.
+#![allow(dead_code)]
+
+use dynaserve_model::{ObjectInput, Pose, SceneState};
+use nalgebra::{UnitQuaternion, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// `n` points on the surface of a box with half extents `h` (body frame, centred).
+pub fn box_cloud(rng: &mut ChaCha8Rng, n: usize, h: [f32; 3]) -> Vec<[f32; 3]> {
+    (0..n)
+        .map(|_| {
+            let face = rng.random_range(0..6);
+            let axis = face / 2;
+            let sign = if face % 2 == 0 { 1.0 } else { -1.0 };
+            let mut p = [0f32; 3];
+            for d in 0..3 {
+                p[d] = if d == axis {
+                    sign * h[d]
+                } else {
+                    rng.random_range(-h[d]..h[d])
+                };
+            }
+            p
+        })
+        .collect()
+}
+
+/// A random object: a box of random size with `n` points and random parameters.
+pub fn random_object(rng: &mut ChaCha8Rng, n: usize) -> ObjectInput {
+    let h = [
+        rng.random_range(0.2..0.6),
+        rng.random_range(0.2..0.6),
+        rng.random_range(0.2..0.6),
+    ];
+    ObjectInput {
+        reference: box_cloud(rng, n, h),
+        mass: rng.random_range(0.5..5.0),
+        friction: rng.random_range(0.2..0.9),
+        restitution: rng.random_range(0.1..0.8),
+    }
+}
+
+pub fn random_rotation(rng: &mut ChaCha8Rng) -> UnitQuaternion<f32> {
+    UnitQuaternion::from_euler_angles(
+        rng.random_range(-3.1..3.1),
+        rng.random_range(-1.5..1.5),
+        rng.random_range(-3.1..3.1),
+    )
+}
+
+/// A random state: objects spread over a 6 m square, 0.3-3 m high, moving.
+pub fn random_state(rng: &mut ChaCha8Rng, m: usize) -> SceneState {
+    let current: Vec<Pose> = (0..m)
+        .map(|_| {
+            Pose::from_parts(
+                Vector3::new(
+                    rng.random_range(-3.0..3.0),
+                    rng.random_range(-3.0..3.0),
+                    rng.random_range(0.3..3.0),
+                ),
+                random_rotation(rng),
+            )
+        })
+        .collect();
+    let lin: Vec<[f32; 3]> = (0..m)
+        .map(|_| {
+            [
+                rng.random_range(-2.0..2.0),
+                rng.random_range(-2.0..2.0),
+                rng.random_range(-1.0..1.0),
+            ]
+        })
+        .collect();
+    let ang: Vec<[f32; 3]> = (0..m)
+        .map(|_| {
+            [
+                rng.random_range(-2.0..2.0),
+                rng.random_range(-2.0..2.0),
+                rng.random_range(-2.0..2.0),
+            ]
+        })
+        .collect();
+    SceneState::from_velocities(current, &lin, &ang, 1.0 / 24.0).unwrap()
+}
+
+/// `m` random objects of `n` points each and a random state.
+pub fn random_scene(seed: u64, m: usize, n: usize) -> (Vec<ObjectInput>, SceneState) {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let objects = (0..m).map(|_| random_object(&mut rng, n)).collect();
+    (objects, random_state(&mut rng, m))
+}
+
+pub fn max_pose_diff(a: &[Pose], b: &[Pose]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| {
+            let t = (0..3)
+                .map(|d| (x.translation[d] - y.translation[d]).abs())
+                .fold(0.0, f32::max);
+            let dot: f32 = (0..4).map(|d| x.rotation[d] * y.rotation[d]).sum();
+            t.max(1.0 - dot.abs())
+        })
+        .fold(0.0, f32::max)
+}

@@ -1,0 +1,36 @@
+mod common;
+
+use dynaserve_model::{
+    Device, ModelConfig, RigidFormer, StepItem, WorldModel, load_model, rollout,
+};
+
+#[test]
+fn random_model_steps_saves_and_loads() {
+    let model = RigidFormer::new(ModelConfig::tiny(), 1, &Device::Cpu).unwrap();
+    let (objects, state) = common::random_scene(3, 4, 64);
+    let scene = model.prepare(objects).unwrap();
+    let out = model
+        .step(&[StepItem {
+            scene: &scene,
+            state: &state,
+            dt_steps: 2,
+        }])
+        .unwrap();
+    assert_eq!(out.len(), 1);
+    assert_eq!(out[0].len(), 4);
+    let traj = rollout(&model, &scene, state.clone(), 1, 5, |_, _| {}).unwrap();
+    assert_eq!(traj.len(), 5);
+    let dir = std::env::temp_dir().join(format!("dynaserve-model-smoke-{}", std::process::id()));
+    model.save(&dir).unwrap();
+    let loaded = load_model(&dir, &Device::Cpu).unwrap();
+    let scene2 = loaded.prepare(common::random_scene(3, 4, 64).0).unwrap();
+    let out2 = loaded
+        .step(&[StepItem {
+            scene: &scene2,
+            state: &state,
+            dt_steps: 2,
+        }])
+        .unwrap();
+    assert_eq!(out, out2);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
