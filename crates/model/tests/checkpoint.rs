@@ -1,0 +1,135 @@
+//! Checkpoint round trips and clear errors on corrupted or mismatched checkpoints.
+mod common;
+
+use std::path::PathBuf;
+
+use common::random_scene;
+use dynaserve_model::{DType, Device, ModelConfig, RigidFormer, StepItem, WorldModel, load_model};
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!(
+        "dynaserve-model-ckpt-{name}-{}",
+        std::process::id()
+    ));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+fn outputs(model: &dyn WorldModel) -> Vec<Vec<dynaserve_model::Pose>> {
+    let (o, s) = random_scene(12, 4, 80);
+    let scene = model.prepare(o).unwrap();
+    model
+        .step(&[StepItem {
+            scene: &scene,
+            state: &s,
+            dt_steps: 2,
+        }])
+        .unwrap()
+}
+
+fn err(dir: &PathBuf) -> String {
+    match load_model(dir, &Device::Cpu) {
+        Ok(_) => panic!("loading {} should fail", dir.display()),
+        Err(e) => e.to_string(),
+    }
+}
+
+#[test]
+fn save_load_round_trip_is_identical() {
+    let model = RigidFormer::new(ModelConfig::tiny(), 5, &Device::Cpu).unwrap();
+    let dir = tmp("roundtrip");
+    model.save(&dir).unwrap();
+    assert!(dir.join("card.md").exists());
+    let loaded = load_model(&dir, &Device::Cpu).unwrap();
+    assert_eq!(loaded.config(), model.config());
+    assert_eq!(outputs(&model), outputs(loaded.as_ref()));
+    assert_eq!(loaded.name(), dir.file_name().unwrap().to_str().unwrap());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn half_precision_weights_load_into_f32() {
+    let model = RigidFormer::new(ModelConfig::tiny(), 6, &Device::Cpu).unwrap();
+    for dtype in [DType::F16, DType::BF16] {
+        let dir = tmp(&format!("{dtype:?}"));
+        model.save_with_dtype(&dir, dtype).unwrap();
+        let loaded = load_model(&dir, &Device::Cpu).unwrap();
+        let (a, b) = (outputs(&model), outputs(loaded.as_ref()));
+        let diff = common::max_pose_diff(&a[0], &b[0]);
+        assert!(diff < 0.05 && diff.is_finite(), "{dtype:?}: {diff}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
+
+#[test]
+fn corrupted_and_mismatched_checkpoints_give_clear_errors() {
+    let model = RigidFormer::new(ModelConfig::tiny(), 7, &Device::Cpu).unwrap();
+    let dir = tmp("bad");
+    model.save(&dir).unwrap();
+    let weights = std::fs::read(dir.join("model.safetensors")).unwrap();
+    let config = std::fs::read_to_string(dir.join("config.json")).unwrap();
+
+    // Missing directory / files.
+    assert!(err(&dir.join("nope")).contains("config.json"));
+    std::fs::remove_file(dir.join("model.safetensors")).unwrap();
+    assert!(err(&dir).contains("model.safetensors"));
+
+    // Truncated, garbage and empty weights.
+    for bytes in [
+        weights[..weights.len() / 2].to_vec(),
+        b"not a tensor file at all".to_vec(),
+        Vec::new(),
+    ] {
+        std::fs::write(dir.join("model.safetensors"), bytes).unwrap();
+        let e = err(&dir);
+        assert!(e.contains("corrupted"), "{e}");
+    }
+    // Flipped header length.
+    let mut flipped = weights.clone();
+    flipped[0..8].copy_from_slice(&u64::MAX.to_le_bytes());
+    std::fs::write(dir.join("model.safetensors"), flipped).unwrap();
+    assert!(err(&dir).contains("corrupted"));
+    std::fs::write(dir.join("model.safetensors"), &weights).unwrap();
+
+    // Broken or inconsistent configs.
+    std::fs::write(dir.join("config.json"), "{ \"width\": ").unwrap();
+    assert!(err(&dir).contains("not a valid configuration"));
+    std::fs::write(
+        dir.join("config.json"),
+        config.replace("\"rigidformer\"", "\"other\""),
+    )
+    .unwrap();
+    assert!(err(&dir).contains("architecture"));
+    // A config of another size than the weights: names the first mismatched tensor's shape.
+    let wider = serde_json::to_string(&ModelConfig {
+        width: 64,
+        ..ModelConfig::tiny()
+    })
+    .unwrap();
+    std::fs::write(dir.join("config.json"), wider).unwrap();
+    let e = err(&dir);
+    assert!(e.contains("has shape") && e.contains("needs"), "{e}");
+    // More blocks than stored: a missing tensor is named.
+    let deeper = serde_json::to_string(&ModelConfig {
+        blocks: 3,
+        ..ModelConfig::tiny()
+    })
+    .unwrap();
+    std::fs::write(dir.join("config.json"), deeper).unwrap();
+    let e = err(&dir);
+    assert!(
+        e.contains("has no tensor") && e.contains("decoder.blocks.2"),
+        "{e}"
+    );
+    // Fewer blocks than stored: the unused tensors are named.
+    let shallower = serde_json::to_string(&ModelConfig {
+        blocks: 1,
+        anchor_taps: vec![0, 0],
+        ..ModelConfig::tiny()
+    })
+    .unwrap();
+    std::fs::write(dir.join("config.json"), shallower).unwrap();
+    let e = err(&dir);
+    assert!(e.contains("does not use"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
