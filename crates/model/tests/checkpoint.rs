@@ -1,7 +1,7 @@
 //! Checkpoint round trips and clear errors on corrupted or mismatched checkpoints.
 mod common;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use common::random_scene;
 use dynaserve_model::{DType, Device, ModelConfig, RigidFormer, StepItem, WorldModel, load_model};
@@ -27,7 +27,7 @@ fn outputs(model: &dyn WorldModel) -> Vec<Vec<dynaserve_model::Pose>> {
         .unwrap()
 }
 
-fn err(dir: &PathBuf) -> String {
+fn err(dir: &Path) -> String {
     match load_model(dir, &Device::Cpu) {
         Ok(_) => panic!("loading {} should fail", dir.display()),
         Err(e) => e.to_string(),
