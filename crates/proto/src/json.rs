@@ -186,6 +186,18 @@ pub struct RolloutResponse {
     pub timing: RequestTiming,
 }
 
+/// Payload of the final `done` event of a streamed (SSE) rollout.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct SseDone {
+    /// Request id.
+    pub request_id: String,
+    /// Steps streamed.
+    pub steps: u32,
+    /// Totals over the rollout.
+    pub timing: RequestTiming,
+}
+
 /// Rolls many scene variants forward (`POST /v1/predict`), for planners.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]

@@ -1,0 +1,201 @@
+//! Server configuration: command-line flags, each with an environment variable.
+//!
+//! With no flags the server loads every model directory under `models/` and listens for gRPC
+//! on `0.0.0.0:50051` and HTTP on `0.0.0.0:8080`.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Default gRPC listen address.
+pub const DEFAULT_GRPC_ADDR: &str = "0.0.0.0:50051";
+/// Default HTTP listen address.
+pub const DEFAULT_HTTP_ADDR: &str = "0.0.0.0:8080";
+
+/// Log output format.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum LogFormat {
+    /// Human-readable lines.
+    Plain,
+    /// One JSON object per line.
+    Json,
+}
+
+/// Flags of `dynaserve serve`.
+#[derive(Clone, Debug, clap::Args)]
+pub struct ServeConfig {
+    /// Model checkpoint directories to serve (each with config.json and model.safetensors).
+    /// Repeatable. When none is given, every such directory under --models-dir is served.
+    #[arg(long = "model", env = "DYNASERVE_MODELS", value_delimiter = ',')]
+    pub models: Vec<PathBuf>,
+    /// Directory scanned for model directories when no --model is given.
+    #[arg(long, env = "DYNASERVE_MODELS_DIR", default_value = "models")]
+    pub models_dir: PathBuf,
+    /// gRPC listen address (port 0 picks a free port; the bound address is printed).
+    #[arg(long, env = "DYNASERVE_GRPC_ADDR", default_value = DEFAULT_GRPC_ADDR)]
+    pub grpc_addr: SocketAddr,
+    /// HTTP listen address (port 0 picks a free port; the bound address is printed).
+    #[arg(long, env = "DYNASERVE_HTTP_ADDR", default_value = DEFAULT_HTTP_ADDR)]
+    pub http_addr: SocketAddr,
+
+    /// Most scenes in one batched forward pass (1 disables batching).
+    #[arg(long, env = "DYNASERVE_MAX_BATCH_SCENES", default_value_t = 64)]
+    pub max_batch_scenes: usize,
+    /// Most objects in one batched forward pass (a larger single scene still runs alone).
+    #[arg(long, env = "DYNASERVE_MAX_BATCH_OBJECTS", default_value_t = 2048)]
+    pub max_batch_objects: usize,
+    /// Longest time, in milliseconds, a queued step waits for batch-mates that are expected
+    /// back (streams whose previous step just finished) before its batch starts anyway.
+    #[arg(long, env = "DYNASERVE_MAX_QUEUE_DELAY_MS", default_value_t = 2.0)]
+    pub max_queue_delay_ms: f64,
+
+    /// Most concurrently active rollouts (streams) over all models; more get
+    /// RESOURCE_EXHAUSTED / HTTP 429.
+    #[arg(long, env = "DYNASERVE_MAX_ACTIVE_ROLLOUTS", default_value_t = 256)]
+    pub max_active_rollouts: usize,
+    /// Most scene variants of Predict calls in flight over all models; a call that would go
+    /// past it gets RESOURCE_EXHAUSTED / HTTP 429.
+    #[arg(long, env = "DYNASERVE_MAX_PREDICT_VARIANTS", default_value_t = 1024)]
+    pub max_predict_variants: usize,
+    /// Retry hint sent with RESOURCE_EXHAUSTED / 429, milliseconds.
+    #[arg(long, env = "DYNASERVE_RETRY_AFTER_MS", default_value_t = 1000)]
+    pub retry_after_ms: u64,
+    /// Frames buffered per stream before a slow reader pauses its own rollout.
+    #[arg(long, env = "DYNASERVE_STREAM_BUFFER", default_value_t = 8)]
+    pub stream_buffer: usize,
+
+    /// Most objects per scene (also capped by the model's own limit).
+    #[arg(long, env = "DYNASERVE_MAX_OBJECTS", default_value_t = 256)]
+    pub max_objects: usize,
+    /// Most reference points (or mesh samples) per object (also capped by the model's limit).
+    #[arg(long, env = "DYNASERVE_MAX_POINTS_PER_OBJECT", default_value_t = 4096)]
+    pub max_points_per_object: usize,
+    /// Most points per scene, summed over its objects.
+    #[arg(long, env = "DYNASERVE_MAX_SCENE_POINTS", default_value_t = 131072)]
+    pub max_scene_points: usize,
+    /// Most steps per request.
+    #[arg(long, env = "DYNASERVE_MAX_STEPS", default_value_t = 10000)]
+    pub max_steps: u32,
+    /// Largest step size in frames.
+    #[arg(long, env = "DYNASERVE_MAX_DT_STEPS", default_value_t = 8)]
+    pub max_dt_steps: u32,
+    /// Most scene variants per Predict call.
+    #[arg(long, env = "DYNASERVE_MAX_VARIANTS", default_value_t = 256)]
+    pub max_variants: usize,
+    /// Largest request payload in bytes (gRPC message or HTTP body); larger ones are rejected
+    /// with INVALID_ARGUMENT / 422 naming `request`.
+    #[arg(long, env = "DYNASERVE_MAX_REQUEST_BYTES", default_value_t = 16 << 20)]
+    pub max_request_bytes: usize,
+
+    /// On SIGTERM or Ctrl-C: how long running rollouts may continue, seconds, before they are
+    /// closed with UNAVAILABLE.
+    #[arg(long, env = "DYNASERVE_DRAIN_TIMEOUT_S", default_value_t = 30.0)]
+    pub drain_timeout_s: f64,
+    /// Skip the warm-up step at start-up (readiness is then reported right after loading).
+    #[arg(long, env = "DYNASERVE_NO_WARMUP")]
+    pub no_warmup: bool,
+
+    /// Log format.
+    #[arg(long, env = "DYNASERVE_LOG_FORMAT", value_enum, default_value_t = LogFormat::Plain)]
+    pub log_format: LogFormat,
+    /// Log filter (tracing `EnvFilter` syntax, e.g. `info,dynaserve_server=debug`).
+    #[arg(long, env = "DYNASERVE_LOG", default_value = "info")]
+    pub log: String,
+    /// Print the exported metric names, types, labels and help texts, then exit.
+    #[arg(long)]
+    pub print_metrics: bool,
+}
+
+impl Default for ServeConfig {
+    fn default() -> Self {
+        use clap::Parser;
+        #[derive(clap::Parser)]
+        struct Wrapper {
+            #[command(flatten)]
+            config: ServeConfig,
+        }
+        // Parsing an empty command line yields the documented defaults.
+        Wrapper::parse_from(["serve"]).config
+    }
+}
+
+impl ServeConfig {
+    /// A configuration for tests and embedding: both listeners on 127.0.0.1 with free ports,
+    /// the given model directories, other settings at their defaults.
+    pub fn local(models: Vec<PathBuf>) -> ServeConfig {
+        ServeConfig {
+            models,
+            grpc_addr: ([127, 0, 0, 1], 0).into(),
+            http_addr: ([127, 0, 0, 1], 0).into(),
+            ..ServeConfig::default()
+        }
+    }
+
+    /// `max_queue_delay_ms` as a duration (negative or non-finite values mean zero).
+    pub fn max_queue_delay(&self) -> Duration {
+        let ms = if self.max_queue_delay_ms.is_finite() {
+            self.max_queue_delay_ms.clamp(0.0, 60_000.0)
+        } else {
+            0.0
+        };
+        Duration::from_secs_f64(ms / 1000.0)
+    }
+
+    /// `drain_timeout_s` as a duration.
+    pub fn drain_timeout(&self) -> Duration {
+        let s = if self.drain_timeout_s.is_finite() {
+            self.drain_timeout_s.clamp(0.0, 86_400.0)
+        } else {
+            0.0
+        };
+        Duration::from_secs_f64(s)
+    }
+
+    /// Checks the flags for values that cannot work.
+    pub fn validate(&self) -> Result<(), String> {
+        let positive = [
+            ("--max-batch-scenes", self.max_batch_scenes),
+            ("--max-batch-objects", self.max_batch_objects),
+            ("--max-active-rollouts", self.max_active_rollouts),
+            ("--max-predict-variants", self.max_predict_variants),
+            ("--stream-buffer", self.stream_buffer),
+            ("--max-objects", self.max_objects),
+            ("--max-points-per-object", self.max_points_per_object),
+            ("--max-scene-points", self.max_scene_points),
+            ("--max-variants", self.max_variants),
+            ("--max-request-bytes", self.max_request_bytes),
+        ];
+        for (name, v) in positive {
+            if v == 0 {
+                return Err(format!("{name} must be at least 1"));
+            }
+        }
+        if self.max_steps == 0 || self.max_dt_steps == 0 {
+            return Err("--max-steps and --max-dt-steps must be at least 1".into());
+        }
+        if !self.max_queue_delay_ms.is_finite() || self.max_queue_delay_ms < 0.0 {
+            return Err("--max-queue-delay-ms must be a finite number >= 0".into());
+        }
+        if !self.drain_timeout_s.is_finite() || self.drain_timeout_s < 0.0 {
+            return Err("--drain-timeout-s must be a finite number >= 0".into());
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_the_documented_ports_and_valid() {
+        let c = ServeConfig::default();
+        assert_eq!(c.grpc_addr.port(), 50051);
+        assert_eq!(c.http_addr.port(), 8080);
+        assert_eq!(c.models_dir, PathBuf::from("models"));
+        assert!(c.validate().is_ok());
+        let mut bad = c.clone();
+        bad.max_batch_scenes = 0;
+        assert!(bad.validate().unwrap_err().contains("--max-batch-scenes"));
+    }
+}

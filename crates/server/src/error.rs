@@ -1,0 +1,198 @@
+//! One error type for both front ends, mapped to a gRPC status or an HTTP response.
+
+use std::time::Duration;
+
+use axum::http::{HeaderValue, StatusCode};
+use axum::response::{IntoResponse, Response};
+use dynaserve_proto::json::{ErrorDetail, ErrorResponse, FieldError};
+use tonic::Code;
+
+/// gRPC metadata key of the retry hint (milliseconds), as understood by gRPC retry policies.
+pub const RETRY_PUSHBACK_KEY: &str = "grpc-retry-pushback-ms";
+
+/// A request failure: gRPC code, message, the offending field for invalid input and a retry
+/// hint for overload.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{code:?}: {message}")]
+pub struct ApiError {
+    /// gRPC status code (the HTTP status is derived from it).
+    pub code: Code,
+    /// Message; for invalid input it starts with the field path.
+    pub message: String,
+    /// Offending field path for invalid input.
+    pub field: Option<String>,
+    /// Suggested wait before retrying (overload only).
+    pub retry_after: Option<Duration>,
+}
+
+impl ApiError {
+    fn new(code: Code, message: impl Into<String>) -> ApiError {
+        ApiError {
+            code,
+            message: message.into(),
+            field: None,
+            retry_after: None,
+        }
+    }
+
+    /// INVALID_ARGUMENT naming `field`; the message reads `"{field}: {message}"`.
+    pub fn invalid(field: impl Into<String>, message: impl std::fmt::Display) -> ApiError {
+        let field = field.into();
+        ApiError {
+            code: Code::InvalidArgument,
+            message: format!("{field}: {message}"),
+            field: Some(field),
+            retry_after: None,
+        }
+    }
+
+    /// RESOURCE_EXHAUSTED with a retry hint.
+    pub fn exhausted(message: impl Into<String>, retry_after: Duration) -> ApiError {
+        ApiError {
+            retry_after: Some(retry_after),
+            ..ApiError::new(Code::ResourceExhausted, message)
+        }
+    }
+
+    /// DEADLINE_EXCEEDED.
+    pub fn deadline(message: impl Into<String>) -> ApiError {
+        ApiError::new(Code::DeadlineExceeded, message)
+    }
+
+    /// UNAVAILABLE.
+    pub fn unavailable(message: impl Into<String>) -> ApiError {
+        ApiError::new(Code::Unavailable, message)
+    }
+
+    /// CANCELLED (the client went away).
+    pub fn cancelled(message: impl Into<String>) -> ApiError {
+        ApiError::new(Code::Cancelled, message)
+    }
+
+    /// INTERNAL.
+    pub fn internal(message: impl Into<String>) -> ApiError {
+        ApiError::new(Code::Internal, message)
+    }
+
+    /// The `reason` label of `dynaserve_request_failures_total`.
+    pub fn reason(&self) -> &'static str {
+        match self.code {
+            Code::InvalidArgument | Code::NotFound | Code::OutOfRange => "invalid_argument",
+            Code::ResourceExhausted => "resource_exhausted",
+            Code::DeadlineExceeded => "deadline_exceeded",
+            Code::Cancelled => "cancelled",
+            Code::Unavailable => "unavailable",
+            _ => "internal",
+        }
+    }
+
+    /// The gRPC code name, e.g. `INVALID_ARGUMENT`.
+    pub fn code_name(&self) -> &'static str {
+        match self.code {
+            Code::Ok => "OK",
+            Code::Cancelled => "CANCELLED",
+            Code::Unknown => "UNKNOWN",
+            Code::InvalidArgument => "INVALID_ARGUMENT",
+            Code::DeadlineExceeded => "DEADLINE_EXCEEDED",
+            Code::NotFound => "NOT_FOUND",
+            Code::AlreadyExists => "ALREADY_EXISTS",
+            Code::PermissionDenied => "PERMISSION_DENIED",
+            Code::ResourceExhausted => "RESOURCE_EXHAUSTED",
+            Code::FailedPrecondition => "FAILED_PRECONDITION",
+            Code::Aborted => "ABORTED",
+            Code::OutOfRange => "OUT_OF_RANGE",
+            Code::Unimplemented => "UNIMPLEMENTED",
+            Code::Internal => "INTERNAL",
+            Code::Unavailable => "UNAVAILABLE",
+            Code::DataLoss => "DATA_LOSS",
+            Code::Unauthenticated => "UNAUTHENTICATED",
+        }
+    }
+
+    /// The HTTP status of this error (422 invalid input, 429 overload, 504 deadline, 503
+    /// unavailable, 499 cancelled, 500 otherwise).
+    pub fn http_status(&self) -> StatusCode {
+        match self.code {
+            Code::InvalidArgument | Code::OutOfRange => StatusCode::UNPROCESSABLE_ENTITY,
+            Code::NotFound => StatusCode::NOT_FOUND,
+            Code::ResourceExhausted => StatusCode::TOO_MANY_REQUESTS,
+            Code::DeadlineExceeded => StatusCode::GATEWAY_TIMEOUT,
+            Code::Unavailable => StatusCode::SERVICE_UNAVAILABLE,
+            Code::Cancelled => StatusCode::from_u16(499).unwrap_or(StatusCode::BAD_REQUEST),
+            _ => StatusCode::INTERNAL_SERVER_ERROR,
+        }
+    }
+
+    /// The JSON error document.
+    pub fn body(&self) -> ErrorResponse {
+        ErrorResponse {
+            error: ErrorDetail {
+                code: self.code_name().to_string(),
+                message: self.message.clone(),
+                field: self.field.clone(),
+                retry_after_ms: self.retry_after.map(|d| d.as_millis() as u64),
+            },
+        }
+    }
+
+    /// The gRPC status, with `grpc-retry-pushback-ms` and `retry-after-ms` for overload.
+    pub fn to_status(&self) -> tonic::Status {
+        let mut status = tonic::Status::new(self.code, self.message.clone());
+        if let Some(d) = self.retry_after {
+            let ms = d.as_millis().to_string();
+            if let Ok(v) = ms.parse() {
+                status.metadata_mut().insert(RETRY_PUSHBACK_KEY, v);
+            }
+            if let Ok(v) = ms.parse() {
+                status.metadata_mut().insert("retry-after-ms", v);
+            }
+        }
+        status
+    }
+}
+
+impl From<FieldError> for ApiError {
+    fn from(e: FieldError) -> ApiError {
+        ApiError::invalid(e.field, e.message)
+    }
+}
+
+impl From<ApiError> for tonic::Status {
+    fn from(e: ApiError) -> tonic::Status {
+        e.to_status()
+    }
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        let mut resp = (self.http_status(), axum::Json(self.body())).into_response();
+        if let Some(d) = self.retry_after {
+            // Retry-After is in whole seconds; round up so clients never retry early.
+            let secs = d.as_millis().div_ceil(1000).max(1);
+            if let Ok(v) = HeaderValue::from_str(&secs.to_string()) {
+                resp.headers_mut()
+                    .insert(axum::http::header::RETRY_AFTER, v);
+            }
+        }
+        resp
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mappings() {
+        let e = ApiError::invalid("scene.objects[1].mass", "must be > 0");
+        assert_eq!(e.message, "scene.objects[1].mass: must be > 0");
+        assert_eq!(e.http_status(), StatusCode::UNPROCESSABLE_ENTITY);
+        assert_eq!(e.to_status().code(), Code::InvalidArgument);
+        let o = ApiError::exhausted("full", Duration::from_millis(1500));
+        let s = o.to_status();
+        assert_eq!(s.metadata().get(RETRY_PUSHBACK_KEY).unwrap(), "1500");
+        let r = o.into_response();
+        assert_eq!(r.status(), StatusCode::TOO_MANY_REQUESTS);
+        assert_eq!(r.headers()["retry-after"], "2");
+    }
+}

@@ -1,0 +1,215 @@
+//! gRPC front end (tonic): the `dynaserve.v1.WorldModel` service, standard health checking and
+//! server reflection, served as an axum router on the gRPC port.
+//!
+//! Deadlines: the `grpc-timeout` header is read here and enforced by the engine, which answers
+//! DEADLINE_EXCEEDED on time (also for work still queued). tonic's own server timeout layer is
+//! not used because it answers CANCELLED.
+
+use std::pin::Pin;
+use std::sync::Arc;
+use std::time::Duration;
+
+use dynaserve_proto::json;
+use dynaserve_proto::v1;
+use dynaserve_proto::v1::world_model_server::{WorldModel as WorldModelApi, WorldModelServer};
+use futures::{Stream, StreamExt};
+use prost::Message;
+use tokio_stream::wrappers::ReceiverStream;
+use tonic::metadata::{MetadataMap, MetadataValue};
+use tonic::{Request, Response, Status};
+use tonic_health::server::HealthReporter;
+
+use crate::engine::{Engine, Protocol, RequestCtx};
+use crate::error::ApiError;
+
+/// Parses a `grpc-timeout` header value (`<digits><unit>`, unit one of H M S m u n).
+pub fn parse_grpc_timeout(value: &str) -> Option<Duration> {
+    if value.len() < 2 || value.len() > 9 {
+        return None;
+    }
+    let (digits, unit) = value.split_at(value.len() - 1);
+    let n: u64 = digits.parse().ok()?;
+    Some(match unit {
+        "H" => Duration::from_secs(n.checked_mul(3600)?),
+        "M" => Duration::from_secs(n.checked_mul(60)?),
+        "S" => Duration::from_secs(n),
+        "m" => Duration::from_millis(n),
+        "u" => Duration::from_micros(n),
+        "n" => Duration::from_nanos(n),
+        _ => return None,
+    })
+}
+
+fn ctx_of(meta: &MetadataMap) -> RequestCtx {
+    let rid = meta.get("x-request-id").and_then(|v| v.to_str().ok());
+    let timeout = meta
+        .get("grpc-timeout")
+        .and_then(|v| v.to_str().ok())
+        .and_then(parse_grpc_timeout);
+    RequestCtx::new(Protocol::Grpc, rid, timeout)
+}
+
+fn insert(meta: &mut MetadataMap, key: &'static str, value: &str) {
+    if let Ok(v) = MetadataValue::try_from(value) {
+        meta.insert(key, v);
+    }
+}
+
+/// Implementation of the generated `WorldModel` service trait.
+pub struct GrpcService {
+    engine: Arc<Engine>,
+}
+
+type FrameStream = Pin<Box<dyn Stream<Item = Result<v1::StepFrame, Status>> + Send>>;
+
+#[tonic::async_trait]
+impl WorldModelApi for GrpcService {
+    type RolloutStream = FrameStream;
+
+    async fn rollout(
+        &self,
+        request: Request<v1::RolloutRequest>,
+    ) -> Result<Response<Self::RolloutStream>, Status> {
+        let ctx = ctx_of(request.metadata());
+        let req = request.into_inner();
+        let parsed = self
+            .engine
+            .check_payload(req.encoded_len())
+            .and_then(|()| json::RolloutRequest::from_proto(&req).map_err(ApiError::from));
+        let rid = ctx.request_id.clone();
+        let handle = match parsed {
+            Ok(r) => self.engine.start_rollout(r, ctx).await,
+            Err(e) => Err(self.engine.reject(&ctx, "rollout", e)),
+        }
+        .map_err(|e| with_request_id(e.to_status(), &rid))?;
+        let stream = ReceiverStream::new(handle.frames)
+            .map(|r| r.map(|f| f.to_proto()).map_err(|e| e.to_status()));
+        let mut resp = Response::new(Box::pin(stream) as FrameStream);
+        insert(resp.metadata_mut(), "x-request-id", &handle.request_id);
+        insert(resp.metadata_mut(), "x-dynaserve-model", &handle.model);
+        Ok(resp)
+    }
+
+    async fn predict(
+        &self,
+        request: Request<v1::PredictRequest>,
+    ) -> Result<Response<v1::PredictResponse>, Status> {
+        let ctx = ctx_of(request.metadata());
+        let req = request.into_inner();
+        let rid = ctx.request_id.clone();
+        let parsed = self
+            .engine
+            .check_payload(req.encoded_len())
+            .and_then(|()| json::PredictRequest::from_proto(&req).map_err(ApiError::from));
+        let out = match parsed {
+            Ok(r) => self.engine.predict(r, ctx).await,
+            Err(e) => Err(self.engine.reject(&ctx, "predict", e)),
+        }
+        .map_err(|e| with_request_id(e.to_status(), &rid))?;
+        let r = out.response;
+        let mut resp = Response::new(v1::PredictResponse {
+            trajectories: r
+                .trajectories
+                .iter()
+                .map(|t| v1::Trajectory {
+                    frames: t.frames.iter().map(json::StepFrame::to_proto).collect(),
+                })
+                .collect(),
+            model: r.model.clone(),
+        });
+        let m = resp.metadata_mut();
+        insert(m, "x-request-id", &rid);
+        insert(
+            m,
+            "x-dynaserve-queue-ms",
+            &format!("{:.3}", r.timing.queue_ms),
+        );
+        insert(
+            m,
+            "x-dynaserve-forward-ms",
+            &format!("{:.3}", r.timing.forward_ms),
+        );
+        insert(
+            m,
+            "x-dynaserve-total-ms",
+            &format!("{:.3}", r.timing.total_ms),
+        );
+        Ok(resp)
+    }
+
+    async fn list_models(
+        &self,
+        request: Request<v1::ListModelsRequest>,
+    ) -> Result<Response<v1::ListModelsResponse>, Status> {
+        let ctx = ctx_of(request.metadata());
+        let list = self.engine.list_models(&ctx);
+        let mut resp = Response::new(v1::ListModelsResponse {
+            models: list.models.iter().map(json::ModelInfo::to_proto).collect(),
+        });
+        insert(resp.metadata_mut(), "x-request-id", &ctx.request_id);
+        Ok(resp)
+    }
+}
+
+fn with_request_id(mut s: Status, rid: &str) -> Status {
+    insert(s.metadata_mut(), "x-request-id", rid);
+    s
+}
+
+/// Name under which the WorldModel service reports health.
+pub const SERVICE_NAME: &str = <WorldModelServer<GrpcService> as tonic::server::NamedService>::NAME;
+
+/// Marks the overall server ("") and the WorldModel service as serving or not.
+pub async fn set_health(reporter: &HealthReporter, serving: bool) {
+    use tonic_health::ServingStatus;
+    let status = if serving {
+        ServingStatus::Serving
+    } else {
+        ServingStatus::NotServing
+    };
+    reporter.set_service_status("", status).await;
+    reporter.set_service_status(SERVICE_NAME, status).await;
+}
+
+/// Builds the gRPC router: WorldModel, grpc.health.v1.Health and server reflection (v1 and
+/// v1alpha). The health status starts as NOT_SERVING.
+pub async fn router(engine: Arc<Engine>) -> anyhow::Result<(axum::Router, HealthReporter)> {
+    let (reporter, health) = tonic_health::server::health_reporter();
+    set_health(&reporter, false).await;
+    let reflection_v1 = tonic_reflection::server::Builder::configure()
+        .register_encoded_file_descriptor_set(v1::FILE_DESCRIPTOR_SET)
+        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+        .build_v1()?;
+    let reflection_v1alpha = tonic_reflection::server::Builder::configure()
+        .register_encoded_file_descriptor_set(v1::FILE_DESCRIPTOR_SET)
+        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+        .build_v1alpha()?;
+    // Messages up to 4x the configured limit are decoded so that the limit itself is reported
+    // as INVALID_ARGUMENT naming `request`; beyond that tonic refuses to decode.
+    let hard_cap = engine.config().max_request_bytes.saturating_mul(4);
+    let service = WorldModelServer::new(GrpcService { engine })
+        .max_decoding_message_size(hard_cap)
+        .max_encoding_message_size(usize::MAX);
+    let routes = tonic::service::Routes::new(service)
+        .add_service(health)
+        .add_service(reflection_v1)
+        .add_service(reflection_v1alpha)
+        .prepare();
+    Ok((routes.into_axum_router(), reporter))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grpc_timeout_units() {
+        assert_eq!(parse_grpc_timeout("100m"), Some(Duration::from_millis(100)));
+        assert_eq!(parse_grpc_timeout("2S"), Some(Duration::from_secs(2)));
+        assert_eq!(parse_grpc_timeout("5u"), Some(Duration::from_micros(5)));
+        assert_eq!(parse_grpc_timeout("1H"), Some(Duration::from_secs(3600)));
+        assert_eq!(parse_grpc_timeout("m"), None);
+        assert_eq!(parse_grpc_timeout("12x"), None);
+        assert_eq!(parse_grpc_timeout("123456789S"), None);
+    }
+}

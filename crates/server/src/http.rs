@@ -1,0 +1,395 @@
+//! HTTP front end (axum): the same semantics as the gRPC API, in JSON.
+//!
+//! | route | |
+//! |---|---|
+//! | `POST /v1/rollout` | whole trajectory as JSON, or Server-Sent Events frame by frame when the body has `"stream": true` or the request sends `Accept: text/event-stream` |
+//! | `POST /v1/predict` | many variants, final poses or every k-th frame |
+//! | `GET /v1/models` | resident models and limits |
+//! | `GET /health` | liveness: 200 while the process serves HTTP |
+//! | `GET /ready` | readiness: 200 once models are loaded and warmed up, 503 while warming up or draining |
+//! | `GET /metrics` | Prometheus text format |
+//! | `GET /openapi.json` | OpenAPI 3.1 document generated from the handlers and JSON types |
+//!
+//! Every response carries `x-request-id` (taken from the request header when valid); rollout
+//! and predict responses also carry `x-dynaserve-queue-ms`, `x-dynaserve-forward-ms`,
+//! `x-dynaserve-total-ms` and an equivalent `Server-Timing` header (SSE: per-frame timings in
+//! the events and totals in the final `done` event). Errors are [`json::ErrorResponse`]
+//! documents: 422 invalid input (naming the field), 429 overload (with `Retry-After`), 504
+//! deadline exceeded, 503 unavailable, 500 internal.
+
+use std::convert::Infallible;
+use std::sync::Arc;
+
+use axum::Router;
+use axum::body::Body;
+use axum::extract::{DefaultBodyLimit, State};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use dynaserve_proto::json;
+use futures::Stream;
+use serde::de::DeserializeOwned;
+use utoipa::OpenApi;
+
+use crate::engine::{Engine, Protocol, RequestCtx};
+use crate::error::ApiError;
+
+#[derive(Clone)]
+struct AppState {
+    engine: Arc<Engine>,
+}
+
+/// The OpenAPI document of the HTTP API.
+#[derive(OpenApi)]
+#[openapi(
+    info(
+        title = "Dynaserve HTTP API",
+        description = "Learned physics world models (RigidFormer) stepping rigid multi-object \
+                       scenes forward. Units: metres, seconds, kilograms, radians; z up; ground \
+                       plane z = 0; quaternions [x, y, z, w]. The gRPC API (dynaserve.v1) has \
+                       the same semantics."
+    ),
+    paths(rollout, predict, list_models, health, ready, metrics),
+    components(schemas(
+        json::RolloutRequest,
+        json::RolloutResponse,
+        json::PredictRequest,
+        json::PredictResponse,
+        json::ListModelsResponse,
+        json::ErrorResponse,
+        json::StepFrame,
+        json::SseDone,
+    ))
+)]
+pub struct ApiDoc;
+
+/// Builds the HTTP router.
+pub fn router(engine: Arc<Engine>) -> Router {
+    Router::new()
+        .route("/v1/rollout", post(rollout))
+        .route("/v1/predict", post(predict))
+        .route("/v1/models", get(list_models))
+        .route("/health", get(health))
+        .route("/ready", get(ready))
+        .route("/metrics", get(metrics))
+        .route("/openapi.json", get(openapi))
+        .fallback(not_found)
+        // Bodies are read with the configured limit in `read_json`, which names the field.
+        .layer(DefaultBodyLimit::disable())
+        .with_state(AppState { engine })
+}
+
+fn ctx_of(headers: &HeaderMap) -> RequestCtx {
+    let rid = headers.get("x-request-id").and_then(|v| v.to_str().ok());
+    RequestCtx::new(Protocol::Http, rid, None)
+}
+
+fn set_header(headers: &mut HeaderMap, key: &'static str, value: &str) {
+    if let Ok(v) = HeaderValue::from_str(value) {
+        headers.insert(key, v);
+    }
+}
+
+fn error_response(e: ApiError, rid: &str) -> Response {
+    let mut r = e.into_response();
+    set_header(r.headers_mut(), "x-request-id", rid);
+    r
+}
+
+fn timing_headers(headers: &mut HeaderMap, t: &json::RequestTiming) {
+    set_header(
+        headers,
+        "x-dynaserve-queue-ms",
+        &format!("{:.3}", t.queue_ms),
+    );
+    set_header(
+        headers,
+        "x-dynaserve-forward-ms",
+        &format!("{:.3}", t.forward_ms),
+    );
+    set_header(
+        headers,
+        "x-dynaserve-total-ms",
+        &format!("{:.3}", t.total_ms),
+    );
+    set_header(
+        headers,
+        "server-timing",
+        &format!(
+            "queue;dur={:.3}, forward;dur={:.3}, total;dur={:.3}",
+            t.queue_ms, t.forward_ms, t.total_ms
+        ),
+    );
+}
+
+async fn read_json<T: DeserializeOwned>(engine: &Engine, body: Body) -> Result<T, ApiError> {
+    let limit = engine.config().max_request_bytes;
+    let bytes = axum::body::to_bytes(body, limit).await.map_err(|e| {
+        ApiError::invalid(
+            "request",
+            format!("payload could not be read within the limit of {limit} bytes: {e}"),
+        )
+    })?;
+    engine.check_payload(bytes.len())?;
+    let de = &mut serde_json::Deserializer::from_slice(&bytes);
+    serde_path_to_error::deserialize(de).map_err(|e| {
+        let path = e.path().to_string();
+        let field = if path.is_empty() || path == "." {
+            "request".to_string()
+        } else {
+            path
+        };
+        ApiError::invalid(field, e.into_inner())
+    })
+}
+
+fn wants_sse(headers: &HeaderMap) -> bool {
+    headers
+        .get(header::ACCEPT)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|a| a.contains("text/event-stream"))
+}
+
+/// Roll one scene forward.
+///
+/// Returns the whole trajectory as JSON, or Server-Sent Events (`frame` events with a
+/// `StepFrame`, then one `done` event, or one `error` event with an `ErrorResponse`) when the
+/// body has `"stream": true` or the request sends `Accept: text/event-stream`.
+#[utoipa::path(
+    post,
+    path = "/v1/rollout",
+    request_body = json::RolloutRequest,
+    responses(
+        (status = 200, description = "Trajectory (or an SSE stream of StepFrame events)", body = json::RolloutResponse),
+        (status = 422, description = "Invalid input; `error.field` names the field", body = json::ErrorResponse),
+        (status = 429, description = "Server full; retry after the Retry-After header", body = json::ErrorResponse),
+        (status = 503, description = "Warming up or shutting down", body = json::ErrorResponse),
+        (status = 504, description = "Deadline (`timeout_ms`) exceeded", body = json::ErrorResponse),
+    )
+)]
+async fn rollout(State(s): State<AppState>, headers: HeaderMap, body: Body) -> Response {
+    let ctx = ctx_of(&headers);
+    let rid = ctx.request_id.clone();
+    let arrival = ctx.arrival;
+    let req: json::RolloutRequest = match read_json(&s.engine, body).await {
+        Ok(r) => r,
+        Err(e) => return error_response(s.engine.reject(&ctx, "rollout", e), &rid),
+    };
+    let sse = req.stream || wants_sse(&headers);
+    let handle = match s.engine.start_rollout(req, ctx).await {
+        Ok(h) => h,
+        Err(e) => return error_response(e, &rid),
+    };
+    let model = handle.model.clone();
+    if sse {
+        let mut resp = Sse::new(sse_events(handle.frames, rid.to_string(), arrival))
+            .keep_alive(KeepAlive::default())
+            .into_response();
+        set_header(resp.headers_mut(), "x-request-id", &rid);
+        set_header(resp.headers_mut(), "x-dynaserve-model", &model);
+        return resp;
+    }
+    let mut frames = Vec::new();
+    let mut rx = handle.frames;
+    let mut timing = json::RequestTiming::default();
+    while let Some(item) = rx.recv().await {
+        match item {
+            Ok(f) => {
+                if let Some(t) = f.timing {
+                    timing.queue_ms += f64::from(t.queue_ms);
+                    timing.forward_ms += f64::from(t.forward_ms);
+                }
+                frames.push(f);
+            }
+            Err(e) => return error_response(e, &rid),
+        }
+    }
+    timing.total_ms = arrival.elapsed().as_secs_f64() * 1e3;
+    let body = json::RolloutResponse {
+        model: model.clone(),
+        request_id: rid.to_string(),
+        frames,
+        timing,
+    };
+    let mut resp = axum::Json(body).into_response();
+    set_header(resp.headers_mut(), "x-request-id", &rid);
+    set_header(resp.headers_mut(), "x-dynaserve-model", &model);
+    timing_headers(resp.headers_mut(), &timing);
+    resp
+}
+
+fn sse_events(
+    rx: tokio::sync::mpsc::Receiver<Result<json::StepFrame, ApiError>>,
+    request_id: String,
+    arrival: std::time::Instant,
+) -> impl Stream<Item = Result<Event, Infallible>> {
+    struct St {
+        rx: tokio::sync::mpsc::Receiver<Result<json::StepFrame, ApiError>>,
+        timing: json::RequestTiming,
+        steps: u32,
+        done: bool,
+        request_id: String,
+        arrival: std::time::Instant,
+    }
+    let st = St {
+        rx,
+        timing: json::RequestTiming::default(),
+        steps: 0,
+        done: false,
+        request_id,
+        arrival,
+    };
+    futures::stream::unfold(st, |mut st| async move {
+        if st.done {
+            return None;
+        }
+        let event = match st.rx.recv().await {
+            Some(Ok(f)) => {
+                if let Some(t) = f.timing {
+                    st.timing.queue_ms += f64::from(t.queue_ms);
+                    st.timing.forward_ms += f64::from(t.forward_ms);
+                }
+                st.steps = f.step;
+                Event::default()
+                    .event("frame")
+                    .data(serde_json::to_string(&f).unwrap_or_default())
+            }
+            Some(Err(e)) => {
+                st.done = true;
+                Event::default()
+                    .event("error")
+                    .data(serde_json::to_string(&e.body()).unwrap_or_default())
+            }
+            None => {
+                st.done = true;
+                st.timing.total_ms = st.arrival.elapsed().as_secs_f64() * 1e3;
+                let done = json::SseDone {
+                    request_id: st.request_id.clone(),
+                    steps: st.steps,
+                    timing: st.timing,
+                };
+                Event::default()
+                    .event("done")
+                    .data(serde_json::to_string(&done).unwrap_or_default())
+            }
+        };
+        Some((Ok(event), st))
+    })
+}
+
+/// Roll many scene variants forward (planner calls).
+#[utoipa::path(
+    post,
+    path = "/v1/predict",
+    request_body = json::PredictRequest,
+    responses(
+        (status = 200, description = "One trajectory per variant", body = json::PredictResponse),
+        (status = 422, description = "Invalid input; `error.field` names the field", body = json::ErrorResponse),
+        (status = 429, description = "Server full; retry after the Retry-After header", body = json::ErrorResponse),
+        (status = 503, description = "Warming up or shutting down", body = json::ErrorResponse),
+        (status = 504, description = "Deadline (`timeout_ms`) exceeded", body = json::ErrorResponse),
+    )
+)]
+async fn predict(State(s): State<AppState>, headers: HeaderMap, body: Body) -> Response {
+    let ctx = ctx_of(&headers);
+    let rid = ctx.request_id.clone();
+    let req: json::PredictRequest = match read_json(&s.engine, body).await {
+        Ok(r) => r,
+        Err(e) => return error_response(s.engine.reject(&ctx, "predict", e), &rid),
+    };
+    match s.engine.predict(req, ctx).await {
+        Ok(out) => {
+            let timing = out.response.timing;
+            let model = out.response.model.clone();
+            let mut resp = axum::Json(out.response).into_response();
+            set_header(resp.headers_mut(), "x-request-id", &rid);
+            set_header(resp.headers_mut(), "x-dynaserve-model", &model);
+            timing_headers(resp.headers_mut(), &timing);
+            resp
+        }
+        Err(e) => error_response(e, &rid),
+    }
+}
+
+/// Resident models and the server's limits for each.
+#[utoipa::path(
+    get,
+    path = "/v1/models",
+    responses((status = 200, description = "Resident models", body = json::ListModelsResponse))
+)]
+async fn list_models(State(s): State<AppState>, headers: HeaderMap) -> Response {
+    let ctx = ctx_of(&headers);
+    let mut resp = axum::Json(s.engine.list_models(&ctx)).into_response();
+    set_header(resp.headers_mut(), "x-request-id", &ctx.request_id);
+    resp
+}
+
+/// Liveness: 200 while the process serves HTTP.
+#[utoipa::path(get, path = "/health", responses((status = 200, description = "Alive")))]
+async fn health() -> Response {
+    axum::Json(serde_json::json!({ "status": "alive" })).into_response()
+}
+
+/// Readiness: 200 once every model is loaded and warmed up; 503 before that and while draining.
+#[utoipa::path(
+    get,
+    path = "/ready",
+    responses(
+        (status = 200, description = "Ready"),
+        (status = 503, description = "Warming up or draining"),
+    )
+)]
+async fn ready(State(s): State<AppState>) -> Response {
+    if s.engine.is_ready() {
+        axum::Json(serde_json::json!({ "status": "ready", "models": s.engine.model_names() }))
+            .into_response()
+    } else {
+        let status = if s.engine.is_draining() {
+            "draining"
+        } else {
+            "warming_up"
+        };
+        (
+            StatusCode::SERVICE_UNAVAILABLE,
+            axum::Json(serde_json::json!({ "status": status })),
+        )
+            .into_response()
+    }
+}
+
+/// Prometheus metrics in the text exposition format.
+#[utoipa::path(
+    get,
+    path = "/metrics",
+    responses((status = 200, description = "Prometheus text format 0.0.4", content_type = "text/plain"))
+)]
+async fn metrics(State(s): State<AppState>) -> Response {
+    (
+        [(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("text/plain; version=0.0.4; charset=utf-8"),
+        )],
+        s.engine.metrics().render(),
+    )
+        .into_response()
+}
+
+async fn openapi() -> Response {
+    axum::Json(ApiDoc::openapi()).into_response()
+}
+
+async fn not_found() -> Response {
+    (
+        StatusCode::NOT_FOUND,
+        axum::Json(json::ErrorResponse {
+            error: json::ErrorDetail {
+                code: "NOT_FOUND".into(),
+                message: "no such route; see /openapi.json".into(),
+                field: None,
+                retry_after_ms: None,
+            },
+        }),
+    )
+        .into_response()
+}
