@@ -28,9 +28,12 @@
 //!    whose boxes come within the radius of each other (the broad phase). For each object, the
 //!    union of its neighbours' boxes, expanded by the radius, bounds where its points can have
 //!    a candidate (its *interest box*).
-//! 2. Only points inside their object's interest box enter a hashed uniform grid (cell edge
-//!    slightly larger than the radius) and only those points search the 27 surrounding cells.
-//!    Every other point gets its ground fallback directly.
+//! 2. Only points inside their object's interest box enter that object's own dense uniform grid
+//!    (cell edge slightly larger than the radius, coarsened for very sparse objects) and only
+//!    those points search, in the grid of each near object whose reach holds them, the
+//!    surrounding 3 x 3 x 3 cells, skipping cells that cannot beat the best distance so far.
+//!    A point never visits its own object's points; every point outside its interest box gets
+//!    its ground fallback directly.
 //! 3. The per-point searches run on rayon's pool when the scene has at least
 //!    [`PARALLEL_MIN_POINTS`] points; smaller scenes run serially.
 //!
@@ -55,6 +58,25 @@ const MARGIN: f32 = 1.05;
 /// Maximum grid cells along one axis; the cell edge grows for very large scenes so that cell
 /// coordinates stay exact enough in `f32`.
 const MAX_CELLS_PER_AXIS: f32 = 65536.0;
+
+/// Rows of the 3 x 3 x 3 neighbourhood as (dy, dz), the centre first so that the best
+/// distance shrinks early and prunes more of the rest.
+const ROW_ORDER: [(i64, i64); 9] = [
+    (0, 0),
+    (-1, 0),
+    (1, 0),
+    (0, -1),
+    (0, 1),
+    (-1, -1),
+    (1, -1),
+    (-1, 1),
+    (1, 1),
+];
+
+/// Slack (in cells) subtracted from the distance bounds that prune cells: far larger than the
+/// rounding of scaled coordinates (below 0.01 cells with at most `MAX_CELLS_PER_AXIS` cells per
+/// axis), so a cell is skipped only when every point in it is strictly farther than the best.
+const PRUNE_SLACK: f32 = 0.03;
 
 /// Points handed to one rayon task.
 const CHUNK: usize = 512;
@@ -277,56 +299,96 @@ impl Aabb {
     }
 }
 
-/// One point in the grid: its coordinates, its index into `points` and its object.
+/// One point in a grid: its coordinates and its index into `points`.
 #[derive(Clone, Copy, Debug)]
 struct Entry {
     p: Point,
     index: u32,
-    object: u32,
+}
+
+/// The dense uniform grid over one object's searchable points. Cells are indexed
+/// `base + (z * ny + y) * nx + x`, so a row of three cells is one contiguous range of the
+/// shared entry array.
+#[derive(Clone, Copy, Debug)]
+struct ObjectGrid {
+    origin: [f32; 3],
+    inv_cell: f32,
+    dims: [i64; 3],
+    base: usize,
+    /// The grid's points' box expanded by the search margin: no point outside it can have a
+    /// candidate in this grid.
+    reach: Aabb,
+}
+
+/// `floor(v)` for the cell coordinate range used here (`|v|` far below `2^63`); saturates.
+#[inline(always)]
+fn floor_i64(v: f32) -> i64 {
+    let t = v as i64;
+    if (t as f32) > v { t - 1 } else { t }
+}
+
+impl ObjectGrid {
+    /// Cell index of one of the grid's own points (always inside the grid: its scaled offsets
+    /// are `>= 0`, so truncation is the floor; clamped for safety).
+    #[inline(always)]
+    fn bucket_of(&self, p: &Point) -> usize {
+        let c = |d: usize| {
+            (((p[d] - self.origin[d]) * self.inv_cell) as i64).clamp(0, self.dims[d] - 1)
+        };
+        self.base + ((c(2) * self.dims[1] + c(1)) * self.dims[0] + c(0)) as usize
+    }
 }
 
 /// Reusable scratch memory for [`contact_features`]. One lives in each thread that calls the
 /// free functions; hold your own to control where the memory lives. It keeps the capacity of
 /// the largest scene seen.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub struct ContactWorkspace {
+    parallel_min_points: usize,
     object_of: Vec<u32>,
     boxes: Vec<Aabb>,
     interest: Vec<Aabb>,
     order: Vec<u32>,
+    pairs: Vec<[u32; 2]>,
+    neighbour_start: Vec<u32>,
+    /// Per neighbour: its grid's reach and its index, stored together so the reach tests of
+    /// a query read memory in order.
+    neighbours: Vec<(Aabb, u32)>,
+    grids: Vec<ObjectGrid>,
     inserted: Vec<u32>,
+    buckets: Vec<u32>,
     cell_start: Vec<u32>,
     entries: Vec<Entry>,
 }
 
-struct Grid<'a> {
-    origin: [f32; 3],
-    inv_cell: f32,
-    mask: u64,
-    cell_start: &'a [u32],
-    entries: &'a [Entry],
-}
-
-#[inline(always)]
-fn hash_cell(c: [i64; 3], mask: u64) -> usize {
-    let h = (c[0] as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
-        ^ (c[1] as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
-        ^ (c[2] as u64).wrapping_mul(0x1656_67B1_9E37_79F9);
-    ((h ^ (h >> 31)) & mask) as usize
-}
-
-impl Grid<'_> {
-    #[inline(always)]
-    fn cell_of(&self, p: &Point) -> [i64; 3] {
-        [
-            ((p[0] - self.origin[0]) * self.inv_cell).floor() as i64,
-            ((p[1] - self.origin[1]) * self.inv_cell).floor() as i64,
-            ((p[2] - self.origin[2]) * self.inv_cell).floor() as i64,
-        ]
+impl Default for ContactWorkspace {
+    /// An empty workspace with the [`PARALLEL_MIN_POINTS`] threshold.
+    fn default() -> Self {
+        ContactWorkspace::with_parallel_threshold(PARALLEL_MIN_POINTS)
     }
 }
 
 impl ContactWorkspace {
+    /// An empty workspace that searches in parallel for scenes of at least `min_points` points
+    /// (0: always, `usize::MAX`: never). Running inside a one-thread rayon pool is serial too.
+    pub fn with_parallel_threshold(min_points: usize) -> Self {
+        ContactWorkspace {
+            parallel_min_points: min_points,
+            object_of: Vec::new(),
+            boxes: Vec::new(),
+            interest: Vec::new(),
+            order: Vec::new(),
+            pairs: Vec::new(),
+            neighbour_start: Vec::new(),
+            neighbours: Vec::new(),
+            grids: Vec::new(),
+            inserted: Vec::new(),
+            buckets: Vec::new(),
+            cell_start: Vec::new(),
+            entries: Vec::new(),
+        }
+    }
+
     /// Computes the contact features of one scene into `out` (see [`contact_features`]).
     ///
     /// # Panics
@@ -366,17 +428,17 @@ impl ContactWorkspace {
                 .extend(std::iter::repeat_n(i as u32, offsets[i + 1] - offsets[i]));
         }
 
-        // Broad phase: sort-and-sweep on x; every near pair widens both interest boxes.
+        // Broad phase: sort-and-sweep on x. Every near pair widens both interest boxes.
         let pad = r * MARGIN;
         self.interest.clear();
         self.interest.resize(objects, Aabb::EMPTY);
+        self.pairs.clear();
         self.order.clear();
         self.order
             .extend((0..objects as u32).filter(|&i| !self.boxes[i as usize].is_empty()));
         let boxes = &self.boxes;
         self.order
             .sort_unstable_by(|&a, &b| boxes[a as usize].lo[0].total_cmp(&boxes[b as usize].lo[0]));
-        let mut any_pair = false;
         if r > 0.0 {
             for (s, &a) in self.order.iter().enumerate() {
                 let ba = self.boxes[a as usize];
@@ -388,54 +450,119 @@ impl ContactWorkspace {
                     let near =
                         (1..3).all(|d| bb.lo[d] <= ba.hi[d] + pad && ba.lo[d] <= bb.hi[d] + pad);
                     if near {
-                        any_pair = true;
+                        self.pairs.push([a, b]);
                         self.interest[a as usize].grow_box(&bb, pad);
                         self.interest[b as usize].grow_box(&ba, pad);
                     }
                 }
             }
         }
-
-        let interest = &self.interest;
-        let object_of = &self.object_of;
-        if !any_pair {
+        if self.pairs.is_empty() {
             fill_fallback(points, r, ground_z, out);
             return;
         }
 
-        // Points that can be a candidate for some other object: those inside their own
-        // object's interest box. The same set searches the grid.
+        // Per object, the points inside its interest box (the only ones that can be, or have,
+        // a candidate) go into the object's own dense grid; cell edge >= radius * MARGIN, grown
+        // when needed so that a grid has at most 4 cells per point + 64 and at most
+        // MAX_CELLS_PER_AXIS cells along an axis.
         self.inserted.clear();
-        let mut span = Aabb::EMPTY;
-        for (idx, p) in points.iter().enumerate() {
-            if interest[object_of[idx] as usize].contains(p) {
-                self.inserted.push(idx as u32);
-                span.grow_point(p);
+        self.grids.clear();
+        let mut total_cells = 0usize;
+        for i in 0..objects {
+            let first = self.inserted.len();
+            let interest = self.interest[i];
+            let mut span = Aabb::EMPTY;
+            for (idx, p) in points
+                .iter()
+                .enumerate()
+                .take(offsets[i + 1])
+                .skip(offsets[i])
+            {
+                if interest.contains(p) {
+                    self.inserted.push(idx as u32);
+                    span.grow_point(p);
+                }
+            }
+            let count = self.inserted.len() - first;
+            if count == 0 {
+                self.grids.push(ObjectGrid {
+                    origin: [0.0; 3],
+                    inv_cell: 0.0,
+                    dims: [0; 3],
+                    base: total_cells,
+                    reach: Aabb::EMPTY,
+                });
+                continue;
+            }
+            let extent = [0, 1, 2].map(|d| span.hi[d] - span.lo[d]);
+            let max_extent = extent.iter().copied().fold(0.0f32, f32::max);
+            let limit = 4 * count as i64 + 64;
+            let mut cell = pad.max(max_extent / MAX_CELLS_PER_AXIS);
+            let dims = loop {
+                let dims = extent.map(|e| (e / cell) as i64 + 1);
+                if dims[0] * dims[1] * dims[2] <= limit {
+                    break dims;
+                }
+                cell *= 1.5;
+            };
+            let mut reach = Aabb::EMPTY;
+            reach.grow_box(&span, pad);
+            self.grids.push(ObjectGrid {
+                origin: span.lo,
+                inv_cell: 1.0 / cell,
+                dims,
+                base: total_cells,
+                reach,
+            });
+            total_cells += (dims[0] * dims[1] * dims[2]) as usize;
+        }
+
+        // Neighbour lists (CSR) of objects with a non-empty grid.
+        self.neighbour_start.clear();
+        self.neighbour_start.resize(objects + 1, 0);
+        let has_grid = |grids: &[ObjectGrid], j: u32| grids[j as usize].dims[0] > 0;
+        for &[a, b] in &self.pairs {
+            if has_grid(&self.grids, b) {
+                self.neighbour_start[a as usize + 1] += 1;
+            }
+            if has_grid(&self.grids, a) {
+                self.neighbour_start[b as usize + 1] += 1;
+            }
+        }
+        for i in 0..objects {
+            self.neighbour_start[i + 1] += self.neighbour_start[i];
+        }
+        self.neighbours.clear();
+        self.neighbours
+            .resize(self.neighbour_start[objects] as usize, (Aabb::EMPTY, 0));
+        self.order.clear();
+        self.order
+            .extend_from_slice(&self.neighbour_start[..objects]);
+        for &[a, b] in &self.pairs {
+            if has_grid(&self.grids, b) {
+                self.neighbours[self.order[a as usize] as usize] =
+                    (self.grids[b as usize].reach, b);
+                self.order[a as usize] += 1;
+            }
+            if has_grid(&self.grids, a) {
+                self.neighbours[self.order[b as usize] as usize] =
+                    (self.grids[a as usize].reach, a);
+                self.order[b as usize] += 1;
             }
         }
 
-        // Hashed uniform grid, cell edge >= radius * MARGIN, filled by counting sort.
-        let extent = (0..3)
-            .map(|d| span.hi[d] - span.lo[d] + 2.0 * pad)
-            .fold(0.0f32, f32::max);
-        let cell = pad.max(extent / MAX_CELLS_PER_AXIS);
-        let table = (2 * self.inserted.len()).next_power_of_two().max(64);
-        let mask = (table - 1) as u64;
-        let origin = [span.lo[0] - pad, span.lo[1] - pad, span.lo[2] - pad];
-        let grid_shape = Grid {
-            origin,
-            inv_cell: 1.0 / cell,
-            mask,
-            cell_start: &[],
-            entries: &[],
-        };
+        // Counting sort of the inserted points into their grids' cells.
         self.cell_start.clear();
-        self.cell_start.resize(table + 1, 0);
+        self.cell_start.resize(total_cells + 1, 0);
+        self.buckets.clear();
         for &idx in &self.inserted {
-            let b = hash_cell(grid_shape.cell_of(&points[idx as usize]), mask);
+            let g = &self.grids[self.object_of[idx as usize] as usize];
+            let b = g.bucket_of(&points[idx as usize]);
+            self.buckets.push(b as u32);
             self.cell_start[b + 1] += 1;
         }
-        for b in 0..table {
+        for b in 0..total_cells {
             self.cell_start[b + 1] += self.cell_start[b];
         }
         self.entries.clear();
@@ -444,56 +571,98 @@ impl ContactWorkspace {
             Entry {
                 p: [0.0; 3],
                 index: 0,
-                object: 0,
             },
         );
-        // Fill using `order` as the per-bucket write cursor (reused scratch).
+        // `order` becomes the per-cell write cursor (reused scratch).
         self.order.clear();
-        self.order.extend_from_slice(&self.cell_start[..table]);
-        for &idx in &self.inserted {
-            let p = points[idx as usize];
-            let b = hash_cell(grid_shape.cell_of(&p), mask);
-            let slot = self.order[b] as usize;
-            self.order[b] += 1;
+        self.order
+            .extend_from_slice(&self.cell_start[..total_cells]);
+        for (&idx, &b) in self.inserted.iter().zip(&self.buckets) {
+            let slot = self.order[b as usize] as usize;
+            self.order[b as usize] += 1;
             self.entries[slot] = Entry {
-                p,
+                p: points[idx as usize],
                 index: idx,
-                object: object_of[idx as usize],
             };
         }
-        let grid = Grid {
-            cell_start: &self.cell_start,
-            entries: &self.entries,
-            ..grid_shape
-        };
 
+        let interest = &self.interest;
+        let object_of = &self.object_of;
+        let grids = &self.grids;
+        let neighbour_start = &self.neighbour_start;
+        let neighbours = &self.neighbours;
+        let cell_start = &self.cell_start;
+        let entries = &self.entries;
         let query = |idx: usize, o: &mut Point| {
             let x = &points[idx];
             let (limit2, fallback) = ground_fallback(x, r, ground_z);
-            let obj = object_of[idx];
-            if !interest[obj as usize].contains(x) {
+            let obj = object_of[idx] as usize;
+            if !interest[obj].contains(x) {
                 *o = fallback;
                 return;
             }
-            let c = grid.cell_of(x);
             let mut best_d2 = limit2;
             let mut best_index = 0u32;
             let mut best: Option<Point> = None;
-            for dz in -1..=1 {
-                for dy in -1..=1 {
-                    for dx in -1..=1 {
-                        let b = hash_cell([c[0] + dx, c[1] + dy, c[2] + dz], grid.mask);
-                        let range = grid.cell_start[b] as usize..grid.cell_start[b + 1] as usize;
-                        for e in &grid.entries[range] {
-                            if e.object == obj {
-                                continue;
-                            }
-                            let d2 = dist2(x, &e.p);
-                            if d2 < best_d2 || (d2 == best_d2 && e.index < best_index) {
-                                best_d2 = d2;
-                                best_index = e.index;
-                                best = Some(e.p);
-                            }
+            let near =
+                &neighbours[neighbour_start[obj] as usize..neighbour_start[obj + 1] as usize];
+            for (reach, j) in near {
+                if !reach.contains(x) {
+                    continue;
+                }
+                let g = &grids[*j as usize];
+                // Scaled position: whole part = cell, fraction = place inside the cell.
+                let fx = (x[0] - g.origin[0]) * g.inv_cell;
+                let fy = (x[1] - g.origin[1]) * g.inv_cell;
+                let fz = (x[2] - g.origin[2]) * g.inv_cell;
+                let c = [floor_i64(fx), floor_i64(fy), floor_i64(fz)];
+                let frac = [fx - c[0] as f32, fy - c[1] as f32, fz - c[2] as f32];
+                let cell2 = 1.0 / (g.inv_cell * g.inv_cell);
+                // Lower bounds (cell units, squared) on the distance to the neighbouring cell
+                // below and above along each axis, shrunk by a slack that covers rounding.
+                let below = |d: usize| {
+                    let v = (frac[d] - PRUNE_SLACK).max(0.0);
+                    v * v
+                };
+                let above = |d: usize| {
+                    let v = (1.0 - frac[d] - PRUNE_SLACK).max(0.0);
+                    v * v
+                };
+                let gap = |d: usize, off: i64| match off {
+                    -1 => below(d),
+                    1 => above(d),
+                    _ => 0.0,
+                };
+                for (dy, dz) in ROW_ORDER {
+                    let (y, z) = (c[1] + dy, c[2] + dz);
+                    if y < 0 || z < 0 || y >= g.dims[1] || z >= g.dims[2] {
+                        continue;
+                    }
+                    let row_gap = gap(1, dy) + gap(2, dz);
+                    if cell2 * row_gap > best_d2 {
+                        continue;
+                    }
+                    let mut x0 = c[0] - 1;
+                    if cell2 * (row_gap + gap(0, -1)) > best_d2 {
+                        x0 = c[0];
+                    }
+                    let mut x1 = c[0] + 1;
+                    if cell2 * (row_gap + gap(0, 1)) > best_d2 {
+                        x1 = c[0];
+                    }
+                    let (x0, x1) = (x0.max(0), x1.min(g.dims[0] - 1));
+                    if x0 > x1 {
+                        continue;
+                    }
+                    let row = g.base + ((z * g.dims[1] + y) * g.dims[0]) as usize;
+                    let a = cell_start[row + x0 as usize] as usize;
+                    let e = cell_start[row + x1 as usize + 1] as usize;
+                    for en in &entries[a..e] {
+                        let d2 = dist2(x, &en.p);
+                        if d2 < best_d2 || (d2 == best_d2 && en.index < best_index) {
+                            best_d2 = d2;
+                            best_index = en.index;
+                            best = Some(en.p);
                         }
                     }
                 }
@@ -504,7 +673,7 @@ impl ContactWorkspace {
             };
         };
 
-        if n >= PARALLEL_MIN_POINTS && rayon::current_num_threads() > 1 {
+        if n >= self.parallel_min_points && rayon::current_num_threads() > 1 {
             out.par_chunks_mut(CHUNK)
                 .enumerate()
                 .for_each(|(c, chunk)| {
@@ -593,6 +762,74 @@ mod tests {
                     assert!(len <= cfg.radius * 1.0001, "{v:?}");
                 }
             }
+        }
+    }
+
+    #[test]
+    fn distant_groups_in_one_scene_still_match() {
+        // Two copies of a crowded scene 300 m apart.
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        for s in 0..40 {
+            let (mut points, mut offsets) = random_scene(&mut rng);
+            let n = points.len();
+            let copy: Vec<Point> = points
+                .iter()
+                .map(|p| [p[0] + 300.0, p[1] - 200.0, p[2] + 100.0])
+                .collect();
+            points.extend(copy);
+            let more: Vec<usize> = offsets[1..].iter().map(|o| o + n).collect();
+            offsets.extend(more);
+            let cfg = ContactConfig::default();
+            assert_bit_identical(
+                &contact_features(&points, &offsets, &cfg),
+                &contact_features_brute_force(&points, &offsets, &cfg),
+                &format!("sparse scene {s}"),
+            );
+        }
+    }
+
+    #[test]
+    fn sparse_large_object_grows_its_cells_and_still_matches() {
+        // A 40 m x 40 m sheet of 400 points would need 150 x 150 cells of the radius; its grid
+        // coarsens instead. Small blobs lie on it and below it.
+        let mut rng = ChaCha8Rng::seed_from_u64(17);
+        let mut points: Vec<Point> = (0..400)
+            .map(|_| {
+                [
+                    rng.random_range(-20.0..20.0f32),
+                    rng.random_range(-20.0..20.0f32),
+                    0.1,
+                ]
+            })
+            .collect();
+        let mut offsets = vec![0, points.len()];
+        for _ in 0..30 {
+            let c = [
+                rng.random_range(-20.0..20.0f32),
+                rng.random_range(-20.0..20.0f32),
+                rng.random_range(-0.1..0.4f32),
+            ];
+            for _ in 0..20 {
+                points.push([
+                    c[0] + rng.random_range(-0.3..0.3f32),
+                    c[1] + rng.random_range(-0.3..0.3f32),
+                    c[2] + rng.random_range(-0.1..0.1f32),
+                ]);
+            }
+            offsets.push(points.len());
+        }
+        for cfg in [
+            ContactConfig::default(),
+            ContactConfig {
+                radius: 2.0,
+                ground_z: None,
+            },
+        ] {
+            assert_bit_identical(
+                &contact_features(&points, &offsets, &cfg),
+                &contact_features_brute_force(&points, &offsets, &cfg),
+                "sheet",
+            );
         }
     }
 
