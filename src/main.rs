@@ -18,6 +18,11 @@ struct Cli {
 enum Command {
     /// Print the version and the crates this binary is built from.
     Version,
+    /// Serve world models over gRPC (default :50051) and HTTP (default :8080). With no flags,
+    /// serves every model directory under models/.
+    Serve(dynaserve_server::ServeConfig),
+    /// Run a scene file on a server and print the frames (one JSON line each) or save them.
+    Rollout(dynaserve_client::cli::RolloutArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -27,5 +32,7 @@ fn main() -> anyhow::Result<()> {
             println!("dynaserve {}", env!("CARGO_PKG_VERSION"));
             Ok(())
         }
+        Command::Serve(config) => dynaserve_server::run(config),
+        Command::Rollout(args) => dynaserve_client::cli::run(args),
     }
 }
