@@ -152,7 +152,8 @@ pub struct ModelConfig {
 }
 
 impl ModelConfig {
-    /// The CPU-trainable configuration (width 128, 4 heads of 32, 4 blocks, 8 registers, K = 8).
+    /// The CPU-trainable configuration (width 128, 4 heads of 32, 6 blocks, 8 registers, K = 8,
+    /// 32 centres x 8 neighbours in the encoder).
     pub fn small() -> ModelConfig {
         ModelConfig {
             architecture: RIGIDFORMER.into(),
@@ -168,11 +169,11 @@ impl ModelConfig {
             position_scale: 0.5,
             point_dim: 32,
             sa_centres: 32,
-            sa_neighbours: 16,
+            sa_neighbours: 8,
             sa_dim: 64,
             width: 128,
             heads: 4,
-            blocks: 4,
+            blocks: 6,
             registers: 8,
             ffn_hidden: 512,
             film_hidden: 32,
@@ -182,18 +183,17 @@ impl ModelConfig {
             norm_eps: 1e-6,
             anchors: 8,
             avp_sigma: 0.2,
-            anchor_taps: vec![1, 3],
+            anchor_taps: vec![1, 3, 5],
             accel_scale: 0.02,
             loss: LossConfig::default(),
         }
     }
 
     /// The paper's main configuration (width 256, 8 heads of 32, SwiGLU 4x, 8 blocks,
-    /// 16 registers, K = 8).
+    /// 16 registers, K = 8; encoder 32 centres x 16 neighbours).
     pub fn paper() -> ModelConfig {
         ModelConfig {
-            point_dim: 64,
-            sa_dim: 128,
+            sa_neighbours: 16,
             width: 256,
             heads: 8,
             blocks: 8,
@@ -346,6 +346,31 @@ mod tests {
             assert_eq!(back, c);
         }
         assert_eq!(ModelConfig::paper().head_dim(), 32);
+    }
+
+    /// `configs/small.json` and `configs/paper.json` are the presets; set
+    /// `DYNASERVE_BLESS_CONFIGS=1` to rewrite them after changing a preset.
+    #[test]
+    fn shipped_config_files_match_presets() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
+        for (name, preset) in [
+            ("small", ModelConfig::small()),
+            ("paper", ModelConfig::paper()),
+        ] {
+            let path = dir.join(format!("{name}.json"));
+            if std::env::var_os("DYNASERVE_BLESS_CONFIGS").is_some() {
+                let text = serde_json::to_string_pretty(&preset).unwrap() + "\n";
+                std::fs::write(&path, text).unwrap();
+            }
+            let text = std::fs::read_to_string(&path).unwrap();
+            let parsed: ModelConfig = serde_json::from_str(&text).unwrap();
+            assert_eq!(
+                parsed,
+                preset,
+                "{} differs from ModelConfig::{name}()",
+                path.display()
+            );
+        }
     }
 
     #[test]

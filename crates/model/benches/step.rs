@@ -1,0 +1,472 @@
+//! One model step for batches of MOVi-like scenes (10 objects x 512 points) split into phases,
+//! one step of a 216-cube wrecking-ball scene, padded vs block-diagonal decoder batching, and
+//! a training iteration (forward + backward + AdamW) for the `small` and `paper` configs.
+//!
+//! `cargo bench -p dynaserve-model --bench step` (release). Phase medians are printed to
+//! stdout; criterion reports the totals.
+
+use std::hint::black_box;
+use std::time::{Duration, Instant};
+
+use candle_core::{DType, Device, Tensor};
+use candle_nn::Optimizer;
+use criterion::{Criterion, criterion_group, criterion_main};
+use dynaserve_model::{
+    ModelConfig, ObjectInput, Pose, PreparedScene, RigidFormer, SceneState, StepItem, StepProfile,
+    TrainItem, WorldModel,
+};
+use nalgebra::{UnitQuaternion, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
+fn box_cloud(rng: &mut ChaCha8Rng, n: usize, h: [f32; 3]) -> Vec<[f32; 3]> {
+    (0..n)
+        .map(|_| {
+            let face = rng.random_range(0..6);
+            let axis = face / 2;
+            let sign = if face % 2 == 0 { 1.0 } else { -1.0 };
+            std::array::from_fn(|d| {
+                if d == axis {
+                    sign * h[d]
+                } else {
+                    rng.random_range(-h[d]..h[d])
+                }
+            })
+        })
+        .collect()
+}
+
+fn sphere_cloud(rng: &mut ChaCha8Rng, n: usize, r: f32) -> Vec<[f32; 3]> {
+    (0..n)
+        .map(|_| {
+            let v = Vector3::new(
+                rng.random_range(-1.0f32..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+            )
+            .normalize()
+                * r;
+            [v.x, v.y, v.z]
+        })
+        .collect()
+}
+
+/// A MOVi-like scene: `m` boxes of `n` points spread over the floor, moving.
+fn movi_scene(rng: &mut ChaCha8Rng, m: usize, n: usize) -> (Vec<ObjectInput>, SceneState) {
+    let objects = (0..m)
+        .map(|_| {
+            let s = rng.random_range(0.35..0.7);
+            ObjectInput {
+                reference: box_cloud(rng, n, [s, s * 0.8, s * 0.9]),
+                mass: rng.random_range(0.5..8.0),
+                friction: 0.4,
+                restitution: 0.3,
+            }
+        })
+        .collect();
+    let current: Vec<Pose> = (0..m)
+        .map(|j| {
+            Pose::from_parts(
+                Vector3::new(
+                    -4.0 + 0.9 * j as f32,
+                    rng.random_range(-3.0..3.0),
+                    rng.random_range(0.5..3.0),
+                ),
+                UnitQuaternion::from_euler_angles(rng.random_range(-3.0..3.0), 0.3, 1.0),
+            )
+        })
+        .collect();
+    let lin: Vec<[f32; 3]> = (0..m)
+        .map(|_| [rng.random_range(-3.0..3.0), 1.0, -0.5])
+        .collect();
+    let ang = vec![[0.5, 0.0, 0.2]; m];
+    let state =
+        SceneState::from_velocities(current, &lin, &ang, 1.0 / 24.0).expect("valid velocities");
+    (objects, state)
+}
+
+/// 6 x 6 x 6 stack of 0.5 m cubes on the floor and a ball swinging into it.
+fn wrecking_ball(n: usize) -> (Vec<ObjectInput>, SceneState) {
+    let mut rng = ChaCha8Rng::seed_from_u64(216);
+    let mut objects = Vec::new();
+    let mut current = Vec::new();
+    let side = 0.5f32;
+    for i in 0..6 {
+        for j in 0..6 {
+            for k in 0..6 {
+                objects.push(ObjectInput {
+                    reference: box_cloud(&mut rng, n, [side / 2.0; 3]),
+                    mass: 0.3,
+                    friction: 0.5,
+                    restitution: 0.1,
+                });
+                current.push(Pose {
+                    translation: [
+                        i as f32 * side,
+                        j as f32 * side,
+                        side / 2.0 + k as f32 * side,
+                    ],
+                    rotation: [0.0, 0.0, 0.0, 1.0],
+                });
+            }
+        }
+    }
+    objects.push(ObjectInput {
+        reference: sphere_cloud(&mut rng, 4 * n, 0.6),
+        mass: 50.0,
+        friction: 0.5,
+        restitution: 0.2,
+    });
+    current.push(Pose {
+        translation: [-1.5, 1.25, 1.5],
+        rotation: [0.0, 0.0, 0.0, 1.0],
+    });
+    let m = current.len();
+    let mut lin = vec![[0.0f32; 3]; m];
+    lin[m - 1] = [8.0, 0.0, 0.0];
+    let ang = vec![[0.0f32; 3]; m];
+    (
+        objects,
+        SceneState::from_velocities(current, &lin, &ang, 1.0 / 24.0).expect("valid velocities"),
+    )
+}
+
+fn prepared_batch(
+    model: &RigidFormer,
+    b: usize,
+    m: usize,
+    n: usize,
+    seed: u64,
+) -> Vec<(PreparedScene, SceneState)> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    (0..b)
+        .map(|_| {
+            let (o, s) = movi_scene(&mut rng, m, n);
+            (model.prepare(o).expect("valid scene"), s)
+        })
+        .collect()
+}
+
+fn items(scenes: &[(PreparedScene, SceneState)]) -> Vec<StepItem<'_>> {
+    scenes
+        .iter()
+        .map(|(scene, state)| StepItem {
+            scene,
+            state,
+            dt_steps: 1,
+        })
+        .collect()
+}
+
+fn median(mut v: Vec<Duration>) -> Duration {
+    v.sort();
+    v[v.len() / 2]
+}
+
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
+
+fn print_phases(label: &str, model: &RigidFormer, batch: &[StepItem<'_>], runs: usize) {
+    let mut profiles = Vec::with_capacity(runs);
+    for _ in 0..runs {
+        let mut p = StepProfile::default();
+        black_box(model.step_profiled(batch, &mut p).expect("step"));
+        profiles.push(p);
+    }
+    let pick = |f: fn(&StepProfile) -> Duration| ms(median(profiles.iter().map(f).collect()));
+    println!(
+        "phases {label}: contact+features {:.2} ms | encoder {:.2} ms | decoder {:.2} ms | anchors {:.2} ms | projection {:.2} ms | total {:.2} ms",
+        pick(|p| p.features),
+        pick(|p| p.encoder),
+        pick(|p| p.decoder),
+        pick(|p| p.anchors),
+        pick(|p| p.projection),
+        pick(|p| p.total()),
+    );
+}
+
+fn bench_steps(c: &mut Criterion) {
+    let model = RigidFormer::new(ModelConfig::paper(), 1, &Device::Cpu).expect("model");
+    let mut group = c.benchmark_group("step_paper_10x512");
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(4));
+    let mut per_scene = Vec::new();
+    for b in [1usize, 8, 32, 128] {
+        // Set up lazily: criterion only calls the closure when the benchmark is selected.
+        let mut cache: Option<Vec<(PreparedScene, SceneState)>> = None;
+        group.bench_function(format!("batch_{b}"), |bench| {
+            let scenes = cache.get_or_insert_with(|| {
+                let scenes = prepared_batch(&model, b, 10, 512, b as u64);
+                let batch = items(&scenes);
+                print_phases(
+                    &format!("paper b{b}"),
+                    &model,
+                    &batch,
+                    if b >= 128 { 3 } else { 7 },
+                );
+                let t: Vec<Duration> = (0..3)
+                    .map(|_| {
+                        let t0 = Instant::now();
+                        black_box(model.step(&batch).expect("step"));
+                        t0.elapsed()
+                    })
+                    .collect();
+                per_scene.push((b, ms(median(t)) / b as f64));
+                scenes
+            });
+            let batch = items(scenes);
+            bench.iter(|| black_box(model.step(&batch).expect("step")))
+        });
+    }
+    group.finish();
+    for (b, t) in &per_scene {
+        println!("per-scene time at batch {b}: {t:.2} ms");
+    }
+    if let (Some(one), Some(t32)) = (
+        per_scene.iter().find(|x| x.0 == 1),
+        per_scene.iter().find(|x| x.0 == 32),
+    ) {
+        println!(
+            "batching gain (per-scene time batch 1 / batch 32): {:.2}x",
+            one.1 / t32.1
+        );
+    }
+}
+
+fn bench_wrecking_ball(c: &mut Criterion) {
+    let model = RigidFormer::new(ModelConfig::paper(), 1, &Device::Cpu).expect("model");
+    let mut cache: Option<(PreparedScene, SceneState)> = None;
+    let mut group = c.benchmark_group("wrecking_ball");
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(4));
+    group.bench_function("216_cubes_128pts_paper", |bench| {
+        let (scene, state) = cache.get_or_insert_with(|| {
+            let (objects, state) = wrecking_ball(128);
+            let scene = model.prepare(objects).expect("valid scene");
+            let batch = [StepItem {
+                scene: &scene,
+                state: &state,
+                dt_steps: 1,
+            }];
+            print_phases("wrecking ball 216 cubes + ball", &model, &batch, 5);
+            (scene, state)
+        });
+        let batch = [StepItem {
+            scene,
+            state,
+            dt_steps: 1,
+        }];
+        bench.iter(|| black_box(model.step(&batch).expect("step")))
+    });
+    group.finish();
+}
+
+/// The decoder's dominant cost (L pre-norm attention + SwiGLU blocks) on 32 scenes of 3-10
+/// objects + 16 registers, either padded `[32, M + R, D]` with key masks or packed into one
+/// sequence with a block-diagonal mask.
+fn bench_packing(c: &mut Criterion) {
+    let dev = Device::Cpu;
+    let (d, h, l, r, f) = (256usize, 8usize, 8usize, 16usize, 1024usize);
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let counts: Vec<usize> = (0..32).map(|_| rng.random_range(3..=10)).collect();
+    let rand_t = |shape: &[usize], rng: &mut ChaCha8Rng| -> Tensor {
+        let n: usize = shape.iter().product();
+        let s = 1.0 / (shape[shape.len() - 1] as f32).sqrt();
+        Tensor::from_vec(
+            (0..n)
+                .map(|_| rng.random_range(-s..s))
+                .collect::<Vec<f32>>(),
+            shape,
+            &dev,
+        )
+        .expect("tensor")
+    };
+    let weights: Vec<[Tensor; 4]> = (0..l)
+        .map(|_| {
+            [
+                rand_t(&[3 * d, d], &mut rng),
+                rand_t(&[d, d], &mut rng),
+                rand_t(&[2 * f, d], &mut rng),
+                rand_t(&[d, f], &mut rng),
+            ]
+        })
+        .collect();
+    let alpha = Tensor::ones(d, DType::F32, &dev).expect("ones");
+    let blocks = |x: Tensor, mask: &Tensor| -> Tensor {
+        let (b, t, _) = x.dims3().expect("dims");
+        let mut x = x;
+        for [qkv, wo, up, down] in &weights {
+            let xn = candle_nn::ops::rms_norm(&x, &alpha, 1e-6).expect("norm");
+            let y = xn
+                .reshape((b * t, d))
+                .expect("r")
+                .matmul(&qkv.t().expect("t"))
+                .expect("mm")
+                .reshape((b, t, 3 * d))
+                .expect("r");
+            let sp = |i: usize| {
+                y.narrow(2, i * d, d)
+                    .expect("n")
+                    .reshape((b, t, h, d / h))
+                    .expect("r")
+                    .transpose(1, 2)
+                    .expect("t")
+                    .contiguous()
+                    .expect("c")
+            };
+            let (q, k, v) = (sp(0), sp(1), sp(2));
+            let s = (q.matmul(&k.t().expect("t")).expect("mm") * (1.0 / ((d / h) as f64).sqrt()))
+                .expect("s")
+                .broadcast_add(mask)
+                .expect("m");
+            let a = candle_nn::ops::softmax_last_dim(&s)
+                .expect("sm")
+                .matmul(&v)
+                .expect("mm");
+            let a = a
+                .transpose(1, 2)
+                .expect("t")
+                .reshape((b * t, d))
+                .expect("r")
+                .matmul(&wo.t().expect("t"))
+                .expect("mm");
+            x = (x + a.reshape((b, t, d)).expect("r")).expect("add");
+            let xn = candle_nn::ops::rms_norm(&x, &alpha, 1e-6)
+                .expect("norm")
+                .reshape((b * t, d))
+                .expect("r");
+            let u = xn.matmul(&up.t().expect("t")).expect("mm");
+            let g = (u.narrow(1, 0, f).expect("n").silu().expect("silu")
+                * u.narrow(1, f, f).expect("n"))
+            .expect("mul");
+            x = (x + g
+                .matmul(&down.t().expect("t"))
+                .expect("mm")
+                .reshape((b, t, d))
+                .expect("r"))
+            .expect("add");
+        }
+        x
+    };
+    // Padded.
+    let mmax = *counts.iter().max().expect("non-empty");
+    let t = mmax + r;
+    let xp = rand_t(&[32, t, d], &mut rng);
+    let mut mp = vec![0f32; 32 * t];
+    for (s, &m) in counts.iter().enumerate() {
+        for j in m..mmax {
+            mp[s * t + j] = -1e9;
+        }
+    }
+    let mp = Tensor::from_vec(mp, (32, 1, 1, t), &dev).expect("mask");
+    // Block-diagonal packing.
+    let total: usize = counts.iter().map(|m| m + r).sum();
+    let xq = rand_t(&[1, total, d], &mut rng);
+    let mut mq = vec![-1e9f32; total * total];
+    let mut start = 0;
+    for &m in &counts {
+        for i in start..start + m + r {
+            for j in start..start + m + r {
+                mq[i * total + j] = 0.0;
+            }
+        }
+        start += m + r;
+    }
+    let mq = Tensor::from_vec(mq, (1, 1, total, total), &dev).expect("mask");
+    let mut group = c.benchmark_group("decoder_packing_32_scenes_d256_l8");
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(3));
+    group.bench_function("padded", |bench| {
+        bench.iter(|| black_box(blocks(xp.clone(), &mp)))
+    });
+    group.bench_function("block_diagonal", |bench| {
+        bench.iter(|| black_box(blocks(xq.clone(), &mq)))
+    });
+    group.finish();
+}
+
+fn train_batch(model: &RigidFormer, seed: u64) -> Vec<(PreparedScene, SceneState, Vec<Pose>)> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    (0..16)
+        .map(|_| {
+            let m = rng.random_range(3..=10);
+            let (o, s) = movi_scene(&mut rng, m, 256);
+            let target: Vec<Pose> = s
+                .previous
+                .iter()
+                .zip(&s.current)
+                .map(|(p, c)| Pose {
+                    translation: std::array::from_fn(|d| {
+                        2.0 * c.translation[d] - p.translation[d] - if d == 2 { 0.017 } else { 0.0 }
+                    }),
+                    rotation: c.rotation,
+                })
+                .collect();
+            (model.prepare(o).expect("scene"), s, target)
+        })
+        .collect()
+}
+
+fn bench_training(c: &mut Criterion) {
+    let mut group = c.benchmark_group("train_iteration_16_scenes_3to10x256");
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(5));
+    for (name, cfg) in [
+        ("small", ModelConfig::small()),
+        ("paper", ModelConfig::paper()),
+    ] {
+        let mut cache = None;
+        group.bench_function(name, |bench| {
+            let (model, data, opt) = cache.get_or_insert_with(|| {
+                let model = RigidFormer::new(cfg.clone(), 2, &Device::Cpu).expect("model");
+                println!("{name}: {} parameters", model.parameter_count());
+                let data = train_batch(&model, 5);
+                let opt = candle_nn::AdamW::new(
+                    model.varmap().all_vars(),
+                    candle_nn::ParamsAdamW {
+                        lr: 1e-4,
+                        ..Default::default()
+                    },
+                )
+                .expect("optimiser");
+                (model, data, opt)
+            });
+            let batch: Vec<TrainItem<'_>> = data
+                .iter()
+                .enumerate()
+                .map(|(i, (scene, state, target))| TrainItem {
+                    scene,
+                    state,
+                    target,
+                    dt_steps: [1, 2, 4][i % 3],
+                })
+                .collect();
+            bench.iter(|| {
+                let out = model.train_forward(&batch).expect("forward");
+                opt.backward_step(&out.loss).expect("step");
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(
+    benches,
+    bench_packing,
+    bench_steps,
+    bench_wrecking_ball,
+    bench_training
+);
+criterion_main!(benches);
