@@ -145,7 +145,8 @@ second level to one token per object\n- anchor queries attend to decoder depths 
 - FPS starts at the point farthest from the cloud centroid, so anchors do not depend on point order; \
 anchors are the first K FPS points of the reference cloud, encoder centres the first {s}.\n\
 - Anchor queries also receive their own object's final decoder token (a linear map of it is added), \
-and ARoPE also rotates the anchor cross-attention (queries by their own anchor, keys by their object).\n\
+and ARoPE also rotates the anchor cross-attention (queries by their own anchor, keys by their object); \
+each tapped depth is RMS-normalised and gets a learned depth embedding before the shared K/V projection.\n\
 - Each FiLM pair is one MLP on tau = log2(dt_steps) giving (gamma - 1, beta), initialised near (1, 0).\n\
 - The training loss divides differences by loss.scale = {ls} m before Smooth L1 (beta = {lb}).\n\n\
 ## Training and evaluation\n\nNot yet recorded.\n",

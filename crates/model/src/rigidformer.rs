@@ -84,8 +84,6 @@ struct AnchorHead {
     q: Linear,
     kv: Linear,
     out: Linear,
-    ffn_norm: RmsNorm,
-    ffn: SwiGlu,
     head_norm: RmsNorm,
     head: Mlp,
 }
@@ -205,8 +203,6 @@ impl RigidFormer {
             q: p.linear("anchors.cross.q", d, d, false)?,
             kv: p.linear("anchors.cross.kv", d, 2 * d, false)?,
             out: p.linear("anchors.cross.out", d, d, false)?,
-            ffn_norm: p.rms_norm("anchors.ffn_norm", d, eps)?,
-            ffn: SwiGlu::new(p, "anchors.ffn", d, c.ffn_hidden)?,
             head_norm: p.rms_norm("anchors.head_norm", d, eps)?,
             head: Mlp::new(p, "anchors.head", d, d, 3)?,
         };
@@ -510,8 +506,8 @@ impl RigidFormer {
             mode,
         )?;
         let att = att.transpose(1, 2)?.reshape((b, m * k, d))?;
-        let mut y = (query + a.out.forward(&att)?)?;
-        y = (&y + a.ffn.forward(&a.ffn_norm.forward(&y, mode)?)?)?;
+        let y = (query + a.out.forward(&att)?)?;
+        // The acceleration MLP (D -> D -> 3, SiLU).
         let acc = a.head.forward(&a.head_norm.forward(&y, mode)?)?; // [B, M*K, 3]
         let acc = acc
             .reshape((b * m * k, 3))?
