@@ -23,6 +23,8 @@ enum Command {
     Serve(dynaserve_server::ServeConfig),
     /// Run a scene file on a server and print the frames (one JSON line each) or save them.
     Rollout(dynaserve_client::cli::RolloutArgs),
+    /// Train a world model from a configuration file, or export a run's checkpoint.
+    Train(dynaserve_train::train::TrainArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -34,5 +36,6 @@ fn main() -> anyhow::Result<()> {
         }
         Command::Serve(config) => dynaserve_server::run(config),
         Command::Rollout(args) => dynaserve_client::cli::run(args),
+        Command::Train(args) => dynaserve_train::train::run_cli(args),
     }
 }

@@ -1,0 +1,301 @@
+//! Training configuration (`dynaserve train --config FILE`), read from TOML or JSON.
+//!
+//! Every knob has a default; a file only names what it changes. Unknown keys are rejected so a
+//! misspelt knob is an error, not a silent default. `docs/training.md` lists the same knobs.
+
+use std::path::{Path, PathBuf};
+
+use dynaserve_model::ModelConfig;
+use serde::{Deserialize, Serialize};
+
+use super::TrainError;
+
+/// The whole training configuration: data, model, optimiser and run settings.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrainConfig {
+    /// Where samples come from and how they are augmented.
+    pub data: DataConfig,
+    /// Which network to train.
+    pub model: ModelSection,
+    /// AdamW, schedule, clipping, batch size and length.
+    pub optim: OptimConfig,
+    /// Output directory, checkpoint cadence, logging, threads.
+    pub run: RunConfig,
+}
+
+/// Data loading and augmentation.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DataConfig {
+    /// Training split directory (`manifest.json` + shards), relative to the working directory.
+    pub train: PathBuf,
+    /// Step sizes in frames, one drawn uniformly per sample (NOTES.md: {1, 2, 4}).
+    pub step_sizes: Vec<u32>,
+    /// Fewest surface points per object in a training sample (drawn uniformly per object).
+    pub points_min: usize,
+    /// Most surface points per object in a training sample (inclusive).
+    pub points_max: usize,
+    /// Probability that an object additionally loses a contiguous patch of its points
+    /// (a half-space cut, like an occluded view).
+    pub point_drop_prob: f32,
+    /// Largest fraction of an object's sampled points such a cut removes (uniform in
+    /// `[0, point_drop_max]`).
+    pub point_drop_max: f32,
+    /// Rotate every sample by a uniform random angle about the gravity (z) axis.
+    pub rotate_z: bool,
+    /// Present the objects of every sample in a random order.
+    pub shuffle_objects: bool,
+    /// Standard deviation of Gaussian noise added to the input poses' translations (both
+    /// observed frames, independently), metres. 0 disables. Targets are not perturbed, so the
+    /// model learns to correct its inputs.
+    pub noise_position: f32,
+    /// Standard deviation of the random rotation (angle, radians, random axis) applied to the
+    /// input poses, independently per frame. 0 disables.
+    pub noise_rotation: f32,
+    /// Batches the loader thread prepares ahead of the trainer.
+    pub prefetch: usize,
+    /// Scenes read to fit the feature normalisation before training.
+    pub norm_scenes: usize,
+    /// Windows sampled per scene when fitting the normalisation.
+    pub norm_windows: usize,
+}
+
+impl Default for DataConfig {
+    fn default() -> Self {
+        DataConfig {
+            train: PathBuf::from("data/movi-b/train"),
+            step_sizes: vec![1, 2, 4],
+            points_min: 128,
+            points_max: 384,
+            point_drop_prob: 0.1,
+            point_drop_max: 0.3,
+            rotate_z: true,
+            shuffle_objects: true,
+            noise_position: 0.0,
+            noise_rotation: 0.0,
+            prefetch: 8,
+            norm_scenes: 200,
+            norm_windows: 4,
+        }
+    }
+}
+
+/// The network to train.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ModelSection {
+    /// A preset of the model crate (`small`, `paper` or `tiny`); ignored when `config` is set.
+    pub preset: String,
+    /// Path of a `config.json` (a [`ModelConfig`]) to use instead of a preset.
+    pub config: Option<PathBuf>,
+    /// Seed of the random initialisation.
+    pub seed: u64,
+    /// Fit the 12 feature normalisation constants from the training data before training
+    /// (recorded in the checkpoint's `config.json`); otherwise keep the config's values.
+    pub fit_normalization: bool,
+}
+
+impl Default for ModelSection {
+    fn default() -> Self {
+        ModelSection {
+            preset: "small".into(),
+            config: None,
+            seed: 0,
+            fit_normalization: true,
+        }
+    }
+}
+
+impl ModelSection {
+    /// The model configuration this section names (before normalisation fitting).
+    pub fn model_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {
+        if let Some(path) = &self.config {
+            let path = resolve(base, path);
+            let text = std::fs::read_to_string(&path).map_err(|e| TrainError::Io {
+                path: path.clone(),
+                source: e,
+            })?;
+            let c: ModelConfig = serde_json::from_str(&text).map_err(|e| {
+                TrainError::Config(format!("{}: not a model config: {e}", path.display()))
+            })?;
+            c.validate()?;
+            return Ok(c);
+        }
+        match self.preset.as_str() {
+            "small" => Ok(ModelConfig::small()),
+            "paper" => Ok(ModelConfig::paper()),
+            "tiny" => Ok(ModelConfig::tiny()),
+            other => Err(TrainError::Config(format!(
+                "model.preset {other:?} is not one of small, paper, tiny"
+            ))),
+        }
+    }
+}
+
+/// Optimiser, learning-rate schedule and length of training.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OptimConfig {
+    /// Scenes per iteration (one window each).
+    pub batch_size: usize,
+    /// Total iterations; the cosine schedule reaches `min_lr_ratio * lr` here.
+    pub iterations: u64,
+    /// Peak learning rate.
+    pub lr: f64,
+    /// Linear warm-up length in iterations.
+    pub warmup: u64,
+    /// Learning rate at iteration 0 as a fraction of `lr` (NOTES.md: 0.1).
+    pub warmup_start: f64,
+    /// Final learning rate of the cosine decay as a fraction of `lr`.
+    pub min_lr_ratio: f64,
+    /// AdamW first-moment decay.
+    pub beta1: f64,
+    /// AdamW second-moment decay.
+    pub beta2: f64,
+    /// AdamW epsilon.
+    pub eps: f64,
+    /// Decoupled weight decay for matrices (norm scales, biases, registers, embeddings and the
+    /// AVP bandwidth get none).
+    pub weight_decay: f64,
+    /// Global gradient-norm clip (over all parameters); 0 disables.
+    pub grad_clip: f64,
+    /// Decay of the exponential moving average of the weights kept beside the raw weights
+    /// (exported when better); 0 disables.
+    pub ema_decay: f64,
+}
+
+impl Default for OptimConfig {
+    fn default() -> Self {
+        OptimConfig {
+            batch_size: 16,
+            iterations: 20_000,
+            lr: 5e-4,
+            warmup: 500,
+            warmup_start: 0.1,
+            min_lr_ratio: 0.02,
+            beta1: 0.9,
+            beta2: 0.999,
+            eps: 1e-8,
+            weight_decay: 0.05,
+            grad_clip: 1.0,
+            ema_decay: 0.999,
+        }
+    }
+}
+
+/// Where results go and how often.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RunConfig {
+    /// Run directory: `checkpoint/`, `log.csv`, `loss.png`, `train-config.toml`.
+    pub out_dir: PathBuf,
+    /// Minutes between checkpoints (also written at the end and on Ctrl-C / SIGTERM).
+    pub checkpoint_minutes: f64,
+    /// Iterations between CSV log rows (losses are averaged over them).
+    pub log_every: u64,
+    /// Threads of the dedicated compute pool (model forward/backward).
+    pub threads: usize,
+    /// Seed of the data order and augmentation.
+    pub seed: u64,
+    /// Show a progress bar (otherwise a plain line per log row).
+    pub progress: bool,
+}
+
+impl Default for RunConfig {
+    fn default() -> Self {
+        RunConfig {
+            out_dir: PathBuf::from("runs/rigidformer-small"),
+            checkpoint_minutes: 5.0,
+            log_every: 20,
+            threads: 2,
+            seed: 0,
+            progress: true,
+        }
+    }
+}
+
+/// Paths in a config file are relative to the working directory unless absolute.
+fn resolve(_base: &Path, p: &Path) -> PathBuf {
+    p.to_path_buf()
+}
+
+impl TrainConfig {
+    /// Reads a TOML (`.toml`) or JSON (any other extension) configuration and validates it.
+    pub fn from_file(path: &Path) -> Result<TrainConfig, TrainError> {
+        let text = std::fs::read_to_string(path).map_err(|e| TrainError::Io {
+            path: path.to_path_buf(),
+            source: e,
+        })?;
+        let cfg: TrainConfig = if path.extension().is_some_and(|e| e == "toml") {
+            toml::from_str(&text)
+                .map_err(|e| TrainError::Config(format!("{}: {e}", path.display())))?
+        } else {
+            serde_json::from_str(&text)
+                .map_err(|e| TrainError::Config(format!("{}: {e}", path.display())))?
+        };
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// Checks ranges; every violation is named.
+    pub fn validate(&self) -> Result<(), TrainError> {
+        let bad = |m: &str| Err(TrainError::Config(m.to_string()));
+        let d = &self.data;
+        if d.step_sizes.is_empty() || d.step_sizes.iter().any(|&k| k == 0 || k > 16) {
+            return bad("data.step_sizes must be non-empty, each in 1..=16");
+        }
+        if d.points_min == 0 || d.points_max < d.points_min {
+            return bad("data.points_min must be >= 1 and <= data.points_max");
+        }
+        if !(0.0..=1.0).contains(&d.point_drop_prob) || !(0.0..0.95).contains(&d.point_drop_max) {
+            return bad("data.point_drop_prob must be in [0, 1] and point_drop_max in [0, 0.95)");
+        }
+        if !(d.noise_position >= 0.0 && d.noise_rotation >= 0.0) {
+            return bad("data.noise_position and noise_rotation must be >= 0");
+        }
+        if d.prefetch == 0 {
+            return bad("data.prefetch must be >= 1");
+        }
+        let o = &self.optim;
+        if o.batch_size == 0 || o.iterations == 0 {
+            return bad("optim.batch_size and optim.iterations must be >= 1");
+        }
+        if !(o.lr > 0.0 && o.lr.is_finite()) {
+            return bad("optim.lr must be finite and > 0");
+        }
+        if !(0.0..=1.0).contains(&o.warmup_start) || !(0.0..=1.0).contains(&o.min_lr_ratio) {
+            return bad("optim.warmup_start and optim.min_lr_ratio must be in [0, 1]");
+        }
+        if !(0.0..1.0).contains(&o.beta1) || !(0.0..1.0).contains(&o.beta2) || o.eps <= 0.0 {
+            return bad("optim.beta1/beta2 must be in [0, 1) and eps > 0");
+        }
+        if o.weight_decay < 0.0 || o.grad_clip < 0.0 || !(0.0..1.0).contains(&o.ema_decay) {
+            return bad("optim.weight_decay, grad_clip >= 0 and ema_decay in [0, 1)");
+        }
+        let r = &self.run;
+        if !(r.checkpoint_minutes > 0.0) || r.log_every == 0 || r.threads == 0 {
+            return bad("run.checkpoint_minutes > 0, run.log_every >= 1 and run.threads >= 1");
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn toml_overrides_defaults_and_rejects_unknown_keys() {
+        let c: TrainConfig =
+            toml::from_str("[optim]\nbatch_size = 4\n[data]\npoints_min = 64\n").unwrap();
+        assert_eq!(c.optim.batch_size, 4);
+        assert_eq!(c.data.points_min, 64);
+        assert_eq!(c.optim.lr, OptimConfig::default().lr);
+        c.validate().unwrap();
+        assert!(toml::from_str::<TrainConfig>("[optim]\nbatchsize = 4\n").is_err());
+        let mut c = TrainConfig::default();
+        c.data.points_max = 1;
+        assert!(c.validate().unwrap_err().to_string().contains("points_min"));
+    }
+}

@@ -1,0 +1,459 @@
+//! Streaming training data: a worker thread reads dataset shards, draws one-step windows with
+//! augmentation, prepares the scenes for the model and hands whole batches to the trainer
+//! through a bounded channel.
+//!
+//! The sample stream is a pure function of `(run seed, global sample index)`: epoch `e` visits
+//! the shards in a seeded random order and the scenes of each shard in a seeded random order,
+//! and sample `g` draws its window and augmentation from a generator seeded with `(seed, g)`.
+//! Resuming at iteration `s` therefore restarts the stream at sample `s * batch_size` and
+//! reproduces exactly the batches an uninterrupted run would have seen.
+
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use dynaserve_geometry::{ContactConfig, contact_features};
+use dynaserve_model::{
+    FeatureNormalization, ModelConfig, ObjectInput, Pose, PreparedScene, SceneState, WorldModel,
+};
+use dynaserve_sim::{DatasetReader, SceneRecord};
+use nalgebra::{UnitQuaternion, Vector3};
+use rand::seq::SliceRandom;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+
+use super::TrainError;
+use super::config::DataConfig;
+
+/// One raw training window (before model preparation).
+#[derive(Clone, Debug)]
+pub struct Window {
+    /// Objects with their (sub-sampled) body-frame clouds and parameters.
+    pub objects: Vec<ObjectInput>,
+    /// Observed poses at `t - dt_steps` and `t` (possibly noised).
+    pub state: SceneState,
+    /// Ground-truth poses at `t + dt_steps`.
+    pub target: Vec<Pose>,
+    /// Step size in frames.
+    pub dt_steps: u32,
+}
+
+/// One prepared training sample.
+pub struct Sample {
+    /// The scene prepared by the model (anchors, grouping).
+    pub scene: PreparedScene,
+    /// Observed poses.
+    pub state: SceneState,
+    /// Ground-truth poses `dt_steps` frames after `state.current`.
+    pub target: Vec<Pose>,
+    /// Step size in frames.
+    pub dt_steps: u32,
+}
+
+/// A batch of samples for iteration `step`.
+pub struct Batch {
+    /// Iteration (0-based) this batch belongs to.
+    pub step: u64,
+    /// The samples.
+    pub samples: Vec<Sample>,
+}
+
+/// SplitMix64 finaliser: decorrelates seeds built from small integers.
+pub fn mix(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+fn rng_for(seed: u64, stream: u64, index: u64) -> ChaCha8Rng {
+    ChaCha8Rng::seed_from_u64(mix(mix(seed ^ mix(stream)) ^ index))
+}
+
+/// Random unit quaternion of angle `~ N(0, sigma)` about a random axis.
+fn small_rotation(rng: &mut impl Rng, sigma: f32) -> UnitQuaternion<f32> {
+    let axis = Vector3::new(
+        StandardNormal.sample(rng),
+        StandardNormal.sample(rng),
+        StandardNormal.sample(rng),
+    );
+    let n: f32 = axis.norm();
+    if n < 1e-6 || sigma == 0.0 {
+        return UnitQuaternion::identity();
+    }
+    let angle: f32 = StandardNormal.sample(rng);
+    UnitQuaternion::from_scaled_axis(axis / n * (angle * sigma))
+}
+
+fn quat(q: [f32; 4]) -> UnitQuaternion<f32> {
+    UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[3], q[0], q[1], q[2]))
+}
+
+/// Draws one window from `scene` with the augmentation of `c` (noise only if `noise`).
+pub fn sample_window(
+    scene: &SceneRecord,
+    c: &DataConfig,
+    rng: &mut ChaCha8Rng,
+    noise: bool,
+) -> Result<Window, TrainError> {
+    let frames = scene
+        .objects
+        .first()
+        .map(|o| o.positions.len())
+        .unwrap_or(0);
+    if scene.objects.is_empty() || frames < 3 {
+        return Err(TrainError::Data(format!(
+            "a scene with {} objects and {frames} frames cannot give a training window",
+            scene.objects.len()
+        )));
+    }
+    let valid: Vec<u32> = c
+        .step_sizes
+        .iter()
+        .copied()
+        .filter(|&k| 2 * k as usize + 1 <= frames)
+        .collect();
+    let k = if valid.is_empty() {
+        ((frames - 1) / 2) as u32
+    } else {
+        valid[rng.random_range(0..valid.len())]
+    };
+    let ku = k as usize;
+    let t = rng.random_range(ku..=frames - 1 - ku);
+    let mut order: Vec<usize> = (0..scene.objects.len()).collect();
+    if c.shuffle_objects {
+        order.shuffle(rng);
+    }
+    let rz = if c.rotate_z {
+        UnitQuaternion::from_axis_angle(
+            &Vector3::z_axis(),
+            rng.random_range(0.0..std::f32::consts::TAU),
+        )
+    } else {
+        UnitQuaternion::identity()
+    };
+    let pose_at = |o: &dynaserve_sim::ObjectRecord, f: usize| -> Pose {
+        let p = rz * Vector3::from(o.positions[f]);
+        Pose::from_parts(p, rz * quat(o.rotations[f]))
+    };
+    let mut objects = Vec::with_capacity(order.len());
+    let mut previous = Vec::with_capacity(order.len());
+    let mut current = Vec::with_capacity(order.len());
+    let mut target = Vec::with_capacity(order.len());
+    for &j in &order {
+        let o = &scene.objects[j];
+        if o.positions.len() != frames || o.rotations.len() != frames {
+            return Err(TrainError::Data(format!(
+                "object {j} has {} positions and {} rotations, expected {frames}",
+                o.positions.len(),
+                o.rotations.len()
+            )));
+        }
+        let p = o.reference_points.len();
+        if p == 0 {
+            return Err(TrainError::Data(format!(
+                "object {j} has no reference points"
+            )));
+        }
+        let n = rng.random_range(c.points_min..=c.points_max).min(p);
+        // Partial Fisher-Yates: a uniform subset of n points.
+        let mut idx: Vec<usize> = (0..p).collect();
+        for i in 0..n {
+            let r = rng.random_range(i..p);
+            idx.swap(i, r);
+        }
+        idx.truncate(n);
+        let mut reference: Vec<[f32; 3]> = idx.iter().map(|&i| o.reference_points[i]).collect();
+        if c.point_drop_prob > 0.0 && rng.random::<f32>() < c.point_drop_prob && n > 1 {
+            // Remove the points farthest along a random direction (a contiguous patch).
+            let u = small_rotation(rng, 10.0) * Vector3::z();
+            let frac = rng.random_range(0.0..=c.point_drop_max);
+            let drop = ((frac * n as f32) as usize).min(n - 1);
+            reference.sort_by(|a, b| {
+                let (da, db) = (Vector3::from(*a).dot(&u), Vector3::from(*b).dot(&u));
+                da.total_cmp(&db)
+            });
+            reference.truncate(n - drop);
+        }
+        objects.push(ObjectInput {
+            reference,
+            mass: o.mass,
+            friction: o.friction,
+            restitution: o.restitution,
+        });
+        let mut prev = pose_at(o, t - ku);
+        let mut cur = pose_at(o, t);
+        if noise && (c.noise_position > 0.0 || c.noise_rotation > 0.0) {
+            for pose in [&mut prev, &mut cur] {
+                let mut p = Vector3::from(pose.translation);
+                for d in 0..3 {
+                    let e: f32 = StandardNormal.sample(rng);
+                    p[d] += e * c.noise_position;
+                }
+                let q = small_rotation(rng, c.noise_rotation) * pose.unit_quaternion();
+                *pose = Pose::from_parts(p, q);
+            }
+        }
+        previous.push(prev);
+        current.push(cur);
+        target.push(pose_at(o, t + ku));
+    }
+    Ok(Window {
+        objects,
+        state: SceneState { previous, current },
+        target,
+        dt_steps: k,
+    })
+}
+
+/// Where the stream's global sample `g` comes from: `(shard, scene within the shard)`.
+struct Order {
+    /// Scene count per shard.
+    shard_sizes: Vec<usize>,
+    total: usize,
+    seed: u64,
+    /// Cached epoch layout: `(epoch, shard order, cumulative starts)`.
+    cached: Option<(u64, Vec<usize>, Vec<usize>)>,
+}
+
+impl Order {
+    fn locate(&mut self, g: u64) -> (usize, usize) {
+        let epoch = g / self.total as u64;
+        let pos = (g % self.total as u64) as usize;
+        if self.cached.as_ref().is_none_or(|c| c.0 != epoch) {
+            let mut perm: Vec<usize> = (0..self.shard_sizes.len()).collect();
+            perm.shuffle(&mut rng_for(self.seed, 1, epoch));
+            let mut starts = Vec::with_capacity(perm.len() + 1);
+            let mut acc = 0;
+            for &s in &perm {
+                starts.push(acc);
+                acc += self.shard_sizes[s];
+            }
+            starts.push(acc);
+            self.cached = Some((epoch, perm, starts));
+        }
+        let (_, perm, starts) = self.cached.as_ref().expect("layout cached above");
+        let i = starts.partition_point(|&s| s <= pos) - 1;
+        let shard = perm[i];
+        let mut scenes: Vec<usize> = (0..self.shard_sizes[shard]).collect();
+        scenes.shuffle(&mut rng_for(self.seed, 2, epoch * 1_000_003 + shard as u64));
+        (shard, scenes[pos - starts[i]])
+    }
+}
+
+/// The loader: a worker thread producing batches from iteration `start` on.
+pub struct Loader {
+    rx: Mutex<Receiver<Result<Batch, TrainError>>>,
+    stop: Arc<AtomicBool>,
+    handle: Option<JoinHandle<()>>,
+}
+
+impl Loader {
+    /// Starts the worker. `model` prepares scenes (anchors, grouping); `seed` fixes the stream.
+    pub fn start(
+        reader: DatasetReader,
+        cfg: DataConfig,
+        batch_size: usize,
+        seed: u64,
+        start: u64,
+        model: Arc<dyn WorldModel>,
+    ) -> Result<Loader, TrainError> {
+        if reader.is_empty() {
+            return Err(TrainError::Data(format!(
+                "{} holds no scenes",
+                reader.dir().display()
+            )));
+        }
+        let shard_sizes: Vec<usize> = reader.manifest().shards.iter().map(|s| s.scenes).collect();
+        let (tx, rx) = sync_channel(cfg.prefetch);
+        let stop = Arc::new(AtomicBool::new(false));
+        let stop2 = stop.clone();
+        let handle = std::thread::Builder::new()
+            .name("train-loader".into())
+            .spawn(move || {
+                let order = Order {
+                    total: shard_sizes.iter().sum(),
+                    shard_sizes,
+                    seed,
+                    cached: None,
+                };
+                worker(
+                    reader, cfg, batch_size, seed, start, model, order, tx, stop2,
+                )
+            })
+            .map_err(|e| TrainError::Data(format!("cannot start the loader thread: {e}")))?;
+        Ok(Loader {
+            rx: Mutex::new(rx),
+            stop,
+            handle: Some(handle),
+        })
+    }
+
+    /// The next batch (blocks until the worker has one).
+    pub fn next(&self) -> Result<Batch, TrainError> {
+        self.rx
+            .lock()
+            .map_err(|_| TrainError::Data("loader channel lock poisoned".into()))?
+            .recv()
+            .map_err(|_| TrainError::Data("the loader thread ended unexpectedly".into()))?
+    }
+}
+
+impl Drop for Loader {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        // Drain so a worker blocked on a full channel can notice the stop flag.
+        if let Ok(rx) = self.rx.lock() {
+            while rx.try_recv().is_ok() {}
+        }
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn worker(
+    reader: DatasetReader,
+    cfg: DataConfig,
+    batch_size: usize,
+    seed: u64,
+    start: u64,
+    model: Arc<dyn WorldModel>,
+    mut order: Order,
+    tx: SyncSender<Result<Batch, TrainError>>,
+    stop: Arc<AtomicBool>,
+) {
+    let mut cache: HashMap<usize, Arc<Vec<SceneRecord>>> = HashMap::new();
+    let mut step = start;
+    while !stop.load(Ordering::Relaxed) {
+        let mut make = || -> Result<Batch, TrainError> {
+            let mut samples = Vec::with_capacity(batch_size);
+            for j in 0..batch_size {
+                let g = step * batch_size as u64 + j as u64;
+                let (shard, local) = order.locate(g);
+                if !cache.contains_key(&shard) {
+                    if cache.len() >= 2 {
+                        cache.clear();
+                    }
+                    cache.insert(shard, Arc::new(reader.read_shard(shard)?));
+                }
+                let scenes = &cache[&shard];
+                let rec = scenes.get(local).ok_or_else(|| {
+                    TrainError::Data(format!("shard {shard} has no scene {local}"))
+                })?;
+                let mut rng = rng_for(seed, 3, g);
+                let w = sample_window(rec, &cfg, &mut rng, true)?;
+                let scene = model.prepare(w.objects)?;
+                samples.push(Sample {
+                    scene,
+                    state: w.state,
+                    target: w.target,
+                    dt_steps: w.dt_steps,
+                });
+            }
+            Ok(Batch { step, samples })
+        };
+        let mut item = make();
+        let failed = item.is_err();
+        // Bounded send that still notices the stop flag.
+        loop {
+            match tx.try_send(item) {
+                Ok(()) => break,
+                Err(TrySendError::Full(back)) => {
+                    if stop.load(Ordering::Relaxed) {
+                        return;
+                    }
+                    item = back;
+                    std::thread::sleep(Duration::from_millis(5));
+                }
+                Err(TrySendError::Disconnected(_)) => return,
+            }
+        }
+        if failed {
+            return;
+        }
+        step += 1;
+    }
+}
+
+/// Per-feature mean and standard deviation of the 12 raw point features (contact
+/// displacement, per-step increment, offset from the reference cloud, `[ln mass, friction,
+/// restitution]`) over `c.norm_windows` augmented windows of each of the first `c.norm_scenes`
+/// scenes, computed exactly as the model computes them. Standard deviations are floored at
+/// 0.01 so constant features do not explode.
+pub fn fit_normalization(
+    reader: &DatasetReader,
+    c: &DataConfig,
+    model: &ModelConfig,
+    seed: u64,
+) -> Result<FeatureNormalization, TrainError> {
+    let mut sum = [0f64; 12];
+    let mut sq = [0f64; 12];
+    let mut count = 0f64;
+    let contact_cfg = ContactConfig {
+        radius: model.contact_radius,
+        ground_z: model.ground_z,
+    };
+    for (i, rec) in reader.iter().take(c.norm_scenes).enumerate() {
+        let rec = rec?;
+        for w in 0..c.norm_windows {
+            let mut rng = rng_for(seed, 4, (i * 1000 + w) as u64);
+            let win = sample_window(&rec, c, &mut rng, false)?;
+            let mut world = Vec::new();
+            let mut world_prev = Vec::new();
+            let mut offsets = vec![0usize];
+            for (j, o) in win.objects.iter().enumerate() {
+                let (cur, prev) = (&win.state.current[j], &win.state.previous[j]);
+                for x in &o.reference {
+                    world.push(cur.transform_point(*x));
+                    world_prev.push(prev.transform_point(*x));
+                }
+                offsets.push(world.len());
+            }
+            let contact = contact_features(&world, &offsets, &contact_cfg);
+            for (j, o) in win.objects.iter().enumerate() {
+                let params = [o.mass.ln(), o.friction, o.restitution];
+                for (q, x) in (offsets[j]..offsets[j + 1]).zip(&o.reference) {
+                    let (wc, wp, ct) = (world[q], world_prev[q], contact[q]);
+                    let raw = [
+                        ct[0],
+                        ct[1],
+                        ct[2],
+                        wc[0] - wp[0],
+                        wc[1] - wp[1],
+                        wc[2] - wp[2],
+                        wc[0] - x[0],
+                        wc[1] - x[1],
+                        wc[2] - x[2],
+                        params[0],
+                        params[1],
+                        params[2],
+                    ];
+                    for f in 0..12 {
+                        sum[f] += raw[f] as f64;
+                        sq[f] += (raw[f] as f64).powi(2);
+                    }
+                    count += 1.0;
+                }
+            }
+        }
+    }
+    if count == 0.0 {
+        return Err(TrainError::Data(
+            "no points to fit the normalisation from".into(),
+        ));
+    }
+    let mut n = FeatureNormalization::default();
+    for f in 0..12 {
+        let mean = sum[f] / count;
+        let var = (sq[f] / count - mean * mean).max(0.0);
+        n.mean[f] = mean as f32;
+        n.std[f] = (var.sqrt() as f32).max(0.01);
+    }
+    Ok(n)
+}

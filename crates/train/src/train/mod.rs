@@ -1,0 +1,179 @@
+//! RigidFormer training: `dynaserve train --config FILE [--resume]` and
+//! `dynaserve train export`.
+//!
+//! - [`config`]: the documented configuration (TOML or JSON);
+//! - [`data`]: the streaming loader (worker thread, windows, augmentation) and the fit of the
+//!   feature normalisation;
+//! - [`optim`]: learning-rate schedule, gradient clipping, AdamW with per-parameter decay;
+//! - [`trainer`]: the loop, checkpoints, resume, CSV log, loss curve;
+//! - [`plot`]: PNG line charts.
+
+pub mod config;
+pub mod data;
+pub mod optim;
+pub mod plot;
+pub mod trainer;
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+pub use config::TrainConfig;
+pub use trainer::{ExportOptions, TrainOptions, TrainSummary, export, train};
+
+/// Errors of training and export; each names the file or setting at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    /// A configuration value is invalid or a run directory is inconsistent.
+    #[error("configuration: {0}")]
+    Config(String),
+    /// A file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The underlying error.
+        source: std::io::Error,
+    },
+    /// The training data is unusable.
+    #[error("data: {0}")]
+    Data(String),
+    /// The model rejected an input or failed.
+    #[error(transparent)]
+    Model(#[from] dynaserve_model::ModelError),
+    /// Dataset I/O failed.
+    #[error(transparent)]
+    Sim(#[from] dynaserve_sim::SimError),
+    /// A tensor operation failed.
+    #[error("tensor: {0}")]
+    Candle(#[from] candle_core::Error),
+    /// A loss or gradient became NaN or infinite.
+    #[error("non-finite value: {0}")]
+    NonFinite(String),
+    /// A chart could not be drawn.
+    #[error("plot: {0}")]
+    Plot(String),
+}
+
+/// `dynaserve train`: train from a configuration, or export a run's checkpoint.
+#[derive(clap::Args, Debug)]
+#[command(args_conflicts_with_subcommands = true)]
+pub struct TrainArgs {
+    /// Export a checkpoint instead of training.
+    #[command(subcommand)]
+    pub action: Option<TrainAction>,
+    /// Training configuration, TOML (`.toml`) or JSON (docs/training.md lists every knob).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Continue the run in `run.out_dir` from its last checkpoint (weights, optimizer moments,
+    /// step, schedule and data position).
+    #[arg(long)]
+    pub resume: bool,
+    /// Stop (with a checkpoint) after this many iterations in this invocation.
+    #[arg(long)]
+    pub stop_after: Option<u64>,
+}
+
+/// Subcommands of `dynaserve train`.
+#[derive(clap::Subcommand, Debug)]
+pub enum TrainAction {
+    /// Write a run's checkpoint as a model directory (config.json, model.safetensors).
+    Export {
+        /// Run directory (holds `checkpoint/`).
+        #[arg(long)]
+        run: PathBuf,
+        /// Output model directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// Export the exponential moving average of the weights instead of the raw weights.
+        #[arg(long)]
+        ema: bool,
+        /// Stored weight type: f32, f16 or bf16.
+        #[arg(long, default_value = "f32")]
+        dtype: String,
+    },
+}
+
+/// Sets `flag` on SIGINT (Ctrl-C) or SIGTERM, from a small signal thread.
+pub fn stop_on_signals(flag: Arc<AtomicBool>) -> std::io::Result<()> {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_io()
+        .build()?;
+    std::thread::Builder::new()
+        .name("train-signals".into())
+        .spawn(move || {
+            rt.block_on(async move {
+                #[cfg(unix)]
+                {
+                    use tokio::signal::unix::{SignalKind, signal};
+                    let Ok(mut term) = signal(SignalKind::terminate()) else {
+                        return;
+                    };
+                    loop {
+                        tokio::select! {
+                            _ = tokio::signal::ctrl_c() => {},
+                            _ = term.recv() => {},
+                        }
+                        flag.store(true, Ordering::SeqCst);
+                    }
+                }
+                #[cfg(not(unix))]
+                loop {
+                    if tokio::signal::ctrl_c().await.is_err() {
+                        return;
+                    }
+                    flag.store(true, Ordering::SeqCst);
+                }
+            })
+        })?;
+    Ok(())
+}
+
+/// Runs `dynaserve train` with parsed arguments.
+pub fn run_cli(args: TrainArgs) -> anyhow::Result<()> {
+    if let Some(TrainAction::Export {
+        run,
+        out,
+        ema,
+        dtype,
+    }) = args.action
+    {
+        let dtype = match dtype.as_str() {
+            "f32" => candle_core::DType::F32,
+            "f16" => candle_core::DType::F16,
+            "bf16" => candle_core::DType::BF16,
+            other => anyhow::bail!("--dtype {other:?} is not one of f32, f16, bf16"),
+        };
+        export(&ExportOptions {
+            run,
+            out: out.clone(),
+            ema,
+            dtype,
+        })?;
+        println!("exported to {}", out.display());
+        return Ok(());
+    }
+    let Some(path) = args.config else {
+        anyhow::bail!("dynaserve train needs --config FILE (or the export subcommand)");
+    };
+    let cfg = TrainConfig::from_file(&path)?;
+    let stop = Arc::new(AtomicBool::new(false));
+    stop_on_signals(stop.clone())?;
+    let summary = train(
+        &cfg,
+        &TrainOptions {
+            resume: args.resume,
+            stop: stop.clone(),
+            stop_after: args.stop_after,
+        },
+    )?;
+    println!(
+        "stopped at iteration {} of {} ({:.1} it/s this session, last loss {:.4}); checkpoint in {}",
+        summary.step,
+        cfg.optim.iterations,
+        summary.iterations_per_second,
+        summary.last_loss,
+        summary.checkpoint.display()
+    );
+    Ok(())
+}

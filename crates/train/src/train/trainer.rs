@@ -1,0 +1,530 @@
+//! The training loop: one-step supervision through [`RigidFormer::train_forward`], AdamW with
+//! warm-up + cosine schedule and global clipping, periodic and on-signal checkpoints, exact
+//! resume, a CSV log and a PNG loss curve.
+//!
+//! Run directory layout (`run.out_dir`):
+//! - `checkpoint/`: `config.json`, `model.safetensors` (f32), `optimizer.safetensors` (AdamW
+//!   moments, weight average, update count), `state.json` (iteration, wall time, the training
+//!   configuration); replaced atomically (written to `checkpoint.tmp`, then renamed);
+//! - `log.csv`: one row per `run.log_every` iterations (means over the window);
+//! - `loss.png`: the loss curve, redrawn at every checkpoint;
+//! - `train-config.json`: the configuration of the run.
+
+use std::collections::HashMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use candle_core::{DType, Device, Tensor};
+use dynaserve_model::checkpoint::{CONFIG_FILE, WEIGHTS_FILE};
+use dynaserve_model::{RigidFormer, TrainItem, WorldModel, load_model, load_rigidformer};
+use dynaserve_sim::DatasetReader;
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::{Deserialize, Serialize};
+
+use super::TrainError;
+use super::config::TrainConfig;
+use super::data::{Loader, fit_normalization};
+use super::optim::{AdamW, learning_rate};
+use super::plot::{Series, line_chart};
+
+/// File holding the optimizer state inside a checkpoint directory.
+pub const OPTIMIZER_FILE: &str = "optimizer.safetensors";
+/// File holding the training position inside a checkpoint directory.
+pub const STATE_FILE: &str = "state.json";
+/// Header of `log.csv`.
+pub const CSV_HEADER: &str =
+    "step,lr,loss,pos_pre,acc_pre,pos_post,acc_post,grad_norm,clipped_fraction,it_per_s,elapsed_s";
+
+/// How to run [`train`].
+#[derive(Clone, Debug)]
+pub struct TrainOptions {
+    /// Continue from `run.out_dir/checkpoint` instead of starting fresh.
+    pub resume: bool,
+    /// Set by a signal handler (or a test) to stop with a checkpoint after the current
+    /// iteration.
+    pub stop: Arc<AtomicBool>,
+    /// Stop (with a checkpoint) after this many iterations in this call.
+    pub stop_after: Option<u64>,
+}
+
+impl Default for TrainOptions {
+    fn default() -> Self {
+        TrainOptions {
+            resume: false,
+            stop: Arc::new(AtomicBool::new(false)),
+            stop_after: None,
+        }
+    }
+}
+
+/// What a [`train`] call did.
+#[derive(Clone, Debug)]
+pub struct TrainSummary {
+    /// Iterations completed in total (including earlier sessions).
+    pub step: u64,
+    /// Iterations per second in this call (excluding set-up).
+    pub iterations_per_second: f64,
+    /// Mean loss of the first logged window of this call.
+    pub first_loss: f64,
+    /// Mean loss of the last logged window of this call.
+    pub last_loss: f64,
+    /// The checkpoint directory written last.
+    pub checkpoint: PathBuf,
+    /// Wall time of all sessions of the run, seconds.
+    pub elapsed_seconds: f64,
+}
+
+/// Training position stored with every checkpoint.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct RunState {
+    /// Iterations completed.
+    pub step: u64,
+    /// Training wall time over all sessions, seconds.
+    pub elapsed_seconds: f64,
+    /// Compute threads used.
+    pub threads: usize,
+    /// The configuration of the run.
+    pub config: TrainConfig,
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> TrainError + '_ {
+    move |e| TrainError::Io {
+        path: path.to_path_buf(),
+        source: e,
+    }
+}
+
+/// Reads `state.json` of a checkpoint directory.
+pub fn read_state(ckpt: &Path) -> Result<RunState, TrainError> {
+    let p = ckpt.join(STATE_FILE);
+    let text = std::fs::read_to_string(&p).map_err(io(&p))?;
+    serde_json::from_str(&text).map_err(|e| TrainError::Config(format!("{}: {e}", p.display())))
+}
+
+fn checkpoint_dir(out: &Path) -> PathBuf {
+    out.join("checkpoint")
+}
+
+/// Writes a checkpoint atomically: into `checkpoint.tmp`, then swapped in by renames.
+fn save_checkpoint(
+    out: &Path,
+    model: &RigidFormer,
+    opt: &AdamW,
+    state: &RunState,
+) -> Result<PathBuf, TrainError> {
+    let tmp = out.join("checkpoint.tmp");
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp).map_err(io(&tmp))?;
+    }
+    model.save(&tmp)?;
+    opt.save(&tmp.join(OPTIMIZER_FILE))?;
+    let json = serde_json::to_string_pretty(state)
+        .map_err(|e| TrainError::Config(format!("state serialisation: {e}")))?;
+    std::fs::write(tmp.join(STATE_FILE), json).map_err(io(&tmp))?;
+    let dir = checkpoint_dir(out);
+    let old = out.join("checkpoint.old");
+    if old.exists() {
+        std::fs::remove_dir_all(&old).map_err(io(&old))?;
+    }
+    if dir.exists() {
+        std::fs::rename(&dir, &old).map_err(io(&dir))?;
+    }
+    std::fs::rename(&tmp, &dir).map_err(io(&tmp))?;
+    if old.exists() {
+        std::fs::remove_dir_all(&old).map_err(io(&old))?;
+    }
+    Ok(dir)
+}
+
+/// The checkpoint to resume from: `checkpoint/`, or `checkpoint.old/` if a swap was cut short.
+fn resumable(out: &Path) -> Option<PathBuf> {
+    [checkpoint_dir(out), out.join("checkpoint.old")]
+        .into_iter()
+        .find(|d| d.join(STATE_FILE).exists())
+}
+
+/// Rows of `log.csv` as `(step, loss, pos_post)`.
+fn read_log(path: &Path) -> Vec<(f64, f64, f64)> {
+    let Ok(text) = std::fs::read_to_string(path) else {
+        return Vec::new();
+    };
+    text.lines()
+        .skip(1)
+        .filter_map(|l| {
+            let v: Vec<f64> = l.split(',').filter_map(|x| x.parse().ok()).collect();
+            (v.len() >= 6).then(|| (v[0], v[2], v[5]))
+        })
+        .collect()
+}
+
+/// Redraws the loss curve from `log.csv`.
+pub fn plot_loss(out: &Path) -> Result<(), TrainError> {
+    let rows = read_log(&out.join("log.csv"));
+    if rows.is_empty() {
+        return Ok(());
+    }
+    line_chart(
+        &out.join("loss.png"),
+        "RigidFormer one-step training loss",
+        "iteration",
+        "loss (Smooth L1, sum of 4 terms)",
+        &[
+            Series {
+                name: "loss".into(),
+                points: rows.iter().map(|r| (r.0, r.1)).collect(),
+            },
+            Series {
+                name: "pos_post term".into(),
+                points: rows.iter().map(|r| (r.0, r.2)).collect(),
+            },
+        ],
+        true,
+    )
+}
+
+/// Keeps the header and the rows up to `step` (so a resumed run's log has no duplicates).
+fn truncate_log(path: &Path, step: u64) -> Result<(), TrainError> {
+    let Ok(text) = std::fs::read_to_string(path) else {
+        return std::fs::write(path, format!("{CSV_HEADER}\n")).map_err(io(path));
+    };
+    let mut out = String::from(CSV_HEADER);
+    out.push('\n');
+    for l in text.lines().skip(1) {
+        let s: Option<u64> = l.split(',').next().and_then(|x| x.parse().ok());
+        if s.is_some_and(|s| s <= step) {
+            out.push_str(l);
+            out.push('\n');
+        }
+    }
+    std::fs::write(path, out).map_err(io(path))
+}
+
+/// Trains (or resumes) the run described by `cfg`; see the module docs for the outputs.
+pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, TrainError> {
+    cfg.validate()?;
+    let out = cfg.run.out_dir.clone();
+    std::fs::create_dir_all(&out).map_err(io(&out))?;
+    let reader = DatasetReader::open(&cfg.data.train)?;
+    let device = Device::Cpu;
+    let (model, mut state) = if opts.resume {
+        let ckpt = resumable(&out).ok_or_else(|| {
+            TrainError::Config(format!("--resume: {} holds no checkpoint", out.display()))
+        })?;
+        let st = read_state(&ckpt)?;
+        for (name, same) in [
+            ("data", st.config.data == cfg.data),
+            ("model", st.config.model == cfg.model),
+            ("optim", st.config.optim == cfg.optim),
+        ] {
+            if !same {
+                return Err(TrainError::Config(format!(
+                    "--resume: the [{name}] section differs from the run's ({}); an exact resume needs the same settings",
+                    ckpt.join(STATE_FILE).display()
+                )));
+            }
+        }
+        let m = load_rigidformer(&ckpt, &device, true)?;
+        (m, st)
+    } else {
+        if resumable(&out).is_some() {
+            return Err(TrainError::Config(format!(
+                "{} already holds a checkpoint: pass --resume to continue it or choose another run.out_dir",
+                out.display()
+            )));
+        }
+        let mut mc = cfg.model.model_config(Path::new("."))?;
+        mc.dt_frame = reader.manifest().dt_frame;
+        mc.gravity = reader.manifest().gravity;
+        if cfg.model.fit_normalization {
+            mc.normalization = fit_normalization(&reader, &cfg.data, &mc, cfg.run.seed)?;
+            eprintln!(
+                "fitted feature normalisation: mean {:?} std {:?}",
+                mc.normalization.mean, mc.normalization.std
+            );
+        }
+        let m = RigidFormer::new(mc, cfg.model.seed, &device)?.with_name("rigidformer");
+        let st = RunState {
+            step: 0,
+            elapsed_seconds: 0.0,
+            threads: cfg.run.threads,
+            config: cfg.clone(),
+        };
+        (m, st)
+    };
+    state.config.run = cfg.run.clone();
+    state.threads = cfg.run.threads;
+    let model = Arc::new(model);
+    let vars = model
+        .varmap()
+        .data()
+        .lock()
+        .map_err(|_| TrainError::Config("parameter map lock poisoned".into()))?
+        .clone();
+    let mut opt = AdamW::new(&vars, RigidFormer::is_no_decay, cfg.optim.ema_decay > 0.0)?;
+    if opts.resume {
+        let ckpt =
+            resumable(&out).ok_or_else(|| TrainError::Config("checkpoint vanished".into()))?;
+        opt.load(&ckpt.join(OPTIMIZER_FILE))?;
+    }
+    let cfg_path = out.join("train-config.json");
+    std::fs::write(
+        &cfg_path,
+        serde_json::to_string_pretty(cfg)
+            .map_err(|e| TrainError::Config(format!("config serialisation: {e}")))?,
+    )
+    .map_err(io(&cfg_path))?;
+    let log_path = out.join("log.csv");
+    if opts.resume {
+        truncate_log(&log_path, state.step)?;
+    } else {
+        std::fs::write(&log_path, format!("{CSV_HEADER}\n")).map_err(io(&log_path))?;
+    }
+    let mut log = std::fs::OpenOptions::new()
+        .append(true)
+        .open(&log_path)
+        .map_err(io(&log_path))?;
+
+    let dyn_model: Arc<dyn WorldModel> = model.clone();
+    let loader = Loader::start(
+        reader,
+        cfg.data.clone(),
+        cfg.optim.batch_size,
+        cfg.run.seed,
+        state.step,
+        dyn_model,
+    )?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(cfg.run.threads)
+        .thread_name(|i| format!("train-compute-{i}"))
+        .build()
+        .map_err(|e| TrainError::Config(format!("cannot build the thread pool: {e}")))?;
+
+    let pb = if cfg.run.progress {
+        ProgressBar::new(cfg.optim.iterations)
+    } else {
+        ProgressBar::hidden()
+    };
+    pb.set_style(
+        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} {msg} (eta {eta})")
+            .map_err(|e| TrainError::Config(format!("progress template: {e}")))?
+            .progress_chars("=> "),
+    );
+    pb.set_position(state.step);
+    let plain = pb.is_hidden();
+
+    let session_start = Instant::now();
+    let elapsed_before = state.elapsed_seconds;
+    let start_step = state.step;
+    let mut last_ckpt = Instant::now();
+    let mut window_start = Instant::now();
+    let mut acc = [0f64; 7]; // loss, 4 terms, grad norm, clipped count
+    let mut n_acc = 0u64;
+    let mut first_loss = f64::NAN;
+    let mut last_loss = f64::NAN;
+    let mut bad_in_a_row = 0;
+    let mut ckpt_path = checkpoint_dir(&out);
+    let budget_end = opts.stop_after.map(|n| state.step + n);
+
+    let result: Result<(), TrainError> = pool.install(|| {
+        while state.step < cfg.optim.iterations
+            && !opts.stop.load(Ordering::SeqCst)
+            && budget_end.is_none_or(|e| state.step < e)
+        {
+            let batch = loader.next()?;
+            if batch.step != state.step {
+                return Err(TrainError::Data(format!(
+                    "loader produced batch {} for iteration {}",
+                    batch.step, state.step
+                )));
+            }
+            let items: Vec<TrainItem<'_>> = batch
+                .samples
+                .iter()
+                .map(|s| TrainItem {
+                    scene: &s.scene,
+                    state: &s.state,
+                    target: &s.target,
+                    dt_steps: s.dt_steps,
+                })
+                .collect();
+            let outp = model.train_forward(&items)?;
+            let loss = outp.loss.to_scalar::<f32>()? as f64;
+            let lr = learning_rate(&cfg.optim, state.step);
+            let stats = if loss.is_finite() {
+                let grads = outp.loss.backward()?;
+                opt.step(&grads, lr, &cfg.optim).map(Some).or_else(|e| match e {
+                    TrainError::NonFinite(_) => Ok(None),
+                    e => Err(e),
+                })?
+            } else {
+                None
+            };
+            let Some(stats) = stats else {
+                bad_in_a_row += 1;
+                eprintln!(
+                    "iteration {}: non-finite loss or gradient, batch skipped ({bad_in_a_row} in a row)",
+                    state.step
+                );
+                if bad_in_a_row >= 20 {
+                    return Err(TrainError::NonFinite(format!(
+                        "20 batches in a row gave non-finite losses or gradients (iteration {})",
+                        state.step
+                    )));
+                }
+                // The batch is consumed without an update; the stream moves on.
+                state.step += 1;
+                continue;
+            };
+            bad_in_a_row = 0;
+            state.step += 1;
+            acc[0] += loss;
+            for (i, t) in outp.terms.iter().enumerate() {
+                acc[1 + i] += t.to_scalar::<f32>()? as f64;
+            }
+            acc[5] += stats.grad_norm;
+            acc[6] += (stats.clip_scale < 1.0) as u8 as f64;
+            n_acc += 1;
+            if state.step % cfg.run.log_every == 0 || state.step == cfg.optim.iterations {
+                let n = n_acc as f64;
+                let secs = window_start.elapsed().as_secs_f64();
+                let its = n / secs.max(1e-9);
+                let elapsed = elapsed_before + session_start.elapsed().as_secs_f64();
+                let mean_loss = acc[0] / n;
+                if first_loss.is_nan() {
+                    first_loss = mean_loss;
+                }
+                last_loss = mean_loss;
+                writeln!(
+                    log,
+                    "{},{:.6e},{:.6},{:.6},{:.6},{:.6},{:.6},{:.4},{:.3},{:.3},{:.1}",
+                    state.step,
+                    lr,
+                    mean_loss,
+                    acc[1] / n,
+                    acc[2] / n,
+                    acc[3] / n,
+                    acc[4] / n,
+                    acc[5] / n,
+                    acc[6] / n,
+                    its,
+                    elapsed
+                )
+                .map_err(io(&log_path))?;
+                let msg = format!("loss {mean_loss:.4} lr {lr:.2e} {its:.2} it/s");
+                if plain {
+                    println!("iteration {}/{} {msg}", state.step, cfg.optim.iterations);
+                }
+                pb.set_message(msg);
+                acc = [0.0; 7];
+                n_acc = 0;
+                window_start = Instant::now();
+            }
+            pb.set_position(state.step);
+            if last_ckpt.elapsed().as_secs_f64() >= cfg.run.checkpoint_minutes * 60.0 {
+                state.elapsed_seconds = elapsed_before + session_start.elapsed().as_secs_f64();
+                ckpt_path = save_checkpoint(&out, &model, &opt, &state)?;
+                log.flush().map_err(io(&log_path))?;
+                if let Err(e) = plot_loss(&out) {
+                    eprintln!("loss curve not drawn: {e}");
+                }
+                if plain {
+                    println!("checkpoint at iteration {} -> {}", state.step, ckpt_path.display());
+                }
+                last_ckpt = Instant::now();
+            }
+        }
+        Ok(())
+    });
+    drop(loader);
+    // Save what was reached even when the loop failed part-way (the state is consistent:
+    // weights, moments and step advance together).
+    state.elapsed_seconds = elapsed_before + session_start.elapsed().as_secs_f64();
+    if state.step > start_step || !opts.resume {
+        ckpt_path = save_checkpoint(&out, &model, &opt, &state)?;
+    }
+    log.flush().map_err(io(&log_path))?;
+    if let Err(e) = plot_loss(&out) {
+        eprintln!("loss curve not drawn: {e}");
+    }
+    pb.finish_and_clear();
+    result?;
+    let done = state.step - start_step;
+    Ok(TrainSummary {
+        step: state.step,
+        iterations_per_second: done as f64 / session_start.elapsed().as_secs_f64().max(1e-9),
+        first_loss,
+        last_loss,
+        checkpoint: ckpt_path,
+        elapsed_seconds: state.elapsed_seconds,
+    })
+}
+
+/// What [`export`] writes.
+#[derive(Clone, Debug)]
+pub struct ExportOptions {
+    /// Run directory (holds `checkpoint/`), or a checkpoint directory itself.
+    pub run: PathBuf,
+    /// Output model directory (`config.json`, `model.safetensors`; an existing `card.md` is
+    /// kept).
+    pub out: PathBuf,
+    /// Export the weight average instead of the raw weights.
+    pub ema: bool,
+    /// Stored weight type (F32, F16 or BF16).
+    pub dtype: DType,
+}
+
+/// Writes a run's checkpoint as a model directory and checks that it loads.
+pub fn export(o: &ExportOptions) -> Result<(), TrainError> {
+    let ckpt = if o.run.join(STATE_FILE).exists() {
+        o.run.clone()
+    } else {
+        resumable(&o.run)
+            .ok_or_else(|| TrainError::Config(format!("{} holds no checkpoint", o.run.display())))?
+    };
+    if !matches!(o.dtype, DType::F32 | DType::F16 | DType::BF16) {
+        return Err(TrainError::Config(format!(
+            "cannot store weights as {:?}",
+            o.dtype
+        )));
+    }
+    let model = load_rigidformer(&ckpt, &Device::Cpu, false)?;
+    let weights: HashMap<String, Tensor> = if o.ema {
+        let map = candle_core::safetensors::load(ckpt.join(OPTIMIZER_FILE), &Device::Cpu)?;
+        let names: Vec<String> = model
+            .varmap()
+            .data()
+            .lock()
+            .map_err(|_| TrainError::Config("parameter map lock poisoned".into()))?
+            .keys()
+            .cloned()
+            .collect();
+        let mut w = HashMap::new();
+        for n in names {
+            let t = map.get(&format!("ema.{n}")).ok_or_else(|| {
+                TrainError::Config(format!(
+                    "{}: no weight average for {n} (was ema_decay 0?)",
+                    ckpt.display()
+                ))
+            })?;
+            w.insert(n, t.clone());
+        }
+        w
+    } else {
+        candle_core::safetensors::load(ckpt.join(WEIGHTS_FILE), &Device::Cpu)?
+    };
+    let weights = weights
+        .into_iter()
+        .map(|(k, v)| Ok((k, v.to_dtype(o.dtype)?)))
+        .collect::<Result<HashMap<_, _>, TrainError>>()?;
+    std::fs::create_dir_all(&o.out).map_err(io(&o.out))?;
+    let cfg_src = ckpt.join(CONFIG_FILE);
+    let cfg_dst = o.out.join(CONFIG_FILE);
+    std::fs::copy(&cfg_src, &cfg_dst).map_err(io(&cfg_src))?;
+    candle_core::safetensors::save(&weights, o.out.join(WEIGHTS_FILE))?;
+    // The directory must load as a model.
+    load_model(&o.out, &Device::Cpu)?;
+    Ok(())
+}
