@@ -129,13 +129,10 @@ pub(crate) fn build_inputs(
     requests: &[SceneRequest<'_>],
 ) -> Result<BatchInputs, ModelError> {
     let key = (cfg.anchors, cfg.sa_centres, cfg.sa_neighbours);
-    for (i, r) in requests.iter().enumerate() {
-        if r.scene.key != key {
-            return Err(ModelError::InvalidInput(format!(
-                "batch[{i}]: the scene was prepared for a model with (anchors, centres, neighbours) = {:?}, this model uses {key:?}",
-                r.scene.key
-            )));
-        }
+    if requests.iter().any(|r| r.scene.key != key) {
+        return Err(ModelError::Internal(
+            "scene prepared for another model reached the network".into(),
+        ));
     }
     let b = requests.len();
     let mmax = requests.iter().map(|r| r.scene.len()).max().unwrap_or(0);

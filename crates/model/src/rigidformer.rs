@@ -25,6 +25,11 @@ use crate::layers::{
 use crate::prepare::{PreparedScene, normalise_pose, prepare_scene, validate_state};
 use crate::{ModelConfig, ModelError, ObjectInput, SceneState};
 
+/// Default object budget of one forward pass inside [`WorldModel::step`]: larger batches are
+/// split into consecutive passes of whole scenes (measured: per-scene time grows again past
+/// about 32 MOVi-like scenes per pass as intermediate tensors outgrow the caches).
+pub const DEFAULT_MAX_PASS_OBJECTS: usize = 320;
+
 /// Additive attention bias of a padded key.
 const MASKED: f32 = -1.0e9;
 
@@ -98,6 +103,7 @@ pub struct RigidFormer {
     registers: Tensor,
     blocks: Vec<Block>,
     anchors: AnchorHead,
+    max_pass_objects: usize,
 }
 
 /// One training sample: a scene at time t with its ground-truth pose `dt_steps` later.
@@ -215,7 +221,15 @@ impl RigidFormer {
             registers,
             blocks,
             anchors,
+            max_pass_objects: DEFAULT_MAX_PASS_OBJECTS,
         })
+    }
+
+    /// Sets the object budget of one forward pass (at least one scene always runs per pass).
+    /// Results do not depend on it.
+    pub fn with_max_pass_objects(mut self, objects: usize) -> RigidFormer {
+        self.max_pass_objects = objects.max(1);
+        self
     }
 
     /// Sets the model's name (normally its checkpoint directory name).
@@ -542,8 +556,9 @@ impl RigidFormer {
             .iter()
             .enumerate()
             .map(|(i, it)| {
-                let (previous, current) =
-                    validate_state(it.scene, it.state, it.dt_steps, &format!("batch[{i}]"))?;
+                let what = format!("batch[{i}]");
+                check_prepared_for(&self.config, it.scene, &what)?;
+                let (previous, current) = validate_state(it.scene, it.state, it.dt_steps, &what)?;
                 Ok(SceneRequest {
                     scene: it.scene,
                     previous,
@@ -576,7 +591,33 @@ impl RigidFormer {
         }
         let t0 = Instant::now();
         let requests = self.requests(batch)?;
-        let inp = build_inputs(&self.config, &requests)?;
+        if let Some(p) = profile.as_deref_mut() {
+            p.features += t0.elapsed();
+        }
+        // Split into passes of whole scenes under the object budget.
+        let mut out = Vec::with_capacity(batch.len());
+        let mut start = 0;
+        while start < batch.len() {
+            let mut end = start + 1;
+            let mut objects = batch[start].scene.len();
+            while end < batch.len() && objects + batch[end].scene.len() <= self.max_pass_objects {
+                objects += batch[end].scene.len();
+                end += 1;
+            }
+            out.extend(self.step_pass(&requests[start..end], mode, profile.as_deref_mut())?);
+            start = end;
+        }
+        Ok(out)
+    }
+
+    fn step_pass(
+        &self,
+        requests: &[SceneRequest<'_>],
+        mode: Mode,
+        mut profile: Option<&mut StepProfile>,
+    ) -> Result<Vec<Vec<Pose>>, ModelError> {
+        let t0 = Instant::now();
+        let inp = build_inputs(&self.config, requests)?;
         let t1 = Instant::now();
         let acc = self.network(&inp, mode, profile.as_deref_mut())?;
         let acc: Vec<f32> = acc.flatten_all()?.to_device(&Device::Cpu)?.to_vec1()?;
@@ -625,6 +666,7 @@ impl RigidFormer {
         let mut targets = Vec::new();
         for (i, it) in items.iter().enumerate() {
             let what = format!("train[{i}]");
+            check_prepared_for(&self.config, it.scene, &what)?;
             let (previous, current) = validate_state(it.scene, it.state, it.dt_steps, &what)?;
             if it.target.len() != it.scene.len() {
                 return Err(ModelError::InvalidInput(format!(
@@ -700,6 +742,22 @@ impl RigidFormer {
             target_accel,
         })
     }
+}
+
+/// Fails if `scene` was prepared by a model with other anchor or grouping sizes.
+fn check_prepared_for(
+    cfg: &ModelConfig,
+    scene: &PreparedScene,
+    what: &str,
+) -> Result<(), ModelError> {
+    let key = (cfg.anchors, cfg.sa_centres, cfg.sa_neighbours);
+    if scene.key != key {
+        return Err(ModelError::InvalidInput(format!(
+            "{what}: the scene was prepared for a model with (anchors, centres, neighbours) = {:?}, this model uses {key:?}",
+            scene.key
+        )));
+    }
+    Ok(())
 }
 
 /// Rotation matrix and translation of a pose, in f64.

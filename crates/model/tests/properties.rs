@@ -185,6 +185,11 @@ fn batch_invariance_with_31_other_scenes() {
     assert_eq!(out.len(), 32);
     let diff = max_pose_diff(&alone[0], &out[pos]);
     assert!(diff < 1e-5, "batched output differs by {diff}");
+    // Splitting the batch into several passes (object budget) changes nothing.
+    let split = tiny().with_max_pass_objects(9).step(&batch).unwrap();
+    for (a, b) in out.iter().zip(&split) {
+        assert!(max_pose_diff(a, b) < 1e-5);
+    }
     // And a batch-mate alone equals itself in the batch too.
     let (sc, st, dt) = &others[0];
     let mate = model
