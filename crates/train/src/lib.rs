@@ -1,3 +1,5 @@
 //! Training loops, evaluation, baselines and reports for Dynaserve's world models.
 
+pub mod cli;
+pub mod eval;
 pub mod train;
