@@ -25,6 +25,9 @@ enum Command {
     Rollout(dynaserve_client::cli::RolloutArgs),
     /// Train a world model from a configuration file, or export a run's checkpoint.
     Train(dynaserve_train::train::TrainArgs),
+    /// Score a baseline (static, ballistic) or a trained model on a dataset split:
+    /// translation and orientation RMSE at 0.5, 1, 2 and 4 s, as a table and JSON.
+    Eval(dynaserve_train::cli::EvalArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -37,5 +40,6 @@ fn main() -> anyhow::Result<()> {
         Command::Serve(config) => dynaserve_server::run(config),
         Command::Rollout(args) => dynaserve_client::cli::run(args),
         Command::Train(args) => dynaserve_train::train::run_cli(args),
+        Command::Eval(args) => dynaserve_train::cli::run_eval(args),
     }
 }
