@@ -28,6 +28,9 @@ enum Command {
     /// Score a baseline (static, ballistic) or a trained model on a dataset split:
     /// translation and orientation RMSE at 0.5, 1, 2 and 4 s, as a table and JSON.
     Eval(dynaserve_train::cli::EvalArgs),
+    /// Generate, inspect and preview ground-truth datasets (rapier3d): movi-a, movi-b,
+    /// wrecking-ball.
+    Sim(dynaserve_sim::cli::SimArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -41,5 +44,6 @@ fn main() -> anyhow::Result<()> {
         Command::Rollout(args) => dynaserve_client::cli::run(args),
         Command::Train(args) => dynaserve_train::train::run_cli(args),
         Command::Eval(args) => dynaserve_train::cli::run_eval(args),
+        Command::Sim(args) => dynaserve_sim::cli::run(args),
     }
 }

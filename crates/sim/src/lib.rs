@@ -1,1 +1,74 @@
-//! Ground-truth rigid and soft-body trajectories from rapier3d for Dynaserve: MOVi-like and WreckingBall scene generators and the safetensors dataset format.
+//! Ground-truth rigid-body trajectories from rapier3d for Dynaserve: MOVi-like and WreckingBall
+//! scene generators and the safetensors dataset format.
+//!
+//! Units are SI (metres, seconds, kilograms), the z axis points up and the floor's top is the
+//! plane `z = 0`. Poses are the centre of mass translation and a unit quaternion `[x, y, z, w]`
+//! mapping the body frame (origin at the centre of mass) to the world: `x = R x_body + p`.
+//!
+//! - [`shapes`]: the procedural shape set (unions of convex parts) and surface sampling;
+//! - [`scene`]: scene descriptions and their simulation with rapier;
+//! - [`generators`]: `movi-a`, `movi-b` and `wrecking-ball` scene samplers, seeded per split
+//!   and scene;
+//! - [`dataset`]: shards, manifest, writer and streaming reader;
+//! - [`stats`], [`preview`]: what `dynaserve sim inspect` and `dynaserve sim preview` print and
+//!   draw;
+//! - [`cli`]: the `dynaserve sim` subcommand.
+
+pub mod cli;
+pub mod dataset;
+pub mod generators;
+pub mod preview;
+pub mod scene;
+pub mod shapes;
+pub mod stats;
+
+pub use dataset::{DatasetReader, Manifest, ObjectRecord, SceneRecord};
+pub use generators::{GenerateOptions, Generator};
+pub use scene::{ObjectSpec, SceneSpec, SimConfig};
+pub use shapes::{Shape, ShapeKind};
+
+use std::path::PathBuf;
+
+/// Errors from scene generation and dataset I/O; each names the file or argument at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    /// A file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file or directory.
+        path: PathBuf,
+        /// The underlying error.
+        source: std::io::Error,
+    },
+    /// A manifest is missing, unreadable or inconsistent.
+    #[error("manifest {path}: {message}")]
+    Manifest {
+        /// The manifest file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// A shard is unreadable or does not match its manifest.
+    #[error("shard {path}: {message}")]
+    Shard {
+        /// The shard file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// A shape could not be built or sampled.
+    #[error("shape: {0}")]
+    Shape(String),
+    /// A geometry routine failed.
+    #[error(transparent)]
+    Geometry(#[from] dynaserve_geometry::GeometryError),
+    /// An argument was outside its valid range.
+    #[error("invalid argument: {0}")]
+    Invalid(String),
+    /// The physics produced a non-finite state.
+    #[error("simulation diverged: {0}")]
+    Diverged(String),
+}
+
+/// Result alias for this crate.
+pub type Result<T, E = SimError> = std::result::Result<T, E>;

@@ -1,0 +1,271 @@
+//! `dynaserve sim`: generate, inspect and preview ground-truth datasets.
+//!
+//! ```text
+//! dynaserve sim movi-b --scenes 1000 --out data/movi-b/train --seed 0 --split train
+//! dynaserve sim wrecking-ball --scenes 20 --out data/wb6 --seed 0 --size 6
+//! dynaserve sim inspect data/movi-b/train
+//! dynaserve sim preview data/movi-b/train --out preview.png
+//! ```
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, bail};
+use clap::{Args, Subcommand, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::dataset::DatasetReader;
+use crate::generators::{GenerateOptions, Generator, generate_dataset};
+use crate::preview::write_preview;
+use crate::stats::inspect;
+
+/// Arguments of `dynaserve sim`.
+#[derive(Args, Debug)]
+pub struct SimArgs {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: SimCommand,
+}
+
+/// The `dynaserve sim` subcommands.
+#[derive(Subcommand, Debug)]
+pub enum SimCommand {
+    /// Generate MOVi-A-like scenes (cube, cylinder, sphere; scale 0.7 or 1.4).
+    #[command(name = "movi-a")]
+    MoviA(GenerateArgs),
+    /// Generate MOVi-B-like scenes (ten procedural shapes; scale uniform in [0.7, 1.4]).
+    #[command(name = "movi-b")]
+    MoviB(GenerateArgs),
+    /// Generate WreckingBall scenes: a size^3 stack of cubes hit by a heavy ball.
+    #[command(name = "wrecking-ball")]
+    WreckingBall(WreckingBallArgs),
+    /// Print statistics of a dataset split.
+    Inspect(InspectArgs),
+    /// Draw a few trajectories of a dataset split into a PNG.
+    Preview(PreviewArgs),
+}
+
+/// Dataset split; part of every scene's seed, so splits never share a scene.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum Split {
+    /// Training split.
+    Train,
+    /// Validation split.
+    Val,
+    /// Test split.
+    Test,
+}
+
+impl Split {
+    /// Lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Split::Train => "train",
+            Split::Val => "val",
+            Split::Test => "test",
+        }
+    }
+}
+
+/// Options shared by the generators.
+#[derive(Args, Debug, Clone)]
+pub struct GenerateArgs {
+    /// Number of scenes.
+    #[arg(long)]
+    pub scenes: usize,
+    /// Output directory (the split directory: manifest.json and shards go here).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Dataset seed.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Split name.
+    #[arg(long, value_enum, default_value_t = Split::Train)]
+    pub split: Split,
+    /// Reference surface points per object.
+    #[arg(long, default_value_t = 1024)]
+    pub points: usize,
+    /// Scenes per shard file (default: 100, or 4 for wrecking-ball).
+    #[arg(long)]
+    pub scenes_per_shard: Option<usize>,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Replace a dataset already in the output directory.
+    #[arg(long)]
+    pub overwrite: bool,
+}
+
+/// Options of `dynaserve sim wrecking-ball`.
+#[derive(Args, Debug, Clone)]
+pub struct WreckingBallArgs {
+    /// Shared generator options.
+    #[command(flatten)]
+    pub common: GenerateArgs,
+    /// Cubes per side of the stack (4, 5, 6 give 64, 125, 216 cubes).
+    #[arg(long, default_value_t = 4)]
+    pub size: usize,
+}
+
+/// Options of `dynaserve sim inspect`.
+#[derive(Args, Debug)]
+pub struct InspectArgs {
+    /// Split directory (holding manifest.json).
+    pub dir: PathBuf,
+    /// Examine only the first N scenes.
+    #[arg(long)]
+    pub limit: Option<usize>,
+    /// Print JSON instead of a table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Options of `dynaserve sim preview`.
+#[derive(Args, Debug)]
+pub struct PreviewArgs {
+    /// Split directory (holding manifest.json).
+    pub dir: PathBuf,
+    /// Output PNG file.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// First scene to draw.
+    #[arg(long, default_value_t = 0)]
+    pub scene: usize,
+    /// Number of consecutive scenes to draw.
+    #[arg(long, default_value_t = 1)]
+    pub count: usize,
+}
+
+/// Runs a `dynaserve sim` subcommand.
+pub fn run(args: SimArgs) -> anyhow::Result<()> {
+    match args.command {
+        SimCommand::MoviA(a) => run_generate(Generator::movi_a(), &a),
+        SimCommand::MoviB(a) => run_generate(Generator::movi_b(), &a),
+        SimCommand::WreckingBall(a) => run_generate(Generator::wrecking_ball(a.size)?, &a.common),
+        SimCommand::Inspect(a) => run_inspect(&a),
+        SimCommand::Preview(a) => run_preview(&a),
+    }
+}
+
+fn run_generate(generator: Generator, a: &GenerateArgs) -> anyhow::Result<()> {
+    if a.scenes == 0 {
+        bail!("--scenes must be at least 1");
+    }
+    if a.points == 0 {
+        bail!("--points must be at least 1");
+    }
+    let mut opts = GenerateOptions::new(generator, a.seed, a.split.name(), a.scenes);
+    opts.points = a.points;
+    if let Some(k) = a.scenes_per_shard {
+        if k == 0 {
+            bail!("--scenes-per-shard must be at least 1");
+        }
+        opts.scenes_per_shard = k;
+    }
+    let mut pool = rayon::ThreadPoolBuilder::new();
+    if let Some(t) = a.threads {
+        if t == 0 {
+            bail!("--threads must be at least 1");
+        }
+        pool = pool.num_threads(t);
+    }
+    let pool = pool.build().context("starting worker threads")?;
+    let bar = ProgressBar::new(a.scenes as u64);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{spinner} {elapsed_precise} [{bar:40}] {pos}/{len} scenes ({per_sec}, eta {eta})",
+        )
+        .context("progress bar template")?
+        .progress_chars("=> "),
+    );
+    let start = Instant::now();
+    let summary = pool
+        .install(|| generate_dataset(&opts, &a.out, a.overwrite, &|| bar.inc(1)))
+        .with_context(|| {
+            format!(
+                "generating {} into {}",
+                opts.generator.name(),
+                a.out.display()
+            )
+        })?;
+    bar.finish_and_clear();
+    let secs = start.elapsed().as_secs_f64();
+    let m = &summary.manifest;
+    println!(
+        "{} / {} (seed {}): {} scenes, {} objects ({:.2} per scene), {} frames at {:.4} s, {} \
+         reference points",
+        m.generator,
+        m.split,
+        m.seed,
+        m.scenes,
+        m.objects,
+        m.objects as f64 / m.scenes.max(1) as f64,
+        m.frames,
+        m.dt_frame,
+        m.reference_points
+    );
+    println!(
+        "wrote {} shards, {:.1} MB ({:.1} kB per scene) to {}",
+        m.shards.len(),
+        summary.bytes as f64 / 1e6,
+        summary.bytes as f64 / 1e3 / m.scenes.max(1) as f64,
+        summary.dir.display()
+    );
+    println!(
+        "took {:.1} s ({:.2} scenes/s, {:.0} ms per scene) on {} threads",
+        secs,
+        m.scenes as f64 / secs,
+        1e3 * secs / m.scenes.max(1) as f64,
+        pool.current_num_threads()
+    );
+    Ok(())
+}
+
+fn run_inspect(a: &InspectArgs) -> anyhow::Result<()> {
+    let reader = DatasetReader::open(&a.dir)?;
+    let stats = inspect(&reader, a.limit)?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&stats)?);
+    } else {
+        print!("{stats}");
+    }
+    Ok(())
+}
+
+fn run_preview(a: &PreviewArgs) -> anyhow::Result<()> {
+    let reader = DatasetReader::open(&a.dir)?;
+    if a.count == 0 {
+        bail!("--count must be at least 1");
+    }
+    if a.scene >= reader.len() {
+        bail!(
+            "--scene {} is out of range: the split has {} scenes",
+            a.scene,
+            reader.len()
+        );
+    }
+    let end = (a.scene + a.count).min(reader.len());
+    let scenes = (a.scene..end)
+        .map(|i| reader.get(i).map(|s| (i, s)))
+        .collect::<Result<Vec<_>, _>>()?;
+    let m = reader.manifest();
+    let title = format!(
+        "{} / {}: scenes {}..{} ({} objects)",
+        m.generator,
+        m.split,
+        a.scene,
+        end,
+        scenes.iter().map(|(_, s)| s.objects.len()).sum::<usize>()
+    );
+    let with_text = write_preview(&scenes, &title, &a.out)?;
+    println!(
+        "wrote {}{}",
+        a.out.display(),
+        if with_text {
+            ""
+        } else {
+            " (without text: no usable font)"
+        }
+    );
+    Ok(())
+}
