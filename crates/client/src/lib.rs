@@ -67,6 +67,10 @@ impl ClientError {
     }
 }
 
+/// How much later than the deadline the client's own `grpc-timeout` gives up, so that the
+/// server's DEADLINE_EXCEEDED (sent at the deadline) arrives first.
+pub const DEADLINE_BACKSTOP: Duration = Duration::from_millis(500);
+
 /// A running rollout: its frames in step order (an `Err` ends the stream).
 pub struct Rollout {
     /// Request id assigned by the server (`x-request-id`).
@@ -109,17 +113,30 @@ impl Client {
         }
     }
 
-    /// Sets a deadline for every following call (sent as `grpc-timeout`; the server answers
-    /// DEADLINE_EXCEEDED when it passes, also while the work is queued).
+    /// Sets a deadline for every following Rollout and Predict call. It is sent in the
+    /// request's `timeout_ms` field, which the server enforces on time (DEADLINE_EXCEEDED, also
+    /// while the work is queued), and as a `grpc-timeout` [`DEADLINE_BACKSTOP`] later, so a
+    /// server that cannot be reached still ends the call. (With `grpc-timeout` alone, tonic's
+    /// own client timer fires first and reports CANCELLED instead of the server's answer.)
     pub fn with_timeout(mut self, timeout: Option<Duration>) -> Client {
         self.timeout = timeout;
         self
     }
 
+    fn timeout_ms(&self, field: u32) -> u32 {
+        match self.timeout {
+            Some(t) => {
+                let ms = u32::try_from(t.as_millis()).unwrap_or(u32::MAX).max(1);
+                if field == 0 { ms } else { field.min(ms) }
+            }
+            None => field,
+        }
+    }
+
     fn request<T>(&self, msg: T) -> tonic::Request<T> {
         let mut r = tonic::Request::new(msg);
         if let Some(t) = self.timeout {
-            r.set_timeout(t);
+            r.set_timeout(t + DEADLINE_BACKSTOP);
         }
         r
     }
@@ -130,7 +147,9 @@ impl Client {
         &mut self,
         request: &json::RolloutRequest,
     ) -> Result<Rollout, ClientError> {
-        let resp = self.inner.rollout(self.request(request.to_proto())).await?;
+        let mut msg = request.to_proto();
+        msg.timeout_ms = self.timeout_ms(msg.timeout_ms);
+        let resp = self.inner.rollout(self.request(msg)).await?;
         let meta = |k: &str| {
             resp.metadata()
                 .get(k)
@@ -169,7 +188,9 @@ impl Client {
         &mut self,
         request: &json::PredictRequest,
     ) -> Result<json::PredictResponse, ClientError> {
-        let resp = self.inner.predict(self.request(request.to_proto())).await?;
+        let mut msg = request.to_proto();
+        msg.timeout_ms = self.timeout_ms(msg.timeout_ms);
+        let resp = self.inner.predict(self.request(msg)).await?;
         let meta = resp.metadata().clone();
         let r = resp.into_inner();
         let ms = |k: &str| {
