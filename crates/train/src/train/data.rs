@@ -115,7 +115,7 @@ pub fn sample_window(
         .step_sizes
         .iter()
         .copied()
-        .filter(|&k| 2 * k as usize + 1 <= frames)
+        .filter(|&k| 2 * (k as usize) < frames)
         .collect();
     let k = if valid.is_empty() {
         ((frames - 1) / 2) as u32
