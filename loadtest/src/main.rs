@@ -1,2 +1,0 @@
-//! Load generator for Dynaserve (in progress).
-fn main() {}
