@@ -109,19 +109,20 @@ fn movi_scenes_are_physically_sane() {
             let what = format!("{} scene {i}", opts.generator.name());
             // No object ends below the floor by more than 1 cm. During impacts rapier's soft
             // contacts (60 Hz against the fixed floor, 30 Hz between bodies) give way by about
-            // impact speed / (2 pi f): up to 2.8 cm for the fastest MOVi fall (10.7 m/s), so
-            // transients are bounded by 3 cm.
+            // impact speed / (2 pi f), more under a single sharp vertex: cone tips landing at
+            // 7-12 m/s dip up to 4 cm in the 200-scene test split. Transients are bounded by
+            // 5 cm against the floor and 3 cm between objects.
             assert!(
                 s.lowest_end >= -0.01,
                 "{what}: ends {} m below the floor",
                 -s.lowest_end
             );
             assert!(
-                s.lowest >= -0.03,
+                s.lowest >= -0.05,
                 "{what}: dips {} m below the floor",
                 -s.lowest
             );
-            // At the end, overlaps are within rapier's 5 mm slop; during impacts within 3 cm.
+            // At the end, overlaps are within rapier's 5 mm slop.
             assert!(
                 s.penetration_end <= 0.005,
                 "{what}: final overlap {}",
