@@ -269,3 +269,105 @@ fn run_preview(a: &PreviewArgs) -> anyhow::Result<()> {
     );
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Top {
+        #[command(subcommand)]
+        command: Top2,
+    }
+
+    #[derive(clap::Subcommand)]
+    enum Top2 {
+        Sim(SimArgs),
+    }
+
+    fn parse(args: &[&str]) -> Result<SimCommand, clap::Error> {
+        let mut all = vec!["dynaserve", "sim"];
+        all.extend_from_slice(args);
+        Top::try_parse_from(all).map(|t| match t.command {
+            Top2::Sim(s) => s.command,
+        })
+    }
+
+    #[test]
+    fn parses_the_documented_commands() {
+        match parse(&[
+            "movi-b", "--scenes", "200", "--out", "d", "--seed", "2", "--split", "test",
+        ])
+        .unwrap()
+        {
+            SimCommand::MoviB(a) => {
+                assert_eq!(
+                    (a.scenes, a.seed, a.split, a.points),
+                    (200, 2, Split::Test, 1024)
+                );
+                assert_eq!(a.out, PathBuf::from("d"));
+            }
+            other => panic!("parsed {other:?}"),
+        }
+        match parse(&[
+            "wrecking-ball",
+            "--scenes",
+            "2",
+            "--out",
+            "w",
+            "--size",
+            "6",
+        ])
+        .unwrap()
+        {
+            SimCommand::WreckingBall(a) => {
+                assert_eq!((a.size, a.common.split), (6, Split::Train))
+            }
+            other => panic!("parsed {other:?}"),
+        }
+        assert!(matches!(
+            parse(&["inspect", "d", "--limit", "5"]).unwrap(),
+            SimCommand::Inspect(InspectArgs { limit: Some(5), .. })
+        ));
+        assert!(parse(&["preview", "d", "--out", "p.png"]).is_ok());
+        assert!(
+            parse(&[
+                "movi-b", "--scenes", "2", "--out", "d", "--split", "holdout"
+            ])
+            .is_err()
+        );
+        assert!(
+            parse(&["movi-b", "--out", "d"]).is_err(),
+            "--scenes is required"
+        );
+    }
+
+    #[test]
+    fn rejects_bad_values_with_errors() {
+        let bad = |args: &[&str]| match parse(args).unwrap() {
+            SimCommand::MoviA(a) => run_generate(Generator::movi_a(), &a).unwrap_err(),
+            other => panic!("parsed {other:?}"),
+        };
+        let dir = std::env::temp_dir().join(format!("dynaserve-sim-cli-{}", std::process::id()));
+        let out = dir.to_string_lossy().into_owned();
+        assert!(
+            bad(&["movi-a", "--scenes", "0", "--out", &out])
+                .to_string()
+                .contains("--scenes")
+        );
+        assert!(
+            bad(&["movi-a", "--scenes", "1", "--out", &out, "--points", "0"])
+                .to_string()
+                .contains("--points")
+        );
+        let err = run_inspect(&InspectArgs {
+            dir: dir.join("missing"),
+            limit: None,
+            json: false,
+        })
+        .unwrap_err();
+        assert!(err.to_string().contains("manifest.json"), "{err}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}

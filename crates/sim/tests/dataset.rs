@@ -265,3 +265,38 @@ fn wrecking_ball_has_the_stack_and_the_ball() {
     assert!(s.objects[..125].iter().all(|o| o.shape_id == 0));
     assert!(Generator::wrecking_ball(0).is_err());
 }
+
+#[test]
+fn inspect_and_preview_read_a_small_split() {
+    let opts = small(Generator::movi_b(), 5, "val", 3);
+    let dir = TempDir::new("inspect");
+    generate_with_threads(&opts, dir.path(), 2);
+    let reader = DatasetReader::open(dir.path()).unwrap();
+    let stats = dynaserve_sim::stats::inspect(&reader, None).unwrap();
+    let objects: usize = reader.iter().map(|s| s.unwrap().objects.len()).sum();
+    assert_eq!((stats.scenes, stats.objects), (3, objects));
+    assert_eq!(stats.shapes.values().sum::<usize>(), objects);
+    assert!((0.0..=1.0).contains(&stats.resting_fraction));
+    assert!(stats.initial_speed.max > 0.5, "objects are thrown");
+    assert!(stats.max_height.max <= 5.0 + 1.0);
+    let text = stats.to_string();
+    assert!(text.contains("movi-b / val: 3 scenes"), "{text}");
+    assert_eq!(
+        dynaserve_sim::stats::inspect(&reader, Some(1))
+            .unwrap()
+            .scenes,
+        1
+    );
+
+    let png = dir.path().join("preview.png");
+    let scenes = vec![(0, reader.get(0).unwrap()), (1, reader.get(1).unwrap())];
+    dynaserve_sim::preview::write_preview(&scenes, "test", &png).unwrap();
+    let bytes = std::fs::read(&png).unwrap();
+    assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n");
+    assert!(
+        bytes.len() > 10_000,
+        "an almost empty picture: {} bytes",
+        bytes.len()
+    );
+    assert!(dynaserve_sim::preview::write_preview(&[], "x", &png).is_err());
+}
