@@ -5,8 +5,9 @@
 //! - `wrecking_216x64`: a 6 x 6 x 6 stack of touching unit cubes on the ground, 64 surface
 //!   points per cube.
 //!
-//! `fast` is the default entry point (parallel above the threshold), `fast_serial` the same
-//! code inside a one-thread pool, `brute` the exhaustive reference.
+//! `fast` is the default entry point (serial below `PARALLEL_MIN_POINTS`, so for both scenes),
+//! `fast_parallel` the same search forced onto rayon's pool, `brute` the exhaustive reference.
+//! `contact/threshold/*` compares serial and parallel on growing touching stacks.
 //!
 //! Run: `cargo bench -p dynaserve-geometry --bench contact`
 
@@ -112,10 +113,6 @@ fn cube_stack(n: usize, per_cube: usize) -> (Vec<Point>, Vec<usize>) {
 
 fn bench_contact(c: &mut Criterion) {
     let cfg = ContactConfig::default();
-    let serial_pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(1)
-        .build()
-        .expect("one-thread pool");
     for (name, (points, offsets)) in [
         ("movi_10x512", movi_scene()),
         ("wrecking_216x64", cube_stack(6, 64)),
@@ -128,10 +125,10 @@ fn bench_contact(c: &mut Criterion) {
         group.bench_function("fast", |b| {
             b.iter(|| contact_features(black_box(&points), black_box(&offsets), &cfg))
         });
-        group.bench_function("fast_serial", |b| {
-            serial_pool.install(|| {
-                b.iter(|| contact_features(black_box(&points), black_box(&offsets), &cfg))
-            })
+        let mut ws = ContactWorkspace::with_parallel_threshold(0);
+        let mut out = Vec::new();
+        group.bench_function("fast_parallel", |b| {
+            b.iter(|| ws.compute(black_box(&points), black_box(&offsets), &cfg, &mut out))
         });
         group.sample_size(10);
         group.bench_function("brute", |b| {
@@ -152,7 +149,7 @@ fn bench_threshold(c: &mut Criterion) {
         .build()
         .expect("default pool");
     let mut group = c.benchmark_group("contact/threshold");
-    for n in [2usize, 3, 4] {
+    for n in [2usize, 4, 6, 8] {
         let (points, offsets) = cube_stack(n, 64);
         for (label, pool) in [("serial", &serial_pool), ("parallel", &parallel_pool)] {
             let mut ws = ContactWorkspace::with_parallel_threshold(0);
