@@ -274,7 +274,11 @@ impl TrainConfig {
             return bad("optim.weight_decay, grad_clip >= 0 and ema_decay in [0, 1)");
         }
         let r = &self.run;
-        if r.checkpoint_minutes.is_nan() || r.checkpoint_minutes <= 0.0 || r.log_every == 0 || r.threads == 0 {
+        if r.checkpoint_minutes.is_nan()
+            || r.checkpoint_minutes <= 0.0
+            || r.log_every == 0
+            || r.threads == 0
+        {
             return bad("run.checkpoint_minutes > 0, run.log_every >= 1 and run.threads >= 1");
         }
         Ok(())
