@@ -276,20 +276,7 @@ fn scene_chunk(
             let w = world[base + i];
             let wp = world_prev[base + i];
             let ct = contact[base + i];
-            let raw = [
-                ct[0],
-                ct[1],
-                ct[2],
-                w[0] - wp[0],
-                w[1] - wp[1],
-                w[2] - wp[2],
-                w[0] - x[0],
-                w[1] - x[1],
-                w[2] - x[2],
-                obj.params[0],
-                obj.params[1],
-                obj.params[2],
-            ];
+            let raw = raw_point_features(ct, w, wp, x, obj.params);
             let dst =
                 &mut c.feats[(j * nmax + i) * POINT_FEATURES..(j * nmax + i + 1) * POINT_FEATURES];
             for f in 0..POINT_FEATURES {
@@ -354,4 +341,36 @@ fn scene_chunk(
         c.anchors_ref.push(ar);
     }
     c
+}
+
+/// Physical parameters as the model sees them: `[ln(mass / kg), friction, restitution]`.
+pub fn object_params(mass: f32, friction: f32, restitution: f32) -> [f32; 3] {
+    [mass.ln(), friction, restitution]
+}
+
+/// The 12 raw (unnormalised) features of one point: contact displacement (m), position
+/// increment over the last step `x_t - x_{t-1}` (m), offset from the reference `x_t - x_ref`
+/// (m), and the object's [`object_params`]. The single definition shared by the model and the
+/// trainer's normalisation fit.
+pub fn raw_point_features(
+    contact: [f32; 3],
+    world: [f32; 3],
+    world_prev: [f32; 3],
+    reference: [f32; 3],
+    params: [f32; 3],
+) -> [f32; POINT_FEATURES] {
+    [
+        contact[0],
+        contact[1],
+        contact[2],
+        world[0] - world_prev[0],
+        world[1] - world_prev[1],
+        world[2] - world_prev[2],
+        world[0] - reference[0],
+        world[1] - reference[1],
+        world[2] - reference[2],
+        params[0],
+        params[1],
+        params[2],
+    ]
 }

@@ -285,7 +285,7 @@ fn prepare_object(cfg: &ModelConfig, o: ObjectInput) -> Result<PreparedObject, S
         anchor_d2.extend(o.reference.iter().map(|p| d2(p, &ap)));
     }
     Ok(PreparedObject {
-        params: [o.mass.ln(), o.friction, o.restitution],
+        params: crate::inputs::object_params(o.mass, o.friction, o.restitution),
         reference: o.reference,
         anchors,
         centres,

@@ -19,6 +19,7 @@ use dynaserve_geometry::{ContactConfig, contact_features};
 use dynaserve_model::{
     FeatureNormalization, ModelConfig, ObjectInput, Pose, PreparedScene, SceneState, WorldModel,
 };
+use dynaserve_model::{POINT_FEATURES, object_params, raw_point_features};
 use dynaserve_sim::{DatasetReader, SceneRecord};
 use nalgebra::{UnitQuaternion, Vector3};
 use rand::seq::SliceRandom;
@@ -417,24 +418,11 @@ pub fn fit_normalization(
             }
             let contact = contact_features(&world, &offsets, &contact_cfg);
             for (j, o) in win.objects.iter().enumerate() {
-                let params = [o.mass.ln(), o.friction, o.restitution];
+                let params = object_params(o.mass, o.friction, o.restitution);
                 for (q, x) in (offsets[j]..offsets[j + 1]).zip(&o.reference) {
                     let (wc, wp, ct) = (world[q], world_prev[q], contact[q]);
-                    let raw = [
-                        ct[0],
-                        ct[1],
-                        ct[2],
-                        wc[0] - wp[0],
-                        wc[1] - wp[1],
-                        wc[2] - wp[2],
-                        wc[0] - x[0],
-                        wc[1] - x[1],
-                        wc[2] - x[2],
-                        params[0],
-                        params[1],
-                        params[2],
-                    ];
-                    for f in 0..12 {
+                    let raw = raw_point_features(ct, wc, wp, *x, params);
+                    for f in 0..POINT_FEATURES {
                         sum[f] += raw[f] as f64;
                         sq[f] += (raw[f] as f64).powi(2);
                     }
