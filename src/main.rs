@@ -34,6 +34,8 @@ enum Command {
 }
 
 fn main() -> anyhow::Result<()> {
+    // SAFETY: first statement of main; no other thread exists yet.
+    unsafe { dynaserve_model::configure_compute(None) };
     let cli = Cli::parse();
     match cli.command {
         Command::Version => {

@@ -1,5 +1,5 @@
 //! One model step for batches of MOVi-like scenes (10 objects x 512 points) split into phases,
-//! one step of a 216-cube wrecking-ball scene, padded vs block-diagonal decoder batching, and
+//! one step of a 216-cube wrecking-ball scene (both for the `small` and `paper` configs), padded vs block-diagonal decoder batching, and
 //! a training iteration (forward + backward + AdamW) for the `small` and `paper` configs.
 //!
 //! `cargo bench -p dynaserve-model --bench step` (release). Phase medians are printed to
@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 use candle_core::{DType, Device, Tensor};
 use candle_nn::Optimizer;
-use criterion::{Criterion, criterion_group, criterion_main};
+use criterion::{Criterion, criterion_group};
 use dynaserve_model::{
     ModelConfig, ObjectInput, Pose, PreparedScene, RigidFormer, SceneState, StepItem, StepProfile,
     TrainItem, WorldModel,
@@ -190,8 +190,17 @@ fn print_phases(label: &str, model: &RigidFormer, batch: &[StepItem<'_>], runs: 
 }
 
 fn bench_steps(c: &mut Criterion) {
-    let model = RigidFormer::new(ModelConfig::paper(), 1, &Device::Cpu).expect("model");
-    let mut group = c.benchmark_group("step_paper_10x512");
+    for (name, config) in [
+        ("small", ModelConfig::small()),
+        ("paper", ModelConfig::paper()),
+    ] {
+        bench_steps_for(c, name, config);
+    }
+}
+
+fn bench_steps_for(c: &mut Criterion, name: &str, config: ModelConfig) {
+    let model = RigidFormer::new(config, 1, &Device::Cpu).expect("model");
+    let mut group = c.benchmark_group(format!("step_{name}_10x512"));
     group
         .sample_size(10)
         .warm_up_time(Duration::from_secs(1))
@@ -205,7 +214,7 @@ fn bench_steps(c: &mut Criterion) {
                 let scenes = prepared_batch(&model, b, 10, 512, b as u64);
                 let batch = items(&scenes);
                 print_phases(
-                    &format!("paper b{b}"),
+                    &format!("{name} b{b}"),
                     &model,
                     &batch,
                     if b >= 128 { 3 } else { 7 },
@@ -226,47 +235,52 @@ fn bench_steps(c: &mut Criterion) {
     }
     group.finish();
     for (b, t) in &per_scene {
-        println!("per-scene time at batch {b}: {t:.2} ms");
+        println!("{name}: per-scene time at batch {b}: {t:.2} ms");
     }
     if let (Some(one), Some(t32)) = (
         per_scene.iter().find(|x| x.0 == 1),
         per_scene.iter().find(|x| x.0 == 32),
     ) {
         println!(
-            "batching gain (per-scene time batch 1 / batch 32): {:.2}x",
+            "{name}: batching gain (per-scene time batch 1 / batch 32): {:.2}x",
             one.1 / t32.1
         );
     }
 }
 
 fn bench_wrecking_ball(c: &mut Criterion) {
-    let model = RigidFormer::new(ModelConfig::paper(), 1, &Device::Cpu).expect("model");
-    let mut cache: Option<(PreparedScene, SceneState)> = None;
-    let mut group = c.benchmark_group("wrecking_ball");
-    group
-        .sample_size(10)
-        .warm_up_time(Duration::from_secs(1))
-        .measurement_time(Duration::from_secs(4));
-    group.bench_function("216_cubes_128pts_paper", |bench| {
-        let (scene, state) = cache.get_or_insert_with(|| {
-            let (objects, state) = wrecking_ball(128);
-            let scene = model.prepare(objects).expect("valid scene");
+    for (name, config) in [
+        ("small", ModelConfig::small()),
+        ("paper", ModelConfig::paper()),
+    ] {
+        let model = RigidFormer::new(config, 1, &Device::Cpu).expect("model");
+        let mut cache: Option<(PreparedScene, SceneState)> = None;
+        let mut group = c.benchmark_group("wrecking_ball");
+        group
+            .sample_size(10)
+            .warm_up_time(Duration::from_secs(1))
+            .measurement_time(Duration::from_secs(4));
+        group.bench_function(format!("216_cubes_128pts_{name}"), |bench| {
+            let (scene, state) = cache.get_or_insert_with(|| {
+                let (objects, state) = wrecking_ball(128);
+                let scene = model.prepare(objects).expect("valid scene");
+                let batch = [StepItem {
+                    scene: &scene,
+                    state: &state,
+                    dt_steps: 1,
+                }];
+                print_phases(&format!("{name} wrecking ball"), &model, &batch, 5);
+                (scene, state)
+            });
             let batch = [StepItem {
-                scene: &scene,
-                state: &state,
+                scene,
+                state,
                 dt_steps: 1,
             }];
-            print_phases("wrecking ball 216 cubes + ball", &model, &batch, 5);
-            (scene, state)
+            bench.iter(|| black_box(model.step(&batch).expect("step")))
         });
-        let batch = [StepItem {
-            scene,
-            state,
-            dt_steps: 1,
-        }];
-        bench.iter(|| black_box(model.step(&batch).expect("step")))
-    });
-    group.finish();
+        group.finish();
+    }
 }
 
 /// The decoder's dominant cost (L pre-norm attention + SwiGLU blocks) on 32 scenes of 3-10
@@ -469,4 +483,9 @@ criterion_group!(
     bench_wrecking_ball,
     bench_training
 );
-criterion_main!(benches);
+fn main() {
+    // SAFETY: first statement of main; criterion has not started any thread yet.
+    unsafe { dynaserve_model::configure_compute(None) };
+    benches();
+    Criterion::default().configure_from_args().final_summary();
+}

@@ -15,6 +15,7 @@ pub mod kabsch_op;
 pub mod layers;
 mod prepare;
 pub mod rigidformer;
+pub mod runtime;
 
 pub use api::{ObjectInput, Pose, SceneState, StepItem, WorldModel, rollout};
 pub use checkpoint::{load_model, load_rigidformer, read_config};
@@ -25,6 +26,7 @@ pub use kabsch_op::KabschOp;
 pub use layers::Mode;
 pub use prepare::{MAX_DT_STEPS, PreparedScene};
 pub use rigidformer::{RigidFormer, StepProfile, TrainItem, TrainOutput};
+pub use runtime::configure_compute;
 
 /// Re-exported so callers can name devices and dtypes without depending on candle directly.
 pub use candle_core::{DType, Device};

@@ -144,6 +144,8 @@ async fn throughput(
 }
 
 fn main() -> anyhow::Result<()> {
+    // SAFETY: first statement of main; no other thread exists yet.
+    unsafe { dynaserve_model::configure_compute(None) };
     let arg = std::env::args().nth(1).map(PathBuf::from);
     let shipped = PathBuf::from("models/rigidformer-small");
     let tmp = std::env::temp_dir().join(format!("dynaserve-bench-{}", std::process::id()));

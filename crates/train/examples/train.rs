@@ -13,5 +13,7 @@ struct Cli {
 }
 
 fn main() -> anyhow::Result<()> {
+    // SAFETY: first statement of main; no other thread exists yet.
+    unsafe { dynaserve_model::configure_compute(None) };
     dynaserve_train::train::run_cli(Cli::parse().args)
 }

@@ -1,0 +1,67 @@
+//! Process-wide compute settings for CPU inference and training: candle's thread counts.
+//!
+//! candle sizes its CPU kernels from two environment variables: `RAYON_NUM_THREADS` (the
+//! parallelism it hands to every matrix multiplication) and `CANDLE_NUM_THREADS` (its pool for
+//! element-wise and reduction kernels). When `RAYON_NUM_THREADS` is unset, candle 0.11 derives
+//! the count anew on every matrix multiplication, by parsing `/proc/cpuinfo` on Linux: a file
+//! read and a few hundred lines of text per matmul, which made a one-scene step of the small
+//! model several times slower than its arithmetic. [`configure_compute`] fixes both
+//! variables once at start-up so the lookup is a cheap environment read.
+
+/// Environment variable candle reads for the matmul parallelism (also rayon's global pool size).
+pub const RAYON_THREADS_VAR: &str = "RAYON_NUM_THREADS";
+/// Environment variable candle reads for its element-wise kernel pool.
+pub const CANDLE_THREADS_VAR: &str = "CANDLE_NUM_THREADS";
+
+/// Number of threads the process would use by default: the available parallelism (cores
+/// allowed by the CPU affinity mask and cgroup quota), at least 1.
+pub fn default_compute_threads() -> usize {
+    std::thread::available_parallelism()
+        .map(|n| n.get())
+        .unwrap_or(1)
+}
+
+/// Sets `RAYON_NUM_THREADS` and `CANDLE_NUM_THREADS` to `threads` (or, when `None`, to
+/// [`default_compute_threads`]) unless the variable is already set to a positive integer, and
+/// returns the matmul parallelism in effect. Explicit environment settings always win, so
+/// operators can still tune the two pools separately.
+///
+/// # Safety
+///
+/// Mutates the process environment: call it at the very start of `main`, before any other
+/// thread exists (in particular before a tokio runtime or a rayon pool is built), as
+/// [`std::env::set_var`] requires.
+pub unsafe fn configure_compute(threads: Option<usize>) -> usize {
+    let wanted = threads
+        .filter(|&n| n > 0)
+        .unwrap_or_else(default_compute_threads);
+    for var in [RAYON_THREADS_VAR, CANDLE_THREADS_VAR] {
+        if parse_positive(std::env::var(var).ok().as_deref()).is_none() {
+            // SAFETY: the caller guarantees no other thread is running (see above).
+            unsafe { std::env::set_var(var, wanted.to_string()) };
+        }
+    }
+    parse_positive(std::env::var(RAYON_THREADS_VAR).ok().as_deref()).unwrap_or(wanted)
+}
+
+/// Parses a positive thread count the way candle does (`None` for unset, zero or garbage).
+fn parse_positive(value: Option<&str>) -> Option<usize> {
+    value
+        .and_then(|s| s.trim().parse::<usize>().ok())
+        .filter(|&n| n > 0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_like_candle() {
+        assert_eq!(parse_positive(Some("3")), Some(3));
+        assert_eq!(parse_positive(Some(" 2 ")), Some(2));
+        assert_eq!(parse_positive(Some("0")), None);
+        assert_eq!(parse_positive(Some("many")), None);
+        assert_eq!(parse_positive(None), None);
+        assert!(default_compute_threads() >= 1);
+    }
+}
