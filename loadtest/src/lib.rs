@@ -1,0 +1,27 @@
+//! `dynaserve-loadtest`: a load generator for Dynaserve servers.
+//!
+//! It speaks the real APIs (gRPC through `dynaserve-client`, HTTP JSON and Server-Sent Events
+//! through a small hyper client) or runs the model in-process with the server's batching rule,
+//! and reports throughput (scene-steps/s, object-steps/s, requests/s), latency percentiles per
+//! step (time between frames of a stream), per request and to the first frame, errors by
+//! status code, and the server's batch-size and queue-wait distributions taken from the
+//! difference of two `/metrics` scrapes.
+//!
+//! - [`run`]: load modes ([`run::Mode`]: streams, predict, poisson, ramp) and the driver
+//!   [`run::run_target`];
+//! - [`report`]: report types, text tables, A/B ratios, the HTML chart;
+//! - [`scenes`]: scene files and seeded generated scenes;
+//! - [`transport`]: gRPC and HTTP callers; [`inprocess`]: the no-server baseline;
+//! - [`prom`]: Prometheus text parsing and histogram differences; [`stats`]: percentiles;
+//! - [`spawn`]: launching a server as a child process; [`cli`]: the command line.
+
+pub mod cli;
+pub mod inprocess;
+pub mod prom;
+pub mod recorder;
+pub mod report;
+pub mod run;
+pub mod scenes;
+pub mod spawn;
+pub mod stats;
+pub mod transport;

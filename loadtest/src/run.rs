@@ -1,0 +1,851 @@
+//! Load modes and the driver that runs them against one side (a server over gRPC or HTTP, or
+//! the model in-process), scraping the server's `/metrics` around every level.
+
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use dynaserve_client::Client;
+use dynaserve_proto::json;
+use rand::SeedableRng;
+use rand_distr::{Distribution, Exp};
+use tokio::sync::watch;
+
+use crate::inprocess::InProcess;
+use crate::recorder::{Recorder, RequestClock, ServerTiming};
+use crate::report::{Report, ServerStats, SideReport};
+use crate::scenes::SceneSource;
+use crate::transport::{CallError, Conn, HttpBase, HttpConn};
+
+/// How requests reach the model.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Transport {
+    /// The gRPC API (dynaserve.v1.WorldModel).
+    Grpc,
+    /// The HTTP JSON API; rollouts as Server-Sent Events.
+    Http,
+    /// No server: the model loaded in this process, batched like the server.
+    Inprocess,
+}
+
+impl Transport {
+    /// Lower-case name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Transport::Grpc => "grpc",
+            Transport::Http => "http",
+            Transport::Inprocess => "inprocess",
+        }
+    }
+}
+
+/// The shape of the load.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Mode {
+    /// `n` concurrent streamed rollouts for each `n` in `levels`. Without `duration` every
+    /// stream runs one rollout; with it, streams start new rollouts until it passes (rollouts
+    /// running then are cut).
+    Streams {
+        /// Concurrency levels, run in order.
+        levels: Vec<usize>,
+        /// Length of each level, if timed.
+        duration: Option<Duration>,
+    },
+    /// `calls` Predict calls of `variants` scene variants, `concurrency` at a time.
+    Predict {
+        /// Variants per call.
+        variants: usize,
+        /// Calls in all.
+        calls: usize,
+        /// Callers at once.
+        concurrency: usize,
+        /// `PredictRequest.every` (0: final poses only).
+        every: u32,
+    },
+    /// Open loop: rollouts arrive as a Poisson process of `rate` per second for `duration`.
+    Poisson {
+        /// Mean arrivals per second.
+        rate: f64,
+        /// Arrival window.
+        duration: Duration,
+        /// Seed of the arrival times.
+        seed: u64,
+        /// Arrivals beyond this many running rollouts are skipped (and counted).
+        max_in_flight: usize,
+    },
+    /// Closed-loop streams at `start`, `start * factor`, ... up to `max`, each level timed,
+    /// until the p99 step latency exceeds `p99_bound_ms`.
+    Ramp {
+        /// First concurrency.
+        start: usize,
+        /// Growth factor between levels (at least 2).
+        factor: usize,
+        /// Largest concurrency.
+        max: usize,
+        /// Stop after the first level whose p99 step latency exceeds this, ms.
+        p99_bound_ms: f64,
+        /// Length of each level.
+        level_duration: Duration,
+    },
+}
+
+impl Mode {
+    /// Mode name.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Mode::Streams { .. } => "streams",
+            Mode::Predict { .. } => "predict",
+            Mode::Poisson { .. } => "poisson",
+            Mode::Ramp { .. } => "ramp",
+        }
+    }
+}
+
+/// What to send.
+#[derive(Clone, Debug)]
+pub struct Load {
+    /// Mode and its parameters.
+    pub mode: Mode,
+    /// Scenes.
+    pub scenes: SceneSource,
+    /// Steps per rollout or Predict call.
+    pub steps: u32,
+    /// Frames per step.
+    pub dt_steps: u32,
+    /// Model name (empty: the server's only model).
+    pub model: String,
+    /// Request deadline sent with every request, ms (0: none).
+    pub timeout_ms: u32,
+    /// Time at the start of every level whose samples are discarded.
+    pub warmup: Duration,
+}
+
+impl Load {
+    /// One-line description for reports.
+    pub fn describe(&self) -> String {
+        let m = match &self.mode {
+            Mode::Streams { levels, duration } => format!(
+                "streams {} x {} steps{}",
+                levels
+                    .iter()
+                    .map(|l| l.to_string())
+                    .collect::<Vec<_>>()
+                    .join(","),
+                self.steps,
+                duration
+                    .map(|d| format!(", repeated for {:.0} s", d.as_secs_f64()))
+                    .unwrap_or_default()
+            ),
+            Mode::Predict {
+                variants,
+                calls,
+                concurrency,
+                every,
+            } => format!(
+                "predict {calls} calls x {variants} variants x {} steps, {concurrency} at a time, every {every}",
+                self.steps
+            ),
+            Mode::Poisson { rate, duration, .. } => format!(
+                "poisson {rate} rollouts/s for {:.0} s, {} steps each",
+                duration.as_secs_f64(),
+                self.steps
+            ),
+            Mode::Ramp {
+                start,
+                factor,
+                max,
+                p99_bound_ms,
+                level_duration,
+            } => format!(
+                "ramp {start}..{max} (x{factor}) streams x {} steps, {:.0} s per level, until p99 step > {p99_bound_ms} ms",
+                self.steps,
+                level_duration.as_secs_f64()
+            ),
+        };
+        format!(
+            "{m}, dt_steps {}, {}{}",
+            self.dt_steps,
+            self.scenes.describe(),
+            if self.warmup.is_zero() {
+                String::new()
+            } else {
+                format!(", warm-up {:.1} s", self.warmup.as_secs_f64())
+            }
+        )
+    }
+
+    fn rollout(&self, scene: json::Scene) -> json::RolloutRequest {
+        json::RolloutRequest {
+            model: self.model.clone(),
+            scene,
+            steps: self.steps,
+            dt_steps: self.dt_steps,
+            timeout_ms: self.timeout_ms,
+            stream: true,
+        }
+    }
+}
+
+/// Where the load goes.
+#[derive(Clone, Debug)]
+pub struct Target {
+    /// Name in reports.
+    pub label: String,
+    /// Protocol.
+    pub transport: Transport,
+    /// gRPC URL (`http://host:50051`) or HTTP base URL (`http://host:8080`); unused in-process.
+    pub url: String,
+    /// Prometheus endpoint (`http://host:8080/metrics`); `None` skips the scrape.
+    pub metrics_url: Option<String>,
+    /// gRPC connections shared round-robin by the callers.
+    pub connections: usize,
+    /// Checkpoint directory for in-process runs.
+    pub model_dir: PathBuf,
+    /// Scene cap of in-process batches.
+    pub max_batch_scenes: usize,
+    /// Object budget of in-process batches.
+    pub max_batch_objects: usize,
+    /// The command that launched the server, if this run launched it.
+    pub spawned: Option<String>,
+}
+
+/// Cloneable "stop now" signal (Ctrl-C).
+#[derive(Clone, Debug)]
+pub struct Stop(watch::Receiver<bool>);
+
+impl Stop {
+    /// A signal and the sender that raises it.
+    pub fn new() -> (watch::Sender<bool>, Stop) {
+        let (tx, rx) = watch::channel(false);
+        (tx, Stop(rx))
+    }
+
+    /// True once raised.
+    pub fn is_set(&self) -> bool {
+        *self.0.borrow()
+    }
+
+    /// Resolves when raised (never, if the sender is dropped unraised).
+    pub async fn wait(&self) {
+        let mut rx = self.0.clone();
+        if rx.wait_for(|v| *v).await.is_err() {
+            std::future::pending::<()>().await;
+        }
+    }
+}
+
+async fn sleep_until_opt(deadline: Option<Instant>) {
+    match deadline {
+        Some(d) => tokio::time::sleep_until(d.into()).await,
+        None => std::future::pending().await,
+    }
+}
+
+/// Progress lines on stderr while a level runs.
+#[derive(Clone, Copy, Debug)]
+pub struct Progress {
+    /// Print nothing.
+    pub quiet: bool,
+}
+
+fn progress_task(
+    rec: Arc<Mutex<Recorder>>,
+    what: String,
+    progress: Progress,
+) -> Option<tokio::task::JoinHandle<()>> {
+    if progress.quiet {
+        return None;
+    }
+    let tty = std::io::stderr().is_terminal();
+    Some(tokio::spawn(async move {
+        let start = Instant::now();
+        let mut last = (0u64, start);
+        let mut tick = 0u64;
+        loop {
+            tokio::time::sleep(Duration::from_secs(1)).await;
+            tick += 1;
+            let (frames, ok, failed) = lock(&rec).progress();
+            let now = Instant::now();
+            let rate = (frames - last.0) as f64 / (now - last.1).as_secs_f64().max(1e-9);
+            last = (frames, now);
+            let line = format!(
+                "[{what}] {:>5.1} s  frames {frames}  ok {ok}  failed {failed}  {rate:.0} frames/s",
+                (now - start).as_secs_f64()
+            );
+            if tty {
+                eprint!("\r\x1b[2K{line}");
+            } else if tick.is_multiple_of(5) {
+                eprintln!("{line}");
+            }
+        }
+    }))
+}
+
+fn end_progress(h: Option<tokio::task::JoinHandle<()>>) {
+    if let Some(h) = h {
+        h.abort();
+        if std::io::stderr().is_terminal() {
+            eprint!("\r\x1b[2K");
+        }
+    }
+}
+
+fn lock(rec: &Mutex<Recorder>) -> std::sync::MutexGuard<'_, Recorder> {
+    rec.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// GET a URL over HTTP and return the body when the status is 200.
+pub async fn http_get(url: &str) -> Result<String, String> {
+    let base = HttpBase::parse(url)?;
+    let uri: hyper::Uri = url.parse().map_err(|e| format!("{url}: {e}"))?;
+    let path = uri.path_and_query().map_or("/", |p| p.as_str()).to_string();
+    let mut c = HttpConn::new(base);
+    let (status, text) = tokio::time::timeout(Duration::from_secs(10), c.get_text(&path))
+        .await
+        .map_err(|_| format!("{url}: no answer within 10 s"))?
+        .map_err(|e| format!("{url}: {e}"))?;
+    if status != 200 {
+        return Err(format!("{url}: HTTP {status}"));
+    }
+    Ok(text)
+}
+
+/// Connections of one remote side, made once and checked before the load starts.
+struct Remote {
+    grpc: Vec<Client>,
+    http: Option<HttpBase>,
+    model: String,
+}
+
+impl Remote {
+    fn conn(&self, i: usize) -> Conn {
+        match &self.http {
+            Some(b) => Conn::Http(HttpConn::new(b.clone())),
+            None => Conn::Grpc(self.grpc[i % self.grpc.len()].clone()),
+        }
+    }
+}
+
+fn pick_model(names: Vec<String>, wanted: &str, target: &str) -> anyhow::Result<String> {
+    if !wanted.is_empty() {
+        anyhow::ensure!(
+            names.iter().any(|n| n == wanted),
+            "{target} does not serve model {wanted:?} (it serves: {})",
+            names.join(", ")
+        );
+        return Ok(wanted.to_string());
+    }
+    match names.as_slice() {
+        [one] => Ok(one.clone()),
+        [] => anyhow::bail!("{target} serves no model"),
+        _ => anyhow::bail!(
+            "{target} serves several models ({}); pass --model NAME",
+            names.join(", ")
+        ),
+    }
+}
+
+async fn connect(target: &Target, load: &Load) -> anyhow::Result<Remote> {
+    match target.transport {
+        Transport::Grpc => {
+            let mut grpc = Vec::new();
+            for _ in 0..target.connections.max(1) {
+                let c = Client::connect(&target.url).await.map_err(|e| {
+                    anyhow::anyhow!(
+                        "cannot reach the gRPC server at {}: {e}. Is `dynaserve serve` running \
+                         there? (--target sets the URL, --spawn launches a server)",
+                        target.url
+                    )
+                })?;
+                grpc.push(c);
+            }
+            let models = grpc[0]
+                .list_models()
+                .await
+                .with_context(|| format!("ListModels on {}", target.url))?;
+            let model = pick_model(
+                models.into_iter().map(|m| m.name).collect(),
+                &load.model,
+                &target.url,
+            )?;
+            Ok(Remote {
+                grpc,
+                http: None,
+                model,
+            })
+        }
+        Transport::Http => {
+            let base = HttpBase::parse(&target.url).map_err(anyhow::Error::msg)?;
+            let url = format!("{}/v1/models", target.url.trim_end_matches('/'));
+            let text = http_get(&url).await.map_err(|e| {
+                anyhow::anyhow!(
+                    "cannot reach the HTTP server: {e}. Is `dynaserve serve` running there? \
+                     (--target sets the URL, --spawn launches a server)"
+                )
+            })?;
+            let models: json::ListModelsResponse =
+                serde_json::from_str(&text).with_context(|| format!("{url}: not a model list"))?;
+            let model = pick_model(
+                models.models.into_iter().map(|m| m.name).collect(),
+                &load.model,
+                &target.url,
+            )?;
+            Ok(Remote {
+                grpc: Vec::new(),
+                http: Some(base),
+                model,
+            })
+        }
+        Transport::Inprocess => anyhow::bail!("in-process targets have no connection"),
+    }
+}
+
+/// Runs every level of `load` against `target` and returns the side's report. Errors of
+/// individual requests are counted in the report; only an unreachable target (or an
+/// unloadable in-process model) is an `Err`.
+pub async fn run_target(
+    load: &Load,
+    target: &Target,
+    stop: &Stop,
+    progress: Progress,
+) -> anyhow::Result<SideReport> {
+    let load = Arc::new(load.clone());
+    let mut side = SideReport {
+        label: target.label.clone(),
+        transport: target.transport.as_str().to_string(),
+        target: match target.transport {
+            Transport::Inprocess => target.model_dir.display().to_string(),
+            _ => target.url.clone(),
+        },
+        spawned: target.spawned.clone(),
+        ..SideReport::default()
+    };
+    let exec = match target.transport {
+        Transport::Inprocess => {
+            anyhow::ensure!(
+                !matches!(load.mode, Mode::Poisson { .. }),
+                "the poisson mode needs a server (open-loop arrivals are scheduled by it); \
+                 use streams, predict or ramp in-process"
+            );
+            let dir = target.model_dir.clone();
+            let (s, o) = (target.max_batch_scenes, target.max_batch_objects);
+            let ip = tokio::task::spawn_blocking(move || InProcess::load(&dir, s, o))
+                .await
+                .context("loading the model")??;
+            side.model = ip.name().to_string();
+            Exec::InProcess(Arc::new(ip))
+        }
+        _ => {
+            let remote = connect(target, &load).await?;
+            side.model = remote.model.clone();
+            Exec::Remote(Arc::new(remote))
+        }
+    };
+    let level_list: Vec<(usize, Option<Duration>)> = match &load.mode {
+        Mode::Streams { levels, duration } => levels.iter().map(|&l| (l, *duration)).collect(),
+        Mode::Predict { concurrency, .. } => vec![(*concurrency, None)],
+        Mode::Poisson { rate, .. } => vec![(rate.round().max(1.0) as usize, None)],
+        Mode::Ramp {
+            start,
+            factor,
+            max,
+            level_duration,
+            ..
+        } => {
+            let mut v = Vec::new();
+            let mut c = (*start).max(1);
+            while c <= *max {
+                v.push((c, Some(*level_duration)));
+                c = c.saturating_mul((*factor).max(2));
+            }
+            if v.last().is_some_and(|l| l.0 < *max) {
+                v.push((*max, Some(*level_duration)));
+            }
+            v
+        }
+    };
+    for (concurrency, duration) in level_list {
+        if stop.is_set() {
+            break;
+        }
+        let before = match &target.metrics_url {
+            Some(u) if !matches!(exec, Exec::InProcess(_)) => Some(http_get(u).await),
+            _ => None,
+        };
+        let mut report = run_level(&load, &exec, concurrency, duration, stop, progress).await;
+        match before {
+            Some(Ok(b)) => {
+                let url = target.metrics_url.as_deref().unwrap_or_default();
+                // Let the server record the last batches before the second scrape.
+                tokio::time::sleep(Duration::from_millis(50)).await;
+                match http_get(url).await {
+                    Ok(a) => match ServerStats::from_scrapes(&b, &a) {
+                        Ok(s) => report.server = Some(s),
+                        Err(e) => report.server_metrics_error = Some(e),
+                    },
+                    Err(e) => report.server_metrics_error = Some(e),
+                }
+            }
+            Some(Err(e)) => report.server_metrics_error = Some(e),
+            None => {}
+        }
+        if !progress.quiet {
+            eprintln!(
+                "[{} {} {concurrency}] {:.1} scene-steps/s, step p50 {:.2} ms p99 {:.2} ms, {} ok, {} failed",
+                side.label,
+                load.mode.name(),
+                report.throughput.scene_steps_per_s,
+                report.step_latency_ms.p50,
+                report.step_latency_ms.p99,
+                report.requests.ok,
+                report.requests.failed
+            );
+        }
+        let p99 = report.step_latency_ms.p99;
+        let interrupted = report.interrupted;
+        side.levels.push(report);
+        if interrupted {
+            side.notes
+                .push("interrupted by Ctrl-C: partial report".into());
+            break;
+        }
+        if let Mode::Ramp { p99_bound_ms, .. } = load.mode
+            && p99 > p99_bound_ms
+        {
+            side.notes.push(format!(
+                "ramp stopped at {concurrency} streams: p99 step latency {p99:.2} ms > bound {p99_bound_ms} ms"
+            ));
+            break;
+        }
+    }
+    if let Mode::Ramp { max, .. } = load.mode
+        && side.notes.is_empty()
+    {
+        side.notes.push(format!(
+            "ramp reached the maximum of {max} streams without crossing the p99 bound"
+        ));
+    }
+    Ok(side)
+}
+
+enum Exec {
+    Remote(Arc<Remote>),
+    InProcess(Arc<InProcess>),
+}
+
+async fn run_level(
+    load: &Arc<Load>,
+    exec: &Exec,
+    concurrency: usize,
+    duration: Option<Duration>,
+    stop: &Stop,
+    progress: Progress,
+) -> Report {
+    let start = Instant::now();
+    let measure_from = start + load.warmup;
+    let rec = Arc::new(Mutex::new(Recorder::new(measure_from)));
+    let what = format!("{} {concurrency}", load.mode.name());
+    let bar = progress_task(rec.clone(), what, progress);
+    let deadline = duration.map(|d| measure_from + d);
+    let (mut expected, mut offered) = (None, None);
+    match (exec, &load.mode) {
+        (Exec::InProcess(ip), mode) => {
+            let flag = Arc::new(AtomicBool::new(false));
+            let watcher = {
+                let (flag, stop) = (flag.clone(), stop.clone());
+                tokio::spawn(async move {
+                    stop.wait().await;
+                    flag.store(true, Ordering::SeqCst);
+                })
+            };
+            let (ip, rec2, load2, flag2) = (ip.clone(), rec.clone(), load.clone(), flag.clone());
+            let mode = mode.clone();
+            if duration.is_none()
+                && let Mode::Streams { .. } = mode
+            {
+                expected = Some(concurrency as u64 * u64::from(load.steps));
+            }
+            let r = tokio::task::spawn_blocking(move || match mode {
+                Mode::Predict {
+                    variants,
+                    calls,
+                    every,
+                    ..
+                } => {
+                    let v: Vec<json::Scene> =
+                        (0..variants).map(|k| load2.scenes.scene(k)).collect();
+                    ip.run_predict(&v, load2.steps, load2.dt_steps, every, calls, &flag2, &rec2)
+                }
+                _ => {
+                    let s: Vec<json::Scene> =
+                        (0..concurrency).map(|k| load2.scenes.scene(k)).collect();
+                    ip.run_streams(&s, load2.steps, load2.dt_steps, deadline, &flag2, &rec2)
+                }
+            })
+            .await;
+            watcher.abort();
+            if let Err(e) = r {
+                lock(&rec).failed(&CallError::new("inprocess panic", e.to_string()));
+            }
+        }
+        (
+            Exec::Remote(remote),
+            Mode::Predict {
+                variants,
+                calls,
+                every,
+                ..
+            },
+        ) => {
+            let req = Arc::new(json::PredictRequest {
+                model: load.model.clone(),
+                variants: (0..*variants).map(|k| load.scenes.scene(k)).collect(),
+                steps: load.steps,
+                dt_steps: load.dt_steps,
+                every: *every,
+                timeout_ms: load.timeout_ms,
+            });
+            let remaining = Arc::new(AtomicUsize::new(*calls));
+            let mut tasks = tokio::task::JoinSet::new();
+            for i in 0..concurrency.max(1) {
+                let (conn, req, rec, remaining, stop) = (
+                    remote.conn(i),
+                    req.clone(),
+                    rec.clone(),
+                    remaining.clone(),
+                    stop.clone(),
+                );
+                tasks.spawn(predict_worker(conn, req, rec, remaining, stop));
+            }
+            while tasks.join_next().await.is_some() {}
+        }
+        (
+            Exec::Remote(remote),
+            Mode::Poisson {
+                rate,
+                duration,
+                seed,
+                max_in_flight,
+            },
+        ) => {
+            offered = Some(*rate);
+            let arrivals_end = start + *duration;
+            poisson(
+                load,
+                remote,
+                *rate,
+                arrivals_end,
+                *seed,
+                *max_in_flight,
+                &rec,
+                stop,
+            )
+            .await;
+        }
+        (Exec::Remote(remote), _) => {
+            if duration.is_none() {
+                expected = Some(concurrency as u64 * u64::from(load.steps));
+            }
+            let mut tasks = tokio::task::JoinSet::new();
+            for i in 0..concurrency {
+                let req = load.rollout(load.scenes.scene(i));
+                let (conn, rec, stop) = (remote.conn(i), rec.clone(), stop.clone());
+                tasks.spawn(stream_worker(conn, req, rec, deadline, stop));
+            }
+            while tasks.join_next().await.is_some() {}
+        }
+    }
+    end_progress(bar);
+    let interrupted = stop.is_set();
+    let r = lock(&rec);
+    let end = match deadline {
+        Some(d) if !interrupted => d.min(Instant::now()),
+        _ => r.last_event().unwrap_or_else(Instant::now),
+    };
+    let mut report = r.report(concurrency, end.max(measure_from), interrupted);
+    report.expected_frames = expected;
+    report.offered_rate = offered;
+    report
+}
+
+/// One rollout on `conn`, recorded in `rec`; `None` when cut by `stop` or `deadline`.
+async fn one_rollout(
+    conn: &mut Conn,
+    req: &json::RolloutRequest,
+    rec: &Mutex<Recorder>,
+    deadline: Option<Instant>,
+    stop: &Stop,
+) -> Option<Result<(), CallError>> {
+    lock(rec).started();
+    let mut clock = RequestClock::start();
+    let mut on_frame = |at: Instant, f: &json::StepFrame| {
+        let timing = f.timing.map(|t| ServerTiming {
+            queue_ms: f64::from(t.queue_ms),
+            forward_ms: f64::from(t.forward_ms),
+            batch_scenes: t.batch_scenes,
+        });
+        lock(rec).frame(&mut clock, at, f.poses.len(), timing);
+    };
+    let result = tokio::select! {
+        r = conn.rollout(req, &mut on_frame) => Some(r),
+        _ = stop.wait() => None,
+        _ = sleep_until_opt(deadline) => None,
+    };
+    match result {
+        Some(Ok(_)) => {
+            lock(rec).rollout_ok(&clock, Instant::now());
+            Some(Ok(()))
+        }
+        Some(Err(e)) => {
+            lock(rec).failed(&e);
+            Some(Err(e))
+        }
+        None => None,
+    }
+}
+
+async fn backoff(e: &CallError, deadline: Option<Instant>, stop: &Stop) {
+    let wait = Duration::from_millis(e.retry_after_ms.unwrap_or(100).clamp(10, 1000));
+    tokio::select! {
+        _ = tokio::time::sleep(wait) => {}
+        _ = stop.wait() => {}
+        _ = sleep_until_opt(deadline) => {}
+    }
+}
+
+async fn stream_worker(
+    mut conn: Conn,
+    req: json::RolloutRequest,
+    rec: Arc<Mutex<Recorder>>,
+    deadline: Option<Instant>,
+    stop: Stop,
+) {
+    loop {
+        if stop.is_set() || deadline.is_some_and(|d| Instant::now() >= d) {
+            return;
+        }
+        match one_rollout(&mut conn, &req, &rec, deadline, &stop).await {
+            None => return,
+            Some(r) => {
+                if deadline.is_none() {
+                    return;
+                }
+                if let Err(e) = r {
+                    backoff(&e, deadline, &stop).await;
+                }
+            }
+        }
+    }
+}
+
+async fn predict_worker(
+    mut conn: Conn,
+    req: Arc<json::PredictRequest>,
+    rec: Arc<Mutex<Recorder>>,
+    remaining: Arc<AtomicUsize>,
+    stop: Stop,
+) {
+    let objects: u64 = req.variants.iter().map(|v| v.objects.len() as u64).sum();
+    let steps = u64::from(req.steps);
+    while remaining
+        .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |r| r.checked_sub(1))
+        .is_ok()
+    {
+        if stop.is_set() {
+            return;
+        }
+        lock(&rec).started();
+        let clock = RequestClock::start();
+        let r = tokio::select! {
+            r = conn.predict(&req) => r,
+            _ = stop.wait() => return,
+        };
+        let at = Instant::now();
+        let r = r.and_then(|resp| {
+            if resp.trajectories.len() == req.variants.len() {
+                Ok(resp)
+            } else {
+                Err(CallError::new(
+                    "incomplete",
+                    format!(
+                        "{} trajectories for {} variants",
+                        resp.trajectories.len(),
+                        req.variants.len()
+                    ),
+                ))
+            }
+        });
+        match r {
+            Ok(resp) => {
+                let frames: u64 = resp
+                    .trajectories
+                    .iter()
+                    .map(|t| t.frames.len() as u64)
+                    .sum();
+                lock(&rec).predict_ok(
+                    &clock,
+                    at,
+                    frames,
+                    req.variants.len() as u64 * steps,
+                    objects * steps,
+                    ServerTiming {
+                        queue_ms: resp.timing.queue_ms,
+                        forward_ms: resp.timing.forward_ms,
+                        batch_scenes: 0,
+                    },
+                );
+            }
+            Err(e) => lock(&rec).failed(&e),
+        }
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+async fn poisson(
+    load: &Arc<Load>,
+    remote: &Arc<Remote>,
+    rate: f64,
+    arrivals_end: Instant,
+    seed: u64,
+    max_in_flight: usize,
+    rec: &Arc<Mutex<Recorder>>,
+    stop: &Stop,
+) {
+    let Ok(exp) = Exp::new(rate.max(1e-9)) else {
+        return;
+    };
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let in_flight = Arc::new(AtomicUsize::new(0));
+    let mut tasks = tokio::task::JoinSet::new();
+    let mut next = Instant::now();
+    let mut k = 0usize;
+    loop {
+        next += Duration::from_secs_f64(exp.sample(&mut rng));
+        if next >= arrivals_end {
+            break;
+        }
+        tokio::select! {
+            _ = tokio::time::sleep_until(next.into()) => {}
+            _ = stop.wait() => break,
+        }
+        // Reap finished tasks so the set stays small.
+        while tasks.try_join_next().is_some() {}
+        if in_flight.load(Ordering::SeqCst) >= max_in_flight {
+            lock(rec).skipped();
+            continue;
+        }
+        in_flight.fetch_add(1, Ordering::SeqCst);
+        let req = load.rollout(load.scenes.scene(k));
+        let (mut conn, rec, stop, in_flight) =
+            (remote.conn(k), rec.clone(), stop.clone(), in_flight.clone());
+        k += 1;
+        tasks.spawn(async move {
+            let _ = one_rollout(&mut conn, &req, &rec, None, &stop).await;
+            in_flight.fetch_sub(1, Ordering::SeqCst);
+        });
+    }
+    while tasks.join_next().await.is_some() {}
+}
