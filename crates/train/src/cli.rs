@@ -1,7 +1,8 @@
-//! `dynaserve eval`: score a baseline or a trained model on a dataset split (see
-//! [`crate::eval`] for the protocol and the metrics).
+//! `dynaserve eval`: score a trained model and the baselines on a dataset split (see
+//! [`crate::eval`] for the protocol and the metrics, `docs/evaluation.md` for the reports).
 
-use std::path::PathBuf;
+use std::cell::RefCell;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::Context;
@@ -9,8 +10,10 @@ use dynaserve_sim::DatasetReader;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::eval::{
-    Ballistic, DEFAULT_START_FRAME, EvalOptions, ModelPredictor, Predictor, Static,
-    evaluate_dataset, format_table,
+    Ballistic, DEFAULT_LONG_ROLLOUT_STEPS, DEFAULT_PROJECTION_EVERY, DEFAULT_START_FRAME,
+    EvalOptions, ModelPredictor, Occlusion, PlotStyle, PointSelection, Predictor, RestingOptions,
+    Static, SuiteEntry, SuiteReport, evaluate_dataset_many, format_markdown, format_suite,
+    plot_errors,
 };
 
 /// Baselines `dynaserve eval --baseline` knows.
@@ -23,9 +26,14 @@ pub enum BaselineKind {
 }
 
 /// Arguments of `dynaserve eval`.
+///
+/// With `--model`, one run evaluates the model with its nominal point count, with
+/// `--variant-points` points and with `--occlude` of its points removed, plus the static and
+/// ballistic baselines, all on the same scenes; `--no-variants` and `--no-baselines` turn
+/// parts off.
 #[derive(clap::Args, Debug, Clone)]
 pub struct EvalArgs {
-    /// Baseline to evaluate.
+    /// Evaluate only this baseline.
     #[arg(
         long,
         value_enum,
@@ -51,63 +59,225 @@ pub struct EvalArgs {
     /// Evaluate only the first N scenes.
     #[arg(long)]
     pub max_scenes: Option<usize>,
-    /// Reference points per object given to a model (a prefix of the stored cloud); default
-    /// all.
+    /// Reference points per object given to the model (a prefix of the stored cloud); default
+    /// the model's nominal count (`points_per_object` of its config.json).
     #[arg(long)]
     pub points_per_object: Option<usize>,
-    /// Also write the report as JSON to this file.
+    /// Point count of the second model variant.
+    #[arg(long, default_value_t = 768)]
+    pub variant_points: usize,
+    /// Fraction of each object's points removed (one side of a random plane) in the third
+    /// model variant.
+    #[arg(long, default_value_t = 0.25)]
+    pub occlude: f32,
+    /// Seed of the occlusion planes.
+    #[arg(long, default_value_t = 0)]
+    pub occlusion_seed: u64,
+    /// Evaluate the model only at its nominal point count (no 768-point or occluded variant).
+    #[arg(long)]
+    pub no_variants: bool,
+    /// Do not evaluate the static and ballistic baselines next to the model.
+    #[arg(long)]
+    pub no_baselines: bool,
+    /// Steps of the k = 1 stability rollout (0 turns it off).
+    #[arg(long, default_value_t = DEFAULT_LONG_ROLLOUT_STEPS)]
+    pub long_steps: usize,
+    /// Check the pre-projection rigidity residual at every N-th state of the stability rollout
+    /// (0 turns it off).
+    #[arg(long, default_value_t = DEFAULT_PROJECTION_EVERY)]
+    pub projection_every: usize,
+    /// Do not report the resting drift.
+    #[arg(long)]
+    pub no_resting: bool,
+    /// Write the report as JSON to this file.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// Write the Markdown tables to this file.
+    #[arg(long)]
+    pub markdown: Option<PathBuf>,
+    /// Write the error-against-time PNG to this file (default: next to --json, with .png).
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
 }
 
-/// Runs `dynaserve eval`: progress on stderr, the table on stdout, JSON to `--json`.
+impl EvalArgs {
+    /// The evaluation options these arguments ask for.
+    pub fn options(&self) -> EvalOptions {
+        EvalOptions {
+            start_frame: self.start_frame,
+            step_sizes: self.step_sizes.clone(),
+            horizons_s: self.horizons.clone(),
+            max_scenes: self.max_scenes,
+            long_rollout_steps: self.long_steps,
+            projection_every: self.projection_every,
+            resting: (!self.no_resting).then(RestingOptions::default),
+        }
+    }
+
+    /// Where the plot goes: `--plot`, else `--json` with the extension `.png`, else nowhere.
+    pub fn plot_path(&self) -> Option<PathBuf> {
+        self.plot
+            .clone()
+            .or_else(|| self.json.as_ref().map(|j| j.with_extension("png")))
+    }
+}
+
+/// One predictor of a run: its column label, its input (learned models), whether it is learned.
+struct Entry {
+    label: String,
+    input: Option<String>,
+    predictor: Box<dyn Predictor>,
+    learned: bool,
+}
+
+impl Entry {
+    fn baseline(label: &str, predictor: Box<dyn Predictor>) -> Entry {
+        Entry {
+            label: label.into(),
+            input: None,
+            predictor,
+            learned: false,
+        }
+    }
+}
+
+fn write_file(path: &Path, text: &str) -> anyhow::Result<()> {
+    std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
+}
+
+/// Runs `dynaserve eval`: progress on stderr, the summary on stdout, JSON, Markdown and the
+/// plot to the requested files.
 pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
+    let started = std::time::Instant::now();
     let reader = DatasetReader::open(&args.data)
         .with_context(|| format!("opening dataset {}", args.data.display()))?;
-    let predictor: Box<dyn Predictor> = match (args.baseline, &args.model) {
-        (Some(BaselineKind::Static), None) => Box::new(Static),
+    if !(0.0..1.0).contains(&args.occlude) {
+        anyhow::bail!("--occlude must be in [0, 1), got {}", args.occlude);
+    }
+    let ballistic = Ballistic::from_manifest(reader.manifest());
+    let mut predictors: Vec<Entry> = Vec::new();
+    match (args.baseline, &args.model) {
+        (Some(BaselineKind::Static), None) => {
+            predictors.push(Entry::baseline("static", Box::new(Static)))
+        }
         (Some(BaselineKind::Ballistic), None) => {
-            Box::new(Ballistic::from_manifest(reader.manifest()))
+            predictors.push(Entry::baseline("ballistic", Box::new(ballistic)))
         }
         (None, Some(dir)) => {
-            let model = dynaserve_model::load_model(dir, &dynaserve_model::Device::Cpu)
-                .with_context(|| format!("loading model {}", dir.display()))?;
-            let mut p = ModelPredictor::new(Arc::clone(&model));
-            if let Some(n) = args.points_per_object {
-                p = p.with_points_per_object(n);
+            let model =
+                dynaserve_model::load_rigidformer(dir, &dynaserve_model::Device::Cpu, false)
+                    .with_context(|| format!("loading model {}", dir.display()))?;
+            let base = ModelPredictor::from_rigidformer(Arc::new(model));
+            let nominal = match args.points_per_object {
+                Some(n) => base.clone().with_points_per_object(n),
+                None => base.clone().with_points(PointSelection::Nominal),
+            };
+            let mut push = |label: String, p: ModelPredictor| {
+                predictors.push(Entry {
+                    label,
+                    input: Some(p.input_description()),
+                    predictor: Box::new(p),
+                    learned: true,
+                })
+            };
+            push("model".into(), nominal.clone());
+            if !args.no_variants {
+                push(
+                    format!("model-{}", args.variant_points),
+                    base.with_points_per_object(args.variant_points),
+                );
+                push(
+                    "model-occluded".into(),
+                    nominal.with_occlusion(Occlusion {
+                        fraction: args.occlude,
+                        seed: args.occlusion_seed,
+                    }),
+                );
             }
-            Box::new(p)
+            if !args.no_baselines {
+                predictors.push(Entry::baseline("static", Box::new(Static)));
+                predictors.push(Entry::baseline("ballistic", Box::new(ballistic)));
+            }
         }
         _ => anyhow::bail!("give exactly one of --baseline and --model"),
-    };
-    let opts = EvalOptions {
-        start_frame: args.start_frame,
-        step_sizes: args.step_sizes.clone(),
-        horizons_s: args.horizons.clone(),
-        max_scenes: args.max_scenes,
-    };
-    let total = args.max_scenes.unwrap_or(usize::MAX).min(reader.len());
-    let bar = ProgressBar::new(total as u64);
+    }
+    let opts = args.options();
+    let scenes = args.max_scenes.unwrap_or(usize::MAX).min(reader.len());
+    let bar = ProgressBar::new((scenes * predictors.len()) as u64);
     bar.set_style(
         ProgressStyle::with_template(
-            "{msg} [{elapsed_precise}] {wide_bar} {pos}/{len} scenes (eta {eta})",
+            "{msg} [{elapsed_precise}] {wide_bar} {pos}/{len} scene evaluations (eta {eta})",
         )
         .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
-    bar.set_message(format!("eval {}", predictor.name()));
-    let report = evaluate_dataset(predictor.as_ref(), &reader, &opts, &|done| {
-        bar.set_position(done as u64)
+    bar.set_message("eval");
+    let done = RefCell::new(vec![0usize; predictors.len()]);
+    let labels: Vec<String> = predictors.iter().map(|p| p.label.clone()).collect();
+    let refs: Vec<&dyn Predictor> = predictors.iter().map(|p| p.predictor.as_ref()).collect();
+    let reports = evaluate_dataset_many(&refs, &reader, &opts, &|i, n| {
+        let mut d = done.borrow_mut();
+        d[i] = n;
+        bar.set_position(d.iter().sum::<usize>() as u64);
+        if let Some(next) = labels.get(i + 1).or(labels.first()) {
+            bar.set_message(format!("eval {next}"));
+        }
     });
     bar.finish_and_clear();
-    let report = report?;
-    print!("{}", format_table(&report));
+    let reports = reports?;
+    let suite = SuiteReport {
+        entries: predictors
+            .iter()
+            .zip(reports)
+            .map(|(p, report)| SuiteEntry {
+                label: p.label.clone(),
+                input: p.input.clone(),
+                report,
+            })
+            .collect(),
+        elapsed_s: started.elapsed().as_secs_f64(),
+    };
+    print!("{}", format_suite(&suite));
     println!(
-        "evaluated {} scenes in {:.1} s",
-        report.scenes, report.elapsed_s
+        "\nevaluated {} scenes x {} predictors in {:.1} s",
+        suite.entries.first().map(|e| e.report.scenes).unwrap_or(0),
+        suite.entries.len(),
+        suite.elapsed_s
     );
     if let Some(path) = &args.json {
-        let text = serde_json::to_string_pretty(&report)?;
-        std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
+        write_file(path, &(serde_json::to_string_pretty(&suite)? + "\n"))?;
+        println!("wrote {}", path.display());
+    }
+    if let Some(path) = &args.markdown {
+        write_file(path, &format_markdown(&suite))?;
+        println!("wrote {}", path.display());
+    }
+    if let Some(path) = args.plot_path() {
+        // The nominal model at every step size, its variants and the baselines at the
+        // smallest.
+        let entries: Vec<(&str, &crate::eval::EvalReport, PlotStyle)> = predictors
+            .iter()
+            .zip(&suite.entries)
+            .enumerate()
+            .map(|(i, (p, e))| {
+                let style = match (p.learned, i) {
+                    (true, 0) => PlotStyle::EveryStepSize,
+                    (true, _) => PlotStyle::SmallestStepSize,
+                    (false, _) => PlotStyle::Baseline,
+                };
+                (e.label.as_str(), &e.report, style)
+            })
+            .collect();
+        let title = format!(
+            "{} on {} scenes: error against time",
+            suite
+                .entries
+                .first()
+                .map(|e| e.report.predictor.as_str())
+                .unwrap_or(""),
+            suite.entries.first().map(|e| e.report.scenes).unwrap_or(0)
+        );
+        plot_errors(&path, &title, &entries)
+            .with_context(|| format!("drawing {}", path.display()))?;
         println!("wrote {}", path.display());
     }
     Ok(())

@@ -1,0 +1,385 @@
+//! Several predictors evaluated on the same scenes, side by side: [`SuiteReport`] (what
+//! `dynaserve eval --json` writes), a plain-text summary ([`format_suite`]) and Markdown tables
+//! for a model card ([`format_markdown`]).
+
+use std::fmt::Write;
+
+use serde::{Deserialize, Serialize};
+
+use super::{DriftReport, EvalReport, Stat};
+
+/// One predictor of a suite.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SuiteEntry {
+    /// Short column label (`model`, `model-768`, `static`, ...).
+    pub label: String,
+    /// What the predictor is given, for learned models (`512 points, 25% occluded`).
+    pub input: Option<String>,
+    /// Its report.
+    pub report: EvalReport,
+}
+
+/// Every predictor of one `dynaserve eval` run, on the same scenes with the same options.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SuiteReport {
+    /// The entries: learned-model variants first, then the baselines.
+    pub entries: Vec<SuiteEntry>,
+    /// Wall-clock time of the whole run, seconds.
+    pub elapsed_s: f64,
+}
+
+fn num(v: Option<f64>, decimals: usize) -> String {
+    match v {
+        Some(x) if x.is_finite() => format!("{x:.decimals$}"),
+        Some(x) => format!("{x}"),
+        None => "-".to_string(),
+    }
+}
+
+/// A number with 3 significant digits (plain notation above 1e-3, scientific below).
+fn sig(x: f64) -> String {
+    if x == 0.0 {
+        "0".into()
+    } else if !x.is_finite() || x.abs() < 1e-3 {
+        format!("{x:.2e}")
+    } else {
+        let d = (2 - x.abs().log10().floor() as i32).max(0) as usize;
+        format!("{x:.d$}")
+    }
+}
+
+fn stat_pair(s: Option<&Stat>) -> String {
+    match s {
+        Some(s) => format!("{} / {}", sig(s.mean), sig(s.max)),
+        None => "-".into(),
+    }
+}
+
+impl SuiteReport {
+    fn first(&self) -> Option<&EvalReport> {
+        self.entries.first().map(|e| &e.report)
+    }
+
+    /// Rows of the error tables: every (horizon index, step-size index) of the first report.
+    fn rows(&self) -> Vec<(usize, usize)> {
+        let Some(r) = self.first() else {
+            return Vec::new();
+        };
+        let horizons = r.step_sizes.first().map(|k| k.horizons.len()).unwrap_or(0);
+        (0..horizons)
+            .flat_map(|h| (0..r.step_sizes.len()).map(move |k| (h, k)))
+            .collect()
+    }
+
+    fn horizon_label(&self, h: usize) -> String {
+        let Some(x) = self
+            .first()
+            .and_then(|r| r.step_sizes.first())
+            .and_then(|k| k.horizons.get(h))
+        else {
+            return String::new();
+        };
+        match x.frames {
+            Some(f) => format!("{} s ({f} fr)", x.horizon_s),
+            None => format!("{} s", x.horizon_s),
+        }
+    }
+
+    fn metric(&self, entry: usize, h: usize, k: usize, orientation: bool) -> Option<f64> {
+        let e = self.entries[entry]
+            .report
+            .step_sizes
+            .get(k)?
+            .horizons
+            .get(h)?;
+        if orientation {
+            e.orientation_rmse_deg
+        } else {
+            e.translation_rmse_m
+        }
+    }
+
+    fn header_line(&self) -> String {
+        let Some(r) = self.first() else {
+            return "empty evaluation".into();
+        };
+        let source = match &r.dataset {
+            Some(d) => format!(
+                "{} ({} split, seed {}, {})",
+                d.generator, d.split, d.seed, d.dir
+            ),
+            None => "in-memory scenes".to_string(),
+        };
+        format!(
+            "data: {source}; {} scenes, {} objects, {} frames of {:.4} s; observed frames s-k \
+             and s = {}; {}",
+            r.scenes, r.objects, r.frames, r.dt_frame, r.start_frame, r.pooling
+        )
+    }
+}
+
+/// The suite as plain text: the inputs, translation and orientation RMSE per (horizon, step
+/// size) with one column per predictor, the stability rollout, and the resting drift.
+pub fn format_suite(suite: &SuiteReport) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "{}", suite.header_line());
+    for e in &suite.entries {
+        let _ = writeln!(
+            s,
+            "  {:<16} {}{} ({:.1} s)",
+            e.label,
+            e.report.predictor,
+            e.input
+                .as_ref()
+                .map(|i| format!(" [{i}]"))
+                .unwrap_or_default(),
+            e.report.elapsed_s
+        );
+    }
+    let width = suite
+        .entries
+        .iter()
+        .map(|e| e.label.len())
+        .max()
+        .unwrap_or(0)
+        .max(9);
+    for (title, orientation, decimals) in [
+        ("translation RMSE (m)", false, 4),
+        ("orientation RMSE (deg)", true, 2),
+    ] {
+        let _ = writeln!(s, "\n{title}");
+        let mut header = format!("{:<16} {:>3} |", "horizon", "k");
+        for e in &suite.entries {
+            let _ = write!(header, " {:>width$}", e.label);
+        }
+        let _ = writeln!(s, "{header}");
+        let _ = writeln!(s, "{}", "-".repeat(header.len()));
+        for (h, k) in suite.rows() {
+            let label = if k == 0 {
+                suite.horizon_label(h)
+            } else {
+                String::new()
+            };
+            let dt = suite
+                .first()
+                .and_then(|r| r.step_sizes.get(k))
+                .map(|x| x.dt_steps)
+                .unwrap_or(0);
+            let mut line = format!("{label:<16} {dt:>3} |");
+            for i in 0..suite.entries.len() {
+                let _ = write!(
+                    line,
+                    " {:>width$}",
+                    num(suite.metric(i, h, k, orientation), decimals)
+                );
+            }
+            let _ = writeln!(s, "{line}");
+        }
+    }
+    let mut notes = Vec::new();
+    if let Some(r) = suite.first() {
+        for k in &r.step_sizes {
+            for h in &k.horizons {
+                if let Some(why) = &h.missing {
+                    notes.push(format!("  k={} at {} s: {why}", k.dt_steps, h.horizon_s));
+                }
+            }
+        }
+    }
+    if !notes.is_empty() {
+        let _ = writeln!(s, "missing (never shifted to another frame):");
+        for n in notes {
+            let _ = writeln!(s, "{n}");
+        }
+    }
+    if let Some(l) = suite.first().and_then(|r| r.long_rollout.as_ref()) {
+        let _ = writeln!(
+            s,
+            "\nstability: k = 1, {} steps from frame s (past the data's end); failure = a \
+             non-finite pose or | |q| - 1 | > 1e-4",
+            l.steps
+        );
+        let _ = writeln!(
+            s,
+            "{:<16} | {:>15} {:>13} {:>12} {:>14} {:>22}",
+            "predictor",
+            "failed objects",
+            "failed scenes",
+            "max ||q|-1|",
+            "max pair dev m",
+            "pre-proj. mean/max m"
+        );
+        for e in &suite.entries {
+            if let Some(l) = &e.report.long_rollout {
+                let _ = writeln!(
+                    s,
+                    "{:<16} | {:>15} {:>13} {:>12} {:>14} {:>22}",
+                    e.label,
+                    format!("{} / {}", l.failed_objects, l.objects),
+                    format!("{} / {}", l.failed_scenes, e.report.scenes),
+                    format!("{:.1e}", l.max_quaternion_norm_error),
+                    format!("{:.1e}", l.max_pairwise_deviation_m),
+                    stat_pair(l.projection_residual_m.as_ref())
+                );
+            }
+        }
+    }
+    if let Some(r) = suite.first().and_then(|r| r.resting.as_ref()) {
+        let _ = writeln!(
+            s,
+            "\nresting drift over frames {}..{} ({} s): {} of {} objects at rest in the ground \
+             truth (speed < {} m/s and < {} deg/s between consecutive frames); mean / max",
+            r.first_frame,
+            r.last_frame,
+            r.options.window_s,
+            r.objects_at_rest,
+            r.objects,
+            r.options.max_speed_m_s,
+            r.options.max_angular_speed_deg_s
+        );
+        let _ = writeln!(
+            s,
+            "{:<16} {:>3} | {:>22} {:>22}",
+            "predictor", "k", "translation m", "rotation deg"
+        );
+        let row = |label: &str, d: &DriftReport| {
+            format!(
+                "{:<16} {:>3} | {:>22} {:>22}",
+                label,
+                if d.dt_steps == 0 {
+                    "-".to_string()
+                } else {
+                    d.dt_steps.to_string()
+                },
+                stat_pair(d.translation_m.as_ref()),
+                stat_pair(d.rotation_deg.as_ref())
+            )
+        };
+        let _ = writeln!(s, "{}", row("ground truth", &r.truth));
+        for e in &suite.entries {
+            if let Some(rr) = &e.report.resting {
+                for d in &rr.predicted {
+                    let _ = writeln!(s, "{}", row(&e.label, d));
+                }
+            }
+        }
+    }
+    s
+}
+
+/// The suite as Markdown tables a model card can include: translation and orientation RMSE
+/// per (horizon, step size) with one column per predictor, stability and resting drift.
+pub fn format_markdown(suite: &SuiteReport) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "{}\n", suite.header_line());
+    for e in &suite.entries {
+        let _ = writeln!(
+            s,
+            "- `{}`: {}{}",
+            e.label,
+            e.report.predictor,
+            e.input
+                .as_ref()
+                .map(|i| format!(" ({i})"))
+                .unwrap_or_default()
+        );
+    }
+    for (title, orientation, decimals) in [
+        ("Translation RMSE (m)", false, 3),
+        ("Orientation RMSE (deg)", true, 1),
+    ] {
+        let _ = writeln!(s, "\n**{title}**, pooled over all objects\n");
+        let mut header = "| horizon | k |".to_string();
+        let mut rule = "| --- | --- |".to_string();
+        for e in &suite.entries {
+            let _ = write!(header, " {} |", e.label);
+            rule.push_str(" --- |");
+        }
+        let _ = writeln!(s, "{header}\n{rule}");
+        for (h, k) in suite.rows() {
+            let dt = suite
+                .first()
+                .and_then(|r| r.step_sizes.get(k))
+                .map(|x| x.dt_steps)
+                .unwrap_or(0);
+            let mut line = format!("| {} | {dt} |", suite.horizon_label(h));
+            for i in 0..suite.entries.len() {
+                let _ = write!(
+                    line,
+                    " {} |",
+                    num(suite.metric(i, h, k, orientation), decimals)
+                );
+            }
+            let _ = writeln!(s, "{line}");
+        }
+    }
+    if let Some(l) = suite.first().and_then(|r| r.long_rollout.as_ref()) {
+        let _ = writeln!(
+            s,
+            "\n**Stability**: k = 1, {} steps from frame s; failure = a non-finite pose or \
+             | \\|q\\| - 1 | > 1e-4\n",
+            l.steps
+        );
+        let _ = writeln!(
+            s,
+            "| predictor | failed objects | failed scenes | max \\|\\|q\\| - 1\\| | max pairwise \
+             distance deviation (m) | pre-projection residual mean / max (m) |\n| --- | --- | \
+             --- | --- | --- | --- |"
+        );
+        for e in &suite.entries {
+            if let Some(l) = &e.report.long_rollout {
+                let _ = writeln!(
+                    s,
+                    "| {} | {} / {} | {} / {} | {:.1e} | {:.1e} | {} |",
+                    e.label,
+                    l.failed_objects,
+                    l.objects,
+                    l.failed_scenes,
+                    e.report.scenes,
+                    l.max_quaternion_norm_error,
+                    l.max_pairwise_deviation_m,
+                    stat_pair(l.projection_residual_m.as_ref())
+                );
+            }
+        }
+    }
+    if let Some(r) = suite.first().and_then(|r| r.resting.as_ref()) {
+        let _ = writeln!(
+            s,
+            "\n**Resting drift** over frames {}..{} ({} s) of the {} of {} objects at rest in \
+             the ground truth (speed < {} m/s, < {} deg/s); mean / max\n",
+            r.first_frame,
+            r.last_frame,
+            r.options.window_s,
+            r.objects_at_rest,
+            r.objects,
+            r.options.max_speed_m_s,
+            r.options.max_angular_speed_deg_s
+        );
+        let _ = writeln!(
+            s,
+            "| predictor | k | translation (m) | rotation (deg) |\n| --- | --- | --- | --- |"
+        );
+        let row = |label: &str, d: &DriftReport| {
+            format!(
+                "| {label} | {} | {} | {} |",
+                if d.dt_steps == 0 {
+                    "-".to_string()
+                } else {
+                    d.dt_steps.to_string()
+                },
+                stat_pair(d.translation_m.as_ref()),
+                stat_pair(d.rotation_deg.as_ref())
+            )
+        };
+        let _ = writeln!(s, "{}", row("ground truth", &r.truth));
+        for e in &suite.entries {
+            if let Some(rr) = &e.report.resting {
+                for d in &rr.predicted {
+                    let _ = writeln!(s, "{}", row(&e.label, d));
+                }
+            }
+        }
+    }
+    s
+}
