@@ -1,5 +1,5 @@
-//! Training end to end on a tiny generated dataset: the loss falls, and `--resume` continues
-//! exactly (bit-identical weights to an uninterrupted run).
+//! Training end to end on tiny generated datasets: the loss falls when over-fitting a few
+//! windows, and `--resume` continues exactly (bit-identical weights to an uninterrupted run).
 
 use std::path::{Path, PathBuf};
 
@@ -47,25 +47,60 @@ fn tiny_config(data: &Path, out: &Path, iterations: u64) -> TrainConfig {
     c
 }
 
-#[test]
-#[ignore = "known failure: on this 5-scene set the tiny config's logged loss does not fall within 150 iterations; the full run's does (see the model card)"]
-fn loss_falls() {
-    let dir = scratch("loss");
-    let data = tiny_dataset(&dir);
+/// The first frames of a few MOVi-B scenes (objects spawned 1-5 m up: mostly free flight, the
+/// lowest objects land), 64 points per object, one shard.
+fn overfit_dataset(dir: &Path) -> PathBuf {
+    let out = dir.join("overfit");
+    let mut opts = GenerateOptions::new(Generator::movi_b(), 11, "train", 3);
+    opts.points = 64;
+    opts.sim.frames = OVERFIT_FRAMES;
+    generate_dataset(&opts, &out, false, &|| {}).unwrap();
+    out
+}
 
-    // The loss falls over 150 iterations of the tiny config.
-    let cfg = tiny_config(&data, &dir.join("run"), 150);
+const OVERFIT_FRAMES: usize = 5;
+
+#[test]
+fn loss_falls() {
+    // Over-fitting a small fixed set of windows: no augmentation (no rotation, no shuffling,
+    // no occlusion, no noise, the same 32 points per object every time), one step size, a
+    // short sequence so that every scene offers only 10 windows. Training is deterministic
+    // for fixed seeds, so the comparison below does not depend on luck.
+    let dir = scratch("loss");
+    let data = overfit_dataset(&dir);
+    let mut cfg = tiny_config(&data, &dir.join("run"), 100);
+    cfg.data.points_min = 32;
+    cfg.data.points_max = 32;
+    cfg.data.point_drop_prob = 0.0;
+    cfg.data.rotate_z = false;
+    cfg.data.shuffle_objects = false;
+    cfg.data.noise_position = 0.0;
+    cfg.data.noise_rotation = 0.0;
+    cfg.data.norm_scenes = 3;
+    cfg.optim.lr = 3e-3;
+    cfg.optim.warmup = 5;
     let s = train(&cfg, &TrainOptions::default()).unwrap();
-    assert_eq!(s.step, 150);
+    assert_eq!(s.step, 100);
+    // first_loss / last_loss: means over the first and the last 10 iterations. Measured: 0.47
+    // and 3.8e-5 (the windows are free flight, which the model learns almost exactly), so a
+    // fall to a tenth leaves a wide margin.
+    eprintln!(
+        "loss: first 10 iterations {:.4e}, last 10 iterations {:.4e} (ratio {:.2e})",
+        s.first_loss,
+        s.last_loss,
+        s.last_loss / s.first_loss
+    );
+    assert!(s.first_loss.is_finite() && s.last_loss.is_finite());
     assert!(
-        s.last_loss < 0.7 * s.first_loss,
+        s.last_loss < 0.1 * s.first_loss,
         "loss did not fall: first window {} last window {}",
         s.first_loss,
         s.last_loss
     );
     let log = std::fs::read_to_string(dir.join("run/log.csv")).unwrap();
-    assert_eq!(log.lines().count(), 1 + 15);
+    assert_eq!(log.lines().count(), 1 + 10);
     assert!(dir.join("run/loss.png").exists());
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
