@@ -124,16 +124,11 @@ pub fn format_suite(suite: &SuiteReport) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "{}", suite.header_line());
     for e in &suite.entries {
+        // A learned model's name already carries its input.
         let _ = writeln!(
             s,
-            "  {:<16} {}{} ({:.1} s)",
-            e.label,
-            e.report.predictor,
-            e.input
-                .as_ref()
-                .map(|i| format!(" [{i}]"))
-                .unwrap_or_default(),
-            e.report.elapsed_s
+            "  {:<16} {} ({:.1} s)",
+            e.label, e.report.predictor, e.report.elapsed_s
         );
     }
     let width = suite
@@ -273,16 +268,7 @@ pub fn format_markdown(suite: &SuiteReport) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "{}\n", suite.header_line());
     for e in &suite.entries {
-        let _ = writeln!(
-            s,
-            "- `{}`: {}{}",
-            e.label,
-            e.report.predictor,
-            e.input
-                .as_ref()
-                .map(|i| format!(" ({i})"))
-                .unwrap_or_default()
-        );
+        let _ = writeln!(s, "- `{}`: {}", e.label, e.report.predictor);
     }
     for (title, orientation, decimals) in [
         ("Translation RMSE (m)", false, 3),
