@@ -3,10 +3,13 @@
 #[global_allocator]
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
-fn main() -> anyhow::Result<()> {
-    let code = dynaserve_loadtest::cli::main()?;
-    if code != 0 {
-        std::process::exit(code);
+fn main() {
+    match dynaserve_loadtest::cli::main() {
+        Ok(0) => {}
+        Ok(code) => std::process::exit(code),
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::exit(1);
+        }
     }
-    Ok(())
 }
