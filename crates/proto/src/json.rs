@@ -160,7 +160,8 @@ pub struct StepFrame {
     pub timing: Option<StepTiming>,
 }
 
-/// Whole-request timings, milliseconds.
+/// Whole-request timings, milliseconds. For a planner call the variants step concurrently, so
+/// `queue_ms` and `forward_ms` are those of its slowest variant.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct RequestTiming {
