@@ -1361,6 +1361,13 @@ pub fn format_table(report: &EvalReport) -> String {
         }
         let _ = writeln!(s, "{line}");
     }
+    write_missing_horizons(&mut s, report);
+    s
+}
+
+/// Appends the horizons `report` could not score, with the reason, to a text report.
+pub(crate) fn write_missing_horizons(s: &mut String, report: &EvalReport) {
+    use std::fmt::Write;
     let mut notes = Vec::new();
     for k in &report.step_sizes {
         for h in &k.horizons {
@@ -1375,7 +1382,6 @@ pub fn format_table(report: &EvalReport) -> String {
             let _ = writeln!(s, "{n}");
         }
     }
-    s
 }
 
 #[cfg(test)]

@@ -296,7 +296,7 @@ impl Predictor for ModelPredictor {
         let k = rf.config().anchors;
         let mut out = Vec::with_capacity(windows.len() * objects);
         // Keep each forward pass near the model's inference object budget.
-        let per_pass = (320 / objects).max(1);
+        let per_pass = (dynaserve_model::rigidformer::DEFAULT_MAX_PASS_OBJECTS / objects).max(1);
         for chunk in windows.chunks(per_pass) {
             let items: Vec<TrainItem<'_>> = chunk
                 .iter()

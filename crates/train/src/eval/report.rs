@@ -6,7 +6,7 @@ use std::fmt::Write;
 
 use serde::{Deserialize, Serialize};
 
-use super::{DriftReport, EvalReport, Stat};
+use super::{DriftReport, EvalReport, Stat, write_missing_horizons};
 
 /// One predictor of a suite.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -48,6 +48,15 @@ fn sig(x: f64) -> String {
     }
 }
 
+/// The step-size column of a drift row: `-` for the ground truth (`dt_steps` 0).
+fn step_label(d: &DriftReport) -> String {
+    if d.dt_steps == 0 {
+        "-".to_string()
+    } else {
+        d.dt_steps.to_string()
+    }
+}
+
 fn stat_pair(s: Option<&Stat>) -> String {
     match s {
         Some(s) => format!("{} / {}", sig(s.mean), sig(s.max)),
@@ -56,6 +65,21 @@ fn stat_pair(s: Option<&Stat>) -> String {
 }
 
 impl SuiteReport {
+    /// Rows of the resting-drift table: the ground truth of `resting`, then every entry's
+    /// predicted drift per step size.
+    fn drift_rows<'a>(
+        &'a self,
+        resting: &'a super::RestingReport,
+    ) -> impl Iterator<Item = (&'a str, &'a DriftReport)> {
+        std::iter::once(("ground truth", &resting.truth)).chain(self.entries.iter().flat_map(|e| {
+            e.report
+                .resting
+                .iter()
+                .flat_map(|rr| rr.predicted.iter())
+                .map(move |d| (e.label.as_str(), d))
+        }))
+    }
+
     fn first(&self) -> Option<&EvalReport> {
         self.entries.first().map(|e| &e.report)
     }
@@ -171,21 +195,8 @@ pub fn format_suite(suite: &SuiteReport) -> String {
             let _ = writeln!(s, "{line}");
         }
     }
-    let mut notes = Vec::new();
     if let Some(r) = suite.first() {
-        for k in &r.step_sizes {
-            for h in &k.horizons {
-                if let Some(why) = &h.missing {
-                    notes.push(format!("  k={} at {} s: {why}", k.dt_steps, h.horizon_s));
-                }
-            }
-        }
-    }
-    if !notes.is_empty() {
-        let _ = writeln!(s, "missing (never shifted to another frame):");
-        for n in notes {
-            let _ = writeln!(s, "{n}");
-        }
+        write_missing_horizons(&mut s, r);
     }
     if let Some(l) = suite.first().and_then(|r| r.long_rollout.as_ref()) {
         let _ = writeln!(
@@ -237,26 +248,15 @@ pub fn format_suite(suite: &SuiteReport) -> String {
             "{:<16} {:>3} | {:>22} {:>22}",
             "predictor", "k", "translation m", "rotation deg"
         );
-        let row = |label: &str, d: &DriftReport| {
-            format!(
+        for (label, d) in suite.drift_rows(r) {
+            let _ = writeln!(
+                s,
                 "{:<16} {:>3} | {:>22} {:>22}",
                 label,
-                if d.dt_steps == 0 {
-                    "-".to_string()
-                } else {
-                    d.dt_steps.to_string()
-                },
+                step_label(d),
                 stat_pair(d.translation_m.as_ref()),
                 stat_pair(d.rotation_deg.as_ref())
-            )
-        };
-        let _ = writeln!(s, "{}", row("ground truth", &r.truth));
-        for e in &suite.entries {
-            if let Some(rr) = &e.report.resting {
-                for d in &rr.predicted {
-                    let _ = writeln!(s, "{}", row(&e.label, d));
-                }
-            }
+            );
         }
     }
     s
@@ -346,25 +346,14 @@ pub fn format_markdown(suite: &SuiteReport) -> String {
             s,
             "| predictor | k | translation (m) | rotation (deg) |\n| --- | --- | --- | --- |"
         );
-        let row = |label: &str, d: &DriftReport| {
-            format!(
+        for (label, d) in suite.drift_rows(r) {
+            let _ = writeln!(
+                s,
                 "| {label} | {} | {} | {} |",
-                if d.dt_steps == 0 {
-                    "-".to_string()
-                } else {
-                    d.dt_steps.to_string()
-                },
+                step_label(d),
                 stat_pair(d.translation_m.as_ref()),
                 stat_pair(d.rotation_deg.as_ref())
-            )
-        };
-        let _ = writeln!(s, "{}", row("ground truth", &r.truth));
-        for e in &suite.entries {
-            if let Some(rr) = &e.report.resting {
-                for d in &rr.predicted {
-                    let _ = writeln!(s, "{}", row(&e.label, d));
-                }
-            }
+            );
         }
     }
     s
