@@ -253,22 +253,18 @@ mod tests {
         assert!(resting > 0, "no object rests on the ground");
         // Convex boxes whose vertex sets are separated along the line of centres cannot
         // overlap; the bounding-sphere rule guarantees it.
+        let radius = |points: &Option<Vec<[f32; 3]>>| {
+            points
+                .as_ref()
+                .unwrap()
+                .iter()
+                .map(|p| p.iter().map(|c| c * c).sum::<f32>().sqrt())
+                .fold(0.0, f32::max)
+        };
         for (i, a_o) in a.objects.iter().enumerate() {
             for b_o in &a.objects[i + 1..] {
-                let ra = a_o
-                    .points
-                    .as_ref()
-                    .unwrap()
-                    .iter()
-                    .map(|p| p.iter().map(|c| c * c).sum::<f32>().sqrt())
-                    .fold(0.0, f32::max);
-                let rb = b_o
-                    .points
-                    .as_ref()
-                    .unwrap()
-                    .iter()
-                    .map(|p| p.iter().map(|c| c * c).sum::<f32>().sqrt())
-                    .fold(0.0, f32::max);
+                let ra = radius(&a_o.points);
+                let rb = radius(&b_o.points);
                 let d: f32 = (0..3)
                     .map(|k| (a_o.pose.translation[k] - b_o.pose.translation[k]).powi(2))
                     .sum::<f32>()
