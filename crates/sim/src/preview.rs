@@ -25,6 +25,30 @@ fn range(values: impl Iterator<Item = f32>, pad: f32) -> (f32, f32) {
 
 type DrawResult = std::result::Result<(), String>;
 
+/// Draws a panel's axes: labelled with a light mesh when `text`, bare otherwise (fonts
+/// unavailable).
+fn draw_axes(
+    chart: &mut ChartContext<
+        '_,
+        BitMapBackend<'_>,
+        Cartesian2d<plotters::coord::types::RangedCoordf32, plotters::coord::types::RangedCoordf32>,
+    >,
+    text: bool,
+    x_desc: &str,
+    y_desc: &str,
+) -> DrawResult {
+    let mut mesh = chart.configure_mesh();
+    if text {
+        mesh.x_desc(x_desc).y_desc(y_desc);
+    } else {
+        mesh.disable_x_mesh()
+            .disable_y_mesh()
+            .x_labels(0)
+            .y_labels(0);
+    }
+    mesh.draw().map_err(|e| e.to_string())
+}
+
 fn draw(scenes: &[(usize, SceneRecord)], title: &str, out: &Path, text: bool) -> DrawResult {
     let root = BitMapBackend::new(out, (1400, 640)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| e.to_string())?;
@@ -63,21 +87,7 @@ fn draw(scenes: &[(usize, SceneRecord)], title: &str, out: &Path, text: bool) ->
     let mut top = top
         .build_cartesian_2d(x0..x1, y0..y1)
         .map_err(|e| e.to_string())?;
-    if text {
-        top.configure_mesh()
-            .x_desc("x (m)")
-            .y_desc("y (m)")
-            .draw()
-            .map_err(|e| e.to_string())?;
-    } else {
-        top.configure_mesh()
-            .disable_x_mesh()
-            .disable_y_mesh()
-            .x_labels(0)
-            .y_labels(0)
-            .draw()
-            .map_err(|e| e.to_string())?;
-    }
+    draw_axes(&mut top, text, "x (m)", "y (m)")?;
 
     let frames = scenes
         .iter()
@@ -100,21 +110,7 @@ fn draw(scenes: &[(usize, SceneRecord)], title: &str, out: &Path, text: bool) ->
     let mut side = side
         .build_cartesian_2d(0f32..t_end.max(dt), z0.min(0.0)..z1)
         .map_err(|e| e.to_string())?;
-    if text {
-        side.configure_mesh()
-            .x_desc("time (s)")
-            .y_desc("z (m)")
-            .draw()
-            .map_err(|e| e.to_string())?;
-    } else {
-        side.configure_mesh()
-            .disable_x_mesh()
-            .disable_y_mesh()
-            .x_labels(0)
-            .y_labels(0)
-            .draw()
-            .map_err(|e| e.to_string())?;
-    }
+    draw_axes(&mut side, text, "time (s)", "z (m)")?;
 
     let mut colour = 0usize;
     for (_, scene) in scenes {
