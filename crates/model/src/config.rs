@@ -49,7 +49,7 @@ impl Default for FeatureNormalization {
     }
 }
 
-/// Weights of the one-step training loss (NOTES.md: equal weights).
+/// Weights of the one-step training loss (equal weights by default; see `docs/rigidformer.md`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LossConfig {
@@ -68,6 +68,57 @@ impl Default for LossConfig {
             beta: 1.0,
             scale: 0.01,
             weights: [1.0; 4],
+        }
+    }
+}
+
+/// How the network's inputs and outputs relate to the physics (see `docs/rigidformer.md`).
+///
+/// Every switch off is the original parametrisation, which is what a `config.json` without a
+/// `dynamics` section means; the presets switch every one on.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DynamicsConfig {
+    /// Predict the residual on top of free fall: the Verlet base becomes
+    /// `2 A_t - A_{t-1} + g (k dt_frame)^2`, so an object in flight needs a zero output.
+    pub gravity_residual: bool,
+    /// Express velocities and accelerations per frame instead of per step of `k` frames: the
+    /// per-point increment feature is divided by `k`, the head's output is multiplied by `k^2`
+    /// and the loss divides step-`k` errors by `k^2`, so every step size sees O(1) numbers and
+    /// carries the same weight.
+    pub per_frame_units: bool,
+    /// Inputs that do not see absolute horizontal position (the floor is infinite): the
+    /// offset feature is taken from the object's own centre in x and y (z stays absolute, the
+    /// floor is at `ground_z`), and the anchor queries' positional features are relative to the
+    /// object's centroid. Attention rotaries stay world-frame (only differences enter there).
+    pub translation_invariant: bool,
+}
+
+impl DynamicsConfig {
+    /// Every improvement on (the presets).
+    pub fn residual() -> DynamicsConfig {
+        DynamicsConfig {
+            gravity_residual: true,
+            per_frame_units: true,
+            translation_invariant: true,
+        }
+    }
+
+    /// Divisor of the per-point increment feature at step size `k` frames.
+    pub fn increment_divisor(&self, k: u32) -> f32 {
+        if self.per_frame_units {
+            k.max(1) as f32
+        } else {
+            1.0
+        }
+    }
+
+    /// Factor from the head's (per frame^2) output to metres per step^2 at step size `k`.
+    pub fn output_factor(&self, k: u32) -> f32 {
+        if self.per_frame_units {
+            (k.max(1) as f32).powi(2)
+        } else {
+            1.0
         }
     }
 }
@@ -95,7 +146,7 @@ pub struct ModelConfig {
     pub max_points_per_object: usize,
     /// Largest accepted number of objects in one scene.
     pub max_objects: usize,
-    /// Contact feature radius, metres (NOTES.md: 0.25).
+    /// Contact feature radius, metres (default 0.25).
     pub contact_radius: f32,
     /// Height of the ground plane's top in metres, or `None` for no ground.
     pub ground_z: Option<f32>,
@@ -149,6 +200,9 @@ pub struct ModelConfig {
 
     /// Training loss settings.
     pub loss: LossConfig,
+    /// Input and output parametrisation; absent in older checkpoints (all off).
+    #[serde(default)]
+    pub dynamics: DynamicsConfig,
 }
 
 impl ModelConfig {
@@ -186,6 +240,7 @@ impl ModelConfig {
             anchor_taps: vec![1, 3, 5],
             accel_scale: 0.02,
             loss: LossConfig::default(),
+            dynamics: DynamicsConfig::residual(),
         }
     }
 

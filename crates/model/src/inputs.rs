@@ -8,7 +8,7 @@ use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
 use crate::api::Pose;
-use crate::config::POINT_FEATURES;
+use crate::config::{DynamicsConfig, POINT_FEATURES};
 use crate::prepare::PreparedScene;
 use crate::{ModelConfig, ModelError};
 
@@ -60,6 +60,8 @@ pub(crate) struct BatchInputs {
     pub object_sin: Vec<f32>,
     /// log2(dt_steps) per scene `[b]`.
     pub tau: Vec<f32>,
+    /// Step size in frames per object `[o]`.
+    pub object_dt: Vec<u32>,
     /// Anchors at t, t-1 and in the reference frame, per object `[K]`, metres (f64).
     pub anchors_t: Vec<Vec<[f64; 3]>>,
     /// See `anchors_t`.
@@ -176,6 +178,10 @@ pub(crate) fn build_inputs(
             .iter()
             .map(|r| (r.dt_steps as f32).log2())
             .collect(),
+        object_dt: requests
+            .iter()
+            .flat_map(|r| std::iter::repeat_n(r.dt_steps, r.scene.len()))
+            .collect(),
         anchors_t: Vec::with_capacity(o),
         anchors_prev: Vec::with_capacity(o),
         anchors_ref: Vec::with_capacity(o),
@@ -270,13 +276,14 @@ fn scene_chunk(
         let base = offsets[j];
         let (rc, pc) = poses[j];
         let wc = rc * Vector3::from(obj.centroid) + pc;
+        let frame = FeatureFrame::new(&cfg.dynamics, r.dt_steps, r.current[j].translation);
         // Per-point features.
         for i in 0..n {
             let x = obj.reference[i];
             let w = world[base + i];
             let wp = world_prev[base + i];
             let ct = contact[base + i];
-            let raw = raw_point_features(ct, w, wp, x, obj.params);
+            let raw = raw_point_features(ct, w, wp, x, obj.params, &frame);
             let dst =
                 &mut c.feats[(j * nmax + i) * POINT_FEATURES..(j * nmax + i + 1) * POINT_FEATURES];
             for f in 0..POINT_FEATURES {
@@ -322,8 +329,16 @@ fn scene_chunk(
                 mean_cos[i] += cos[i] / k as f32;
                 mean_sin[i] += sin[i] / k as f32;
             }
-            c.anchor_rope.extend_from_slice(&cos);
-            c.anchor_rope.extend_from_slice(&sin);
+            if cfg.dynamics.translation_invariant {
+                // The query's own positional features: relative to the object's centroid.
+                let rel = [w[0] - wc[0], w[1] - wc[1], w[2] - wc[2]];
+                angles(&rel, freqs, &mut ang);
+                c.anchor_rope.extend(ang.iter().map(|t| t.cos()));
+                c.anchor_rope.extend(ang.iter().map(|t| t.sin()));
+            } else {
+                c.anchor_rope.extend_from_slice(&cos);
+                c.anchor_rope.extend_from_slice(&sin);
+            }
             c.anchor_cos.extend_from_slice(&cos);
             c.anchor_sin.extend_from_slice(&sin);
             // Anchor kinematics in f64 for Verlet and Kabsch.
@@ -348,27 +363,56 @@ pub fn object_params(mass: f32, friction: f32, restitution: f32) -> [f32; 3] {
     [mass.ln(), friction, restitution]
 }
 
+/// Where one object's point features are measured from, fixed by the model's
+/// [`DynamicsConfig`], the step size and the object's current pose.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FeatureFrame {
+    /// Subtracted from a point's world position before the reference offset, metres: the
+    /// object's centre in x and y for translation-invariant inputs, else zero.
+    pub origin: [f32; 3],
+    /// The position increment over one step is divided by this (`k` for per-frame units).
+    pub increment_divisor: f32,
+}
+
+impl FeatureFrame {
+    /// The frame of an object whose centre of mass is at `translation` (metres), stepped by
+    /// `dt_steps` frames.
+    pub fn new(dynamics: &DynamicsConfig, dt_steps: u32, translation: [f32; 3]) -> FeatureFrame {
+        FeatureFrame {
+            origin: if dynamics.translation_invariant {
+                [translation[0], translation[1], 0.0]
+            } else {
+                [0.0; 3]
+            },
+            increment_divisor: dynamics.increment_divisor(dt_steps),
+        }
+    }
+}
+
 /// The 12 raw (unnormalised) features of one point: contact displacement (m), position
-/// increment over the last step `x_t - x_{t-1}` (m), offset from the reference `x_t - x_ref`
-/// (m), and the object's [`object_params`]. The single definition shared by the model and the
-/// trainer's normalisation fit.
+/// increment over the last step `(x_t - x_{t-1}) / increment_divisor` (m), offset from the
+/// reference `x_t - origin - x_ref` (m), and the object's [`object_params`]. The single
+/// definition shared by the model and the trainer's normalisation fit.
 pub fn raw_point_features(
     contact: [f32; 3],
     world: [f32; 3],
     world_prev: [f32; 3],
     reference: [f32; 3],
     params: [f32; 3],
+    frame: &FeatureFrame,
 ) -> [f32; POINT_FEATURES] {
+    let inc = 1.0 / frame.increment_divisor;
+    let o = frame.origin;
     [
         contact[0],
         contact[1],
         contact[2],
-        world[0] - world_prev[0],
-        world[1] - world_prev[1],
-        world[2] - world_prev[2],
-        world[0] - reference[0],
-        world[1] - reference[1],
-        world[2] - reference[2],
+        (world[0] - world_prev[0]) * inc,
+        (world[1] - world_prev[1]) * inc,
+        (world[2] - world_prev[2]) * inc,
+        world[0] - o[0] - reference[0],
+        world[1] - o[1] - reference[1],
+        world[2] - o[2] - reference[2],
         params[0],
         params[1],
         params[2],

@@ -19,9 +19,9 @@ pub mod runtime;
 
 pub use api::{ObjectInput, Pose, SceneState, StepItem, WorldModel, rollout};
 pub use checkpoint::{load_model, load_rigidformer, read_config};
-pub use config::{FeatureNormalization, LossConfig, ModelConfig, POINT_FEATURES};
+pub use config::{DynamicsConfig, FeatureNormalization, LossConfig, ModelConfig, POINT_FEATURES};
 pub use error::ModelError;
-pub use inputs::{object_params, raw_point_features};
+pub use inputs::{FeatureFrame, object_params, raw_point_features};
 pub use kabsch_op::KabschOp;
 pub use layers::Mode;
 pub use prepare::{MAX_DT_STEPS, PreparedScene};

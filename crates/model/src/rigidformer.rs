@@ -527,7 +527,13 @@ impl RigidFormer {
             .reshape((b * m * k, 3))?
             .index_select(&self.idx(&back)?, 0)?
             .reshape((o, k, 3))?;
-        Ok((acc * c.accel_scale as f64)?)
+        // Head units (accel_scale per frame^2 or per step^2) to metres per step^2.
+        let factor: Vec<f32> = inp
+            .object_dt
+            .iter()
+            .map(|&dt| c.accel_scale * c.dynamics.output_factor(dt))
+            .collect();
+        Ok(acc.broadcast_mul(&self.t(&factor, &[o, 1, 1])?)?)
     }
 
     /// The network from assembled inputs to accelerations `[O, K, 3]` (m/step^2).
@@ -626,11 +632,12 @@ impl RigidFormer {
         let poses: Result<Vec<Pose>, ModelError> = (0..inp.o)
             .into_par_iter()
             .map(|obj| {
+                let fall = self.free_fall(inp.object_dt[obj]);
                 let target: Vec<[f64; 3]> = (0..k)
                     .map(|i| {
                         let (at, ap) = (inp.anchors_t[obj][i], inp.anchors_prev[obj][i]);
                         let a = &acc[(obj * k + i) * 3..(obj * k + i + 1) * 3];
-                        [0, 1, 2].map(|d| 2.0 * at[d] - ap[d] + a[d] as f64)
+                        [0, 1, 2].map(|d| 2.0 * at[d] - ap[d] + fall[d] + a[d] as f64)
                     })
                     .collect();
                 let sol = dynaserve_geometry::kabsch(&inp.anchors_ref[obj], &target, None)
@@ -655,9 +662,21 @@ impl RigidFormer {
         Ok(out)
     }
 
+    /// Displacement of free fall over one step of `dt_steps` frames that the Verlet base adds
+    /// (`g (k dt_frame)^2`, metres), zero unless `dynamics.gravity_residual`.
+    fn free_fall(&self, dt_steps: u32) -> [f64; 3] {
+        let c = &self.config;
+        if !c.dynamics.gravity_residual {
+            return [0.0; 3];
+        }
+        let h = dt_steps as f64 * c.dt_frame as f64;
+        c.gravity.map(|g| g as f64 * h * h)
+    }
+
     /// Batched training forward on ground-truth inputs (training kernels): predictions before
-    /// and after projection at the anchors, their targets and the loss of NOTES.md (Smooth L1 on
-    /// position and acceleration, before and after projection, weights from `config.loss`).
+    /// and after projection at the anchors, their targets and the loss of `docs/rigidformer.md`
+    /// (Smooth L1 on position and acceleration, before and after projection, weights from
+    /// `config.loss`, step-size balanced with per-frame units).
     pub fn train_forward(&self, items: &[TrainItem<'_>]) -> Result<TrainOutput, ModelError> {
         if items.is_empty() {
             return Err(ModelError::InvalidInput("empty training batch".into()));
@@ -707,7 +726,13 @@ impl RigidFormer {
             }
         }
         let target_positions = self.t(&tgt, &[o, k, 3])?;
-        let base = ((&a_t * 2.0)? - &a_prev)?; // 2 A_t - A_{t-1}
+        // 2 A_t - A_{t-1} (+ free fall with a gravity residual), per object.
+        let fall: Vec<f32> = inp
+            .object_dt
+            .iter()
+            .flat_map(|&dt| self.free_fall(dt).map(|v| v as f32))
+            .collect();
+        let base = ((&a_t * 2.0)? - &a_prev)?.broadcast_add(&self.t(&fall, &[o, 1, 3])?)?;
         let target_accel = (&target_positions - &base)?;
         let positions_pre = (&base + &accel_pre)?;
         let op = KabschOp::new(inp.anchors_ref.clone());
@@ -719,12 +744,22 @@ impl RigidFormer {
             .broadcast_add(&trans)?;
         let accel_post = (&positions_post - &base)?;
         let lc = &self.config.loss;
-        let inv = 1.0 / lc.scale as f64;
+        // Errors in loss units: divided by `scale`, and by k^2 with per-frame units so that
+        // every step size weighs the same.
+        let inv: Vec<f32> = inp
+            .object_dt
+            .iter()
+            .map(|&dt| 1.0 / (lc.scale * self.config.dynamics.output_factor(dt)))
+            .collect();
+        let inv = self.t(&inv, &[o, 1, 1])?;
+        let scaled = |a: &Tensor, b: &Tensor| -> candle_core::Result<Tensor> {
+            (a - b)?.broadcast_mul(&inv)
+        };
         let terms = [
-            smooth_l1_mean(&((&positions_pre - &target_positions)? * inv)?, lc.beta)?,
-            smooth_l1_mean(&((&accel_pre - &target_accel)? * inv)?, lc.beta)?,
-            smooth_l1_mean(&((&positions_post - &target_positions)? * inv)?, lc.beta)?,
-            smooth_l1_mean(&((&accel_post - &target_accel)? * inv)?, lc.beta)?,
+            smooth_l1_mean(&scaled(&positions_pre, &target_positions)?, lc.beta)?,
+            smooth_l1_mean(&scaled(&accel_pre, &target_accel)?, lc.beta)?,
+            smooth_l1_mean(&scaled(&positions_post, &target_positions)?, lc.beta)?,
+            smooth_l1_mean(&scaled(&accel_post, &target_accel)?, lc.beta)?,
         ];
         let mut loss = (&terms[0] * lc.weights[0] as f64)?;
         for (term, w) in terms.iter().zip(lc.weights).skip(1) {

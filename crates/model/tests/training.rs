@@ -281,3 +281,62 @@ fn a_few_adamw_steps_reduce_the_loss() {
         .unwrap();
     assert_eq!(out[0].len(), 3);
 }
+
+/// With the gravity residual and per-frame units, exact free fall (constant velocity, gravity,
+/// constant spin is left out) needs a zero acceleration output at every step size, and the
+/// Verlet base reproduces the true next anchors; without them the target is `g (k dt)^2`.
+#[test]
+fn free_fall_is_the_zero_output_with_a_gravity_residual() {
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    for residual in [true, false] {
+        let mut cfg = ModelConfig::tiny();
+        if !residual {
+            cfg.dynamics = Default::default();
+        }
+        let model = RigidFormer::new(cfg.clone(), 5, &Device::Cpu).unwrap();
+        let (objs, _) = random_scene(6, 2, 40);
+        let sc = model.prepare(objs).unwrap();
+        for k in [1u32, 2, 4] {
+            let h = k as f32 * cfg.dt_frame;
+            // Positions at t - k, t, t + k of a body thrown upwards, rotation fixed.
+            let at = |s: f32, p0: Vector3<f32>, v: Vector3<f32>| -> Pose {
+                let g = Vector3::from(cfg.gravity);
+                Pose::from_parts(p0 + v * s + g * (0.5 * s * s), UnitQuaternion::identity())
+            };
+            let starts: Vec<(Vector3<f32>, Vector3<f32>)> = (0..2)
+                .map(|_| {
+                    (
+                        Vector3::new(rng.random_range(-2.0..2.0), 0.5, 3.0),
+                        Vector3::new(1.0, -0.5, rng.random_range(0.0..3.0)),
+                    )
+                })
+                .collect();
+            let state = SceneState {
+                previous: starts.iter().map(|&(p, v)| at(-h, p, v)).collect(),
+                current: starts.iter().map(|&(p, v)| at(0.0, p, v)).collect(),
+            };
+            let target: Vec<Pose> = starts.iter().map(|&(p, v)| at(h, p, v)).collect();
+            let out = model
+                .train_forward(&[TrainItem {
+                    scene: &sc,
+                    state: &state,
+                    target: &target,
+                    dt_steps: k,
+                }])
+                .unwrap();
+            let acc: Vec<f32> = out.target_accel.flatten_all().unwrap().to_vec1().unwrap();
+            let expected_z = if residual {
+                0.0
+            } else {
+                cfg.gravity[2] * h * h
+            };
+            for a in acc.chunks(3) {
+                assert!(a[0].abs() < 1e-4 && a[1].abs() < 1e-4, "k={k}: {a:?}");
+                assert!(
+                    (a[2] - expected_z).abs() < 1e-4,
+                    "k={k}: {a:?} vs {expected_z}"
+                );
+            }
+        }
+    }
+}

@@ -30,7 +30,11 @@ pub struct TrainConfig {
 pub struct DataConfig {
     /// Training split directory (`manifest.json` + shards), relative to the working directory.
     pub train: PathBuf,
-    /// Step sizes in frames, one drawn uniformly per sample (NOTES.md: {1, 2, 4}).
+    /// Further split directories whose scenes join the training stream (e.g. the physics
+    /// scenario mix beside MOVi-B); every scene of every directory is drawn equally often.
+    /// They must share the first directory's frame interval and gravity.
+    pub extra: Vec<PathBuf>,
+    /// Step sizes in frames, one drawn uniformly per sample (default {1, 2, 4}).
     pub step_sizes: Vec<u32>,
     /// Fewest surface points per object in a training sample (drawn uniformly per object).
     pub points_min: usize,
@@ -65,6 +69,7 @@ impl Default for DataConfig {
     fn default() -> Self {
         DataConfig {
             train: PathBuf::from("data/movi-b/train"),
+            extra: Vec::new(),
             step_sizes: vec![1, 2, 4],
             points_min: 128,
             points_max: 384,
@@ -145,7 +150,7 @@ pub struct OptimConfig {
     pub lr: f64,
     /// Linear warm-up length in iterations.
     pub warmup: u64,
-    /// Learning rate at iteration 0 as a fraction of `lr` (NOTES.md: 0.1).
+    /// Learning rate at iteration 0 as a fraction of `lr` (default 0.1).
     pub warmup_start: f64,
     /// Final learning rate of the cosine decay as a fraction of `lr`.
     pub min_lr_ratio: f64,

@@ -16,10 +16,10 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use dynaserve_geometry::{ContactConfig, contact_features};
+use dynaserve_model::{FeatureFrame, POINT_FEATURES, object_params, raw_point_features};
 use dynaserve_model::{
     FeatureNormalization, ModelConfig, ObjectInput, Pose, PreparedScene, SceneState, WorldModel,
 };
-use dynaserve_model::{POINT_FEATURES, object_params, raw_point_features};
 use dynaserve_sim::{DatasetReader, SceneRecord};
 use nalgebra::{UnitQuaternion, Vector3};
 use rand::seq::SliceRandom;
@@ -211,6 +211,68 @@ pub fn sample_window(
     })
 }
 
+/// The training directories as one sequence of shards: the first directory's shards, then
+/// each further directory's.
+pub struct Sources {
+    readers: Vec<DatasetReader>,
+    /// `(reader, local shard)` of every global shard.
+    shards: Vec<(usize, usize)>,
+}
+
+impl Sources {
+    /// Opens the directories; all must share the first one's frame interval and gravity.
+    pub fn open(dirs: &[std::path::PathBuf]) -> Result<Sources, TrainError> {
+        let mut readers: Vec<DatasetReader> = Vec::with_capacity(dirs.len());
+        for d in dirs {
+            let r = DatasetReader::open(d)?;
+            if let Some(first) = readers.first() {
+                let (a, b) = (first.manifest(), r.manifest());
+                if a.dt_frame != b.dt_frame || a.gravity != b.gravity {
+                    return Err(TrainError::Data(format!(
+                        "{} has dt_frame {} and gravity {:?}, but {} has {} and {:?}",
+                        d.display(),
+                        b.dt_frame,
+                        b.gravity,
+                        first.dir().display(),
+                        a.dt_frame,
+                        a.gravity
+                    )));
+                }
+            }
+            readers.push(r);
+        }
+        let shards = readers
+            .iter()
+            .enumerate()
+            .flat_map(|(i, r)| (0..r.manifest().shards.len()).map(move |s| (i, s)))
+            .collect();
+        Ok(Sources { readers, shards })
+    }
+
+    /// The first directory's reader (its manifest fixes the frame interval and gravity).
+    pub fn primary(&self) -> &DatasetReader {
+        &self.readers[0]
+    }
+
+    /// Every reader, in order.
+    pub fn readers(&self) -> &[DatasetReader] {
+        &self.readers
+    }
+
+    /// Scenes per global shard.
+    fn shard_sizes(&self) -> Vec<usize> {
+        self.shards
+            .iter()
+            .map(|&(r, s)| self.readers[r].manifest().shards[s].scenes)
+            .collect()
+    }
+
+    fn read_shard(&self, global: usize) -> Result<Vec<SceneRecord>, TrainError> {
+        let (r, s) = self.shards[global];
+        Ok(self.readers[r].read_shard(s)?)
+    }
+}
+
 /// Where the stream's global sample `g` comes from: `(shard, scene within the shard)`.
 struct Order {
     /// Scene count per shard.
@@ -256,20 +318,20 @@ pub struct Loader {
 impl Loader {
     /// Starts the worker. `model` prepares scenes (anchors, grouping); `seed` fixes the stream.
     pub fn start(
-        reader: DatasetReader,
+        reader: Sources,
         cfg: DataConfig,
         batch_size: usize,
         seed: u64,
         start: u64,
         model: Arc<dyn WorldModel>,
     ) -> Result<Loader, TrainError> {
-        if reader.is_empty() {
+        if let Some(empty) = reader.readers().iter().find(|r| r.is_empty()) {
             return Err(TrainError::Data(format!(
                 "{} holds no scenes",
-                reader.dir().display()
+                empty.dir().display()
             )));
         }
-        let shard_sizes: Vec<usize> = reader.manifest().shards.iter().map(|s| s.scenes).collect();
+        let shard_sizes = reader.shard_sizes();
         let (tx, rx) = sync_channel(cfg.prefetch);
         let stop = Arc::new(AtomicBool::new(false));
         let stop2 = stop.clone();
@@ -319,7 +381,7 @@ impl Drop for Loader {
 
 #[allow(clippy::too_many_arguments)]
 fn worker(
-    reader: DatasetReader,
+    reader: Sources,
     cfg: DataConfig,
     batch_size: usize,
     seed: u64,
@@ -388,7 +450,7 @@ fn worker(
 /// scenes, computed exactly as the model computes them. Standard deviations are floored at
 /// 0.01 so constant features do not explode.
 pub fn fit_normalization(
-    reader: &DatasetReader,
+    sources: &Sources,
     c: &DataConfig,
     model: &ModelConfig,
     seed: u64,
@@ -400,8 +462,15 @@ pub fn fit_normalization(
         radius: model.contact_radius,
         ground_z: model.ground_z,
     };
-    for (i, rec) in reader.iter().take(c.norm_scenes).enumerate() {
+    let scenes = sources
+        .readers()
+        .iter()
+        .enumerate()
+        .flat_map(|(r, reader)| reader.iter().take(c.norm_scenes).map(move |s| (r, s)));
+    for (i, (r, rec)) in scenes.enumerate() {
         let rec = rec?;
+        // The first directory keeps the indices (and so the windows) it always had.
+        let i = if r == 0 { i } else { i + 1_000_000 * r };
         for w in 0..c.norm_windows {
             let mut rng = rng_for(seed, 4, (i * 1000 + w) as u64);
             let win = sample_window(&rec, c, &mut rng, false)?;
@@ -419,9 +488,14 @@ pub fn fit_normalization(
             let contact = contact_features(&world, &offsets, &contact_cfg);
             for (j, o) in win.objects.iter().enumerate() {
                 let params = object_params(o.mass, o.friction, o.restitution);
+                let frame = FeatureFrame::new(
+                    &model.dynamics,
+                    win.dt_steps,
+                    win.state.current[j].translation,
+                );
                 for (q, x) in (offsets[j]..offsets[j + 1]).zip(&o.reference) {
                     let (wc, wp, ct) = (world[q], world_prev[q], contact[q]);
-                    let raw = raw_point_features(ct, wc, wp, *x, params);
+                    let raw = raw_point_features(ct, wc, wp, *x, params, &frame);
                     for f in 0..POINT_FEATURES {
                         sum[f] += raw[f] as f64;
                         sq[f] += (raw[f] as f64).powi(2);

@@ -20,13 +20,12 @@ use std::time::Instant;
 use candle_core::{DType, Device, Tensor};
 use dynaserve_model::checkpoint::{CONFIG_FILE, WEIGHTS_FILE};
 use dynaserve_model::{RigidFormer, TrainItem, WorldModel, load_model, load_rigidformer};
-use dynaserve_sim::DatasetReader;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
 
 use super::TrainError;
 use super::config::TrainConfig;
-use super::data::{Loader, fit_normalization};
+use super::data::{Loader, Sources, fit_normalization};
 use super::optim::{AdamW, learning_rate};
 use super::plot::{Series, line_chart};
 
@@ -207,7 +206,10 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
     cfg.validate()?;
     let out = cfg.run.out_dir.clone();
     std::fs::create_dir_all(&out).map_err(io(&out))?;
-    let reader = DatasetReader::open(&cfg.data.train)?;
+    let dirs: Vec<_> = std::iter::once(cfg.data.train.clone())
+        .chain(cfg.data.extra.iter().cloned())
+        .collect();
+    let reader = Sources::open(&dirs)?;
     let device = Device::Cpu;
     let (model, mut state) = if opts.resume {
         let ckpt = resumable(&out).ok_or_else(|| {
@@ -236,8 +238,8 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
             )));
         }
         let mut mc = cfg.model.model_config(Path::new("."))?;
-        mc.dt_frame = reader.manifest().dt_frame;
-        mc.gravity = reader.manifest().gravity;
+        mc.dt_frame = reader.primary().manifest().dt_frame;
+        mc.gravity = reader.primary().manifest().gravity;
         if cfg.model.fit_normalization {
             mc.normalization = fit_normalization(&reader, &cfg.data, &mc, cfg.run.seed)?;
             eprintln!(
