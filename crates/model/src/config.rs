@@ -205,6 +205,17 @@ pub struct ModelConfig {
     pub dynamics: DynamicsConfig,
 }
 
+/// The sizes a prepared scene's caches were built for (see [`ModelConfig::prepared_key`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct PreparedKey {
+    /// Anchors per object (K).
+    pub anchors: usize,
+    /// Set-abstraction centres per object.
+    pub sa_centres: usize,
+    /// Neighbours per set-abstraction centre.
+    pub sa_neighbours: usize,
+}
+
 impl ModelConfig {
     /// The CPU-trainable configuration (width 128, 4 heads of 32, 6 blocks, 8 registers, K = 8,
     /// 32 centres x 8 neighbours in the encoder).
@@ -276,6 +287,16 @@ impl ModelConfig {
             anchors: 4,
             anchor_taps: vec![0, 1],
             ..ModelConfig::small()
+        }
+    }
+
+    /// What a prepared scene depends on: `(anchors, sa_centres, sa_neighbours)`. A scene
+    /// prepared by one model steps on any model with the same key.
+    pub fn prepared_key(&self) -> PreparedKey {
+        PreparedKey {
+            anchors: self.anchors,
+            sa_centres: self.sa_centres,
+            sa_neighbours: self.sa_neighbours,
         }
     }
 

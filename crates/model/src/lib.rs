@@ -10,8 +10,7 @@ pub mod api;
 pub mod checkpoint;
 pub mod config;
 pub mod error;
-mod inputs;
-pub mod kabsch_op;
+pub mod kernels;
 pub mod layers;
 mod prepare;
 pub mod rigidformer;
@@ -19,12 +18,14 @@ pub mod runtime;
 
 pub use api::{ObjectInput, Pose, SceneState, StepItem, WorldModel, rollout};
 pub use checkpoint::{load_model, load_rigidformer, read_config};
-pub use config::{DynamicsConfig, FeatureNormalization, LossConfig, ModelConfig, POINT_FEATURES};
+pub use config::{
+    DynamicsConfig, FeatureNormalization, LossConfig, ModelConfig, POINT_FEATURES, PreparedKey,
+};
 pub use error::ModelError;
-pub use inputs::{FeatureFrame, object_params, raw_point_features};
-pub use kabsch_op::KabschOp;
+pub use kernels::kabsch::{self as kabsch_op, KabschOp};
 pub use layers::Mode;
 pub use prepare::{MAX_DT_STEPS, PreparedScene};
+pub use rigidformer::features::{FeatureFrame, object_params, raw_point_features};
 pub use rigidformer::{RigidFormer, StepProfile, TrainItem, TrainOutput};
 pub use runtime::configure_compute;
 

@@ -9,6 +9,7 @@
 use dynaserve_geometry::farthest_point_sampling;
 
 use crate::api::{ObjectInput, Pose, SceneState};
+use crate::config::PreparedKey;
 use crate::{ModelConfig, ModelError};
 
 /// Largest accepted absolute body-frame coordinate, metres.
@@ -43,8 +44,8 @@ pub(crate) struct PreparedObject {
 #[derive(Clone, Debug)]
 pub struct PreparedScene {
     pub(crate) objects: Vec<PreparedObject>,
-    /// `(anchors, sa_centres, sa_neighbours)` of the model that prepared the scene.
-    pub(crate) key: (usize, usize, usize),
+    /// Sizes of the model that prepared the scene.
+    pub(crate) key: PreparedKey,
     /// Total number of points.
     pub(crate) total_points: usize,
 }
@@ -206,7 +207,7 @@ pub(crate) fn prepare_scene(
     let total_points = objects.iter().map(|o| o.reference.len()).sum();
     Ok(PreparedScene {
         objects,
-        key: (cfg.anchors, cfg.sa_centres, cfg.sa_neighbours),
+        key: cfg.prepared_key(),
         total_points,
     })
 }
@@ -285,7 +286,7 @@ fn prepare_object(cfg: &ModelConfig, o: ObjectInput) -> Result<PreparedObject, S
         anchor_d2.extend(o.reference.iter().map(|p| d2(p, &ap)));
     }
     Ok(PreparedObject {
-        params: crate::inputs::object_params(o.mass, o.friction, o.restitution),
+        params: crate::rigidformer::features::object_params(o.mass, o.friction, o.restitution),
         reference: o.reference,
         anchors,
         centres,

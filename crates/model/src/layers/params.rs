@@ -1,33 +1,15 @@
-//! Parameter store (random initialisation or checkpoint loading) and the small layers the
-//! networks are built from. Every layer takes a [`Mode`]: inference may use candle's fused
-//! kernels, training must use the gradient-carrying compositions (fused `softmax_last_dim` and
-//! `rms_norm` silently drop gradients in candle 0.11).
+//! Parameter store: random initialisation or checkpoint loading, every parameter registered
+//! by name in a [`VarMap`] (names and shapes are the checkpoint format).
 
 use std::collections::{BTreeSet, HashMap};
 
-use candle_core::{D, DType, Device, Tensor, Var};
+use candle_core::{DType, Device, Tensor, Var};
 use candle_nn::VarMap;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+use super::{Linear, RmsNorm};
 use crate::ModelError;
-
-/// Which kernels the forward pass uses.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Mode {
-    /// Fast fused kernels; no gradients needed.
-    Inference,
-    /// Differentiable compositions only (every parameter receives its gradient).
-    Training,
-}
-
-/// Softmax over the last dimension.
-pub fn softmax_last(x: &Tensor, mode: Mode) -> candle_core::Result<Tensor> {
-    match mode {
-        Mode::Inference => candle_nn::ops::softmax_last_dim(&x.contiguous()?),
-        Mode::Training => candle_nn::ops::softmax(x, D::Minus1),
-    }
-}
 
 /// Initialisation of a new parameter.
 #[derive(Clone, Copy, Debug)]
@@ -194,130 +176,4 @@ impl ParamStore {
         let alpha = self.get(&format!("{name}.weight"), &[dim], Init::Const(1.0))?;
         Ok(RmsNorm { alpha, eps })
     }
-}
-
-/// `y = x W^T + b` over the last dimension of any-rank input.
-#[derive(Clone, Debug)]
-pub(crate) struct Linear {
-    w: Tensor,
-    b: Option<Tensor>,
-}
-
-impl Linear {
-    pub fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
-        let dims = x.dims().to_vec();
-        let last = dims[dims.len() - 1];
-        let rows = x.elem_count() / last.max(1);
-        let x2 = x.reshape((rows, last))?;
-        let mut y = x2.matmul(&self.w.t()?)?;
-        if let Some(b) = &self.b {
-            y = y.broadcast_add(b)?;
-        }
-        let mut out = dims;
-        let n = out.len();
-        out[n - 1] = self.w.dim(0)?;
-        y.reshape(out)
-    }
-}
-
-/// Root-mean-square normalisation with a learned scale.
-#[derive(Clone, Debug)]
-pub(crate) struct RmsNorm {
-    alpha: Tensor,
-    eps: f32,
-}
-
-impl RmsNorm {
-    pub fn forward(&self, x: &Tensor, mode: Mode) -> candle_core::Result<Tensor> {
-        match mode {
-            Mode::Inference => candle_nn::ops::rms_norm(&x.contiguous()?, &self.alpha, self.eps),
-            Mode::Training => candle_nn::ops::rms_norm_slow(x, &self.alpha, self.eps),
-        }
-    }
-}
-
-/// Two-layer MLP with SiLU: `in -> hidden -> out`.
-#[derive(Clone, Debug)]
-pub(crate) struct Mlp {
-    a: Linear,
-    b: Linear,
-}
-
-impl Mlp {
-    pub fn new(
-        p: &mut ParamStore,
-        name: &str,
-        input: usize,
-        hidden: usize,
-        output: usize,
-    ) -> Result<Mlp, ModelError> {
-        Ok(Mlp {
-            a: p.linear(&format!("{name}.0"), input, hidden, true)?,
-            b: p.linear(&format!("{name}.1"), hidden, output, true)?,
-        })
-    }
-
-    pub fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
-        self.b.forward(&self.a.forward(x)?.silu()?)
-    }
-}
-
-/// SwiGLU feed-forward: `W2 (silu(W1a x) * W1b x)`.
-#[derive(Clone, Debug)]
-pub(crate) struct SwiGlu {
-    up: Linear,
-    down: Linear,
-    hidden: usize,
-}
-
-impl SwiGlu {
-    pub fn new(
-        p: &mut ParamStore,
-        name: &str,
-        dim: usize,
-        hidden: usize,
-    ) -> Result<SwiGlu, ModelError> {
-        Ok(SwiGlu {
-            up: p.linear(&format!("{name}.up"), dim, 2 * hidden, false)?,
-            down: p.linear(&format!("{name}.down"), hidden, dim, false)?,
-            hidden,
-        })
-    }
-
-    pub fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
-        let u = self.up.forward(x)?;
-        let a = u.narrow(D::Minus1, 0, self.hidden)?;
-        let b = u.narrow(D::Minus1, self.hidden, self.hidden)?;
-        self.down.forward(&(a.silu()? * b)?)
-    }
-}
-
-/// Rotates the first `2 * cos.dim(-1)` channels of `x` (`[B, H, T, dh]`) as even/odd pairs by
-/// `(cos, sin)` (`[B, 1, T, P]`); the remaining channels pass through.
-pub(crate) fn rotate_pairs(x: &Tensor, cos: &Tensor, sin: &Tensor) -> candle_core::Result<Tensor> {
-    let (b, h, t, dh) = x.dims4()?;
-    let p = cos.dim(D::Minus1)?;
-    let rot = x.narrow(D::Minus1, 0, 2 * p)?.reshape((b, h, t, p, 2))?;
-    let e = rot.narrow(D::Minus1, 0, 1)?.squeeze(D::Minus1)?;
-    let o = rot.narrow(D::Minus1, 1, 1)?.squeeze(D::Minus1)?;
-    let re = (e.broadcast_mul(cos)? - o.broadcast_mul(sin)?)?;
-    let ro = (e.broadcast_mul(sin)? + o.broadcast_mul(cos)?)?;
-    let rotated = Tensor::stack(&[re, ro], D::Minus1)?.reshape((b, h, t, 2 * p))?;
-    if 2 * p == dh {
-        Ok(rotated)
-    } else {
-        Tensor::cat(
-            &[rotated, x.narrow(D::Minus1, 2 * p, dh - 2 * p)?],
-            D::Minus1,
-        )
-    }
-}
-
-/// Elementwise Smooth L1 of `diff` with transition `beta`, averaged over all elements.
-pub fn smooth_l1_mean(diff: &Tensor, beta: f32) -> candle_core::Result<Tensor> {
-    let a = diff.abs()?;
-    let quad = (diff.sqr()? * (0.5 / beta as f64))?;
-    let lin = (&a - 0.5 * beta as f64)?;
-    let small = a.lt(beta as f64)?;
-    small.where_cond(&quad, &lin)?.mean_all()
 }

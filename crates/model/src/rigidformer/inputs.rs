@@ -7,8 +7,9 @@ use dynaserve_geometry::{ContactConfig, contact_features};
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
+use super::features::{FeatureFrame, raw_point_features};
 use crate::api::Pose;
-use crate::config::{DynamicsConfig, POINT_FEATURES};
+use crate::config::POINT_FEATURES;
 use crate::prepare::PreparedScene;
 use crate::{ModelConfig, ModelError};
 
@@ -130,7 +131,7 @@ pub(crate) fn build_inputs(
     cfg: &ModelConfig,
     requests: &[SceneRequest<'_>],
 ) -> Result<BatchInputs, ModelError> {
-    let key = (cfg.anchors, cfg.sa_centres, cfg.sa_neighbours);
+    let key = cfg.prepared_key();
     if requests.iter().any(|r| r.scene.key != key) {
         return Err(ModelError::Internal(
             "scene prepared for another model reached the network".into(),
@@ -356,65 +357,4 @@ fn scene_chunk(
         c.anchors_ref.push(ar);
     }
     c
-}
-
-/// Physical parameters as the model sees them: `[ln(mass / kg), friction, restitution]`.
-pub fn object_params(mass: f32, friction: f32, restitution: f32) -> [f32; 3] {
-    [mass.ln(), friction, restitution]
-}
-
-/// Where one object's point features are measured from, fixed by the model's
-/// [`DynamicsConfig`], the step size and the object's current pose.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct FeatureFrame {
-    /// Subtracted from a point's world position before the reference offset, metres: the
-    /// object's centre in x and y for translation-invariant inputs, else zero.
-    pub origin: [f32; 3],
-    /// The position increment over one step is divided by this (`k` for per-frame units).
-    pub increment_divisor: f32,
-}
-
-impl FeatureFrame {
-    /// The frame of an object whose centre of mass is at `translation` (metres), stepped by
-    /// `dt_steps` frames.
-    pub fn new(dynamics: &DynamicsConfig, dt_steps: u32, translation: [f32; 3]) -> FeatureFrame {
-        FeatureFrame {
-            origin: if dynamics.translation_invariant {
-                [translation[0], translation[1], 0.0]
-            } else {
-                [0.0; 3]
-            },
-            increment_divisor: dynamics.increment_divisor(dt_steps),
-        }
-    }
-}
-
-/// The 12 raw (unnormalised) features of one point: contact displacement (m), position
-/// increment over the last step `(x_t - x_{t-1}) / increment_divisor` (m), offset from the
-/// reference `x_t - origin - x_ref` (m), and the object's [`object_params`]. The single
-/// definition shared by the model and the trainer's normalisation fit.
-pub fn raw_point_features(
-    contact: [f32; 3],
-    world: [f32; 3],
-    world_prev: [f32; 3],
-    reference: [f32; 3],
-    params: [f32; 3],
-    frame: &FeatureFrame,
-) -> [f32; POINT_FEATURES] {
-    let inc = 1.0 / frame.increment_divisor;
-    let o = frame.origin;
-    [
-        contact[0],
-        contact[1],
-        contact[2],
-        (world[0] - world_prev[0]) * inc,
-        (world[1] - world_prev[1]) * inc,
-        (world[2] - world_prev[2]) * inc,
-        world[0] - o[0] - reference[0],
-        world[1] - o[1] - reference[1],
-        world[2] - o[2] - reference[2],
-        params[0],
-        params[1],
-        params[2],
-    ]
 }

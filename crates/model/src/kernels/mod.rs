@@ -1,0 +1,5 @@
+//! CPU kernels as candle custom ops: each fuses a composition of candle ops into one pass and
+//! is tested against that composition (forward, and the gradient where training uses it).
+//! Other devices keep the plain composition.
+
+pub mod kabsch;

@@ -1,0 +1,87 @@
+//! Fully connected layers: [`Linear`], the two-layer SiLU [`Mlp`] and the [`SwiGlu`]
+//! feed-forward.
+
+use candle_core::{D, Tensor};
+
+use super::ParamStore;
+use crate::ModelError;
+
+/// `y = x W^T + b` over the last dimension of any-rank input.
+#[derive(Clone, Debug)]
+pub(crate) struct Linear {
+    pub(crate) w: Tensor,
+    pub(crate) b: Option<Tensor>,
+}
+
+impl Linear {
+    pub fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        let dims = x.dims().to_vec();
+        let last = dims[dims.len() - 1];
+        let rows = x.elem_count() / last.max(1);
+        let x2 = x.reshape((rows, last))?;
+        let mut y = x2.matmul(&self.w.t()?)?;
+        if let Some(b) = &self.b {
+            y = y.broadcast_add(b)?;
+        }
+        let mut out = dims;
+        let n = out.len();
+        out[n - 1] = self.w.dim(0)?;
+        y.reshape(out)
+    }
+}
+
+/// Two-layer MLP with SiLU: `in -> hidden -> out`.
+#[derive(Clone, Debug)]
+pub(crate) struct Mlp {
+    a: Linear,
+    b: Linear,
+}
+
+impl Mlp {
+    pub fn new(
+        p: &mut ParamStore,
+        name: &str,
+        input: usize,
+        hidden: usize,
+        output: usize,
+    ) -> Result<Mlp, ModelError> {
+        Ok(Mlp {
+            a: p.linear(&format!("{name}.0"), input, hidden, true)?,
+            b: p.linear(&format!("{name}.1"), hidden, output, true)?,
+        })
+    }
+
+    pub fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        self.b.forward(&self.a.forward(x)?.silu()?)
+    }
+}
+
+/// SwiGLU feed-forward: `W2 (silu(W1a x) * W1b x)`.
+#[derive(Clone, Debug)]
+pub(crate) struct SwiGlu {
+    up: Linear,
+    down: Linear,
+    hidden: usize,
+}
+
+impl SwiGlu {
+    pub fn new(
+        p: &mut ParamStore,
+        name: &str,
+        dim: usize,
+        hidden: usize,
+    ) -> Result<SwiGlu, ModelError> {
+        Ok(SwiGlu {
+            up: p.linear(&format!("{name}.up"), dim, 2 * hidden, false)?,
+            down: p.linear(&format!("{name}.down"), hidden, dim, false)?,
+            hidden,
+        })
+    }
+
+    pub fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        let u = self.up.forward(x)?;
+        let a = u.narrow(D::Minus1, 0, self.hidden)?;
+        let b = u.narrow(D::Minus1, self.hidden, self.hidden)?;
+        self.down.forward(&(a.silu()? * b)?)
+    }
+}

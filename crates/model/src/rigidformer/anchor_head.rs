@@ -1,0 +1,179 @@
+//! Anchor head: each anchor's query (its point feature, offset from the object's centroid,
+//! Gaussian anchor-vertex pooling of nearby point features with a learned bandwidth, its
+//! rotary code, plus the object's final token) cross-attends to the decoder tokens of several
+//! depths; an MLP turns it into an acceleration.
+
+use candle_core::{DType, Device, Tensor};
+
+use super::attention::multi_head;
+use super::decoder::Decoded;
+use super::inputs::BatchInputs;
+use super::{host_index, host_tensor};
+use crate::layers::{Init, Linear, Mlp, Mode, ParamStore, RmsNorm};
+use crate::{ModelConfig, ModelError};
+
+/// The anchor head's layers (`anchors.*` parameters).
+pub(crate) struct AnchorHead {
+    query_in: Linear,
+    own_token: Linear,
+    own_norm: RmsNorm,
+    tap_norms: Vec<RmsNorm>,
+    depth_embedding: Tensor,
+    log_sigma: Tensor,
+    q_norm: RmsNorm,
+    q: Linear,
+    kv: Linear,
+    out: Linear,
+    head_norm: RmsNorm,
+    head: Mlp,
+    device: Device,
+}
+
+impl AnchorHead {
+    /// Creates or loads the anchor head's parameters for configuration `c`.
+    pub fn new(
+        p: &mut ParamStore,
+        c: &ModelConfig,
+        device: &Device,
+    ) -> Result<AnchorHead, ModelError> {
+        let (c1, d, eps) = (c.point_dim, c.width, c.norm_eps);
+        let taps = c.anchor_taps.len();
+        let q_in = c1 + 3 + c1 + c.rope_dim;
+        Ok(AnchorHead {
+            query_in: p.linear("anchors.query_in", q_in, d, true)?,
+            own_token: p.linear("anchors.own_token", d, d, false)?,
+            own_norm: p.rms_norm("anchors.own_norm", d, eps)?,
+            tap_norms: (0..taps)
+                .map(|t| p.rms_norm(&format!("anchors.tap_norm.{t}"), d, eps))
+                .collect::<Result<_, _>>()?,
+            depth_embedding: p.get("anchors.depth_embedding", &[taps, d], Init::Uniform(0.1))?,
+            log_sigma: p.get("anchors.avp.log_sigma", &[1], Init::Const(c.avp_sigma.ln()))?,
+            q_norm: p.rms_norm("anchors.q_norm", d, eps)?,
+            q: p.linear("anchors.cross.q", d, d, false)?,
+            kv: p.linear("anchors.cross.kv", d, 2 * d, false)?,
+            out: p.linear("anchors.cross.out", d, d, false)?,
+            head_norm: p.rms_norm("anchors.head_norm", d, eps)?,
+            head: Mlp::new(p, "anchors.head", d, d, 3)?,
+            device: device.clone(),
+        })
+    }
+
+    /// Accelerations `[O, K, 3]` in metres per step^2 from the point features `[O * N, C1]`
+    /// and the decoder's output.
+    pub fn forward(
+        &self,
+        config: &ModelConfig,
+        inp: &BatchInputs,
+        point_features: &Tensor,
+        dec: &Decoded,
+        mode: Mode,
+    ) -> Result<Tensor, ModelError> {
+        let c = config;
+        let a = self;
+        let device = &self.device;
+        let (b, m, o, n, k, d) = (inp.b, inp.mmax, inp.o, inp.nmax, c.anchors, c.width);
+        let (c1, p) = (c.point_dim, c.rope_dim / 2);
+        let t = m + c.registers;
+        let (last, taps) = (&dec.last, &dec.taps);
+        // Anchor-vertex pooling with a learned bandwidth: w = exp(-d^2 / sigma^2), normalised.
+        let d2 = host_tensor(device, &inp.avp_d2, &[o, k, n])?;
+        let pmask = host_tensor(device, &inp.point_mask, &[o, 1, n])?;
+        let inv_s2 = (a.log_sigma.clone() * -2.0)?.exp()?; // [1]
+        let w = d2
+            .broadcast_mul(&inv_s2)?
+            .neg()?
+            .exp()?
+            .broadcast_mul(&pmask)?; // [O, K, N]
+        let hp = point_features.reshape((o, n, c1))?;
+        let num = w.matmul(&hp)?; // [O, K, C1]
+        let den = w.sum_keepdim(2)?; // >= 1: the anchor itself has weight 1
+        let avp = num.broadcast_div(&den)?;
+        let own = point_features
+            .index_select(&host_index(device, &inp.anchor_idx)?, 0)?
+            .reshape((o, k, c1))?;
+        let rel = host_tensor(device, &inp.anchor_rel, &[o, k, 3])?;
+        let rope_feat = host_tensor(device, &inp.anchor_rope, &[o, k, 2 * p])?;
+        let q_in = Tensor::cat(&[own, rel, avp, rope_feat], 2)?;
+        let mut query = a.query_in.forward(&q_in)?; // [O, K, D]
+        // The anchor's own object token (final depth), an equivariant direct path.
+        let mut rows = Vec::with_capacity(o);
+        for s in 0..b {
+            for (j, _) in (inp.scene_offsets[s]..inp.scene_offsets[s + 1]).enumerate() {
+                rows.push((s * t + j) as u32);
+            }
+        }
+        let own_tok = last
+            .reshape((b * t, d))?
+            .index_select(&host_index(device, &rows)?, 0)?;
+        let own_tok = a.own_token.forward(&a.own_norm.forward(&own_tok, mode)?)?;
+        query = query.broadcast_add(&own_tok.unsqueeze(1)?)?;
+        // Lay the anchor queries out per scene: [B, M*K, D] (zero rows for padding).
+        let mut gather = vec![(o * k) as u32; b * m * k];
+        let mut qcos = vec![1f32; b * m * k * p];
+        let mut qsin = vec![0f32; b * m * k * p];
+        let mut back = Vec::with_capacity(o * k);
+        for s in 0..b {
+            for (j, obj) in (inp.scene_offsets[s]..inp.scene_offsets[s + 1]).enumerate() {
+                for kk in 0..k {
+                    let slot = (s * m + j) * k + kk;
+                    gather[slot] = (obj * k + kk) as u32;
+                    back.push(slot as u32);
+                    let src = (obj * k + kk) * p;
+                    qcos[slot * p..(slot + 1) * p].copy_from_slice(&inp.anchor_cos[src..src + p]);
+                    qsin[slot * p..(slot + 1) * p].copy_from_slice(&inp.anchor_sin[src..src + p]);
+                }
+            }
+        }
+        let query = Tensor::cat(
+            &[
+                query.reshape((o * k, d))?,
+                Tensor::zeros((1, d), DType::F32, device)?,
+            ],
+            0,
+        )?
+        .index_select(&host_index(device, &gather)?, 0)?
+        .reshape((b, m * k, d))?;
+        let qcos = host_tensor(device, &qcos, &[b, 1, m * k, p])?;
+        let qsin = host_tensor(device, &qsin, &[b, 1, m * k, p])?;
+        // Keys/values: tokens from several depths, each normalised, plus a depth embedding.
+        let mut kv_in = Vec::with_capacity(taps.len());
+        for (i, x) in taps.iter().enumerate() {
+            let e = a.depth_embedding.narrow(0, i, 1)?.unsqueeze(0)?;
+            kv_in.push(a.tap_norms[i].forward(x, mode)?.broadcast_add(&e)?);
+        }
+        let kv_in = Tensor::cat(&kv_in, 1)?; // [B, nT*T, D]
+        let nt = taps.len();
+        let kmask = Tensor::cat(&vec![dec.mask.clone(); nt], 3)?;
+        let kcos = Tensor::cat(&vec![dec.rope.0.clone(); nt], 2)?;
+        let ksin = Tensor::cat(&vec![dec.rope.1.clone(); nt], 2)?;
+        let kv = a.kv.forward(&kv_in)?;
+        let kx = kv.narrow(2, 0, d)?;
+        let vx = kv.narrow(2, d, d)?;
+        let qx = a.q.forward(&a.q_norm.forward(&query, mode)?)?;
+        let att = multi_head(
+            &qx,
+            &kx,
+            &vx,
+            &kmask,
+            Some((&qcos, &qsin)),
+            Some((&kcos, &ksin)),
+            c.heads,
+            mode,
+        )?;
+        let att = att.transpose(1, 2)?.reshape((b, m * k, d))?;
+        let y = (query + a.out.forward(&att)?)?;
+        // The acceleration MLP (D -> D -> 3, SiLU).
+        let acc = a.head.forward(&a.head_norm.forward(&y, mode)?)?; // [B, M*K, 3]
+        let acc = acc
+            .reshape((b * m * k, 3))?
+            .index_select(&host_index(device, &back)?, 0)?
+            .reshape((o, k, 3))?;
+        // Head units (accel_scale per frame^2 or per step^2) to metres per step^2.
+        let factor: Vec<f32> = inp
+            .object_dt
+            .iter()
+            .map(|&dt| c.accel_scale * c.dynamics.output_factor(dt))
+            .collect();
+        Ok(acc.broadcast_mul(&host_tensor(device, &factor, &[o, 1, 1])?)?)
+    }
+}

@@ -1,0 +1,183 @@
+//! Object decoder: the object tokens of each scene plus learned registers, laid out
+//! `[B, T = M + R, D]` with a key mask for padded slots, through pre-norm blocks (RMSNorm,
+//! gated multi-head self-attention with ARoPE, FiLM on `tau = log2(dt_steps)`, SwiGLU).
+
+use candle_core::{DType, Device, Tensor};
+
+use super::attention::multi_head;
+use super::host_tensor;
+use super::inputs::BatchInputs;
+use crate::layers::{Init, Linear, Mode, ParamStore, RmsNorm, SwiGlu};
+use crate::{ModelConfig, ModelError};
+
+/// Additive attention bias of a padded key.
+pub(crate) const MASKED: f32 = -1.0e9;
+
+/// Decoder output: final tokens `[B, T, D]`, the tapped depths (each `[B, T, D]`), the key
+/// mask `[B, 1, 1, T]` and the token rotary code `(cos, sin)`, each `[B, 1, T, P]`.
+pub(crate) struct Decoded {
+    pub last: Tensor,
+    pub taps: Vec<Tensor>,
+    pub mask: Tensor,
+    pub rope: (Tensor, Tensor),
+}
+
+/// What every block of one pass shares: key mask `[B, 1, 1, T]`, rotary code `[B, 1, T, P]`
+/// and `tau = log2(dt_steps)` `[B, 1]`.
+struct PassContext {
+    mask: Tensor,
+    cos: Tensor,
+    sin: Tensor,
+    tau: Tensor,
+}
+
+/// One pre-norm block (`decoder.blocks.{l}.*`).
+struct Block {
+    norm1: RmsNorm,
+    qkv: Linear,
+    gate: Linear,
+    out: Linear,
+    film_a: Linear,
+    film_b: Linear,
+    norm2: RmsNorm,
+    ffn: SwiGlu,
+    heads: usize,
+}
+
+impl Block {
+    fn new(p: &mut ParamStore, c: &ModelConfig, l: usize) -> Result<Block, ModelError> {
+        let (d, eps) = (c.width, c.norm_eps);
+        let n = format!("decoder.blocks.{l}");
+        Ok(Block {
+            norm1: p.rms_norm(&format!("{n}.norm1"), d, eps)?,
+            qkv: p.linear(&format!("{n}.attn.qkv"), d, 3 * d, false)?,
+            gate: p.linear(&format!("{n}.attn.gate"), d, c.heads, true)?,
+            out: p.linear(&format!("{n}.attn.out"), d, d, false)?,
+            film_a: p.linear(&format!("{n}.film.0"), 1, c.film_hidden, true)?,
+            // Small final layer: gamma ~ 1, beta ~ 0 at initialisation.
+            film_b: p.linear_init(&format!("{n}.film.1"), c.film_hidden, 2 * d, true, 1e-2)?,
+            norm2: p.rms_norm(&format!("{n}.norm2"), d, eps)?,
+            ffn: SwiGlu::new(p, &format!("{n}.ffn"), d, c.ffn_hidden)?,
+            heads: c.heads,
+        })
+    }
+
+    /// `[B, T, D]` -> `[B, T, D]`.
+    fn forward(&self, x: &Tensor, ctx: &PassContext, mode: Mode) -> candle_core::Result<Tensor> {
+        let (b, t, d) = x.dims3()?;
+        let xn = self.norm1.forward(x, mode)?;
+        let qkv = self.qkv.forward(&xn)?;
+        let q = qkv.narrow(2, 0, d)?;
+        let k = qkv.narrow(2, d, d)?;
+        let v = qkv.narrow(2, 2 * d, d)?;
+        let rope = Some((&ctx.cos, &ctx.sin));
+        let o = multi_head(&q, &k, &v, &ctx.mask, rope, rope, self.heads, mode)?;
+        // Per-head sigmoid gate from the block input.
+        let gate = candle_nn::ops::sigmoid(&self.gate.forward(&xn)?)?; // [B, T, H]
+        let gate = gate.transpose(1, 2)?.unsqueeze(3)?; // [B, H, T, 1]
+        let o = o
+            .broadcast_mul(&gate)?
+            .transpose(1, 2)?
+            .reshape((b, t, d))?;
+        let x = (x + self.out.forward(&o)?)?;
+        // FiLM on tau = log2(dt_steps): gamma = 1 + .., beta.
+        let fb = self
+            .film_b
+            .forward(&self.film_a.forward(&ctx.tau)?.silu()?)?; // [B, 2D]
+        let gamma = (fb.narrow(1, 0, d)? + 1.0)?.unsqueeze(1)?;
+        let beta = fb.narrow(1, d, d)?.unsqueeze(1)?;
+        let x = x.broadcast_mul(&gamma)?.broadcast_add(&beta)?;
+        &x + self.ffn.forward(&self.norm2.forward(&x, mode)?)?
+    }
+}
+
+/// Registers and blocks (`decoder.*` parameters).
+pub(crate) struct Decoder {
+    registers: Tensor,
+    blocks: Vec<Block>,
+    taps: Vec<usize>,
+    rope_pairs: usize,
+}
+
+impl Decoder {
+    /// Creates or loads the decoder's parameters for configuration `c`.
+    pub fn new(p: &mut ParamStore, c: &ModelConfig) -> Result<Decoder, ModelError> {
+        let registers = p.get(
+            "decoder.registers",
+            &[c.registers, c.width],
+            Init::Uniform(0.5),
+        )?;
+        let blocks = (0..c.blocks)
+            .map(|l| Block::new(p, c, l))
+            .collect::<Result<_, _>>()?;
+        Ok(Decoder {
+            registers,
+            blocks,
+            taps: c.anchor_taps.clone(),
+            rope_pairs: c.rope_dim / 2,
+        })
+    }
+
+    /// Object tokens `[O, D]` -> [`Decoded`].
+    pub fn forward(
+        &self,
+        inp: &BatchInputs,
+        tokens: &Tensor,
+        mode: Mode,
+        device: &Device,
+    ) -> Result<Decoded, ModelError> {
+        let (r, d) = self.registers.dims2()?;
+        let (b, m) = (inp.b, inp.mmax);
+        let t = m + r;
+        let p = self.rope_pairs;
+        // Scatter object tokens into [B, M] slots (zero rows for padding) by gathering.
+        let mut gather = vec![inp.o as u32; b * m];
+        let mut mask = vec![MASKED; b * t];
+        let mut cos = vec![1f32; b * t * p];
+        let mut sin = vec![0f32; b * t * p];
+        for s in 0..b {
+            let (first, last) = (inp.scene_offsets[s], inp.scene_offsets[s + 1]);
+            for (j, obj) in (first..last).enumerate() {
+                gather[s * m + j] = obj as u32;
+                mask[s * t + j] = 0.0;
+                let dst = (s * t + j) * p;
+                cos[dst..dst + p].copy_from_slice(&inp.object_cos[obj * p..(obj + 1) * p]);
+                sin[dst..dst + p].copy_from_slice(&inp.object_sin[obj * p..(obj + 1) * p]);
+            }
+            for j in m..t {
+                mask[s * t + j] = 0.0;
+            }
+        }
+        let padded = Tensor::cat(
+            &[tokens.clone(), Tensor::zeros((1, d), DType::F32, device)?],
+            0,
+        )?
+        .index_select(&super::host_index(device, &gather)?, 0)?
+        .reshape((b, m, d))?;
+        let regs = self.registers.unsqueeze(0)?.broadcast_as((b, r, d))?;
+        let mut x = if r > 0 {
+            Tensor::cat(&[padded, regs.contiguous()?], 1)?
+        } else {
+            padded
+        };
+        let ctx = PassContext {
+            mask: host_tensor(device, &mask, &[b, 1, 1, t])?,
+            cos: host_tensor(device, &cos, &[b, 1, t, p])?,
+            sin: host_tensor(device, &sin, &[b, 1, t, p])?,
+            tau: host_tensor(device, &inp.tau, &[b, 1])?,
+        };
+        let mut taps = Vec::with_capacity(self.taps.len());
+        for (l, blk) in self.blocks.iter().enumerate() {
+            x = blk.forward(&x, &ctx, mode)?;
+            for _ in self.taps.iter().filter(|&&tap| tap == l) {
+                taps.push(x.clone());
+            }
+        }
+        Ok(Decoded {
+            last: x,
+            taps,
+            mask: ctx.mask,
+            rope: (ctx.cos, ctx.sin),
+        })
+    }
+}

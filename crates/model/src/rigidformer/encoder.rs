@@ -1,0 +1,64 @@
+//! Point encoder: a shared point MLP, a set-abstraction level over farthest-point-sampled
+//! centres (nearest neighbours, MLP on `[neighbour - centre, feature]`, max-pool) and a second
+//! level pooling the centres into one token per object.
+
+use candle_core::{Device, Tensor};
+
+use super::inputs::BatchInputs;
+use super::{host_index, host_tensor};
+use crate::config::POINT_FEATURES;
+use crate::layers::{Linear, Mlp, ParamStore};
+use crate::{ModelConfig, ModelError};
+
+/// The encoder's layers (`encoder.*` parameters).
+pub(crate) struct Encoder {
+    point: Mlp,
+    sa1: Mlp,
+    sa2: Mlp,
+    token: Linear,
+    sa_centres: usize,
+    sa_neighbours: usize,
+    sa_dim: usize,
+    width: usize,
+}
+
+impl Encoder {
+    /// Creates or loads the encoder's parameters for configuration `c`.
+    pub fn new(p: &mut ParamStore, c: &ModelConfig) -> Result<Encoder, ModelError> {
+        let (c1, c2, d) = (c.point_dim, c.sa_dim, c.width);
+        Ok(Encoder {
+            point: Mlp::new(p, "encoder.point", POINT_FEATURES, c1, c1)?,
+            sa1: Mlp::new(p, "encoder.sa1", c1 + 3, c2, c2)?,
+            sa2: Mlp::new(p, "encoder.sa2", c2 + 3, d, d)?,
+            token: p.linear("encoder.token", d, d, true)?,
+            sa_centres: c.sa_centres,
+            sa_neighbours: c.sa_neighbours,
+            sa_dim: c2,
+            width: d,
+        })
+    }
+
+    /// Per-point features `[O * N, C1]` (padded rows included) and object tokens `[O, D]`.
+    pub fn forward(
+        &self,
+        inp: &BatchInputs,
+        device: &Device,
+    ) -> Result<(Tensor, Tensor), ModelError> {
+        let (o, n, s, g) = (inp.o, inp.nmax, self.sa_centres, self.sa_neighbours);
+        let feats = host_tensor(device, &inp.feats, &[o * n, POINT_FEATURES])?;
+        let h = self.point.forward(&feats)?; // [O*N, C1]
+        let grouped = h.index_select(&host_index(device, &inp.group_idx)?, 0)?; // [O*S*G, C1]
+        let rel = host_tensor(device, &inp.group_rel, &[o * s * g, 3])?;
+        let x = Tensor::cat(&[rel, grouped], 1)?;
+        let x = self
+            .sa1
+            .forward(&x)?
+            .reshape((o * s, g, self.sa_dim))?
+            .max(1)?; // [O*S, C2]
+        let crel = host_tensor(device, &inp.centre_rel, &[o * s, 3])?;
+        let x = Tensor::cat(&[crel, x], 1)?;
+        let x = self.sa2.forward(&x)?.reshape((o, s, self.width))?.max(1)?; // [O, D]
+        let tokens = self.token.forward(&x.silu()?)?;
+        Ok((h, tokens))
+    }
+}

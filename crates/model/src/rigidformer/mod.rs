@@ -1,0 +1,299 @@
+//! RigidFormer: hierarchical point encoder -> object decoder with registers, gated attention,
+//! FiLM on log2(dt_steps) and ARoPE -> anchor queries cross-attending to several decoder
+//! depths -> per-anchor accelerations -> Verlet -> Kabsch -> rigid poses
+//! (`docs/rigidformer.md`).
+//!
+//! One module per stage: [`encoder`], [`decoder`], [`anchor_head`] (with [`attention`] shared
+//! by both), [`projection`] (inference) and [`train`] (loss). [`inputs`] lays a batch out for
+//! one pass; [`features`] defines the per-point inputs.
+//!
+//! Shapes: `B` scenes, `O` objects in the batch, `M` the largest object count, `T = M + R`
+//! decoder tokens, `N` the largest point count, `K` anchors, `S` set-abstraction centres, `G`
+//! neighbours per centre, `C1 = point_dim`, `C2 = sa_dim`, `D = width`, `H` heads, `P =
+//! rope_dim / 2` rotary pairs.
+
+pub(crate) mod anchor_head;
+pub(crate) mod attention;
+pub(crate) mod decoder;
+pub(crate) mod encoder;
+pub mod features;
+pub(crate) mod inputs;
+pub(crate) mod projection;
+pub mod train;
+
+use std::time::{Duration, Instant};
+
+use candle_core::{Device, Tensor};
+use candle_nn::VarMap;
+
+use self::anchor_head::AnchorHead;
+use self::decoder::Decoder;
+use self::encoder::Encoder;
+use self::inputs::{BatchInputs, SceneRequest, build_inputs};
+use crate::api::{Pose, StepItem, WorldModel};
+use crate::layers::{Mode, ParamStore};
+use crate::prepare::{PreparedScene, prepare_scene, validate_state};
+use crate::{ModelConfig, ModelError, ObjectInput};
+
+pub use self::train::{TrainItem, TrainOutput};
+
+/// Default object budget of one forward pass inside [`WorldModel::step`]: larger batches are
+/// split into consecutive passes of whole scenes (measured: per-scene time grows again past
+/// about 32 MOVi-like scenes per pass as intermediate tensors outgrow the caches).
+pub const DEFAULT_MAX_PASS_OBJECTS: usize = 320;
+
+/// Wall-clock time of each phase of one batched step (CPU; on an accelerator the phases are
+/// not synchronised, so only the total is meaningful there).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StepProfile {
+    /// Validation, world points, contact features, feature and geometry assembly.
+    pub features: Duration,
+    /// Point MLP and both set-abstraction levels (one token per object).
+    pub encoder: Duration,
+    /// Object decoder blocks.
+    pub decoder: Duration,
+    /// AVP, anchor queries, multi-scale cross-attention, acceleration head.
+    pub anchors: Duration,
+    /// Verlet, Kabsch and pose assembly.
+    pub projection: Duration,
+}
+
+impl StepProfile {
+    /// Sum of all phases.
+    pub fn total(&self) -> Duration {
+        self.features + self.encoder + self.decoder + self.anchors + self.projection
+    }
+}
+
+/// The RigidFormer world model (see the module docs). Thread-safe; implements [`WorldModel`].
+pub struct RigidFormer {
+    name: String,
+    config: ModelConfig,
+    device: Device,
+    varmap: VarMap,
+    encoder: Encoder,
+    decoder: Decoder,
+    anchors: AnchorHead,
+    max_pass_objects: usize,
+}
+
+/// A host buffer as an f32 tensor of `shape` on `device`.
+pub(crate) fn host_tensor(
+    device: &Device,
+    data: &[f32],
+    shape: &[usize],
+) -> candle_core::Result<Tensor> {
+    Tensor::from_slice(data, shape, &Device::Cpu)?.to_device(device)
+}
+
+/// Host row indices as a u32 tensor `[len]` on `device`.
+pub(crate) fn host_index(device: &Device, data: &[u32]) -> candle_core::Result<Tensor> {
+    Tensor::from_slice(data, data.len(), &Device::Cpu)?.to_device(device)
+}
+
+impl RigidFormer {
+    /// A randomly initialised model (deterministic for a given `seed`), trainable.
+    pub fn new(config: ModelConfig, seed: u64, device: &Device) -> Result<RigidFormer, ModelError> {
+        config.validate()?;
+        let store = ParamStore::random(seed, device, true);
+        Self::from_store("rigidformer".into(), config, store, device)
+    }
+
+    /// Builds the network from a parameter store (random or loaded). Parameters are created in
+    /// a fixed order (encoder, decoder, anchor head) so a seed always gives the same weights.
+    pub(crate) fn from_store(
+        name: String,
+        config: ModelConfig,
+        mut p: ParamStore,
+        device: &Device,
+    ) -> Result<RigidFormer, ModelError> {
+        config.validate()?;
+        let encoder = Encoder::new(&mut p, &config)?;
+        let decoder = Decoder::new(&mut p, &config)?;
+        let anchors = AnchorHead::new(&mut p, &config, device)?;
+        Ok(RigidFormer {
+            name,
+            config,
+            device: device.clone(),
+            varmap: p.finish()?,
+            encoder,
+            decoder,
+            anchors,
+            max_pass_objects: DEFAULT_MAX_PASS_OBJECTS,
+        })
+    }
+
+    /// Sets the object budget of one forward pass (at least one scene always runs per pass).
+    /// Results do not depend on it.
+    pub fn with_max_pass_objects(mut self, objects: usize) -> RigidFormer {
+        self.max_pass_objects = objects.max(1);
+        self
+    }
+
+    /// Sets the model's name (normally its checkpoint directory name).
+    pub fn with_name(mut self, name: impl Into<String>) -> RigidFormer {
+        self.name = name.into();
+        self
+    }
+
+    /// The trainable parameters, by name (for AdamW and for saving).
+    pub fn varmap(&self) -> &VarMap {
+        &self.varmap
+    }
+
+    /// The device the weights live on.
+    pub fn device(&self) -> &Device {
+        &self.device
+    }
+
+    /// Number of scalar parameters.
+    pub fn parameter_count(&self) -> usize {
+        self.varmap.all_vars().iter().map(|v| v.elem_count()).sum()
+    }
+
+    /// True for parameters that conventionally get no weight decay (norm scales, biases,
+    /// registers, embeddings, the AVP bandwidth).
+    pub fn is_no_decay(name: &str) -> bool {
+        name.ends_with(".bias")
+            || name.contains("norm")
+            || name.contains("registers")
+            || name.contains("embedding")
+            || name.contains("log_sigma")
+    }
+
+    /// The network from assembled inputs to accelerations `[O, K, 3]` (m/step^2).
+    fn network(
+        &self,
+        inp: &BatchInputs,
+        mode: Mode,
+        profile: Option<&mut StepProfile>,
+    ) -> Result<Tensor, ModelError> {
+        let t0 = Instant::now();
+        let (h, tokens) = self.encoder.forward(inp, &self.device)?;
+        let t1 = Instant::now();
+        let decoded = self.decoder.forward(inp, &tokens, mode, &self.device)?;
+        let t2 = Instant::now();
+        let acc = self
+            .anchors
+            .forward(&self.config, inp, &h, &decoded, mode)?;
+        if let Some(p) = profile {
+            p.encoder += t1 - t0;
+            p.decoder += t2 - t1;
+            p.anchors += t2.elapsed();
+        }
+        Ok(acc)
+    }
+
+    fn requests<'a>(&self, batch: &[StepItem<'a>]) -> Result<Vec<SceneRequest<'a>>, ModelError> {
+        batch
+            .iter()
+            .enumerate()
+            .map(|(i, it)| {
+                let what = format!("batch[{i}]");
+                check_prepared_for(&self.config, it.scene, &what)?;
+                let (previous, current) = validate_state(it.scene, it.state, it.dt_steps, &what)?;
+                Ok(SceneRequest {
+                    scene: it.scene,
+                    previous,
+                    current,
+                    dt_steps: it.dt_steps,
+                })
+            })
+            .collect()
+    }
+
+    /// [`WorldModel::step`] with per-phase wall-clock times added to `profile`.
+    pub fn step_profiled(
+        &self,
+        batch: &[StepItem<'_>],
+        profile: &mut StepProfile,
+    ) -> Result<Vec<Vec<Pose>>, ModelError> {
+        self.step_mode(batch, Mode::Inference, Some(profile))
+    }
+
+    /// One batched step with an explicit kernel [`Mode`] (the training kernels give the same
+    /// result up to rounding; used to test that).
+    pub fn step_mode(
+        &self,
+        batch: &[StepItem<'_>],
+        mode: Mode,
+        mut profile: Option<&mut StepProfile>,
+    ) -> Result<Vec<Vec<Pose>>, ModelError> {
+        if batch.is_empty() {
+            return Ok(Vec::new());
+        }
+        let t0 = Instant::now();
+        let requests = self.requests(batch)?;
+        if let Some(p) = profile.as_deref_mut() {
+            p.features += t0.elapsed();
+        }
+        // Split into passes of whole scenes under the object budget.
+        let mut out = Vec::with_capacity(batch.len());
+        let mut start = 0;
+        while start < batch.len() {
+            let mut end = start + 1;
+            let mut objects = batch[start].scene.len();
+            while end < batch.len() && objects + batch[end].scene.len() <= self.max_pass_objects {
+                objects += batch[end].scene.len();
+                end += 1;
+            }
+            out.extend(self.step_pass(&requests[start..end], mode, profile.as_deref_mut())?);
+            start = end;
+        }
+        Ok(out)
+    }
+
+    fn step_pass(
+        &self,
+        requests: &[SceneRequest<'_>],
+        mode: Mode,
+        mut profile: Option<&mut StepProfile>,
+    ) -> Result<Vec<Vec<Pose>>, ModelError> {
+        let t0 = Instant::now();
+        let inp = build_inputs(&self.config, requests)?;
+        let t1 = Instant::now();
+        let acc = self.network(&inp, mode, profile.as_deref_mut())?;
+        let acc: Vec<f32> = acc.flatten_all()?.to_device(&Device::Cpu)?.to_vec1()?;
+        let t2 = Instant::now();
+        let out = projection::project_poses(&self.config, &inp, &acc)?;
+        if let Some(p) = profile {
+            p.features += t1 - t0;
+            p.projection += t2.elapsed();
+        }
+        Ok(out)
+    }
+}
+
+/// Fails if `scene` was prepared by a model with other anchor or grouping sizes.
+fn check_prepared_for(
+    cfg: &ModelConfig,
+    scene: &PreparedScene,
+    what: &str,
+) -> Result<(), ModelError> {
+    let key = cfg.prepared_key();
+    if scene.key != key {
+        return Err(ModelError::InvalidInput(format!(
+            "{what}: the scene was prepared for a model with {:?}, this model uses {key:?}",
+            scene.key
+        )));
+    }
+    Ok(())
+}
+
+impl WorldModel for RigidFormer {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn config(&self) -> &ModelConfig {
+        &self.config
+    }
+
+    fn prepare(&self, objects: Vec<ObjectInput>) -> Result<PreparedScene, ModelError> {
+        prepare_scene(&self.config, objects)
+    }
+
+    fn step(&self, batch: &[StepItem<'_>]) -> Result<Vec<Vec<Pose>>, ModelError> {
+        self.step_mode(batch, Mode::Inference, None)
+    }
+}

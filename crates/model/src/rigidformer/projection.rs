@@ -1,0 +1,79 @@
+//! From anchor accelerations to rigid poses at inference: Verlet at the anchors
+//! (`A_{t+k} = 2 A_t - A_{t-k} + b + a`, metres), then the Kabsch fit per object (f64).
+
+use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
+use rayon::prelude::*;
+
+use super::inputs::BatchInputs;
+use crate::api::Pose;
+use crate::{ModelConfig, ModelError};
+
+/// Displacement of free fall over one step of `dt_steps` frames that the Verlet base adds
+/// (`g (k dt_frame)^2`, metres), zero unless `dynamics.gravity_residual`.
+pub(crate) fn free_fall(c: &ModelConfig, dt_steps: u32) -> [f64; 3] {
+    if !c.dynamics.gravity_residual {
+        return [0.0; 3];
+    }
+    let h = dt_steps as f64 * c.dt_frame as f64;
+    c.gravity.map(|g| g as f64 * h * h)
+}
+
+/// New poses of every object of a pass, `[scenes][objects]`, from accelerations
+/// `acc` (`[O * K * 3]`, metres per step^2), objects in parallel.
+pub(crate) fn project_poses(
+    c: &ModelConfig,
+    inp: &BatchInputs,
+    acc: &[f32],
+) -> Result<Vec<Vec<Pose>>, ModelError> {
+    let k = c.anchors;
+    let poses: Result<Vec<Pose>, ModelError> = (0..inp.o)
+        .into_par_iter()
+        .map(|obj| {
+            let fall = free_fall(c, inp.object_dt[obj]);
+            let target: Vec<[f64; 3]> = (0..k)
+                .map(|i| {
+                    let (at, ap) = (inp.anchors_t[obj][i], inp.anchors_prev[obj][i]);
+                    let a = &acc[(obj * k + i) * 3..(obj * k + i + 1) * 3];
+                    [0, 1, 2].map(|d| 2.0 * at[d] - ap[d] + fall[d] + a[d] as f64)
+                })
+                .collect();
+            let sol = dynaserve_geometry::kabsch(&inp.anchors_ref[obj], &target, None)
+                .map_err(|e| ModelError::Internal(format!("kabsch failed: {e}")))?;
+            Ok(pose_from(
+                &sol.rotation,
+                &sol.translation,
+                inp.current_rot[obj],
+            ))
+        })
+        .collect();
+    let poses = poses?;
+    Ok((0..inp.b)
+        .map(|s| poses[inp.scene_offsets[s]..inp.scene_offsets[s + 1]].to_vec())
+        .collect())
+}
+
+/// Rotation matrix and translation (metres) of a pose, in f64.
+pub(crate) fn pose_f64(p: &Pose) -> (Matrix3<f64>, Vector3<f64>) {
+    let [x, y, z, w] = p.rotation.map(|v| v as f64);
+    let q = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z));
+    let t = p.translation.map(|v| v as f64);
+    (
+        q.to_rotation_matrix().into_inner(),
+        Vector3::new(t[0], t[1], t[2]),
+    )
+}
+
+/// Pose from a rotation matrix and translation, with the quaternion sign nearest `near`.
+fn pose_from(r: &Matrix3<f64>, p: &Vector3<f64>, near: [f32; 4]) -> Pose {
+    let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(*r));
+    let c = q.coords;
+    let mut rotation = [c.x as f32, c.y as f32, c.z as f32, c.w as f32];
+    let dot: f32 = rotation.iter().zip(near).map(|(a, b)| a * b).sum();
+    if dot < 0.0 {
+        rotation = rotation.map(|v| -v);
+    }
+    Pose {
+        translation: [p.x as f32, p.y as f32, p.z as f32],
+        rotation,
+    }
+}

@@ -1,0 +1,162 @@
+//! Training forward: the network on ground-truth inputs with the differentiable kernels,
+//! Verlet and the Kabsch custom op, and the loss of `docs/rigidformer.md`.
+
+use candle_core::Tensor;
+
+use super::RigidFormer;
+use super::host_tensor;
+use super::inputs::{SceneRequest, build_inputs};
+use super::projection::{free_fall, pose_f64};
+use crate::ModelError;
+use crate::api::{Pose, SceneState};
+use crate::kernels::kabsch::KabschOp;
+use crate::layers::{Mode, smooth_l1_mean};
+use crate::prepare::{PreparedScene, normalise_pose, validate_state};
+
+/// One training sample: a scene at time t with its ground-truth pose `dt_steps` later.
+#[derive(Clone, Copy, Debug)]
+pub struct TrainItem<'a> {
+    /// The prepared scene (reference clouds, parameters, anchors).
+    pub scene: &'a PreparedScene,
+    /// Ground-truth poses at t - dt_steps (`previous`) and t (`current`).
+    pub state: &'a SceneState,
+    /// Ground-truth poses at t + dt_steps, `[objects]`.
+    pub target: &'a [Pose],
+    /// Step size in frames, `>= 1`.
+    pub dt_steps: u32,
+}
+
+/// Result of [`RigidFormer::train_forward`]. Every tensor is `[O, K, 3]` (objects of all
+/// samples, scene-major, K anchors; metres or metres per step^2) unless noted; predictions carry
+/// gradients.
+pub struct TrainOutput {
+    /// Scalar loss: weighted sum of the four Smooth L1 terms.
+    pub loss: Tensor,
+    /// The four terms `[pos_pre, acc_pre, pos_post, acc_post]`, each a scalar tensor.
+    pub terms: [Tensor; 4],
+    /// Predicted anchor accelerations `a` (m/step^2), before projection.
+    pub accel_pre: Tensor,
+    /// Anchor positions after Verlet, before projection: `2A_t - A_{t-1} + a`.
+    pub positions_pre: Tensor,
+    /// Anchor positions after Kabsch projection: `R A_ref + p`.
+    pub positions_post: Tensor,
+    /// Implied accelerations after projection: `positions_post - 2A_t + A_{t-1}`.
+    pub accel_post: Tensor,
+    /// Rigid transforms `[O, 12]`: row-major R then p (metres).
+    pub transforms: Tensor,
+    /// Ground-truth anchor positions at t + dt (no gradient).
+    pub target_positions: Tensor,
+    /// Ground-truth accelerations `A*_{t+1} - 2A*_t + A*_{t-1}` (no gradient).
+    pub target_accel: Tensor,
+}
+
+impl RigidFormer {
+    /// Batched training forward on ground-truth inputs (training kernels): predictions before
+    /// and after projection at the anchors, their targets and the loss of `docs/rigidformer.md`
+    /// (Smooth L1 on position and acceleration, before and after projection, weights from
+    /// `config.loss`, step-size balanced with per-frame units).
+    pub fn train_forward(&self, items: &[TrainItem<'_>]) -> Result<TrainOutput, ModelError> {
+        if items.is_empty() {
+            return Err(ModelError::InvalidInput("empty training batch".into()));
+        }
+        let mut requests = Vec::with_capacity(items.len());
+        let mut targets = Vec::new();
+        for (i, it) in items.iter().enumerate() {
+            let what = format!("train[{i}]");
+            super::check_prepared_for(&self.config, it.scene, &what)?;
+            let (previous, current) = validate_state(it.scene, it.state, it.dt_steps, &what)?;
+            if it.target.len() != it.scene.len() {
+                return Err(ModelError::InvalidInput(format!(
+                    "{what}: {} target poses for {} objects",
+                    it.target.len(),
+                    it.scene.len()
+                )));
+            }
+            for (j, p) in it.target.iter().enumerate() {
+                targets.push(
+                    normalise_pose(p).map_err(|e| {
+                        ModelError::InvalidInput(format!("{what}: target[{j}]: {e}"))
+                    })?,
+                );
+            }
+            requests.push(SceneRequest {
+                scene: it.scene,
+                previous,
+                current,
+                dt_steps: it.dt_steps,
+            });
+        }
+        let inp = build_inputs(&self.config, &requests)?;
+        let accel_pre = self.network(&inp, Mode::Training, None)?; // [O, K, 3]
+        let (o, k) = (inp.o, self.config.anchors);
+        let flat = |v: &Vec<Vec<[f64; 3]>>| -> Vec<f32> {
+            v.iter().flatten().flatten().map(|x| *x as f32).collect()
+        };
+        let a_t = host_tensor(&self.device, &flat(&inp.anchors_t), &[o, k, 3])?;
+        let a_prev = host_tensor(&self.device, &flat(&inp.anchors_prev), &[o, k, 3])?;
+        let a_ref = host_tensor(&self.device, &flat(&inp.anchors_ref), &[o, k, 3])?;
+        let mut tgt = Vec::with_capacity(o * k * 3);
+        for (obj, pose) in targets.iter().enumerate() {
+            let (rm, tv) = pose_f64(pose);
+            for a in &inp.anchors_ref[obj] {
+                let y = rm * nalgebra::Vector3::new(a[0], a[1], a[2]) + tv;
+                tgt.extend([y.x as f32, y.y as f32, y.z as f32]);
+            }
+        }
+        let target_positions = host_tensor(&self.device, &tgt, &[o, k, 3])?;
+        // 2 A_t - A_{t-1} (+ free fall with a gravity residual), per object.
+        let fall: Vec<f32> = inp
+            .object_dt
+            .iter()
+            .flat_map(|&dt| free_fall(&self.config, dt).map(|v| v as f32))
+            .collect();
+        let base = ((&a_t * 2.0)? - &a_prev)?.broadcast_add(&host_tensor(
+            &self.device,
+            &fall,
+            &[o, 1, 3],
+        )?)?;
+        let target_accel = (&target_positions - &base)?;
+        let positions_pre = (&base + &accel_pre)?;
+        let op = KabschOp::new(inp.anchors_ref.clone());
+        let transforms = op.apply(&positions_pre.contiguous()?)?; // [O, 12]
+        let rmat = transforms.narrow(1, 0, 9)?.reshape((o, 3, 3))?;
+        let trans = transforms.narrow(1, 9, 3)?.reshape((o, 1, 3))?;
+        let positions_post = a_ref
+            .matmul(&rmat.transpose(1, 2)?)?
+            .broadcast_add(&trans)?;
+        let accel_post = (&positions_post - &base)?;
+        let lc = &self.config.loss;
+        // Errors in loss units: divided by `scale`, and by k^2 with per-frame units so that
+        // every step size weighs the same.
+        let inv: Vec<f32> = inp
+            .object_dt
+            .iter()
+            .map(|&dt| 1.0 / (lc.scale * self.config.dynamics.output_factor(dt)))
+            .collect();
+        let inv = host_tensor(&self.device, &inv, &[o, 1, 1])?;
+        let scaled = |a: &Tensor, b: &Tensor| -> candle_core::Result<Tensor> {
+            (a - b)?.broadcast_mul(&inv)
+        };
+        let terms = [
+            smooth_l1_mean(&scaled(&positions_pre, &target_positions)?, lc.beta)?,
+            smooth_l1_mean(&scaled(&accel_pre, &target_accel)?, lc.beta)?,
+            smooth_l1_mean(&scaled(&positions_post, &target_positions)?, lc.beta)?,
+            smooth_l1_mean(&scaled(&accel_post, &target_accel)?, lc.beta)?,
+        ];
+        let mut loss = (&terms[0] * lc.weights[0] as f64)?;
+        for (term, w) in terms.iter().zip(lc.weights).skip(1) {
+            loss = (loss + (term * w as f64)?)?;
+        }
+        Ok(TrainOutput {
+            loss,
+            terms,
+            accel_pre,
+            positions_pre,
+            positions_post,
+            accel_post,
+            transforms,
+            target_positions,
+            target_accel,
+        })
+    }
+}
