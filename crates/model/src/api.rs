@@ -104,6 +104,12 @@ impl SceneState {
         Ok(SceneState { previous, current })
     }
 
+    /// Moves the state one step on: `current` becomes `previous` and `next` (the poses the
+    /// step produced, one per object) becomes `current`.
+    pub fn advance(&mut self, next: Vec<Pose>) {
+        self.previous = std::mem::replace(&mut self.current, next);
+    }
+
     /// Number of objects.
     pub fn len(&self) -> usize {
         self.current.len()
@@ -164,7 +170,7 @@ pub fn rollout(
             .pop()
             .ok_or_else(|| ModelError::Internal("model returned no scene".into()))?;
         on_step(step, &next);
-        state.previous = std::mem::replace(&mut state.current, next.clone());
+        state.advance(next.clone());
         out.push(next);
     }
     Ok(out)

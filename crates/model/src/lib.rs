@@ -7,6 +7,7 @@
 //! Units: metres, seconds, kilograms; z up; ground plane at z = 0; quaternions `[x, y, z, w]`.
 
 pub mod api;
+pub mod batching;
 pub mod checkpoint;
 pub mod config;
 pub mod error;
@@ -17,6 +18,7 @@ pub mod rigidformer;
 pub mod runtime;
 
 pub use api::{ObjectInput, Pose, SceneState, StepItem, WorldModel, rollout};
+pub use batching::PassBudget;
 pub use checkpoint::{load_model, load_rigidformer, read_config};
 pub use config::{
     DynamicsConfig, FeatureNormalization, LossConfig, ModelConfig, POINT_FEATURES, PreparedKey,
@@ -24,7 +26,7 @@ pub use config::{
 pub use error::ModelError;
 pub use kernels::kabsch::{self as kabsch_op, KabschOp};
 pub use layers::Mode;
-pub use prepare::{MAX_DT_STEPS, PreparedScene};
+pub use prepare::{MAX_BODY_EXTENT, MAX_DT_STEPS, MAX_WORLD_EXTENT, PreparedScene};
 pub use rigidformer::features::{FeatureFrame, object_params, raw_point_features};
 pub use rigidformer::{RigidFormer, StepProfile, TrainItem, TrainOutput};
 pub use runtime::configure_compute;
