@@ -7,8 +7,8 @@ mod common;
 use std::time::{Duration, Instant};
 
 use common::*;
-use dynaserve_proto::json;
-use dynaserve_proto::v1;
+use dynaserve_api::json;
+use dynaserve_api::v1;
 use futures::StreamExt;
 use tonic::Code;
 
@@ -555,7 +555,7 @@ async fn invalid_inputs_are_refused_naming_the_field_while_others_are_served() {
     // NaN can only be sent over gRPC.
     let mut nan = base.clone().to_proto();
     nan.scene.as_mut().unwrap().objects[0].mass = f32::NAN;
-    let s = dynaserve_proto::v1::world_model_client::WorldModelClient::connect(format!(
+    let s = dynaserve_api::v1::world_model_client::WorldModelClient::connect(format!(
         "http://{}",
         server.grpc_addr
     ))
@@ -578,7 +578,7 @@ async fn invalid_inputs_are_refused_naming_the_field_while_others_are_served() {
     {
         p.xyz.pop();
     }
-    let s = dynaserve_proto::v1::world_model_client::WorldModelClient::connect(format!(
+    let s = dynaserve_api::v1::world_model_client::WorldModelClient::connect(format!(
         "http://{}",
         server.grpc_addr
     ))
@@ -726,106 +726,8 @@ async fn metrics_are_listed_before_the_first_request_and_parse() {
 
 /// A strict reader of the Prometheus text format (0.0.4): returns family name -> type, and
 /// panics on any malformed line, sample without a TYPE, or histogram without its series.
-fn parse_prometheus(text: &str) -> std::collections::HashMap<String, String> {
-    use std::collections::HashMap;
-    let mut types: HashMap<String, String> = HashMap::new();
-    let mut helps = 0;
-    let mut seen: HashMap<String, Vec<String>> = HashMap::new();
-    for line in text.lines() {
-        if line.is_empty() {
-            continue;
-        }
-        if let Some(rest) = line.strip_prefix("# HELP ") {
-            let (name, _) = rest.split_once(' ').expect("HELP text");
-            assert!(valid_name(name), "bad name {name}");
-            helps += 1;
-            continue;
-        }
-        if let Some(rest) = line.strip_prefix("# TYPE ") {
-            let (name, kind) = rest.split_once(' ').expect("TYPE kind");
-            assert!(
-                ["counter", "gauge", "histogram", "summary", "untyped"].contains(&kind),
-                "bad type {kind}"
-            );
-            assert!(
-                types.insert(name.to_string(), kind.to_string()).is_none(),
-                "duplicate TYPE {name}"
-            );
-            continue;
-        }
-        assert!(!line.starts_with('#'), "unexpected comment {line}");
-        let (series, value) = line.rsplit_once(' ').expect("sample value");
-        assert!(
-            value.parse::<f64>().is_ok() || ["+Inf", "-Inf", "NaN"].contains(&value),
-            "bad value in {line}"
-        );
-        let (name, labels) = match series.split_once('{') {
-            Some((n, l)) => (n, Some(l.strip_suffix('}').expect("closing brace"))),
-            None => (series, None),
-        };
-        assert!(valid_name(name), "bad metric name {name}");
-        if let Some(l) = labels {
-            for pair in split_labels(l) {
-                let (k, v) = pair.split_once('=').expect("label =");
-                assert!(valid_name(k), "bad label {k}");
-                assert!(v.starts_with('"') && v.ends_with('"'), "unquoted {v}");
-            }
-        }
-        let family = ["_bucket", "_sum", "_count"]
-            .iter()
-            .find_map(|s| {
-                name.strip_suffix(s)
-                    .filter(|f| types.get(*f).is_some_and(|t| t == "histogram"))
-            })
-            .unwrap_or(name);
-        assert!(types.contains_key(family), "sample {name} without TYPE");
-        seen.entry(family.to_string())
-            .or_default()
-            .push(name.to_string());
-    }
-    assert_eq!(helps, types.len(), "every family has HELP");
-    for (f, t) in &types {
-        if t == "histogram" {
-            let names = &seen[f];
-            for s in ["_bucket", "_sum", "_count"] {
-                assert!(
-                    names.iter().any(|n| n == &format!("{f}{s}")),
-                    "{f} lacks {s}"
-                );
-            }
-        }
-    }
-    types
-}
-
-fn valid_name(n: &str) -> bool {
-    let mut chars = n.chars();
-    chars
-        .next()
-        .is_some_and(|c| c.is_ascii_alphabetic() || c == '_' || c == ':')
-        && chars.all(|c| c.is_ascii_alphanumeric() || c == '_' || c == ':')
-}
-
-fn split_labels(s: &str) -> Vec<&str> {
-    let mut out = Vec::new();
-    let mut start = 0;
-    let mut in_quotes = false;
-    let mut prev = ' ';
-    for (i, c) in s.char_indices() {
-        match c {
-            '"' if prev != '\\' => in_quotes = !in_quotes,
-            ',' if !in_quotes => {
-                out.push(&s[start..i]);
-                start = i + 1;
-            }
-            _ => {}
-        }
-        prev = c;
-    }
-    if start < s.len() {
-        out.push(&s[start..]);
-    }
-    out
+fn parse_prometheus(text: &str) -> std::collections::BTreeMap<String, String> {
+    dynaserve_client::prom::check_exposition(text).unwrap_or_else(|e| panic!("{e}"))
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -44,16 +44,11 @@ fn spawn(model: &std::path::Path, drain_s: f64) -> Server {
     let stdout = child.stdout.take().unwrap();
     let mut line = String::new();
     BufReader::new(stdout).read_line(&mut line).unwrap();
-    // "dynaserve listening: grpc=127.0.0.1:P http=127.0.0.1:Q models=..."
-    let field = |key: &str| -> String {
-        line.split_whitespace()
-            .find_map(|w| w.strip_prefix(key))
-            .unwrap_or_else(|| panic!("no {key} in {line:?}"))
-            .to_string()
-    };
+    let (grpc, http) = dynaserve_api::listening::parse_listening(&line)
+        .unwrap_or_else(|| panic!("not a listening line: {line:?}"));
     Server {
-        grpc: format!("http://{}", field("grpc=")),
-        http: field("http=").parse().unwrap(),
+        grpc: format!("http://{grpc}"),
+        http,
         child,
     }
 }

@@ -222,8 +222,8 @@ pub fn default_metrics_url(transport: Transport, url: &str) -> Option<String> {
     match transport {
         Transport::Http => Some(format!("{}/metrics", url.trim_end_matches('/'))),
         Transport::Grpc => {
-            let base = crate::transport::HttpBase::parse(url).ok()?;
-            let host = crate::transport::HttpBase {
+            let base = dynaserve_client::http::HttpBase::parse(url).ok()?;
+            let host = dynaserve_client::http::HttpBase {
                 host: base.host,
                 port: 8080,
             };

@@ -1,51 +1,29 @@
 //! The same load run through `dynaserve_model` directly, with no server: scenes are validated
-//! and built exactly as the server builds them (`dynaserve_server::scene`), prepared, and
-//! stepped in lockstep, every round split into forward passes under the server's scene cap and
-//! object budget in FIFO order (as its scheduler forms batches when every stream is waiting).
-//! Comparing this with a server run of the same scenes gives the server's overhead.
+//! and built exactly as the server builds them (`dynaserve_api::build`, under the server's
+//! default caps), prepared, and stepped in lockstep, every round split into forward passes by
+//! the one batching rule (`dynaserve_model::PassBudget`: scene cap and object budget, FIFO), as
+//! the server's scheduler forms passes when every stream is waiting. Comparing this with a
+//! server run of the same scenes gives the server's overhead.
 
-use std::ops::Range;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use dynaserve_model::{PreparedScene, SceneState, StepItem, WorldModel};
-use dynaserve_proto::json;
-use dynaserve_server::ServeConfig;
-use dynaserve_server::scene::{Limits, build_scene, check_steps};
+use dynaserve_api::build::{build_scene, check_steps};
+use dynaserve_api::json;
+use dynaserve_api::limits::{Caps, Limits};
+use dynaserve_api::spec::Scene;
+use dynaserve_model::{PassBudget, PreparedScene, SceneState, StepItem, WorldModel};
 
 use crate::recorder::{Recorder, RequestClock, ServerTiming};
 use crate::transport::CallError;
-
-/// Splits consecutive scenes with `objects[i]` objects into forward passes of at most
-/// `max_scenes` scenes and `max_objects` objects, in order; a scene larger than the object
-/// budget runs alone. This is the server scheduler's rule.
-pub fn batches(objects: &[usize], max_scenes: usize, max_objects: usize) -> Vec<Range<usize>> {
-    let (max_scenes, max_objects) = (max_scenes.max(1), max_objects.max(1));
-    let mut out = Vec::new();
-    let mut start = 0;
-    let mut count = 0;
-    for (i, &n) in objects.iter().enumerate() {
-        if i > start && (i - start >= max_scenes || count + n > max_objects) {
-            out.push(start..i);
-            start = i;
-            count = 0;
-        }
-        count += n;
-    }
-    if start < objects.len() {
-        out.push(start..objects.len());
-    }
-    out
-}
 
 /// A model loaded in this process with the server's batching limits.
 pub struct InProcess {
     model: Arc<dyn WorldModel>,
     limits: Limits,
-    max_batch_scenes: usize,
-    max_batch_objects: usize,
+    budget: PassBudget,
 }
 
 struct Slot {
@@ -70,9 +48,8 @@ impl InProcess {
         max_batch_scenes: usize,
         max_batch_objects: usize,
     ) -> anyhow::Result<InProcess> {
-        let model = dynaserve_server::load_models(&[dir.to_path_buf()])?
-            .pop()
-            .ok_or_else(|| anyhow::anyhow!("no model loaded from {}", dir.display()))?;
+        let model = dynaserve_model::load_model(dir, &dynaserve_model::Device::Cpu)
+            .map_err(|e| anyhow::anyhow!("loading model {}: {e}", dir.display()))?;
         Ok(InProcess::new(model, max_batch_scenes, max_batch_objects))
     }
 
@@ -82,12 +59,14 @@ impl InProcess {
         max_batch_scenes: usize,
         max_batch_objects: usize,
     ) -> InProcess {
-        let limits = Limits::new(&ServeConfig::default(), model.config());
+        let limits = Limits::new(&Caps::DEFAULT, model.config());
         InProcess {
             model,
             limits,
-            max_batch_scenes,
-            max_batch_objects,
+            budget: PassBudget {
+                max_scenes: max_batch_scenes,
+                max_objects: max_batch_objects,
+            },
         }
     }
 
@@ -102,7 +81,8 @@ impl InProcess {
         dt_steps: u32,
     ) -> Result<(Arc<PreparedScene>, SceneState), CallError> {
         let dt = dt_steps as f32 * self.model.config().dt_frame;
-        let built = build_scene(scene, "scene", &self.limits, dt)
+        let built = Scene::from_json(scene, "scene")
+            .and_then(|s| build_scene(&s, "scene", &self.limits, dt))
             .map_err(|e| CallError::new("inprocess invalid", e.to_string()))?;
         let prepared = self.model.prepare(built.objects).map_err(model_error)?;
         Ok((Arc::new(prepared), built.state))
@@ -137,7 +117,7 @@ impl InProcess {
         let objects: Vec<usize> = slots.iter().map(|s| s.objects).collect();
         let mut out = Vec::with_capacity(slots.len());
         let round_start = Instant::now();
-        for range in batches(&objects, self.max_batch_scenes, self.max_batch_objects) {
+        for range in self.budget.plan(&objects) {
             let queued = round_start.elapsed();
             let t = Instant::now();
             let items: Vec<StepItem<'_>> = slots[range.clone()]
@@ -160,7 +140,7 @@ impl InProcess {
                 batch_scenes: range.len() as u32,
             };
             for (slot, p) in slots[range].iter_mut().zip(poses) {
-                slot.state.previous = std::mem::replace(&mut slot.state.current, p);
+                slot.state.advance(p);
                 out.push((done, timing));
             }
         }
@@ -319,21 +299,5 @@ impl InProcess {
                 Err(e) => lock().failed(&e),
             }
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn batches_follow_the_scene_cap_and_object_budget() {
-        assert_eq!(batches(&[2; 5], 2, 100), vec![0..2, 2..4, 4..5]);
-        assert_eq!(batches(&[3, 3, 3, 3], 64, 7), vec![0..2, 2..4]);
-        // A scene above the budget runs alone.
-        assert_eq!(batches(&[1, 50, 1], 64, 10), vec![0..1, 1..2, 2..3]);
-        assert_eq!(batches(&[10; 64], 64, 2048), vec![0..64]);
-        assert_eq!(batches(&[10; 3], 1, 2048), vec![0..1, 1..2, 2..3]);
-        assert!(batches(&[], 4, 4).is_empty());
     }
 }

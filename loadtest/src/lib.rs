@@ -1,7 +1,7 @@
 //! `dynaserve-loadtest`: a load generator for Dynaserve servers.
 //!
-//! It speaks the real APIs (gRPC through `dynaserve-client`, HTTP JSON and Server-Sent Events
-//! through a small hyper client) or runs the model in-process with the server's batching rule,
+//! It speaks the real APIs (gRPC, and HTTP JSON with Server-Sent Events, both through
+//! `dynaserve-client`) or runs the model in-process with the server's batching rule,
 //! and reports throughput (scene-steps/s, object-steps/s, requests/s), latency percentiles per
 //! step (time between frames of a stream), per request and to the first frame, errors by
 //! status code, and the server's batch-size and queue-wait distributions taken from the
@@ -10,14 +10,14 @@
 //! - [`run`]: load modes ([`run::Mode`]: streams, predict, poisson, ramp) and the driver
 //!   [`run::run_target`];
 //! - [`report`]: report types, text tables, A/B ratios, the HTML chart;
-//! - [`scenes`]: scene files and seeded generated scenes;
+//! - [`scenes`]: scene files and the client crate's seeded random scenes;
 //! - [`transport`]: gRPC and HTTP callers; [`inprocess`]: the no-server baseline;
-//! - [`prom`]: Prometheus text parsing and histogram differences; [`stats`]: percentiles;
+//! - [`recorder`]: per-level counters; [`stats`]: percentiles (the `/metrics` histograms are
+//!   read with `dynaserve_client::prom`);
 //! - [`spawn`]: launching a server as a child process; [`cli`]: the command line.
 
 pub mod cli;
 pub mod inprocess;
-pub mod prom;
 pub mod recorder;
 pub mod report;
 pub mod run;

@@ -6,8 +6,8 @@ use std::fmt::Write as _;
 
 use serde::Serialize;
 
-use crate::prom::{self, Histogram};
 use crate::stats::Summary;
+use dynaserve_client::prom::{self, Histogram};
 
 /// Request outcome counts.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]

@@ -8,8 +8,8 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
+use dynaserve_api::json;
 use dynaserve_client::Client;
-use dynaserve_proto::json;
 use rand::SeedableRng;
 use rand_distr::{Distribution, Exp};
 use tokio::sync::watch;
@@ -18,7 +18,8 @@ use crate::inprocess::InProcess;
 use crate::recorder::{Recorder, RequestClock, ServerTiming};
 use crate::report::{Report, ServerStats, SideReport};
 use crate::scenes::SceneSource;
-use crate::transport::{CallError, Conn, HttpBase, HttpConn};
+use crate::transport::{CallError, Conn};
+use dynaserve_client::http::{HttpBase, HttpConn};
 
 /// How requests reach the model.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]

@@ -7,12 +7,12 @@
 //! server drains) and kills the process if it has not exited after a grace period.
 
 use std::collections::VecDeque;
-use std::net::SocketAddr;
 use std::process::Stdio;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
+use dynaserve_api::listening::parse_listening;
 use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::process::{Child, Command};
 
@@ -29,32 +29,6 @@ pub struct SpawnedServer {
     /// HTTP base URL, `http://127.0.0.1:PORT`.
     pub http_url: String,
     tail: Arc<Mutex<VecDeque<String>>>,
-}
-
-/// Parses `dynaserve listening: grpc=ADDR http=ADDR ...`; unspecified addresses (0.0.0.0,
-/// ::) are replaced by loopback.
-pub fn parse_listening(line: &str) -> Option<(SocketAddr, SocketAddr)> {
-    let rest = line.split("dynaserve listening:").nth(1)?;
-    let mut grpc = None;
-    let mut http = None;
-    for word in rest.split_whitespace() {
-        if let Some(v) = word.strip_prefix("grpc=") {
-            grpc = v.parse::<SocketAddr>().ok();
-        } else if let Some(v) = word.strip_prefix("http=") {
-            http = v.parse::<SocketAddr>().ok();
-        }
-    }
-    let fix = |mut a: SocketAddr| {
-        if a.ip().is_unspecified() {
-            a.set_ip(if a.is_ipv4() {
-                [127, 0, 0, 1].into()
-            } else {
-                std::net::Ipv6Addr::LOCALHOST.into()
-            });
-        }
-        a
-    };
-    Some((fix(grpc?), fix(http?)))
 }
 
 fn tail_text(tail: &Mutex<VecDeque<String>>) -> String {
@@ -177,22 +151,5 @@ impl SpawnedServer {
                 let _ = self.child.kill().await;
             }
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn listening_line() {
-        let (g, h) = parse_listening(
-            "dynaserve listening: grpc=0.0.0.0:50051 http=127.0.0.1:38001 models=a,b",
-        )
-        .unwrap();
-        assert_eq!(g.to_string(), "127.0.0.1:50051");
-        assert_eq!(h.to_string(), "127.0.0.1:38001");
-        assert!(parse_listening("something else").is_none());
-        assert!(parse_listening("dynaserve listening: grpc=x http=1.2.3.4:5").is_none());
     }
 }

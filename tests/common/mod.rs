@@ -1,6 +1,7 @@
 //! Shared helpers of the end-to-end tests: a real RigidFormer checkpoint on disk, a server on
-//! 127.0.0.1 with free ports, scenes, the in-process reference rollout, and a minimal HTTP/1.1
-//! client (with chunked decoding for SSE).
+//! 127.0.0.1 with free ports, scenes (the client crate's random scenes), the in-process
+//! reference rollout (scenes built by the API crate, as the server builds them), and one-shot
+//! HTTP calls through the client crate's HTTP client.
 
 #![allow(dead_code)]
 
@@ -8,11 +9,13 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 
+use dynaserve_api::build::build_scene;
+use dynaserve_api::json;
+use dynaserve_api::limits::{Caps, Limits};
+use dynaserve_api::spec::Scene;
+use dynaserve_client::http::{HttpBase, HttpConn, SseParser, read_all};
 use dynaserve_model::{ModelConfig, Pose, RigidFormer, WorldModel};
-use dynaserve_proto::json;
-use dynaserve_server::scene::{Limits, build_scene};
 use dynaserve_server::{RunningServer, ServeConfig};
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
 /// Directory removed on drop.
 pub struct TempDir(pub PathBuf);
@@ -108,72 +111,10 @@ pub async fn client(server: &RunningServer) -> dynaserve_client::Client {
         .unwrap()
 }
 
-/// Small deterministic pseudo-random numbers (splitmix64), so scenes need no extra crates.
-pub struct Rng(u64);
-
-impl Rng {
-    pub fn new(seed: u64) -> Rng {
-        Rng(seed.wrapping_mul(0x9e37_79b9_7f4a_7c15).wrapping_add(1))
-    }
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    pub fn uniform(&mut self, lo: f32, hi: f32) -> f32 {
-        lo + (hi - lo) * ((self.next_u64() >> 40) as f32 / (1u64 << 24) as f32)
-    }
-}
-
-fn quat(rng: &mut Rng) -> [f32; 4] {
-    let q = [
-        rng.uniform(-1.0, 1.0),
-        rng.uniform(-1.0, 1.0),
-        rng.uniform(-1.0, 1.0),
-        rng.uniform(0.2, 1.0),
-    ];
-    let n = q.iter().map(|c| c * c).sum::<f32>().sqrt();
-    q.map(|c| c / n)
-}
-
-/// A scene of `objects` boxes given as point clouds (`points` surface samples each), placed
-/// above the ground with random rotations and velocities; scene `seed` decides everything.
+/// A scene of `objects` boxes given as point clouds (`points` surface samples each), all in
+/// the air and moving; scene `seed` decides everything.
 pub fn scene(seed: u64, objects: usize, points: usize) -> json::Scene {
-    let mut rng = Rng::new(seed);
-    let objs = (0..objects)
-        .map(|i| {
-            let half = [
-                rng.uniform(0.1, 0.3),
-                rng.uniform(0.1, 0.3),
-                rng.uniform(0.1, 0.3),
-            ];
-            let cube = dynaserve_geometry::mesh::cube().scaled(half.map(|h| 2.0 * h));
-            let pts = dynaserve_geometry::sample_surface(&cube, points, seed * 100 + i as u64);
-            json::ObjectSpec {
-                points: Some(pts),
-                mesh: None,
-                pose: json::Pose {
-                    translation: [
-                        rng.uniform(-1.0, 1.0) + i as f32 * 0.8,
-                        rng.uniform(-1.0, 1.0),
-                        rng.uniform(0.3, 1.5),
-                    ],
-                    rotation: quat(&mut rng),
-                },
-                previous_pose: None,
-                velocity: Some(json::Velocity {
-                    linear: [rng.uniform(-2.0, 2.0), rng.uniform(-2.0, 2.0), 0.0],
-                    angular: [0.0, 0.0, rng.uniform(-1.0, 1.0)],
-                }),
-                mass: rng.uniform(0.5, 3.0),
-                friction: rng.uniform(0.2, 0.9),
-                restitution: rng.uniform(0.1, 0.8),
-            }
-        })
-        .collect();
-    json::Scene { objects: objs }
+    dynaserve_client::random_scene::generate_moving(seed, objects, points)
 }
 
 pub fn rollout_request(model: &str, scene: json::Scene, steps: u32) -> json::RolloutRequest {
@@ -189,10 +130,10 @@ pub fn rollout_request(model: &str, scene: json::Scene, steps: u32) -> json::Rol
 
 /// The reference: the same scene built and rolled out in-process, one scene per forward pass.
 pub fn in_process(model: &dyn WorldModel, req: &json::RolloutRequest) -> Vec<Vec<Pose>> {
-    let limits = Limits::new(&ServeConfig::default(), model.config());
+    let limits = Limits::new(&Caps::DEFAULT, model.config());
     let dt = req.dt_steps.max(1);
     let built = build_scene(
-        &req.scene,
+        &Scene::from_json(&req.scene, "scene").unwrap(),
         "scene",
         &limits,
         dt as f32 * model.config().dt_frame,
@@ -255,22 +196,7 @@ impl HttpResponse {
     }
 }
 
-fn dechunk(mut data: &[u8]) -> Vec<u8> {
-    let mut out = Vec::new();
-    while let Some(pos) = data.windows(2).position(|w| w == b"\r\n") {
-        let line = std::str::from_utf8(&data[..pos]).unwrap();
-        let size = usize::from_str_radix(line.split(';').next().unwrap().trim(), 16).unwrap();
-        data = &data[pos + 2..];
-        if size == 0 {
-            break;
-        }
-        out.extend_from_slice(&data[..size]);
-        data = &data[size + 2..];
-    }
-    out
-}
-
-/// Sends one HTTP/1.1 request (Connection: close) and reads the whole response.
+/// Sends one HTTP/1.1 request on a new connection and reads the whole response.
 pub async fn http(
     addr: std::net::SocketAddr,
     method: &str,
@@ -278,53 +204,20 @@ pub async fn http(
     headers: &[(&str, &str)],
     body: Option<&[u8]>,
 ) -> HttpResponse {
-    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
-    let mut req = format!("{method} {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n");
-    for (k, v) in headers {
-        req.push_str(&format!("{k}: {v}\r\n"));
-    }
-    if let Some(b) = body {
-        req.push_str(&format!(
-            "Content-Type: application/json\r\nContent-Length: {}\r\n",
-            b.len()
-        ));
-    }
-    req.push_str("\r\n");
-    s.write_all(req.as_bytes()).await.unwrap();
-    if let Some(b) = body {
-        s.write_all(b).await.unwrap();
-    }
-    let mut raw = Vec::new();
-    s.read_to_end(&mut raw).await.unwrap();
-    let split = raw
-        .windows(4)
-        .position(|w| w == b"\r\n\r\n")
-        .expect("header end");
-    let head = std::str::from_utf8(&raw[..split]).unwrap();
-    let mut lines = head.split("\r\n");
-    let status: u16 = lines
-        .next()
-        .unwrap()
-        .split_whitespace()
-        .nth(1)
-        .unwrap()
-        .parse()
+    let mut conn = HttpConn::new(HttpBase::from_addr(addr));
+    let resp = conn
+        .request(method, path, headers, body.map(|b| b.to_vec().into()))
+        .await
         .unwrap();
-    let headers: Vec<(String, String)> = lines
-        .filter_map(|l| l.split_once(':'))
-        .map(|(k, v)| (k.trim().to_string(), v.trim().to_string()))
+    let headers = resp
+        .headers
+        .iter()
+        .map(|(k, v)| (k.to_string(), v.to_str().unwrap_or_default().to_string()))
         .collect();
-    let mut body = raw[split + 4..].to_vec();
-    let chunked = headers.iter().any(|(k, v)| {
-        k.eq_ignore_ascii_case("transfer-encoding") && v.eq_ignore_ascii_case("chunked")
-    });
-    if chunked {
-        body = dechunk(&body);
-    }
     HttpResponse {
-        status,
+        status: resp.status,
         headers,
-        body,
+        body: read_all(resp.body).await.unwrap().to_vec(),
     }
 }
 
@@ -339,33 +232,12 @@ pub async fn post_json<T: serde::Serialize>(
 
 /// Server-Sent Events as (event, data) pairs.
 pub fn parse_sse(text: &str) -> Vec<(String, String)> {
-    let mut out = Vec::new();
-    for block in text.split("\n\n") {
-        let mut event = String::from("message");
-        let mut data = String::new();
-        let mut any = false;
-        for line in block.lines() {
-            if let Some(v) = line.strip_prefix("event:") {
-                event = v.trim().to_string();
-                any = true;
-            } else if let Some(v) = line.strip_prefix("data:") {
-                data.push_str(v.trim_start());
-                any = true;
-            }
-        }
-        if any && !data.is_empty() {
-            out.push((event, data));
-        }
-    }
-    out
+    SseParser::parse_all(text)
 }
 
 /// Value of one sample (exact name with labels, e.g. `dynaserve_ready`) in a Prometheus text.
 pub fn sample(text: &str, series: &str) -> Option<f64> {
-    text.lines().filter(|l| !l.starts_with('#')).find_map(|l| {
-        let (name, value) = l.rsplit_once(' ')?;
-        (name == series).then(|| value.parse().ok()).flatten()
-    })
+    dynaserve_client::prom::value(text, series)
 }
 
 pub async fn metrics(server: &RunningServer) -> String {

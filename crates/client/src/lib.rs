@@ -1,5 +1,10 @@
-//! Rust client for the Dynaserve `WorldModel` gRPC API, the JSON scene file format and mesh
-//! loading (Wavefront OBJ, ASCII PLY).
+//! Rust clients of the Dynaserve API and what callers of a server need around them:
+//!
+//! - [`Client`]: the `WorldModel` gRPC API; [`http`]: the HTTP JSON / Server-Sent Events API;
+//! - [`scene_file`]: the JSON scene file format, with mesh loading ([`mesh`]: Wavefront OBJ,
+//!   ASCII PLY); [`random_scene`]: seeded random scenes;
+//! - [`prom`]: the Prometheus text format of `/metrics`;
+//! - [`cli`]: `dynaserve rollout`.
 //!
 //! ```no_run
 //! # async fn demo() -> Result<(), dynaserve_client::ClientError> {
@@ -15,14 +20,17 @@
 //! `[x, y, z, w]`; a step advances `dt_steps` frames of the model's `dt_frame`.
 
 pub mod cli;
+pub mod http;
 pub mod mesh;
+pub mod prom;
+pub mod random_scene;
 pub mod scene_file;
 
 use std::time::Duration;
 
-pub use dynaserve_proto::json;
-use dynaserve_proto::v1;
-use dynaserve_proto::v1::world_model_client::WorldModelClient;
+pub use dynaserve_api::json;
+use dynaserve_api::v1;
+use dynaserve_api::v1::world_model_client::WorldModelClient;
 use futures::{Stream, StreamExt};
 use tonic::transport::{Channel, Endpoint};
 

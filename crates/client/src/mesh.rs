@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use dynaserve_proto::json::TriangleMesh;
+use dynaserve_api::json::TriangleMesh;
 
 use crate::ClientError;
 

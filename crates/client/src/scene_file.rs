@@ -23,7 +23,7 @@
 
 use std::path::Path;
 
-use dynaserve_proto::json;
+use dynaserve_api::json;
 use serde_json::Value;
 
 use crate::ClientError;

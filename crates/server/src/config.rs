@@ -7,6 +7,8 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 
+use dynaserve_api::limits::Caps;
+
 /// Default gRPC listen address.
 pub const DEFAULT_GRPC_ADDR: &str = "0.0.0.0:50051";
 /// Default HTTP listen address.
@@ -65,22 +67,22 @@ pub struct ServeConfig {
     pub stream_buffer: usize,
 
     /// Most objects per scene (also capped by the model's own limit).
-    #[arg(long, env = "DYNASERVE_MAX_OBJECTS", default_value_t = 256)]
+    #[arg(long, env = "DYNASERVE_MAX_OBJECTS", default_value_t = Caps::DEFAULT.max_objects)]
     pub max_objects: usize,
     /// Most reference points (or mesh samples) per object (also capped by the model's limit).
-    #[arg(long, env = "DYNASERVE_MAX_POINTS_PER_OBJECT", default_value_t = 4096)]
+    #[arg(long, env = "DYNASERVE_MAX_POINTS_PER_OBJECT", default_value_t = Caps::DEFAULT.max_points_per_object)]
     pub max_points_per_object: usize,
     /// Most points per scene, summed over its objects.
-    #[arg(long, env = "DYNASERVE_MAX_SCENE_POINTS", default_value_t = 131072)]
+    #[arg(long, env = "DYNASERVE_MAX_SCENE_POINTS", default_value_t = Caps::DEFAULT.max_scene_points)]
     pub max_scene_points: usize,
     /// Most steps per request.
-    #[arg(long, env = "DYNASERVE_MAX_STEPS", default_value_t = 10000)]
+    #[arg(long, env = "DYNASERVE_MAX_STEPS", default_value_t = Caps::DEFAULT.max_steps)]
     pub max_steps: u32,
     /// Largest step size in frames.
-    #[arg(long, env = "DYNASERVE_MAX_DT_STEPS", default_value_t = 8)]
+    #[arg(long, env = "DYNASERVE_MAX_DT_STEPS", default_value_t = Caps::DEFAULT.max_dt_steps)]
     pub max_dt_steps: u32,
     /// Most scene variants per Predict call.
-    #[arg(long, env = "DYNASERVE_MAX_VARIANTS", default_value_t = 256)]
+    #[arg(long, env = "DYNASERVE_MAX_VARIANTS", default_value_t = Caps::DEFAULT.max_variants)]
     pub max_variants: usize,
     /// Largest request payload in bytes (gRPC message or HTTP body); larger ones are rejected
     /// with INVALID_ARGUMENT / 422 naming `request`.
@@ -128,6 +130,18 @@ impl ServeConfig {
             grpc_addr: ([127, 0, 0, 1], 0).into(),
             http_addr: ([127, 0, 0, 1], 0).into(),
             ..ServeConfig::default()
+        }
+    }
+
+    /// The request caps set by the flags (each model caps them again with its own limits).
+    pub fn caps(&self) -> Caps {
+        Caps {
+            max_objects: self.max_objects,
+            max_points_per_object: self.max_points_per_object,
+            max_scene_points: self.max_scene_points,
+            max_steps: self.max_steps,
+            max_dt_steps: self.max_dt_steps,
+            max_variants: self.max_variants,
         }
     }
 
@@ -194,6 +208,7 @@ mod tests {
         assert_eq!(c.http_addr.port(), 8080);
         assert_eq!(c.models_dir, PathBuf::from("models"));
         assert!(c.validate().is_ok());
+        assert_eq!(c.caps(), Caps::DEFAULT);
         let mut bad = c.clone();
         bad.max_batch_scenes = 0;
         assert!(bad.validate().unwrap_err().contains("--max-batch-scenes"));

@@ -4,7 +4,8 @@ use std::time::Duration;
 
 use axum::http::{HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
-use dynaserve_proto::json::{ErrorDetail, ErrorResponse, FieldError};
+use dynaserve_api::FieldError;
+use dynaserve_api::json::{ErrorDetail, ErrorResponse};
 use tonic::Code;
 
 /// gRPC metadata key of the retry hint (milliseconds), as understood by gRPC retry policies.
@@ -88,25 +89,7 @@ impl ApiError {
 
     /// The gRPC code name, e.g. `INVALID_ARGUMENT`.
     pub fn code_name(&self) -> &'static str {
-        match self.code {
-            Code::Ok => "OK",
-            Code::Cancelled => "CANCELLED",
-            Code::Unknown => "UNKNOWN",
-            Code::InvalidArgument => "INVALID_ARGUMENT",
-            Code::DeadlineExceeded => "DEADLINE_EXCEEDED",
-            Code::NotFound => "NOT_FOUND",
-            Code::AlreadyExists => "ALREADY_EXISTS",
-            Code::PermissionDenied => "PERMISSION_DENIED",
-            Code::ResourceExhausted => "RESOURCE_EXHAUSTED",
-            Code::FailedPrecondition => "FAILED_PRECONDITION",
-            Code::Aborted => "ABORTED",
-            Code::OutOfRange => "OUT_OF_RANGE",
-            Code::Unimplemented => "UNIMPLEMENTED",
-            Code::Internal => "INTERNAL",
-            Code::Unavailable => "UNAVAILABLE",
-            Code::DataLoss => "DATA_LOSS",
-            Code::Unauthenticated => "UNAUTHENTICATED",
-        }
+        dynaserve_api::code_name(self.code)
     }
 
     /// The HTTP status of this error (422 invalid input, 429 overload, 504 deadline, 503

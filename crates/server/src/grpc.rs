@@ -9,9 +9,9 @@ use std::pin::Pin;
 use std::sync::Arc;
 use std::time::Duration;
 
-use dynaserve_proto::json;
-use dynaserve_proto::v1;
-use dynaserve_proto::v1::world_model_server::{WorldModel as WorldModelApi, WorldModelServer};
+use dynaserve_api::spec::{Frame, PredictSpec, RolloutSpec, millis};
+use dynaserve_api::v1;
+use dynaserve_api::v1::world_model_server::{WorldModel as WorldModelApi, WorldModelServer};
 use futures::{Stream, StreamExt};
 use prost::Message;
 use tokio_stream::wrappers::ReceiverStream;
@@ -75,7 +75,7 @@ impl WorldModelApi for GrpcService {
         let parsed = self
             .engine
             .check_payload(req.encoded_len())
-            .and_then(|()| json::RolloutRequest::from_proto(&req).map_err(ApiError::from));
+            .and_then(|()| RolloutSpec::from_v1(&req).map_err(ApiError::from));
         let rid = ctx.request_id.clone();
         let handle = match parsed {
             Ok(r) => self.engine.start_rollout(r, ctx).await,
@@ -83,7 +83,7 @@ impl WorldModelApi for GrpcService {
         }
         .map_err(|e| with_request_id(e.to_status(), &rid))?;
         let stream = ReceiverStream::new(handle.frames)
-            .map(|r| r.map(|f| f.to_proto()).map_err(|e| e.to_status()));
+            .map(|r| r.map(|f: Frame| f.to_v1()).map_err(|e| e.to_status()));
         let mut resp = Response::new(Box::pin(stream) as FrameStream);
         insert(resp.metadata_mut(), "x-request-id", &handle.request_id);
         insert(resp.metadata_mut(), "x-dynaserve-model", &handle.model);
@@ -100,39 +100,30 @@ impl WorldModelApi for GrpcService {
         let parsed = self
             .engine
             .check_payload(req.encoded_len())
-            .and_then(|()| json::PredictRequest::from_proto(&req).map_err(ApiError::from));
+            .and_then(|()| PredictSpec::from_v1(&req).map_err(ApiError::from));
         let out = match parsed {
             Ok(r) => self.engine.predict(r, ctx).await,
             Err(e) => Err(self.engine.reject(&ctx, "predict", e)),
         }
         .map_err(|e| with_request_id(e.to_status(), &rid))?;
-        let r = out.response;
-        let mut resp = Response::new(v1::PredictResponse {
-            trajectories: r
-                .trajectories
-                .iter()
-                .map(|t| v1::Trajectory {
-                    frames: t.frames.iter().map(json::StepFrame::to_proto).collect(),
-                })
-                .collect(),
-            model: r.model.clone(),
-        });
+        let mut resp = Response::new(out.to_v1());
         let m = resp.metadata_mut();
         insert(m, "x-request-id", &rid);
+        let t = &out.timing;
         insert(
             m,
             "x-dynaserve-queue-ms",
-            &format!("{:.3}", r.timing.queue_ms),
+            &format!("{:.3}", millis(t.queue)),
         );
         insert(
             m,
             "x-dynaserve-forward-ms",
-            &format!("{:.3}", r.timing.forward_ms),
+            &format!("{:.3}", millis(t.forward)),
         );
         insert(
             m,
             "x-dynaserve-total-ms",
-            &format!("{:.3}", r.timing.total_ms),
+            &format!("{:.3}", millis(t.total)),
         );
         Ok(resp)
     }
@@ -144,7 +135,7 @@ impl WorldModelApi for GrpcService {
         let ctx = ctx_of(request.metadata());
         let list = self.engine.list_models(&ctx);
         let mut resp = Response::new(v1::ListModelsResponse {
-            models: list.models.iter().map(json::ModelInfo::to_proto).collect(),
+            models: list.iter().map(|m| m.to_v1()).collect(),
         });
         insert(resp.metadata_mut(), "x-request-id", &ctx.request_id);
         Ok(resp)

@@ -27,7 +27,8 @@ use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
-use dynaserve_proto::json;
+use dynaserve_api::json;
+use dynaserve_api::spec::{Frame, PredictSpec, RolloutSpec, Timing};
 use futures::Stream;
 use serde::de::DeserializeOwned;
 use utoipa::OpenApi;
@@ -177,7 +178,11 @@ async fn rollout(State(s): State<AppState>, headers: HeaderMap, body: Body) -> R
         Err(e) => return error_response(s.engine.reject(&ctx, "rollout", e), &rid),
     };
     let sse = req.stream || wants_sse(&headers);
-    let handle = match s.engine.start_rollout(req, ctx).await {
+    let spec = match RolloutSpec::from_json(&req) {
+        Ok(r) => r,
+        Err(e) => return error_response(s.engine.reject(&ctx, "rollout", e.into()), &rid),
+    };
+    let handle = match s.engine.start_rollout(spec, ctx).await {
         Ok(h) => h,
         Err(e) => return error_response(e, &rid),
     };
@@ -192,20 +197,20 @@ async fn rollout(State(s): State<AppState>, headers: HeaderMap, body: Body) -> R
     }
     let mut frames = Vec::new();
     let mut rx = handle.frames;
-    let mut timing = json::RequestTiming::default();
+    let mut timing = Timing::default();
     while let Some(item) = rx.recv().await {
         match item {
             Ok(f) => {
-                if let Some(t) = f.timing {
-                    timing.queue_ms += f64::from(t.queue_ms);
-                    timing.forward_ms += f64::from(t.forward_ms);
+                if let Some(t) = &f.timing {
+                    timing.add_step(t);
                 }
-                frames.push(f);
+                frames.push(f.to_json());
             }
             Err(e) => return error_response(e, &rid),
         }
     }
-    timing.total_ms = arrival.elapsed().as_secs_f64() * 1e3;
+    timing.total = arrival.elapsed();
+    let timing = timing.to_json();
     let body = json::RolloutResponse {
         model: model.clone(),
         request_id: rid.to_string(),
@@ -220,13 +225,13 @@ async fn rollout(State(s): State<AppState>, headers: HeaderMap, body: Body) -> R
 }
 
 fn sse_events(
-    rx: tokio::sync::mpsc::Receiver<Result<json::StepFrame, ApiError>>,
+    rx: tokio::sync::mpsc::Receiver<Result<Frame, ApiError>>,
     request_id: String,
     arrival: std::time::Instant,
 ) -> impl Stream<Item = Result<Event, Infallible>> {
     struct St {
-        rx: tokio::sync::mpsc::Receiver<Result<json::StepFrame, ApiError>>,
-        timing: json::RequestTiming,
+        rx: tokio::sync::mpsc::Receiver<Result<Frame, ApiError>>,
+        timing: Timing,
         steps: u32,
         done: bool,
         request_id: String,
@@ -234,7 +239,7 @@ fn sse_events(
     }
     let st = St {
         rx,
-        timing: json::RequestTiming::default(),
+        timing: Timing::default(),
         steps: 0,
         done: false,
         request_id,
@@ -246,14 +251,13 @@ fn sse_events(
         }
         let event = match st.rx.recv().await {
             Some(Ok(f)) => {
-                if let Some(t) = f.timing {
-                    st.timing.queue_ms += f64::from(t.queue_ms);
-                    st.timing.forward_ms += f64::from(t.forward_ms);
+                if let Some(t) = &f.timing {
+                    st.timing.add_step(t);
                 }
                 st.steps = f.step;
                 Event::default()
                     .event("frame")
-                    .data(serde_json::to_string(&f).unwrap_or_default())
+                    .data(serde_json::to_string(&f.to_json()).unwrap_or_default())
             }
             Some(Err(e)) => {
                 st.done = true;
@@ -263,11 +267,11 @@ fn sse_events(
             }
             None => {
                 st.done = true;
-                st.timing.total_ms = st.arrival.elapsed().as_secs_f64() * 1e3;
+                st.timing.total = st.arrival.elapsed();
                 let done = json::SseDone {
                     request_id: st.request_id.clone(),
                     steps: st.steps,
-                    timing: st.timing,
+                    timing: st.timing.to_json(),
                 };
                 Event::default()
                     .event("done")
@@ -298,11 +302,16 @@ async fn predict(State(s): State<AppState>, headers: HeaderMap, body: Body) -> R
         Ok(r) => r,
         Err(e) => return error_response(s.engine.reject(&ctx, "predict", e), &rid),
     };
-    match s.engine.predict(req, ctx).await {
+    let spec = match PredictSpec::from_json(&req) {
+        Ok(r) => r,
+        Err(e) => return error_response(s.engine.reject(&ctx, "predict", e.into()), &rid),
+    };
+    match s.engine.predict(spec, ctx).await {
         Ok(out) => {
-            let timing = out.response.timing;
-            let model = out.response.model.clone();
-            let mut resp = axum::Json(out.response).into_response();
+            let body = out.to_json();
+            let timing = body.timing;
+            let model = body.model.clone();
+            let mut resp = axum::Json(body).into_response();
             set_header(resp.headers_mut(), "x-request-id", &rid);
             set_header(resp.headers_mut(), "x-dynaserve-model", &model);
             timing_headers(resp.headers_mut(), &timing);
@@ -320,7 +329,15 @@ async fn predict(State(s): State<AppState>, headers: HeaderMap, body: Body) -> R
 )]
 async fn list_models(State(s): State<AppState>, headers: HeaderMap) -> Response {
     let ctx = ctx_of(&headers);
-    let mut resp = axum::Json(s.engine.list_models(&ctx)).into_response();
+    let list = json::ListModelsResponse {
+        models: s
+            .engine
+            .list_models(&ctx)
+            .iter()
+            .map(|m| m.to_json())
+            .collect(),
+    };
+    let mut resp = axum::Json(list).into_response();
     set_header(resp.headers_mut(), "x-request-id", &ctx.request_id);
     resp
 }

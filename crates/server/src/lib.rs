@@ -1,15 +1,20 @@
 //! The Dynaserve inference server: learned physics world models served over gRPC (tonic) and
 //! HTTP (axum) with continuous batching across requests.
 //!
-//! - [`scheduler`]: one thread per resident model gathers step requests from every rollout
-//!   stream and Predict call into batched forward passes (object budget, scene cap, maximum
-//!   queue delay, two priority levels, deadlines and cancellation honoured before each batch).
-//! - [`engine`]: admission, rollout sessions (bounded per-stream output), Predict calls,
-//!   readiness and drain; shared by both front ends.
+//! transport ([`grpc`], [`http`]) -> [`engine`] -> [`scheduler`] -> model
+//! (see `docs/architecture.md`):
+//!
 //! - [`grpc`], [`http`]: the `dynaserve.v1.WorldModel` service (plus health and reflection) and
-//!   the JSON/SSE API with its OpenAPI document.
-//! - [`scene`]: validation with errors naming the field; [`metrics`]: every exported metric;
-//!   [`config`]: flags and environment variables; [`server`]: start-up and graceful shutdown.
+//!   the JSON/SSE API with its OpenAPI document; each maps its wire form to and from the
+//!   neutral vocabulary of `dynaserve_api::spec`, which validates requests too.
+//! - [`engine`]: admission, rollout sessions (bounded per-stream output), Predict calls,
+//!   warm-up, readiness and drain; protocol-independent.
+//! - [`scheduler`]: one thread per resident model gathers the step jobs of every rollout
+//!   stream and Predict call into batched forward passes (object budget, scene cap, maximum
+//!   queue delay, two priority levels, deadlines and cancellation honoured before each pass).
+//! - [`metrics`]: every exported metric; [`config`]: flags and environment variables;
+//!   [`server`]: start-up and graceful shutdown; [`error`]: the one error type of both
+//!   protocols.
 
 pub mod config;
 pub mod engine;
@@ -17,7 +22,6 @@ pub mod error;
 pub mod grpc;
 pub mod http;
 pub mod metrics;
-pub mod scene;
 pub mod scheduler;
 pub mod server;
 

@@ -290,10 +290,8 @@ pub fn run(config: ServeConfig) -> anyhow::Result<()> {
         let names: Vec<String> = models.iter().map(|m| m.name().to_string()).collect();
         let server = start(config, models).await?;
         println!(
-            "dynaserve listening: grpc={} http={} models={}",
-            server.grpc_addr,
-            server.http_addr,
-            names.join(",")
+            "{}",
+            dynaserve_api::listening::listening_line(server.grpc_addr, server.http_addr, &names)
         );
         tracing::info!(grpc = %server.grpc_addr, http = %server.http_addr, models = ?names, "listening");
         termination().await;

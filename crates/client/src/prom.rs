@@ -1,6 +1,9 @@
-//! Prometheus text-format parsing and histogram arithmetic: the server's `/metrics` is scraped
-//! before and after a run and the difference of the cumulative buckets is what this run
-//! contributed.
+//! The one reader of the Prometheus text format (what the server's `/metrics` answers):
+//! samples ([`parse`], [`value`]), a strict check of the exposition ([`check_exposition`]),
+//! and histogram arithmetic (a load run scrapes before and after; the difference of the
+//! cumulative buckets is what the run contributed).
+
+use std::collections::BTreeMap;
 
 use serde::Serialize;
 
@@ -107,6 +110,117 @@ pub fn parse(text: &str) -> Vec<Sample> {
         });
     }
     out
+}
+
+/// Value of one series, given as it is written in the text (`dynaserve_ready`,
+/// `dynaserve_batch_scenes_bucket{model="m",le="1"}`); label order does not matter.
+pub fn value(text: &str, series: &str) -> Option<f64> {
+    let (name, labels) = match series.find('{') {
+        Some(open) => (
+            &series[..open],
+            parse_labels(series[open + 1..].strip_suffix('}')?)?,
+        ),
+        None => (series, Vec::new()),
+    };
+    let mut wanted = labels;
+    wanted.sort();
+    parse(text).into_iter().find_map(|s| {
+        let mut have = s.labels.clone();
+        have.sort();
+        (s.name == name && have == wanted).then_some(s.value)
+    })
+}
+
+fn valid_name(n: &str) -> bool {
+    let mut chars = n.chars();
+    chars
+        .next()
+        .is_some_and(|c| c.is_ascii_alphabetic() || c == '_' || c == ':')
+        && chars.all(|c| c.is_ascii_alphanumeric() || c == '_' || c == ':')
+}
+
+/// Checks a whole exposition strictly (format 0.0.4): every line well formed, every family with
+/// one `# HELP` and one `# TYPE`, every sample of a declared family, every histogram with its
+/// `_bucket`, `_sum` and `_count` series. Returns family name -> type (`counter`, `gauge`,
+/// `histogram`, ...) or the first problem found.
+pub fn check_exposition(text: &str) -> Result<BTreeMap<String, String>, String> {
+    let mut types: BTreeMap<String, String> = BTreeMap::new();
+    let mut helps = 0;
+    let mut seen: BTreeMap<String, Vec<String>> = BTreeMap::new();
+    for line in text.lines().filter(|l| !l.is_empty()) {
+        if let Some(rest) = line.strip_prefix("# HELP ") {
+            let (name, _) = rest
+                .split_once(' ')
+                .ok_or(format!("HELP without text: {line}"))?;
+            if !valid_name(name) {
+                return Err(format!("bad name {name}"));
+            }
+            helps += 1;
+            continue;
+        }
+        if let Some(rest) = line.strip_prefix("# TYPE ") {
+            let (name, kind) = rest
+                .split_once(' ')
+                .ok_or(format!("TYPE without kind: {line}"))?;
+            if !["counter", "gauge", "histogram", "summary", "untyped"].contains(&kind) {
+                return Err(format!("bad type {kind}"));
+            }
+            if types.insert(name.to_string(), kind.to_string()).is_some() {
+                return Err(format!("duplicate TYPE {name}"));
+            }
+            continue;
+        }
+        if line.starts_with('#') {
+            return Err(format!("unexpected comment {line}"));
+        }
+        let (series, v) = line.rsplit_once(' ').ok_or(format!("no value: {line}"))?;
+        if parse_value(v).is_none() {
+            return Err(format!("bad value in {line}"));
+        }
+        let name = match series.split_once('{') {
+            Some((n, l)) => {
+                let l = l
+                    .strip_suffix('}')
+                    .ok_or(format!("no closing brace: {line}"))?;
+                let labels = parse_labels(l).ok_or(format!("malformed labels: {line}"))?;
+                if let Some((k, _)) = labels.iter().find(|(k, _)| !valid_name(k)) {
+                    return Err(format!("bad label {k}"));
+                }
+                n
+            }
+            None => series,
+        };
+        if !valid_name(name) {
+            return Err(format!("bad metric name {name}"));
+        }
+        let family = ["_bucket", "_sum", "_count"]
+            .iter()
+            .find_map(|s| {
+                name.strip_suffix(s)
+                    .filter(|f| types.get(*f).is_some_and(|t| t == "histogram"))
+            })
+            .unwrap_or(name);
+        if !types.contains_key(family) {
+            return Err(format!("sample {name} without TYPE"));
+        }
+        seen.entry(family.to_string())
+            .or_default()
+            .push(name.to_string());
+    }
+    if helps != types.len() {
+        return Err(format!("{helps} HELP lines for {} families", types.len()));
+    }
+    for (f, t) in &types {
+        if t == "histogram" {
+            let names = seen.get(f).map(Vec::as_slice).unwrap_or_default();
+            for s in ["_bucket", "_sum", "_count"] {
+                if !names.iter().any(|n| *n == format!("{f}{s}")) {
+                    return Err(format!("{f} lacks {s}"));
+                }
+            }
+        }
+    }
+    Ok(types)
 }
 
 /// Sum of the values of every series named `name` whose labels pass `filter`.
@@ -310,6 +424,36 @@ weird{a="x\"y,z",b="c"} 2.5 1700000000
             .find(|s| s.label("le") == Some("+Inf"))
             .map(|s| s.label("le").and_then(parse_value));
         assert_eq!(inf, Some(Some(f64::INFINITY)));
+    }
+
+    #[test]
+    fn values_are_found_by_series_and_expositions_are_checked() {
+        assert_eq!(
+            value(BEFORE, r#"dynaserve_batch_scenes_bucket{le="4",model="m"}"#),
+            Some(6.0)
+        );
+        assert_eq!(
+            value(BEFORE, r#"dynaserve_scene_steps_total{model="m"}"#),
+            Some(11.0)
+        );
+        assert_eq!(value(BEFORE, "dynaserve_scene_steps_total"), None);
+        let good = "# HELP a_total A.\n# TYPE a_total counter\na_total{x=\"1\"} 3\n\
+                    # HELP h H.\n# TYPE h histogram\nh_bucket{le=\"+Inf\"} 1\nh_sum 2\nh_count 1\n";
+        let families = check_exposition(good).unwrap();
+        assert_eq!(families["a_total"], "counter");
+        assert_eq!(families["h"], "histogram");
+        assert!(
+            check_exposition("a 1\n")
+                .unwrap_err()
+                .contains("without TYPE")
+        );
+        let no_sum = good.replace("h_sum 2\n", "");
+        assert!(
+            check_exposition(&no_sum)
+                .unwrap_err()
+                .contains("lacks _sum")
+        );
+        assert!(check_exposition(&good.replace("=\"1\"", "=1")).is_err());
     }
 
     #[test]

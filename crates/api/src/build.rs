@@ -1,77 +1,28 @@
-//! Request validation and scene building: JSON-form scenes (gRPC requests are converted to
-//! that form first) become model inputs, or an INVALID_ARGUMENT naming the offending field.
+//! Request validation and scene building: a neutral [`Scene`] becomes model inputs, or a
+//! [`FieldError`] naming the offending field (the server answers INVALID_ARGUMENT / HTTP 422).
 //!
-//! Rules (every limit is also reported by `ListModels`):
+//! Rules (the numbers are in [`crate::limits`]; every limit is also reported by `ListModels`):
 //! - every number finite;
 //! - a scene holds 1..=`max_objects` objects and at most `max_scene_points` points in all;
-//! - each object has exactly one shape: `points` (1..=`max_points_per_object` points, each
-//!   coordinate within ±1000 m of the centre of mass) or `mesh` (vertices within ±1000 m, faces
-//!   indexing existing vertices, positive area, `samples` up to `max_points_per_object`);
-//! - pose translations within ±1e5 m; quaternions must have norm 1 ± 1e-3 and are then
-//!   renormalised (anything else, including the zero quaternion, is rejected rather than
-//!   guessed at);
-//! - at most one of `previous_pose` and `velocity`; speeds up to 1000 m/s and 1000 rad/s;
-//! - mass in (0, 1e4] kg, friction in [0, 10], restitution in [0, 1];
+//! - `points`: 1..=`max_points_per_object` points, each coordinate within ±[`MAX_BODY_EXTENT`]
+//!   of the centre of mass; `mesh`: vertices within the same bound, faces indexing existing
+//!   vertices, positive area, `samples` up to `max_points_per_object`;
+//! - pose translations within ±[`MAX_WORLD_EXTENT`]; quaternions must have norm
+//!   1 ± [`QUATERNION_TOLERANCE`] and are then renormalised (anything else, including the zero
+//!   quaternion, is rejected rather than guessed at);
+//! - speeds up to [`MAX_SPEED`] and [`MAX_ANGULAR_SPEED`] per component;
+//! - mass in (0, [`MAX_MASS`]] kg, friction in [0, [`MAX_FRICTION`]], restitution in [0, 1];
 //! - steps in 1..=`max_steps`, dt_steps in 1..=`max_dt_steps` (0 means 1).
 
 use dynaserve_geometry::{TriMesh, sample_surface};
-use dynaserve_model::{ModelConfig, ObjectInput, Pose, SceneState};
-use dynaserve_proto::json;
+use dynaserve_model::{ObjectInput, Pose, SceneState};
 
-use crate::config::ServeConfig;
-use crate::error::ApiError;
-
-/// Largest accepted absolute body-frame coordinate (points, mesh vertices), metres.
-pub const MAX_BODY_EXTENT: f32 = 1.0e3;
-/// Largest accepted absolute world coordinate of a pose translation, metres.
-pub const MAX_WORLD_EXTENT: f32 = 1.0e5;
-/// Largest accepted linear speed component, m/s.
-pub const MAX_SPEED: f32 = 1.0e3;
-/// Largest accepted angular speed component, rad/s.
-pub const MAX_ANGULAR_SPEED: f32 = 1.0e3;
-/// Quaternions whose norm is within this of 1 are renormalised; others are rejected.
-pub const QUATERNION_TOLERANCE: f32 = 1.0e-3;
-/// Largest accepted mass, kilograms.
-pub const MAX_MASS: f32 = 1.0e4;
-/// Largest accepted friction coefficient.
-pub const MAX_FRICTION: f32 = 10.0;
-
-/// Request limits for one model: the server flags capped by the model's own limits.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Limits {
-    /// Objects per scene.
-    pub max_objects: usize,
-    /// Points (or mesh samples) per object.
-    pub max_points_per_object: usize,
-    /// Points per scene.
-    pub max_scene_points: usize,
-    /// Steps per request.
-    pub max_steps: u32,
-    /// Frames per step.
-    pub max_dt_steps: u32,
-    /// Variants per Predict call.
-    pub max_variants: usize,
-    /// Points sampled from a mesh when `samples` is 0.
-    pub default_points: usize,
-}
-
-impl Limits {
-    /// Limits for a model with configuration `model` under the server flags `config`.
-    pub fn new(config: &ServeConfig, model: &ModelConfig) -> Limits {
-        let max_points_per_object = config
-            .max_points_per_object
-            .min(model.max_points_per_object);
-        Limits {
-            max_objects: config.max_objects.min(model.max_objects),
-            max_points_per_object,
-            max_scene_points: config.max_scene_points,
-            max_steps: config.max_steps,
-            max_dt_steps: config.max_dt_steps.min(dynaserve_model::MAX_DT_STEPS),
-            max_variants: config.max_variants,
-            default_points: model.points_per_object.min(max_points_per_object),
-        }
-    }
-}
+use crate::error::FieldError;
+use crate::limits::{
+    Limits, MAX_ANGULAR_SPEED, MAX_BODY_EXTENT, MAX_FRICTION, MAX_MASS, MAX_SPEED,
+    MAX_WORLD_EXTENT, QUATERNION_TOLERANCE,
+};
+use crate::spec::{Motion, Scene, Shape};
 
 /// Model inputs built from a validated scene.
 #[derive(Clone, Debug, PartialEq)]
@@ -82,23 +33,23 @@ pub struct BuiltScene {
     pub state: SceneState,
 }
 
-fn finite(v: &[f32], field: &str) -> Result<(), ApiError> {
+fn finite(v: &[f32], field: &str) -> Result<(), FieldError> {
     if v.iter().all(|x| x.is_finite()) {
         Ok(())
     } else {
-        Err(ApiError::invalid(
+        Err(FieldError::new(
             field,
             "must be finite (NaN or infinity given)",
         ))
     }
 }
 
-fn within(v: &[f32], bound: f32, field: &str, unit: &str) -> Result<(), ApiError> {
+fn within(v: &[f32], bound: f32, field: &str, unit: &str) -> Result<(), FieldError> {
     finite(v, field)?;
     if v.iter().all(|x| x.abs() <= bound) {
         Ok(())
     } else {
-        Err(ApiError::invalid(
+        Err(FieldError::new(
             field,
             format!("components must lie within ±{bound} {unit}"),
         ))
@@ -106,11 +57,11 @@ fn within(v: &[f32], bound: f32, field: &str, unit: &str) -> Result<(), ApiError
 }
 
 /// Checks and renormalises a quaternion `[x, y, z, w]`.
-pub fn unit_quaternion(q: [f32; 4], field: &str) -> Result<[f32; 4], ApiError> {
+pub fn unit_quaternion(q: [f32; 4], field: &str) -> Result<[f32; 4], FieldError> {
     finite(&q, field)?;
     let n = q.iter().map(|c| c * c).sum::<f32>().sqrt();
     if (n - 1.0).abs() > QUATERNION_TOLERANCE {
-        return Err(ApiError::invalid(
+        return Err(FieldError::new(
             field,
             format!(
                 "must be a unit quaternion [x, y, z, w]; its norm is {n:.6} (norms within \
@@ -121,7 +72,7 @@ pub fn unit_quaternion(q: [f32; 4], field: &str) -> Result<[f32; 4], ApiError> {
     Ok(q.map(|c| c / n))
 }
 
-fn pose(p: &json::Pose, field: &str) -> Result<Pose, ApiError> {
+fn pose(p: &Pose, field: &str) -> Result<Pose, FieldError> {
     within(
         &p.translation,
         MAX_WORLD_EXTENT,
@@ -134,19 +85,15 @@ fn pose(p: &json::Pose, field: &str) -> Result<Pose, ApiError> {
     })
 }
 
-fn shape(o: &json::ObjectSpec, field: &str, limits: &Limits) -> Result<Vec<[f32; 3]>, ApiError> {
-    match (&o.points, &o.mesh) {
-        (Some(_), Some(_)) | (None, None) => Err(ApiError::invalid(
-            field,
-            "exactly one of `points` and `mesh` is required",
-        )),
-        (Some(points), None) => {
+fn shape(shape: &Shape, field: &str, limits: &Limits) -> Result<Vec<[f32; 3]>, FieldError> {
+    match shape {
+        Shape::Points(points) => {
             let f = format!("{field}.points");
             if points.is_empty() {
-                return Err(ApiError::invalid(f, "must hold at least one point"));
+                return Err(FieldError::new(f, "must hold at least one point"));
             }
             if points.len() > limits.max_points_per_object {
-                return Err(ApiError::invalid(
+                return Err(FieldError::new(
                     f,
                     format!(
                         "{} points exceed the limit of {} per object",
@@ -160,10 +107,10 @@ fn shape(o: &json::ObjectSpec, field: &str, limits: &Limits) -> Result<Vec<[f32;
             }
             Ok(points.clone())
         }
-        (None, Some(mesh)) => {
+        Shape::Mesh(mesh) => {
             let f = format!("{field}.mesh");
             if mesh.vertices.is_empty() {
-                return Err(ApiError::invalid(
+                return Err(FieldError::new(
                     format!("{f}.vertices"),
                     "must hold at least three vertices",
                 ));
@@ -172,7 +119,7 @@ fn shape(o: &json::ObjectSpec, field: &str, limits: &Limits) -> Result<Vec<[f32;
                 within(v, MAX_BODY_EXTENT, &format!("{f}.vertices[{k}]"), "m")?;
             }
             if mesh.faces.is_empty() {
-                return Err(ApiError::invalid(
+                return Err(FieldError::new(
                     format!("{f}.faces"),
                     "must hold at least one face",
                 ));
@@ -183,7 +130,7 @@ fn shape(o: &json::ObjectSpec, field: &str, limits: &Limits) -> Result<Vec<[f32;
                 .iter()
                 .position(|t| t.iter().any(|&i| i as usize >= nv))
             {
-                return Err(ApiError::invalid(
+                return Err(FieldError::new(
                     format!("{f}.faces[{k}]"),
                     format!("refers to a vertex outside 0..{nv}"),
                 ));
@@ -194,7 +141,7 @@ fn shape(o: &json::ObjectSpec, field: &str, limits: &Limits) -> Result<Vec<[f32;
                 mesh.samples as usize
             };
             if samples > limits.max_points_per_object {
-                return Err(ApiError::invalid(
+                return Err(FieldError::new(
                     format!("{f}.samples"),
                     format!(
                         "{samples} exceeds the limit of {} points per object",
@@ -203,10 +150,10 @@ fn shape(o: &json::ObjectSpec, field: &str, limits: &Limits) -> Result<Vec<[f32;
                 ));
             }
             let tri = TriMesh::new(mesh.vertices.clone(), mesh.faces.clone())
-                .map_err(|e| ApiError::invalid(&f, e))?;
+                .map_err(|e| FieldError::new(&f, e.to_string()))?;
             let area = tri.area();
             if !(area.is_finite() && area > 0.0) {
-                return Err(ApiError::invalid(f, "has no surface area"));
+                return Err(FieldError::new(f, "has no surface area"));
             }
             Ok(sample_surface(&tri, samples, mesh.seed))
         }
@@ -220,14 +167,14 @@ fn parameter(
     lo_open: bool,
     field: &str,
     unit: &str,
-) -> Result<f32, ApiError> {
+) -> Result<f32, FieldError> {
     finite(&[v], field)?;
     let ok = if lo_open { v > lo } else { v >= lo } && v <= hi;
     if ok {
         Ok(v)
     } else {
         let open = if lo_open { "(" } else { "[" };
-        Err(ApiError::invalid(
+        Err(FieldError::new(
             field,
             format!("{v} is outside {open}{lo}, {hi}]{unit}"),
         ))
@@ -238,17 +185,17 @@ fn parameter(
 /// `dt_seconds` is the step duration (`dt_steps * dt_frame`), used to turn velocities into a
 /// previous pose.
 pub fn build_scene(
-    scene: &json::Scene,
+    scene: &Scene,
     field: &str,
     limits: &Limits,
     dt_seconds: f32,
-) -> Result<BuiltScene, ApiError> {
+) -> Result<BuiltScene, FieldError> {
     let of = format!("{field}.objects");
     if scene.objects.is_empty() {
-        return Err(ApiError::invalid(of, "must hold at least one object"));
+        return Err(FieldError::new(of, "must hold at least one object"));
     }
     if scene.objects.len() > limits.max_objects {
-        return Err(ApiError::invalid(
+        return Err(FieldError::new(
             of,
             format!(
                 "{} objects exceed the limit of {}",
@@ -261,15 +208,14 @@ pub fn build_scene(
     let total_points: usize = scene
         .objects
         .iter()
-        .map(|o| match (&o.points, &o.mesh) {
-            (Some(p), _) => p.len(),
-            (None, Some(m)) if m.samples > 0 => m.samples as usize,
-            (None, Some(_)) => limits.default_points,
-            (None, None) => 0,
+        .map(|o| match &o.shape {
+            Shape::Points(p) => p.len(),
+            Shape::Mesh(m) if m.samples > 0 => m.samples as usize,
+            Shape::Mesh(_) => limits.default_points,
         })
         .sum();
     if total_points > limits.max_scene_points {
-        return Err(ApiError::invalid(
+        return Err(FieldError::new(
             of,
             format!(
                 "{total_points} points in all exceed the limit of {} per scene",
@@ -282,29 +228,23 @@ pub fn build_scene(
     let mut current = Vec::with_capacity(scene.objects.len());
     for (i, o) in scene.objects.iter().enumerate() {
         let f = format!("{of}[{i}]");
-        let reference = shape(o, &f, limits)?;
+        let reference = shape(&o.shape, &f, limits)?;
         let now = pose(&o.pose, &format!("{f}.pose"))?;
-        let before = match (&o.previous_pose, &o.velocity) {
-            (Some(_), Some(_)) => {
-                return Err(ApiError::invalid(
-                    f,
-                    "at most one of `previous_pose` and `velocity` may be given",
-                ));
-            }
-            (Some(p), None) => pose(p, &format!("{f}.previous_pose"))?,
-            (None, Some(v)) => {
-                within(&v.linear, MAX_SPEED, &format!("{f}.velocity.linear"), "m/s")?;
+        let before = match &o.motion {
+            Motion::PreviousPose(p) => pose(p, &format!("{f}.previous_pose"))?,
+            Motion::Velocity { linear, angular } => {
+                within(linear, MAX_SPEED, &format!("{f}.velocity.linear"), "m/s")?;
                 within(
-                    &v.angular,
+                    angular,
                     MAX_ANGULAR_SPEED,
                     &format!("{f}.velocity.angular"),
                     "rad/s",
                 )?;
-                SceneState::from_velocities(vec![now], &[v.linear], &[v.angular], dt_seconds)
-                    .map_err(|e| ApiError::invalid(format!("{f}.velocity"), e))?
+                SceneState::from_velocities(vec![now], &[*linear], &[*angular], dt_seconds)
+                    .map_err(|e| FieldError::new(format!("{f}.velocity"), e.to_string()))?
                     .previous[0]
             }
-            (None, None) => now,
+            Motion::Rest => now,
         };
         let mass = parameter(o.mass, 0.0, MAX_MASS, true, &format!("{f}.mass"), " kg")?;
         let friction = parameter(
@@ -339,16 +279,16 @@ pub fn build_scene(
 }
 
 /// Checks `steps` and `dt_steps` (0 means 1); returns the effective `dt_steps`.
-pub fn check_steps(steps: u32, dt_steps: u32, limits: &Limits) -> Result<u32, ApiError> {
+pub fn check_steps(steps: u32, dt_steps: u32, limits: &Limits) -> Result<u32, FieldError> {
     if steps == 0 || steps > limits.max_steps {
-        return Err(ApiError::invalid(
+        return Err(FieldError::new(
             "steps",
             format!("{steps} is outside 1..={}", limits.max_steps),
         ));
     }
     let dt = dt_steps.max(1);
     if dt > limits.max_dt_steps {
-        return Err(ApiError::invalid(
+        return Err(FieldError::new(
             "dt_steps",
             format!("{dt_steps} is outside 1..={} frames", limits.max_dt_steps),
         ));
@@ -359,6 +299,7 @@ pub fn check_steps(steps: u32, dt_steps: u32, limits: &Limits) -> Result<u32, Ap
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::json;
 
     fn limits() -> Limits {
         Limits {
@@ -391,20 +332,19 @@ mod tests {
         }
     }
 
-    fn err(s: json::Scene) -> ApiError {
-        build_scene(&s, "scene", &limits(), 0.1).unwrap_err()
+    fn build(s: &json::Scene) -> Result<BuiltScene, FieldError> {
+        build_scene(&Scene::from_json(s, "scene")?, "scene", &limits(), 0.1)
+    }
+
+    fn err(s: json::Scene) -> FieldError {
+        build(&s).unwrap_err()
     }
 
     #[test]
     fn builds_velocity_state_and_renormalises() {
-        let b = build_scene(
-            &json::Scene {
-                objects: vec![object()],
-            },
-            "scene",
-            &limits(),
-            0.1,
-        )
+        let b = build(&json::Scene {
+            objects: vec![object()],
+        })
         .unwrap();
         assert_eq!(b.state.current[0].rotation, [0.0, 0.0, 0.0, 1.0]);
         assert!((b.state.previous[0].translation[0] + 0.1).abs() < 1e-6);
@@ -419,7 +359,6 @@ mod tests {
                 objects: vec![object(), o],
             })
             .field
-            .unwrap()
         };
         assert_eq!(one(&|o| o.mass = 0.0), "scene.objects[1].mass");
         assert_eq!(one(&|o| o.friction = f32::NAN), "scene.objects[1].friction");
@@ -441,26 +380,16 @@ mod tests {
             one(&|o| o.velocity.as_mut().unwrap().angular[0] = 1e9),
             "scene.objects[1].velocity.angular"
         );
-        assert_eq!(
-            err(json::Scene { objects: vec![] }).field.unwrap(),
-            "scene.objects"
-        );
+        assert_eq!(err(json::Scene { objects: vec![] }).field, "scene.objects");
         assert_eq!(
             err(json::Scene {
                 objects: vec![object(); 5]
             })
-            .field
-            .unwrap(),
+            .field,
             "scene.objects"
         );
-        assert_eq!(
-            check_steps(0, 1, &limits()).unwrap_err().field.unwrap(),
-            "steps"
-        );
-        assert_eq!(
-            check_steps(5, 5, &limits()).unwrap_err().field.unwrap(),
-            "dt_steps"
-        );
+        assert_eq!(check_steps(0, 1, &limits()).unwrap_err().field, "steps");
+        assert_eq!(check_steps(5, 5, &limits()).unwrap_err().field, "dt_steps");
         assert_eq!(check_steps(5, 0, &limits()).unwrap(), 1);
     }
 
@@ -474,19 +403,14 @@ mod tests {
             samples: 0,
             seed: 3,
         });
-        let b = build_scene(
-            &json::Scene {
-                objects: vec![o.clone()],
-            },
-            "scene",
-            &limits(),
-            0.1,
-        )
+        let b = build(&json::Scene {
+            objects: vec![o.clone()],
+        })
         .unwrap();
         assert_eq!(b.objects[0].reference.len(), 32);
         o.mesh.as_mut().unwrap().faces[1] = [0, 1, 9];
         assert_eq!(
-            err(json::Scene { objects: vec![o] }).field.unwrap(),
+            err(json::Scene { objects: vec![o] }).field,
             "scene.objects[0].mesh.faces[1]"
         );
     }

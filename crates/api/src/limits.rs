@@ -1,0 +1,89 @@
+//! Request limits, defined once: the server's caps (its flags, defaults in [`Caps::DEFAULT`]),
+//! the model's own limits, and the fixed physical ranges every request must respect. The
+//! extents and the largest step size are the model's constants (`dynaserve_model`); every
+//! limit is reported by `ListModels` / `GET /v1/models`.
+
+use dynaserve_model::ModelConfig;
+
+pub use dynaserve_model::{MAX_BODY_EXTENT, MAX_DT_STEPS, MAX_WORLD_EXTENT};
+
+/// Largest accepted linear speed component, m/s.
+pub const MAX_SPEED: f32 = 1.0e3;
+/// Largest accepted angular speed component, rad/s.
+pub const MAX_ANGULAR_SPEED: f32 = 1.0e3;
+/// Quaternions whose norm is within this of 1 are renormalised; others are rejected.
+pub const QUATERNION_TOLERANCE: f32 = 1.0e-3;
+/// Largest accepted mass, kilograms.
+pub const MAX_MASS: f32 = 1.0e4;
+/// Largest accepted friction coefficient.
+pub const MAX_FRICTION: f32 = 10.0;
+
+/// The server's caps on requests, before a model's own limits apply.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Caps {
+    /// Objects per scene.
+    pub max_objects: usize,
+    /// Points (or mesh samples) per object.
+    pub max_points_per_object: usize,
+    /// Points per scene, summed over its objects.
+    pub max_scene_points: usize,
+    /// Steps per request.
+    pub max_steps: u32,
+    /// Frames per step.
+    pub max_dt_steps: u32,
+    /// Variants per Predict call.
+    pub max_variants: usize,
+}
+
+impl Caps {
+    /// The defaults of `dynaserve serve`.
+    pub const DEFAULT: Caps = Caps {
+        max_objects: 256,
+        max_points_per_object: 4096,
+        max_scene_points: 131_072,
+        max_steps: 10_000,
+        max_dt_steps: 8,
+        max_variants: 256,
+    };
+}
+
+impl Default for Caps {
+    fn default() -> Caps {
+        Caps::DEFAULT
+    }
+}
+
+/// Request limits for one model: the server's caps capped again by the model's own limits.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Limits {
+    /// Objects per scene.
+    pub max_objects: usize,
+    /// Points (or mesh samples) per object.
+    pub max_points_per_object: usize,
+    /// Points per scene.
+    pub max_scene_points: usize,
+    /// Steps per request.
+    pub max_steps: u32,
+    /// Frames per step.
+    pub max_dt_steps: u32,
+    /// Variants per Predict call.
+    pub max_variants: usize,
+    /// Points sampled from a mesh when `samples` is 0.
+    pub default_points: usize,
+}
+
+impl Limits {
+    /// Limits for a model with configuration `model` under the server caps `caps`.
+    pub fn new(caps: &Caps, model: &ModelConfig) -> Limits {
+        let max_points_per_object = caps.max_points_per_object.min(model.max_points_per_object);
+        Limits {
+            max_objects: caps.max_objects.min(model.max_objects),
+            max_points_per_object,
+            max_scene_points: caps.max_scene_points,
+            max_steps: caps.max_steps,
+            max_dt_steps: caps.max_dt_steps.min(MAX_DT_STEPS),
+            max_variants: caps.max_variants,
+            default_points: model.points_per_object.min(max_points_per_object),
+        }
+    }
+}

@@ -1,0 +1,177 @@
+//! The JSON documents ([`crate::json`]) to and from the neutral vocabulary: requests in,
+//! frames, predictions and model descriptions out.
+
+use super::{
+    Frame, Mesh, ModelInfo, Motion, ObjectSpec, Pose, PredictSpec, Prediction, RolloutSpec, Scene,
+    Shape, Timing, millis,
+};
+use crate::error::FieldError;
+use crate::json;
+
+fn pose(p: &json::Pose) -> Pose {
+    Pose {
+        translation: p.translation,
+        rotation: p.rotation,
+    }
+}
+
+impl ObjectSpec {
+    /// Reads a JSON object at path `field` (e.g. `scene.objects[3]`): exactly one of `points`
+    /// and `mesh`, at most one of `previous_pose` and `velocity`.
+    pub fn from_json(o: &json::ObjectSpec, field: &str) -> Result<ObjectSpec, FieldError> {
+        let shape = match (&o.points, &o.mesh) {
+            (Some(points), None) => Shape::Points(points.clone()),
+            (None, Some(m)) => Shape::Mesh(Mesh {
+                vertices: m.vertices.clone(),
+                faces: m.faces.clone(),
+                samples: m.samples,
+                seed: m.seed,
+            }),
+            _ => {
+                return Err(FieldError::new(
+                    field,
+                    "exactly one of `points` and `mesh` is required",
+                ));
+            }
+        };
+        let motion = match (&o.previous_pose, &o.velocity) {
+            (None, None) => Motion::Rest,
+            (Some(p), None) => Motion::PreviousPose(pose(p)),
+            (None, Some(v)) => Motion::Velocity {
+                linear: v.linear,
+                angular: v.angular,
+            },
+            (Some(_), Some(_)) => {
+                return Err(FieldError::new(
+                    field,
+                    "at most one of `previous_pose` and `velocity` may be given",
+                ));
+            }
+        };
+        Ok(ObjectSpec {
+            shape,
+            pose: pose(&o.pose),
+            motion,
+            mass: o.mass,
+            friction: o.friction,
+            restitution: o.restitution,
+        })
+    }
+}
+
+impl Scene {
+    /// Reads a JSON scene at path `field` (`scene` or `variants[4]`).
+    pub fn from_json(s: &json::Scene, field: &str) -> Result<Scene, FieldError> {
+        let objects = s
+            .objects
+            .iter()
+            .enumerate()
+            .map(|(i, o)| ObjectSpec::from_json(o, &format!("{field}.objects[{i}]")))
+            .collect::<Result<_, _>>()?;
+        Ok(Scene { objects })
+    }
+}
+
+impl RolloutSpec {
+    /// Reads a `POST /v1/rollout` body (its `stream` flag is the front end's business).
+    pub fn from_json(r: &json::RolloutRequest) -> Result<RolloutSpec, FieldError> {
+        Ok(RolloutSpec {
+            model: r.model.clone(),
+            scene: Scene::from_json(&r.scene, "scene")?,
+            steps: r.steps,
+            dt_steps: r.dt_steps,
+            timeout_ms: r.timeout_ms,
+        })
+    }
+}
+
+impl PredictSpec {
+    /// Reads a `POST /v1/predict` body.
+    pub fn from_json(r: &json::PredictRequest) -> Result<PredictSpec, FieldError> {
+        let variants = r
+            .variants
+            .iter()
+            .enumerate()
+            .map(|(i, s)| Scene::from_json(s, &format!("variants[{i}]")))
+            .collect::<Result<_, _>>()?;
+        Ok(PredictSpec {
+            model: r.model.clone(),
+            variants,
+            steps: r.steps,
+            dt_steps: r.dt_steps,
+            every: r.every,
+            timeout_ms: r.timeout_ms,
+        })
+    }
+}
+
+impl Frame {
+    /// The JSON frame (an SSE `frame` event, an element of a trajectory).
+    pub fn to_json(&self) -> json::StepFrame {
+        json::StepFrame {
+            step: self.step,
+            time: self.time,
+            poses: self
+                .poses
+                .iter()
+                .map(|p| json::Pose {
+                    translation: p.translation,
+                    rotation: p.rotation,
+                })
+                .collect(),
+            timing: self.timing.map(|t| json::StepTiming {
+                queue_ms: millis(t.queue) as f32,
+                forward_ms: millis(t.forward) as f32,
+                batch_scenes: t.batch_scenes,
+            }),
+        }
+    }
+}
+
+impl Timing {
+    /// The JSON timing document, milliseconds.
+    pub fn to_json(&self) -> json::RequestTiming {
+        json::RequestTiming {
+            queue_ms: millis(self.queue),
+            forward_ms: millis(self.forward),
+            total_ms: millis(self.total),
+        }
+    }
+}
+
+impl Prediction {
+    /// The `POST /v1/predict` response.
+    pub fn to_json(&self) -> json::PredictResponse {
+        json::PredictResponse {
+            model: self.model.clone(),
+            trajectories: self
+                .trajectories
+                .iter()
+                .map(|t| json::Trajectory {
+                    frames: t.iter().map(Frame::to_json).collect(),
+                })
+                .collect(),
+            timing: self.timing.to_json(),
+        }
+    }
+}
+
+impl ModelInfo {
+    /// The `GET /v1/models` entry.
+    pub fn to_json(&self) -> json::ModelInfo {
+        let l = &self.limits;
+        json::ModelInfo {
+            name: self.name.clone(),
+            architecture: self.config.architecture.clone(),
+            dt_frame: f64::from(self.config.dt_frame),
+            default_points: l.default_points as u32,
+            max_objects: l.max_objects as u32,
+            max_points_per_object: l.max_points_per_object as u32,
+            max_steps: l.max_steps,
+            max_dt_steps: l.max_dt_steps,
+            max_variants: l.max_variants as u32,
+            gravity: self.config.gravity,
+            config: serde_json::to_value(&self.config).unwrap_or(serde_json::Value::Null),
+        }
+    }
+}

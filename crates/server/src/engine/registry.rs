@@ -1,0 +1,106 @@
+//! The resident models: for each its scheduler, request limits and description, and the
+//! preparation of request scenes for it (validation, then the model's own per-scene caches).
+
+use std::sync::Arc;
+
+use dynaserve_api::build::{BuiltScene, build_scene};
+use dynaserve_api::limits::{Caps, Limits};
+use dynaserve_api::spec::{ModelInfo, Scene};
+use dynaserve_model::{PreparedScene, SceneState, WorldModel};
+
+use crate::error::ApiError;
+use crate::metrics::Metrics;
+use crate::scheduler::{RigidSteps, Scheduler, SchedulerConfig};
+
+/// A resident model: its scheduler, limits and description.
+pub struct ModelEntry {
+    /// Name used in requests.
+    pub name: String,
+    /// The scheduler that owns all forward passes of the model.
+    pub scheduler: Scheduler<RigidSteps>,
+    /// Request limits.
+    pub limits: Limits,
+    /// Description returned by ListModels.
+    pub info: ModelInfo,
+    /// Interval of one frame, seconds.
+    pub dt_frame: f64,
+}
+
+impl ModelEntry {
+    /// Starts the scheduler of `model` and derives its limits under the server's `caps`.
+    pub fn start(
+        model: Arc<dyn WorldModel>,
+        caps: &Caps,
+        scheduling: SchedulerConfig,
+        metrics: &Metrics,
+    ) -> std::io::Result<ModelEntry> {
+        let name = model.name().to_string();
+        let config = model.config().clone();
+        let limits = Limits::new(caps, &config);
+        let dt_frame = f64::from(config.dt_frame);
+        let scheduler = Scheduler::start(
+            Arc::new(RigidSteps::new(model)),
+            scheduling,
+            metrics.clone(),
+        )?;
+        Ok(ModelEntry {
+            info: ModelInfo {
+                name: name.clone(),
+                config,
+                limits,
+            },
+            name,
+            scheduler,
+            limits,
+            dt_frame,
+        })
+    }
+
+    /// The model.
+    pub fn model(&self) -> &Arc<dyn WorldModel> {
+        self.scheduler.family().model()
+    }
+
+    /// Physical time after `step` steps of `dt_steps` frames, seconds.
+    pub fn time_at(&self, step: u32, dt_steps: u32) -> f64 {
+        f64::from(step) * f64::from(dt_steps) * self.dt_frame
+    }
+}
+
+/// Validates, builds and prepares scenes on a blocking thread (mesh sampling and the model's
+/// per-scene caches are CPU work that must not run on the async runtime). `field` names the
+/// scenes in errors: `scene` for one, `variants` for `variants[i]`.
+pub(crate) async fn prepare_scenes(
+    entry: &Arc<ModelEntry>,
+    scenes: Vec<Scene>,
+    dt_steps: u32,
+    field: &'static str,
+) -> Result<Vec<(Arc<PreparedScene>, SceneState)>, ApiError> {
+    let entry = entry.clone();
+    let single = field == "scene";
+    tokio::task::spawn_blocking(move || {
+        let dt_seconds = (f64::from(dt_steps) * entry.dt_frame) as f32;
+        scenes
+            .iter()
+            .enumerate()
+            .map(|(i, s)| {
+                let path = if single {
+                    field.to_string()
+                } else {
+                    format!("{field}[{i}]")
+                };
+                let BuiltScene { objects, state } =
+                    build_scene(s, &path, &entry.limits, dt_seconds)?;
+                let prepared = entry.model().prepare(objects).map_err(|e| match e {
+                    dynaserve_model::ModelError::InvalidInput(m) => {
+                        ApiError::invalid(path.clone(), m)
+                    }
+                    other => ApiError::internal(other.to_string()),
+                })?;
+                Ok((Arc::new(prepared), state))
+            })
+            .collect()
+    })
+    .await
+    .map_err(|e| ApiError::internal(format!("scene preparation failed: {e}")))?
+}

@@ -1,0 +1,179 @@
+//! Per-request bookkeeping shared by every kind of request: the context a front end sets
+//! (protocol, request id, arrival, transport deadline), the record that counts the outcome in
+//! the metrics exactly once, and deadline helpers.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use crate::error::ApiError;
+use crate::metrics::Metrics;
+
+/// Which front end a request came through (the `protocol` metric label).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Protocol {
+    /// tonic.
+    Grpc,
+    /// axum.
+    Http,
+}
+
+impl Protocol {
+    /// Label value.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Protocol::Grpc => "grpc",
+            Protocol::Http => "http",
+        }
+    }
+}
+
+/// Per-request context set by the front end.
+#[derive(Clone, Debug)]
+pub struct RequestCtx {
+    /// Front end.
+    pub protocol: Protocol,
+    /// Request id (from `x-request-id` or generated).
+    pub request_id: Arc<str>,
+    /// Arrival time.
+    pub arrival: Instant,
+    /// Deadline from the transport (`grpc-timeout`), if any.
+    pub deadline: Option<Instant>,
+}
+
+impl RequestCtx {
+    /// A context arriving now.
+    pub fn new(protocol: Protocol, request_id: Option<&str>, timeout: Option<Duration>) -> Self {
+        let arrival = Instant::now();
+        RequestCtx {
+            protocol,
+            request_id: request_id
+                .filter(|s| valid_request_id(s))
+                .map_or_else(new_request_id, str::to_string)
+                .into(),
+            arrival,
+            deadline: timeout.map(|t| arrival + t),
+        }
+    }
+
+    /// The earlier of the transport deadline and `timeout_ms` after arrival (0: none).
+    pub(crate) fn deadline_with(&self, timeout_ms: u32) -> Option<Instant> {
+        let field =
+            (timeout_ms > 0).then(|| self.arrival + Duration::from_millis(timeout_ms.into()));
+        match (self.deadline, field) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
+    }
+}
+
+fn valid_request_id(s: &str) -> bool {
+    !s.is_empty() && s.len() <= 128 && s.bytes().all(|b| b.is_ascii_graphic())
+}
+
+/// A new unique request id (16 hex digits).
+pub fn new_request_id() -> String {
+    static NEXT: AtomicU64 = AtomicU64::new(0);
+    static BASE: std::sync::OnceLock<u64> = std::sync::OnceLock::new();
+    let base = *BASE.get_or_init(|| {
+        let t = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_nanos() as u64)
+            .unwrap_or(0);
+        // splitmix64 of the start time and pid, so restarts do not repeat ids.
+        let mut z = t ^ (u64::from(std::process::id()) << 32);
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    });
+    let n = NEXT.fetch_add(1, Ordering::Relaxed);
+    format!(
+        "{:016x}",
+        base.wrapping_add(n.wrapping_mul(0x9e37_79b9_7f4a_7c15))
+    )
+}
+
+/// Records a request's outcome in the metrics exactly once; a request dropped without an
+/// outcome (client went away) counts as cancelled.
+pub(crate) struct RequestRecord {
+    metrics: Metrics,
+    protocol: &'static str,
+    method: &'static str,
+    arrival: Instant,
+    done: bool,
+}
+
+impl RequestRecord {
+    /// Counts the request and starts its record.
+    pub(crate) fn new(metrics: &Metrics, ctx: &RequestCtx, method: &'static str) -> RequestRecord {
+        metrics
+            .requests
+            .with_label_values(&[ctx.protocol.as_str(), method])
+            .inc();
+        RequestRecord {
+            metrics: metrics.clone(),
+            protocol: ctx.protocol.as_str(),
+            method,
+            arrival: ctx.arrival,
+            done: false,
+        }
+    }
+
+    /// Records the outcome (once; later calls do nothing).
+    pub(crate) fn finish(&mut self, error: Option<&ApiError>) {
+        if !self.done {
+            self.done = true;
+            self.metrics.finish_request(
+                self.protocol,
+                self.method,
+                self.arrival.elapsed(),
+                error.map(ApiError::reason),
+            );
+        }
+    }
+
+    /// Logs and records a failure, returning the error.
+    pub(crate) fn fail(&mut self, e: ApiError) -> ApiError {
+        tracing::info!(code = e.code_name(), error = %e.message, "request failed");
+        self.finish(Some(&e));
+        e
+    }
+}
+
+impl Drop for RequestRecord {
+    fn drop(&mut self) {
+        if !self.done {
+            self.finish(Some(&ApiError::cancelled("client went away")));
+        }
+    }
+}
+
+/// Decrements an active-work gauge when dropped.
+pub(crate) struct GaugeGuard(pub(crate) prometheus::IntGauge, pub(crate) i64);
+
+impl Drop for GaugeGuard {
+    fn drop(&mut self) {
+        self.0.sub(self.1);
+    }
+}
+
+/// Runs `fut` until `deadline`, answering DEADLINE_EXCEEDED past it.
+pub(crate) async fn with_deadline<T>(
+    deadline: Option<Instant>,
+    fut: impl std::future::Future<Output = Result<T, ApiError>>,
+) -> Result<T, ApiError> {
+    match deadline {
+        Some(d) => tokio::time::timeout_at(d.into(), fut)
+            .await
+            .map_err(|_| ApiError::deadline("deadline exceeded"))?,
+        None => fut.await,
+    }
+}
+
+/// Sleeps until `deadline`, or forever without one.
+pub(crate) async fn sleep_until(deadline: Option<Instant>) {
+    match deadline {
+        Some(d) => tokio::time::sleep_until(d.into()).await,
+        None => std::future::pending().await,
+    }
+}

@@ -1,0 +1,194 @@
+//! Streamed rollouts: admission, then a session task that steps the scene and sends every
+//! frame into a bounded channel, so that a slow reader pauses only its own rollout.
+
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::Instant;
+
+use dynaserve_api::build::check_steps;
+use dynaserve_api::spec::{Frame, RolloutSpec};
+use tokio::sync::{OwnedSemaphorePermit, mpsc, watch};
+use tracing::Instrument;
+
+use super::Engine;
+use super::registry::prepare_scenes;
+use super::request::{GaugeGuard, RequestCtx, RequestRecord, sleep_until};
+use super::stepper::{Stepper, StepperSpec, step_error};
+use crate::error::ApiError;
+use crate::scheduler::Priority;
+
+/// A started rollout: frames (or one final error) arrive on `frames`.
+pub struct RolloutHandle {
+    /// Model serving the rollout.
+    pub model: String,
+    /// Request id.
+    pub request_id: Arc<str>,
+    /// Frames in step order; an `Err` ends the stream.
+    pub frames: mpsc::Receiver<Result<Frame, ApiError>>,
+}
+
+const DEADLINE_MSG: &str = "deadline exceeded";
+const CLOSE_MSG: &str =
+    "server shutting down: the drain deadline passed before the rollout finished";
+
+impl Engine {
+    /// Validates and admits a rollout, then runs it in a session task. Frames arrive on the
+    /// returned channel (bounded: a slow reader pauses the rollout).
+    pub async fn start_rollout(
+        self: &Arc<Self>,
+        req: RolloutSpec,
+        ctx: RequestCtx,
+    ) -> Result<RolloutHandle, ApiError> {
+        let mut rec = RequestRecord::new(&self.metrics, &ctx, "rollout");
+        let span = tracing::info_span!(
+            "rollout",
+            request_id = %ctx.request_id,
+            protocol = ctx.protocol.as_str(),
+            model = tracing::field::Empty
+        );
+        let steps = req.steps;
+        let prepared = async {
+            self.admit_check()?;
+            let entry = self.resolve(&req.model)?;
+            tracing::Span::current().record("model", entry.name.as_str());
+            let dt_steps = check_steps(req.steps, req.dt_steps, &entry.limits)?;
+            let deadline = ctx.deadline_with(req.timeout_ms);
+            let permit = self
+                .rollout_slots
+                .clone()
+                .try_acquire_owned()
+                .map_err(|_| {
+                    ApiError::exhausted(
+                        format!(
+                            "{} rollouts are active, the server's limit; retry later",
+                            self.config.max_active_rollouts
+                        ),
+                        self.retry_after(),
+                    )
+                })?;
+            let (scene, state) = prepare_scenes(&entry, vec![req.scene], dt_steps, "scene")
+                .await?
+                .pop()
+                .ok_or_else(|| ApiError::internal("no scene prepared"))?;
+            let stepper = Stepper::new(
+                entry.clone(),
+                StepperSpec {
+                    scene,
+                    state,
+                    dt_steps,
+                    priority: Priority::Interactive,
+                    deadline,
+                    stream_id: self.next_stream.fetch_add(1, Ordering::Relaxed),
+                    request_id: ctx.request_id.clone(),
+                },
+            );
+            Ok::<_, ApiError>((entry, deadline, permit, stepper))
+        }
+        .instrument(span.clone())
+        .await;
+        let (entry, deadline, permit, stepper) = match prepared {
+            Ok(p) => p,
+            Err(e) => return Err(span.in_scope(|| rec.fail(e))),
+        };
+        let (tx, rx) = mpsc::channel(self.config.stream_buffer);
+        let session = Session {
+            stepper,
+            steps,
+            deadline,
+            close: self.close_tx.subscribe(),
+        };
+        let gauge = self
+            .metrics
+            .active_rollouts
+            .with_label_values(&[entry.name.as_str()]);
+        gauge.inc();
+        tokio::spawn(
+            async move {
+                let _permit: OwnedSemaphorePermit = permit;
+                let _gauge = GaugeGuard(gauge, 1);
+                let start = Instant::now();
+                match session.run(tx).await {
+                    Ok(()) => {
+                        tracing::info!(
+                            steps,
+                            ms = start.elapsed().as_secs_f64() * 1e3,
+                            "rollout finished"
+                        );
+                        rec.finish(None);
+                    }
+                    Err(e) => {
+                        rec.fail(e);
+                    }
+                }
+            }
+            .instrument(span),
+        );
+        Ok(RolloutHandle {
+            model: entry.name.clone(),
+            request_id: ctx.request_id,
+            frames: rx,
+        })
+    }
+}
+
+/// One streamed rollout: steps its scene one step at a time.
+struct Session {
+    stepper: Stepper,
+    steps: u32,
+    deadline: Option<Instant>,
+    close: watch::Receiver<bool>,
+}
+
+impl Session {
+    /// Runs the rollout to its end, a deadline, a drain close or the client's disappearance.
+    /// The final error, if any, is also sent to the client.
+    async fn run(mut self, tx: mpsc::Sender<Result<Frame, ApiError>>) -> Result<(), ApiError> {
+        let mut close = self.close.clone();
+        for step in 1..=self.steps {
+            // Reserve room for the frame before asking for the step: a client that reads slowly
+            // pauses only this rollout, and the scheduler is told not to wait for it meanwhile.
+            let permit = match tx.try_reserve() {
+                Ok(p) => p,
+                Err(mpsc::error::TrySendError::Closed(())) => {
+                    return Err(ApiError::cancelled("client went away"));
+                }
+                Err(mpsc::error::TrySendError::Full(())) => {
+                    self.stepper.pause();
+                    tokio::select! {
+                        p = tx.reserve() => match p {
+                            Ok(p) => p,
+                            Err(_) => return Err(ApiError::cancelled("client went away")),
+                        },
+                        _ = sleep_until(self.deadline) => {
+                            // The client is not reading; the error cannot be delivered either.
+                            return Err(ApiError::deadline(DEADLINE_MSG));
+                        }
+                        _ = close.wait_for(|c| *c) => {
+                            return Err(ApiError::unavailable(CLOSE_MSG));
+                        }
+                    }
+                }
+            };
+            let rx = self.stepper.submit(step < self.steps);
+            let outcome = tokio::select! {
+                r = rx => match r {
+                    Ok(Ok(done)) => Ok(done),
+                    Ok(Err(e)) => Err(step_error(e)),
+                    Err(_) => Err(ApiError::unavailable("server shutting down")),
+                },
+                // Dropping `rx` here lets the scheduler discard the queued step.
+                _ = tx.closed() => return Err(ApiError::cancelled("client went away")),
+                _ = sleep_until(self.deadline) => Err(ApiError::deadline(DEADLINE_MSG)),
+                _ = close.wait_for(|c| *c) => Err(ApiError::unavailable(CLOSE_MSG)),
+            };
+            match outcome {
+                Ok(done) => permit.send(Ok(self.stepper.accept(done))),
+                Err(e) => {
+                    permit.send(Err(e.clone()));
+                    return Err(e);
+                }
+            }
+        }
+        Ok(())
+    }
+}

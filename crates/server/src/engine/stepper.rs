@@ -1,0 +1,132 @@
+//! One scene advancing through its model's scheduler, step by step: the only place that submits
+//! steps and advances a scene's state. Rollout sessions, Predict variants and warm-up all drive
+//! a [`Stepper`].
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use dynaserve_api::spec::{Frame, StepTiming};
+use dynaserve_model::{Pose, PreparedScene, SceneState};
+use tokio::sync::oneshot;
+
+use super::registry::ModelEntry;
+use crate::error::ApiError;
+use crate::scheduler::{Done, Job, Priority, SceneStep, StepError};
+
+/// The reply of one submitted step.
+pub(crate) type StepReply = oneshot::Receiver<Result<Done<Vec<Pose>>, StepError>>;
+
+/// A scene, its state and its place in the scheduler (one stream). Dropping it tells the
+/// scheduler not to wait for the stream any more.
+pub(crate) struct Stepper {
+    entry: Arc<ModelEntry>,
+    scene: Arc<PreparedScene>,
+    state: SceneState,
+    dt_steps: u32,
+    priority: Priority,
+    deadline: Option<Instant>,
+    stream_id: u64,
+    request_id: Arc<str>,
+    /// Steps completed.
+    step: u32,
+}
+
+/// Where a stepper's scene comes from and how its steps are scheduled.
+pub(crate) struct StepperSpec {
+    /// The prepared scene.
+    pub scene: Arc<PreparedScene>,
+    /// Its initial state.
+    pub state: SceneState,
+    /// Frames per step.
+    pub dt_steps: u32,
+    /// Scheduling class.
+    pub priority: Priority,
+    /// Deadline of every step.
+    pub deadline: Option<Instant>,
+    /// Stream id, unique per engine.
+    pub stream_id: u64,
+    /// Request id for logs.
+    pub request_id: Arc<str>,
+}
+
+/// The API error of a step that produced nothing.
+pub(crate) fn step_error(e: StepError) -> ApiError {
+    match e {
+        StepError::DeadlineExceeded => ApiError::deadline("deadline exceeded while queued"),
+        StepError::Model(m) => ApiError::internal(m),
+        StepError::Stopped => ApiError::unavailable("server shutting down"),
+    }
+}
+
+impl Stepper {
+    /// A stepper at step 0.
+    pub(crate) fn new(entry: Arc<ModelEntry>, spec: StepperSpec) -> Stepper {
+        Stepper {
+            entry,
+            scene: spec.scene,
+            state: spec.state,
+            dt_steps: spec.dt_steps,
+            priority: spec.priority,
+            deadline: spec.deadline,
+            stream_id: spec.stream_id,
+            request_id: spec.request_id,
+            step: 0,
+        }
+    }
+
+    /// Queues the next step; `more_steps` says another will follow right after it.
+    pub(crate) fn submit(&self, more_steps: bool) -> StepReply {
+        let (reply, rx) = oneshot::channel();
+        self.entry.scheduler.submit(Job {
+            item: SceneStep {
+                scene: self.scene.clone(),
+                state: self.state.clone(),
+                dt_steps: self.dt_steps,
+            },
+            priority: self.priority,
+            deadline: self.deadline,
+            stream_id: self.stream_id,
+            more_steps,
+            request_id: self.request_id.clone(),
+            reply,
+        });
+        rx
+    }
+
+    /// Takes a finished step: advances the state and returns the frame (with its timing).
+    pub(crate) fn accept(&mut self, done: Done<Vec<Pose>>) -> Frame {
+        self.step += 1;
+        tracing::trace!(step = self.step, batch = done.batch_id, "step");
+        self.state.advance(done.output.clone());
+        Frame {
+            step: self.step,
+            time: self.entry.time_at(self.step, self.dt_steps),
+            poses: done.output,
+            timing: Some(StepTiming {
+                queue: done.queue_wait,
+                forward: done.forward,
+                batch_scenes: done.batch_scenes,
+            }),
+        }
+    }
+
+    /// Submits the next step, waits for it and accepts it.
+    pub(crate) async fn next(&mut self, more_steps: bool) -> Result<Frame, ApiError> {
+        match self.submit(more_steps).await {
+            Ok(Ok(done)) => Ok(self.accept(done)),
+            Ok(Err(e)) => Err(step_error(e)),
+            Err(_) => Err(ApiError::unavailable("server shutting down")),
+        }
+    }
+
+    /// Tells the scheduler not to wait for this stream's next step (it paused).
+    pub(crate) fn pause(&self) {
+        self.entry.scheduler.idle(self.stream_id);
+    }
+}
+
+impl Drop for Stepper {
+    fn drop(&mut self) {
+        self.pause();
+    }
+}
