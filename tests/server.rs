@@ -1,6 +1,9 @@
 //! End-to-end tests of `dynaserve serve` against a real server on 127.0.0.1 with a real
 //! RigidFormer loaded from disk (the shipped checkpoint when present, otherwise a randomly
 //! initialised one saved to a temporary directory).
+//!
+//! Longer than our other files on purpose: every test here needs a running server and the same
+//! helpers, and one file is one test binary (one link of the server and the model).
 
 mod common;
 

@@ -1,5 +1,13 @@
 //! Load modes and the driver that runs them against one side (a server over gRPC or HTTP, or
-//! the model in-process), scraping the server's `/metrics` around every level.
+//! the model in-process), scraping the server's `/metrics` around every level. The callers
+//! that keep a level busy (streams, planner calls, Poisson arrivals) are in [`workers`].
+
+mod remote;
+mod workers;
+
+pub use remote::http_get;
+use remote::{Remote, connect};
+use workers::{poisson, predict_worker, stream_worker};
 
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -9,17 +17,13 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use dynaserve_api::json;
-use dynaserve_client::Client;
-use rand::SeedableRng;
-use rand_distr::{Distribution, Exp};
 use tokio::sync::watch;
 
 use crate::inprocess::InProcess;
-use crate::recorder::{Recorder, RequestClock, ServerTiming};
+use crate::recorder::Recorder;
 use crate::report::{Report, ServerStats, SideReport};
 use crate::scenes::SceneSource;
-use crate::transport::{CallError, Conn};
-use dynaserve_client::http::{HttpBase, HttpConn};
+use crate::transport::CallError;
 
 /// How requests reach the model.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -298,112 +302,6 @@ fn lock(rec: &Mutex<Recorder>) -> std::sync::MutexGuard<'_, Recorder> {
     rec.lock().unwrap_or_else(|p| p.into_inner())
 }
 
-/// GET a URL over HTTP and return the body when the status is 200.
-pub async fn http_get(url: &str) -> Result<String, String> {
-    let base = HttpBase::parse(url)?;
-    let uri: hyper::Uri = url.parse().map_err(|e| format!("{url}: {e}"))?;
-    let path = uri.path_and_query().map_or("/", |p| p.as_str()).to_string();
-    let mut c = HttpConn::new(base);
-    let (status, text) = tokio::time::timeout(Duration::from_secs(10), c.get_text(&path))
-        .await
-        .map_err(|_| format!("{url}: no answer within 10 s"))?
-        .map_err(|e| format!("{url}: {e}"))?;
-    if status != 200 {
-        return Err(format!("{url}: HTTP {status}"));
-    }
-    Ok(text)
-}
-
-/// Connections of one remote side, made once and checked before the load starts.
-struct Remote {
-    grpc: Vec<Client>,
-    http: Option<HttpBase>,
-    model: String,
-}
-
-impl Remote {
-    fn conn(&self, i: usize) -> Conn {
-        match &self.http {
-            Some(b) => Conn::Http(HttpConn::new(b.clone())),
-            None => Conn::Grpc(self.grpc[i % self.grpc.len()].clone()),
-        }
-    }
-}
-
-fn pick_model(names: Vec<String>, wanted: &str, target: &str) -> anyhow::Result<String> {
-    if !wanted.is_empty() {
-        anyhow::ensure!(
-            names.iter().any(|n| n == wanted),
-            "{target} does not serve model {wanted:?} (it serves: {})",
-            names.join(", ")
-        );
-        return Ok(wanted.to_string());
-    }
-    match names.as_slice() {
-        [one] => Ok(one.clone()),
-        [] => anyhow::bail!("{target} serves no model"),
-        _ => anyhow::bail!(
-            "{target} serves several models ({}); pass --model NAME",
-            names.join(", ")
-        ),
-    }
-}
-
-async fn connect(target: &Target, load: &Load) -> anyhow::Result<Remote> {
-    match target.transport {
-        Transport::Grpc => {
-            let mut grpc = Vec::new();
-            for _ in 0..target.connections.max(1) {
-                let c = Client::connect(&target.url).await.map_err(|e| {
-                    anyhow::anyhow!(
-                        "cannot reach the gRPC server at {}: {e}. Is `dynaserve serve` running \
-                         there? (--target sets the URL, --spawn launches a server)",
-                        target.url
-                    )
-                })?;
-                grpc.push(c);
-            }
-            let models = grpc[0]
-                .list_models()
-                .await
-                .with_context(|| format!("ListModels on {}", target.url))?;
-            let model = pick_model(
-                models.into_iter().map(|m| m.name).collect(),
-                &load.model,
-                &target.url,
-            )?;
-            Ok(Remote {
-                grpc,
-                http: None,
-                model,
-            })
-        }
-        Transport::Http => {
-            let base = HttpBase::parse(&target.url).map_err(anyhow::Error::msg)?;
-            let url = format!("{}/v1/models", target.url.trim_end_matches('/'));
-            let text = http_get(&url).await.map_err(|e| {
-                anyhow::anyhow!(
-                    "cannot reach the HTTP server: {e}. Is `dynaserve serve` running there? \
-                     (--target sets the URL, --spawn launches a server)"
-                )
-            })?;
-            let models: json::ListModelsResponse =
-                serde_json::from_str(&text).with_context(|| format!("{url}: not a model list"))?;
-            let model = pick_model(
-                models.models.into_iter().map(|m| m.name).collect(),
-                &load.model,
-                &target.url,
-            )?;
-            Ok(Remote {
-                grpc: Vec::new(),
-                http: Some(base),
-                model,
-            })
-        }
-        Transport::Inprocess => anyhow::bail!("in-process targets have no connection"),
-    }
-}
-
 /// Runs every level of `load` against `target` and returns the side's report. Errors of
 /// individual requests are counted in the report; only an unreachable target (or an
 /// unloadable in-process model) is an `Err`.
@@ -670,183 +568,4 @@ async fn run_level(
     report.expected_frames = expected;
     report.offered_rate = offered;
     report
-}
-
-/// One rollout on `conn`, recorded in `rec`; `None` when cut by `stop` or `deadline`.
-async fn one_rollout(
-    conn: &mut Conn,
-    req: &json::RolloutRequest,
-    rec: &Mutex<Recorder>,
-    deadline: Option<Instant>,
-    stop: &Stop,
-) -> Option<Result<(), CallError>> {
-    lock(rec).started();
-    let mut clock = RequestClock::start();
-    let mut on_frame = |at: Instant, f: &json::StepFrame| {
-        let timing = f.timing.map(|t| ServerTiming {
-            queue_ms: f64::from(t.queue_ms),
-            forward_ms: f64::from(t.forward_ms),
-            batch_scenes: t.batch_scenes,
-        });
-        lock(rec).frame(&mut clock, at, f.poses.len(), timing);
-    };
-    let result = tokio::select! {
-        r = conn.rollout(req, &mut on_frame) => Some(r),
-        _ = stop.wait() => None,
-        _ = sleep_until_opt(deadline) => None,
-    };
-    match result {
-        Some(Ok(_)) => {
-            lock(rec).rollout_ok(&clock, Instant::now());
-            Some(Ok(()))
-        }
-        Some(Err(e)) => {
-            lock(rec).failed(&e);
-            Some(Err(e))
-        }
-        None => None,
-    }
-}
-
-async fn backoff(e: &CallError, deadline: Option<Instant>, stop: &Stop) {
-    let wait = Duration::from_millis(e.retry_after_ms.unwrap_or(100).clamp(10, 1000));
-    tokio::select! {
-        _ = tokio::time::sleep(wait) => {}
-        _ = stop.wait() => {}
-        _ = sleep_until_opt(deadline) => {}
-    }
-}
-
-async fn stream_worker(
-    mut conn: Conn,
-    req: json::RolloutRequest,
-    rec: Arc<Mutex<Recorder>>,
-    deadline: Option<Instant>,
-    stop: Stop,
-) {
-    loop {
-        if stop.is_set() || deadline.is_some_and(|d| Instant::now() >= d) {
-            return;
-        }
-        match one_rollout(&mut conn, &req, &rec, deadline, &stop).await {
-            None => return,
-            Some(r) => {
-                if deadline.is_none() {
-                    return;
-                }
-                if let Err(e) = r {
-                    backoff(&e, deadline, &stop).await;
-                }
-            }
-        }
-    }
-}
-
-async fn predict_worker(
-    mut conn: Conn,
-    req: Arc<json::PredictRequest>,
-    rec: Arc<Mutex<Recorder>>,
-    remaining: Arc<AtomicUsize>,
-    stop: Stop,
-) {
-    let objects: u64 = req.variants.iter().map(|v| v.objects.len() as u64).sum();
-    let steps = u64::from(req.steps);
-    while remaining
-        .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |r| r.checked_sub(1))
-        .is_ok()
-    {
-        if stop.is_set() {
-            return;
-        }
-        lock(&rec).started();
-        let clock = RequestClock::start();
-        let r = tokio::select! {
-            r = conn.predict(&req) => r,
-            _ = stop.wait() => return,
-        };
-        let at = Instant::now();
-        let r = r.and_then(|resp| {
-            if resp.trajectories.len() == req.variants.len() {
-                Ok(resp)
-            } else {
-                Err(CallError::new(
-                    "incomplete",
-                    format!(
-                        "{} trajectories for {} variants",
-                        resp.trajectories.len(),
-                        req.variants.len()
-                    ),
-                ))
-            }
-        });
-        match r {
-            Ok(resp) => {
-                let frames: u64 = resp
-                    .trajectories
-                    .iter()
-                    .map(|t| t.frames.len() as u64)
-                    .sum();
-                lock(&rec).predict_ok(
-                    &clock,
-                    at,
-                    frames,
-                    req.variants.len() as u64 * steps,
-                    objects * steps,
-                    ServerTiming {
-                        queue_ms: resp.timing.queue_ms,
-                        forward_ms: resp.timing.forward_ms,
-                        batch_scenes: 0,
-                    },
-                );
-            }
-            Err(e) => lock(&rec).failed(&e),
-        }
-    }
-}
-
-#[allow(clippy::too_many_arguments)]
-async fn poisson(
-    load: &Arc<Load>,
-    remote: &Arc<Remote>,
-    rate: f64,
-    arrivals_end: Instant,
-    seed: u64,
-    max_in_flight: usize,
-    rec: &Arc<Mutex<Recorder>>,
-    stop: &Stop,
-) {
-    let Ok(exp) = Exp::new(rate.max(1e-9)) else {
-        return;
-    };
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let in_flight = Arc::new(AtomicUsize::new(0));
-    let mut tasks = tokio::task::JoinSet::new();
-    let mut next = Instant::now();
-    let mut k = 0usize;
-    loop {
-        next += Duration::from_secs_f64(exp.sample(&mut rng));
-        if next >= arrivals_end {
-            break;
-        }
-        tokio::select! {
-            _ = tokio::time::sleep_until(next.into()) => {}
-            _ = stop.wait() => break,
-        }
-        // Reap finished tasks so the set stays small.
-        while tasks.try_join_next().is_some() {}
-        if in_flight.load(Ordering::SeqCst) >= max_in_flight {
-            lock(rec).skipped();
-            continue;
-        }
-        in_flight.fetch_add(1, Ordering::SeqCst);
-        let req = load.rollout(load.scenes.scene(k));
-        let (mut conn, rec, stop, in_flight) =
-            (remote.conn(k), rec.clone(), stop.clone(), in_flight.clone());
-        k += 1;
-        tasks.spawn(async move {
-            let _ = one_rollout(&mut conn, &req, &rec, None, &stop).await;
-            in_flight.fetch_sub(1, Ordering::SeqCst);
-        });
-    }
-    while tasks.join_next().await.is_some() {}
 }

@@ -1,0 +1,121 @@
+//! Connections to a remote side (gRPC clients or an HTTP base), made and checked once before
+//! the load starts, and the model the load targets.
+
+use std::time::Duration;
+
+use anyhow::Context;
+use dynaserve_api::json;
+use dynaserve_client::Client;
+use dynaserve_client::http::{HttpBase, HttpConn};
+
+use super::{Load, Target, Transport};
+use crate::transport::Conn;
+
+/// GET a URL over HTTP and return the body when the status is 200.
+pub async fn http_get(url: &str) -> Result<String, String> {
+    let base = HttpBase::parse(url)?;
+    let uri: hyper::Uri = url.parse().map_err(|e| format!("{url}: {e}"))?;
+    let path = uri.path_and_query().map_or("/", |p| p.as_str()).to_string();
+    let mut c = HttpConn::new(base);
+    let (status, text) = tokio::time::timeout(Duration::from_secs(10), c.get_text(&path))
+        .await
+        .map_err(|_| format!("{url}: no answer within 10 s"))?
+        .map_err(|e| format!("{url}: {e}"))?;
+    if status != 200 {
+        return Err(format!("{url}: HTTP {status}"));
+    }
+    Ok(text)
+}
+
+/// Connections of one remote side, made once and checked before the load starts.
+pub(super) struct Remote {
+    grpc: Vec<Client>,
+    http: Option<HttpBase>,
+    /// The model the load targets.
+    pub(super) model: String,
+}
+
+impl Remote {
+    /// Connection `i` (gRPC callers share a few connections; every HTTP caller has its own).
+    pub(super) fn conn(&self, i: usize) -> Conn {
+        match &self.http {
+            Some(b) => Conn::Http(HttpConn::new(b.clone())),
+            None => Conn::Grpc(self.grpc[i % self.grpc.len()].clone()),
+        }
+    }
+}
+
+fn pick_model(names: Vec<String>, wanted: &str, target: &str) -> anyhow::Result<String> {
+    if !wanted.is_empty() {
+        anyhow::ensure!(
+            names.iter().any(|n| n == wanted),
+            "{target} does not serve model {wanted:?} (it serves: {})",
+            names.join(", ")
+        );
+        return Ok(wanted.to_string());
+    }
+    match names.as_slice() {
+        [one] => Ok(one.clone()),
+        [] => anyhow::bail!("{target} serves no model"),
+        _ => anyhow::bail!(
+            "{target} serves several models ({}); pass --model NAME",
+            names.join(", ")
+        ),
+    }
+}
+
+/// Connects to a remote side and picks the model to load.
+pub(super) async fn connect(target: &Target, load: &Load) -> anyhow::Result<Remote> {
+    match target.transport {
+        Transport::Grpc => {
+            let mut grpc = Vec::new();
+            for _ in 0..target.connections.max(1) {
+                let c = Client::connect(&target.url).await.map_err(|e| {
+                    anyhow::anyhow!(
+                        "cannot reach the gRPC server at {}: {e}. Is `dynaserve serve` running \
+                         there? (--target sets the URL, --spawn launches a server)",
+                        target.url
+                    )
+                })?;
+                grpc.push(c);
+            }
+            let models = grpc[0]
+                .list_models()
+                .await
+                .with_context(|| format!("ListModels on {}", target.url))?;
+            let model = pick_model(
+                models.into_iter().map(|m| m.name).collect(),
+                &load.model,
+                &target.url,
+            )?;
+            Ok(Remote {
+                grpc,
+                http: None,
+                model,
+            })
+        }
+        Transport::Http => {
+            let base = HttpBase::parse(&target.url).map_err(anyhow::Error::msg)?;
+            let url = format!("{}/v1/models", target.url.trim_end_matches('/'));
+            let text = http_get(&url).await.map_err(|e| {
+                anyhow::anyhow!(
+                    "cannot reach the HTTP server: {e}. Is `dynaserve serve` running there? \
+                     (--target sets the URL, --spawn launches a server)"
+                )
+            })?;
+            let models: json::ListModelsResponse =
+                serde_json::from_str(&text).with_context(|| format!("{url}: not a model list"))?;
+            let model = pick_model(
+                models.models.into_iter().map(|m| m.name).collect(),
+                &load.model,
+                &target.url,
+            )?;
+            Ok(Remote {
+                grpc: Vec::new(),
+                http: Some(base),
+                model,
+            })
+        }
+        Transport::Inprocess => anyhow::bail!("in-process targets have no connection"),
+    }
+}
