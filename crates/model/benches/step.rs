@@ -248,6 +248,55 @@ fn bench_steps_for(c: &mut Criterion, name: &str, config: ModelConfig) {
     }
 }
 
+/// Fused CPU kernels against the plain candle composition on the same scenes, interleaved in
+/// one process (A B A B ..., 15 steps each): prints both medians and their ratio.
+fn bench_fused_ab(c: &mut Criterion) {
+    let fused = RigidFormer::new(ModelConfig::small(), 1, &Device::Cpu).expect("model");
+    let plain = RigidFormer::new(ModelConfig::small(), 1, &Device::Cpu)
+        .expect("model")
+        .with_fused_kernels(false);
+    let mut group = c.benchmark_group("fused_ab");
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(3));
+    for case in ["batch_1", "batch_8", "batch_32", "wrecking_ball"] {
+        let mut cache: Option<Vec<(PreparedScene, SceneState)>> = None;
+        group.bench_function(case, |bench| {
+            let scenes = cache.get_or_insert_with(|| {
+                let scenes = match case {
+                    "wrecking_ball" => {
+                        let (objects, state) = wrecking_ball(128);
+                        vec![(fused.prepare(objects).expect("valid scene"), state)]
+                    }
+                    _ => {
+                        let b: usize = case[6..].parse().expect("batch size");
+                        prepared_batch(&fused, b, 10, 512, b as u64)
+                    }
+                };
+                let batch = items(&scenes);
+                let (mut a, mut b) = (Vec::new(), Vec::new());
+                for _ in 0..15 {
+                    for (model, times) in [(&fused, &mut a), (&plain, &mut b)] {
+                        let t0 = Instant::now();
+                        black_box(model.step(&batch).expect("step"));
+                        times.push(t0.elapsed());
+                    }
+                }
+                let (a, b) = (ms(median(a)), ms(median(b)));
+                println!(
+                    "fused_ab {case}: fused {a:.2} ms | composition {b:.2} ms | composition / fused {:.2}x",
+                    b / a
+                );
+                scenes
+            });
+            let batch = items(scenes);
+            bench.iter(|| black_box(fused.step(&batch).expect("step")))
+        });
+    }
+    group.finish();
+}
+
 fn bench_wrecking_ball(c: &mut Criterion) {
     for (name, config) in [
         ("small", ModelConfig::small()),
@@ -481,6 +530,7 @@ criterion_group!(
     bench_packing,
     bench_steps,
     bench_wrecking_ball,
+    bench_fused_ab,
     bench_training
 );
 fn main() {

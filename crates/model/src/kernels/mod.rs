@@ -2,4 +2,7 @@
 //! is tested against that composition (forward, and the gradient where training uses it).
 //! Other devices keep the plain composition.
 
+pub mod activation;
+pub mod attention;
 pub mod kabsch;
+pub mod simd;

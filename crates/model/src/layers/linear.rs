@@ -5,6 +5,7 @@ use candle_core::{D, Tensor};
 
 use super::ParamStore;
 use crate::ModelError;
+use crate::kernels::activation::{bias_silu, swiglu_product};
 
 /// `y = x W^T + b` over the last dimension of any-rank input.
 #[derive(Clone, Debug)]
@@ -27,6 +28,20 @@ impl Linear {
         let n = out.len();
         out[n - 1] = self.w.dim(0)?;
         y.reshape(out)
+    }
+
+    /// `silu(x W^T + b)`; with `fused`, the bias and SiLU run as one kernel (same gradient).
+    pub fn forward_silu(&self, x: &Tensor, fused: bool) -> candle_core::Result<Tensor> {
+        match (&self.b, fused) {
+            (Some(b), true) => {
+                let no_bias = Linear {
+                    w: self.w.clone(),
+                    b: None,
+                };
+                bias_silu(&no_bias.forward(x)?, b)
+            }
+            _ => self.forward(x)?.silu(),
+        }
     }
 }
 
@@ -51,8 +66,9 @@ impl Mlp {
         })
     }
 
-    pub fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
-        self.b.forward(&self.a.forward(x)?.silu()?)
+    /// `[.., in]` -> `[.., out]`; `fused` as in [`Linear::forward_silu`].
+    pub fn forward(&self, x: &Tensor, fused: bool) -> candle_core::Result<Tensor> {
+        self.b.forward(&self.a.forward_silu(x, fused)?)
     }
 }
 
@@ -78,10 +94,17 @@ impl SwiGlu {
         })
     }
 
-    pub fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+    /// `[.., dim]` -> `[.., dim]`; with `fused` the gate product is one kernel (same
+    /// gradient).
+    pub fn forward(&self, x: &Tensor, fused: bool) -> candle_core::Result<Tensor> {
         let u = self.up.forward(x)?;
-        let a = u.narrow(D::Minus1, 0, self.hidden)?;
-        let b = u.narrow(D::Minus1, self.hidden, self.hidden)?;
-        self.down.forward(&(a.silu()? * b)?)
+        let g = if fused {
+            swiglu_product(&u)?
+        } else {
+            let a = u.narrow(D::Minus1, 0, self.hidden)?;
+            let b = u.narrow(D::Minus1, self.hidden, self.hidden)?;
+            (a.silu()? * b)?
+        };
+        self.down.forward(&g)
     }
 }

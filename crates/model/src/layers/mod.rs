@@ -22,6 +22,24 @@ pub enum Mode {
     Training,
 }
 
+/// How one forward pass runs: the kernel [`Mode`] and whether the CPU's fused kernels
+/// ([`crate::kernels`]) may replace compositions (never on other devices).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Exec {
+    /// Inference or training kernels.
+    pub mode: Mode,
+    /// Fused CPU kernels allowed (those with a gradient in both modes, the others only in
+    /// inference).
+    pub fused: bool,
+}
+
+impl Exec {
+    /// True when the inference-only fused kernels (attention, `exp`) may run.
+    pub fn fused_inference(&self) -> bool {
+        self.fused && self.mode == Mode::Inference
+    }
+}
+
 /// Softmax over the last dimension.
 pub fn softmax_last(x: &Tensor, mode: Mode) -> candle_core::Result<Tensor> {
     match mode {

@@ -3,13 +3,17 @@
 //! rotary code, plus the object's final token) cross-attends to the decoder tokens of several
 //! depths; an MLP turns it into an acceleration.
 
+use std::sync::Arc;
+
 use candle_core::{DType, Device, Tensor};
 
 use super::attention::multi_head;
 use super::decoder::Decoded;
 use super::inputs::BatchInputs;
 use super::{host_index, host_tensor};
-use crate::layers::{Init, Linear, Mlp, Mode, ParamStore, RmsNorm};
+use crate::kernels::activation::exp_inference;
+use crate::kernels::attention::{CrossAttention, RotaryRows, cross_attention};
+use crate::layers::{Exec, Init, Linear, Mlp, ParamStore, RmsNorm};
 use crate::{ModelConfig, ModelError};
 
 /// The anchor head's layers (`anchors.*` parameters).
@@ -66,24 +70,51 @@ impl AnchorHead {
         inp: &BatchInputs,
         point_features: &Tensor,
         dec: &Decoded,
-        mode: Mode,
+        exec: Exec,
     ) -> Result<Tensor, ModelError> {
-        let c = config;
-        let a = self;
+        let (o, k) = (inp.o, config.anchors);
+        let query = self.queries(config, inp, point_features, dec, exec)?; // [O, K, D]
+        let kv = self.keys_values(dec, exec)?; // [B, nT*T, 2D]
+        let acc = if exec.fused_inference() {
+            self.cross_fused(config, inp, dec, &query, &kv, exec)?
+        } else {
+            self.cross_composed(config, inp, dec, &query, &kv, exec)?
+        };
+        let acc = acc.reshape((o, k, 3))?;
+        // Head units (accel_scale per frame^2 or per step^2) to metres per step^2.
+        let factor: Vec<f32> = inp
+            .object_dt
+            .iter()
+            .map(|&dt| config.accel_scale * config.dynamics.output_factor(dt))
+            .collect();
+        Ok(acc.broadcast_mul(&host_tensor(&self.device, &factor, &[o, 1, 1])?)?)
+    }
+
+    /// Anchor queries `[O, K, D]`: own point feature, offset, AVP pooling and rotary features
+    /// through `query_in`, plus the object's final token.
+    fn queries(
+        &self,
+        c: &ModelConfig,
+        inp: &BatchInputs,
+        point_features: &Tensor,
+        dec: &Decoded,
+        exec: Exec,
+    ) -> Result<Tensor, ModelError> {
         let device = &self.device;
         let (b, m, o, n, k, d) = (inp.b, inp.mmax, inp.o, inp.nmax, c.anchors, c.width);
         let (c1, p) = (c.point_dim, c.rope_dim / 2);
         let t = m + c.registers;
-        let (last, taps) = (&dec.last, &dec.taps);
         // Anchor-vertex pooling with a learned bandwidth: w = exp(-d^2 / sigma^2), normalised.
         let d2 = host_tensor(device, &inp.avp_d2, &[o, k, n])?;
         let pmask = host_tensor(device, &inp.point_mask, &[o, 1, n])?;
-        let inv_s2 = (a.log_sigma.clone() * -2.0)?.exp()?; // [1]
-        let w = d2
-            .broadcast_mul(&inv_s2)?
-            .neg()?
-            .exp()?
-            .broadcast_mul(&pmask)?; // [O, K, N]
+        let inv_s2 = (self.log_sigma.clone() * -2.0)?.exp()?; // [1]
+        let arg = d2.broadcast_mul(&inv_s2)?.neg()?;
+        let w = if exec.fused_inference() {
+            exp_inference(&arg)?
+        } else {
+            arg.exp()?
+        };
+        let w = w.broadcast_mul(&pmask)?; // [O, K, N]
         let hp = point_features.reshape((o, n, c1))?;
         let num = w.matmul(&hp)?; // [O, K, C1]
         let den = w.sum_keepdim(2)?; // >= 1: the anchor itself has weight 1
@@ -94,7 +125,7 @@ impl AnchorHead {
         let rel = host_tensor(device, &inp.anchor_rel, &[o, k, 3])?;
         let rope_feat = host_tensor(device, &inp.anchor_rope, &[o, k, 2 * p])?;
         let q_in = Tensor::cat(&[own, rel, avp, rope_feat], 2)?;
-        let mut query = a.query_in.forward(&q_in)?; // [O, K, D]
+        let query = self.query_in.forward(&q_in)?; // [O, K, D]
         // The anchor's own object token (final depth), an equivariant direct path.
         let mut rows = Vec::with_capacity(o);
         for s in 0..b {
@@ -102,12 +133,99 @@ impl AnchorHead {
                 rows.push((s * t + j) as u32);
             }
         }
-        let own_tok = last
+        let own_tok = dec
+            .last
             .reshape((b * t, d))?
             .index_select(&host_index(device, &rows)?, 0)?;
-        let own_tok = a.own_token.forward(&a.own_norm.forward(&own_tok, mode)?)?;
-        query = query.broadcast_add(&own_tok.unsqueeze(1)?)?;
-        // Lay the anchor queries out per scene: [B, M*K, D] (zero rows for padding).
+        let own_tok = self
+            .own_token
+            .forward(&self.own_norm.forward(&own_tok, exec.mode)?)?;
+        Ok(query.broadcast_add(&own_tok.unsqueeze(1)?)?)
+    }
+
+    /// Keys and values `[B, nT*T, 2D]`: the tapped depths, each normalised, plus a depth
+    /// embedding, through `cross.kv`.
+    fn keys_values(&self, dec: &Decoded, exec: Exec) -> Result<Tensor, ModelError> {
+        let mut kv_in = Vec::with_capacity(dec.taps.len());
+        for (i, x) in dec.taps.iter().enumerate() {
+            let e = self.depth_embedding.narrow(0, i, 1)?.unsqueeze(0)?;
+            kv_in.push(self.tap_norms[i].forward(x, exec.mode)?.broadcast_add(&e)?);
+        }
+        Ok(self.kv.forward(&Tensor::cat(&kv_in, 1)?)?)
+    }
+
+    /// Cross-attention and acceleration MLP with the fused kernel: queries stay packed
+    /// `[O * K, D]`, each attending to its own scene's keys. Returns `[O * K, 3]`.
+    fn cross_fused(
+        &self,
+        c: &ModelConfig,
+        inp: &BatchInputs,
+        dec: &Decoded,
+        query: &Tensor,
+        kv: &Tensor,
+        exec: Exec,
+    ) -> Result<Tensor, ModelError> {
+        let (b, o, k, d) = (inp.b, inp.o, c.anchors, c.width);
+        let p = c.rope_dim / 2;
+        let nt = dec.taps.len();
+        let t = dec.key_bias.len() / b.max(1);
+        let mut query_scene = Vec::with_capacity(o * k);
+        for s in 0..b {
+            let objects = inp.scene_offsets[s + 1] - inp.scene_offsets[s];
+            query_scene.extend(std::iter::repeat_n(s as u32, objects * k));
+        }
+        // The same key mask and rotary code for every tapped depth.
+        let mut key_bias = Vec::with_capacity(b * nt * t);
+        let mut k_rope = RotaryRows {
+            cos: Vec::with_capacity(b * nt * t * p),
+            sin: Vec::with_capacity(b * nt * t * p),
+            pairs: p,
+        };
+        for s in 0..b {
+            for _ in 0..nt {
+                key_bias.extend_from_slice(&dec.key_bias[s * t..(s + 1) * t]);
+                let rows = s * t * p..(s + 1) * t * p;
+                k_rope
+                    .cos
+                    .extend_from_slice(&dec.rope_rows.cos[rows.clone()]);
+                k_rope.sin.extend_from_slice(&dec.rope_rows.sin[rows]);
+            }
+        }
+        let op = CrossAttention {
+            heads: c.heads,
+            query_scene: Arc::new(query_scene),
+            key_bias: Arc::new(key_bias),
+            q_rope: Arc::new(RotaryRows {
+                cos: inp.anchor_cos.clone(),
+                sin: inp.anchor_sin.clone(),
+                pairs: p,
+            }),
+            k_rope: Arc::new(k_rope),
+        };
+        let query = query.reshape((o * k, d))?;
+        let qx = self.q.forward(&self.q_norm.forward(&query, exec.mode)?)?;
+        let att = cross_attention(op, &qx, kv)?;
+        let y = (query + self.out.forward(&att)?)?;
+        Ok(self
+            .head
+            .forward(&self.head_norm.forward(&y, exec.mode)?, exec.fused)?)
+    }
+
+    /// Cross-attention and acceleration MLP as a composition of candle ops: queries laid out
+    /// per scene `[B, M*K, D]` (zero rows for padding) and gathered back. Returns `[O * K, 3]`.
+    fn cross_composed(
+        &self,
+        c: &ModelConfig,
+        inp: &BatchInputs,
+        dec: &Decoded,
+        query: &Tensor,
+        kv: &Tensor,
+        exec: Exec,
+    ) -> Result<Tensor, ModelError> {
+        let device = &self.device;
+        let mode = exec.mode;
+        let (b, m, o, k, d) = (inp.b, inp.mmax, inp.o, c.anchors, c.width);
+        let p = c.rope_dim / 2;
         let mut gather = vec![(o * k) as u32; b * m * k];
         let mut qcos = vec![1f32; b * m * k * p];
         let mut qsin = vec![0f32; b * m * k * p];
@@ -135,21 +253,13 @@ impl AnchorHead {
         .reshape((b, m * k, d))?;
         let qcos = host_tensor(device, &qcos, &[b, 1, m * k, p])?;
         let qsin = host_tensor(device, &qsin, &[b, 1, m * k, p])?;
-        // Keys/values: tokens from several depths, each normalised, plus a depth embedding.
-        let mut kv_in = Vec::with_capacity(taps.len());
-        for (i, x) in taps.iter().enumerate() {
-            let e = a.depth_embedding.narrow(0, i, 1)?.unsqueeze(0)?;
-            kv_in.push(a.tap_norms[i].forward(x, mode)?.broadcast_add(&e)?);
-        }
-        let kv_in = Tensor::cat(&kv_in, 1)?; // [B, nT*T, D]
-        let nt = taps.len();
+        let nt = dec.taps.len();
         let kmask = Tensor::cat(&vec![dec.mask.clone(); nt], 3)?;
         let kcos = Tensor::cat(&vec![dec.rope.0.clone(); nt], 2)?;
         let ksin = Tensor::cat(&vec![dec.rope.1.clone(); nt], 2)?;
-        let kv = a.kv.forward(&kv_in)?;
         let kx = kv.narrow(2, 0, d)?;
         let vx = kv.narrow(2, d, d)?;
-        let qx = a.q.forward(&a.q_norm.forward(&query, mode)?)?;
+        let qx = self.q.forward(&self.q_norm.forward(&query, mode)?)?;
         let att = multi_head(
             &qx,
             &kx,
@@ -161,19 +271,13 @@ impl AnchorHead {
             mode,
         )?;
         let att = att.transpose(1, 2)?.reshape((b, m * k, d))?;
-        let y = (query + a.out.forward(&att)?)?;
+        let y = (query + self.out.forward(&att)?)?;
         // The acceleration MLP (D -> D -> 3, SiLU).
-        let acc = a.head.forward(&a.head_norm.forward(&y, mode)?)?; // [B, M*K, 3]
-        let acc = acc
+        let acc = self
+            .head
+            .forward(&self.head_norm.forward(&y, mode)?, exec.fused)?; // [B, M*K, 3]
+        Ok(acc
             .reshape((b * m * k, 3))?
-            .index_select(&host_index(device, &back)?, 0)?
-            .reshape((o, k, 3))?;
-        // Head units (accel_scale per frame^2 or per step^2) to metres per step^2.
-        let factor: Vec<f32> = inp
-            .object_dt
-            .iter()
-            .map(|&dt| c.accel_scale * c.dynamics.output_factor(dt))
-            .collect();
-        Ok(acc.broadcast_mul(&host_tensor(device, &factor, &[o, 1, 1])?)?)
+            .index_select(&host_index(device, &back)?, 0)?)
     }
 }

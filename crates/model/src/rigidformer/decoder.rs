@@ -2,33 +2,41 @@
 //! `[B, T = M + R, D]` with a key mask for padded slots, through pre-norm blocks (RMSNorm,
 //! gated multi-head self-attention with ARoPE, FiLM on `tau = log2(dt_steps)`, SwiGLU).
 
+use std::sync::Arc;
+
 use candle_core::{DType, Device, Tensor};
 
 use super::attention::multi_head;
 use super::host_tensor;
 use super::inputs::BatchInputs;
-use crate::layers::{Init, Linear, Mode, ParamStore, RmsNorm, SwiGlu};
+use crate::kernels::attention::{RotaryRows, SelfAttention, self_attention};
+use crate::layers::{Exec, Init, Linear, ParamStore, RmsNorm, SwiGlu};
 use crate::{ModelConfig, ModelError};
 
 /// Additive attention bias of a padded key.
 pub(crate) const MASKED: f32 = -1.0e9;
 
 /// Decoder output: final tokens `[B, T, D]`, the tapped depths (each `[B, T, D]`), the key
-/// mask `[B, 1, 1, T]` and the token rotary code `(cos, sin)`, each `[B, 1, T, P]`.
+/// mask `[B, 1, 1, T]` and the token rotary code `(cos, sin)`, each `[B, 1, T, P]`, with the
+/// same mask and code as host rows (`[B, T]` and `[B * T, P]`) for the fused kernels.
 pub(crate) struct Decoded {
     pub last: Tensor,
     pub taps: Vec<Tensor>,
     pub mask: Tensor,
     pub rope: (Tensor, Tensor),
+    pub key_bias: Arc<Vec<f32>>,
+    pub rope_rows: Arc<RotaryRows>,
 }
 
-/// What every block of one pass shares: key mask `[B, 1, 1, T]`, rotary code `[B, 1, T, P]`
-/// and `tau = log2(dt_steps)` `[B, 1]`.
+/// What every block of one pass shares: key mask `[B, 1, 1, T]`, rotary code `[B, 1, T, P]`,
+/// `tau = log2(dt_steps)` `[B, 1]`, and mask and code as host rows.
 struct PassContext {
     mask: Tensor,
     cos: Tensor,
     sin: Tensor,
     tau: Tensor,
+    key_bias: Arc<Vec<f32>>,
+    rope_rows: Arc<RotaryRows>,
 }
 
 /// One pre-norm block (`decoder.blocks.{l}.*`).
@@ -63,22 +71,20 @@ impl Block {
     }
 
     /// `[B, T, D]` -> `[B, T, D]`.
-    fn forward(&self, x: &Tensor, ctx: &PassContext, mode: Mode) -> candle_core::Result<Tensor> {
-        let (b, t, d) = x.dims3()?;
+    fn forward(&self, x: &Tensor, ctx: &PassContext, exec: Exec) -> candle_core::Result<Tensor> {
+        let (mode, d) = (exec.mode, x.dim(2)?);
         let xn = self.norm1.forward(x, mode)?;
         let qkv = self.qkv.forward(&xn)?;
-        let q = qkv.narrow(2, 0, d)?;
-        let k = qkv.narrow(2, d, d)?;
-        let v = qkv.narrow(2, 2 * d, d)?;
-        let rope = Some((&ctx.cos, &ctx.sin));
-        let o = multi_head(&q, &k, &v, &ctx.mask, rope, rope, self.heads, mode)?;
-        // Per-head sigmoid gate from the block input.
-        let gate = candle_nn::ops::sigmoid(&self.gate.forward(&xn)?)?; // [B, T, H]
-        let gate = gate.transpose(1, 2)?.unsqueeze(3)?; // [B, H, T, 1]
-        let o = o
-            .broadcast_mul(&gate)?
-            .transpose(1, 2)?
-            .reshape((b, t, d))?;
+        let o = if exec.fused_inference() {
+            let op = SelfAttention {
+                heads: self.heads,
+                key_bias: ctx.key_bias.clone(),
+                rope: ctx.rope_rows.clone(),
+            };
+            self_attention(op, &qkv, &self.gate.forward(&xn)?)?
+        } else {
+            self.gated_attention(&xn, &qkv, ctx, exec)?
+        };
         let x = (x + self.out.forward(&o)?)?;
         // FiLM on tau = log2(dt_steps): gamma = 1 + .., beta.
         let fb = self
@@ -87,7 +93,30 @@ impl Block {
         let gamma = (fb.narrow(1, 0, d)? + 1.0)?.unsqueeze(1)?;
         let beta = fb.narrow(1, d, d)?.unsqueeze(1)?;
         let x = x.broadcast_mul(&gamma)?.broadcast_add(&beta)?;
-        &x + self.ffn.forward(&self.norm2.forward(&x, mode)?)?
+        &x + self
+            .ffn
+            .forward(&self.norm2.forward(&x, mode)?, exec.fused)?
+    }
+
+    /// The attention composition: `xn [B, T, D]` (normalised input), `qkv [B, T, 3D]` ->
+    /// gated heads side by side `[B, T, D]`.
+    fn gated_attention(
+        &self,
+        xn: &Tensor,
+        qkv: &Tensor,
+        ctx: &PassContext,
+        exec: Exec,
+    ) -> candle_core::Result<Tensor> {
+        let (b, t, d) = xn.dims3()?;
+        let q = qkv.narrow(2, 0, d)?;
+        let k = qkv.narrow(2, d, d)?;
+        let v = qkv.narrow(2, 2 * d, d)?;
+        let rope = Some((&ctx.cos, &ctx.sin));
+        let o = multi_head(&q, &k, &v, &ctx.mask, rope, rope, self.heads, exec.mode)?;
+        // Per-head sigmoid gate from the block input.
+        let gate = candle_nn::ops::sigmoid(&self.gate.forward(xn)?)?; // [B, T, H]
+        let gate = gate.transpose(1, 2)?.unsqueeze(3)?; // [B, H, T, 1]
+        o.broadcast_mul(&gate)?.transpose(1, 2)?.reshape((b, t, d))
     }
 }
 
@@ -123,7 +152,7 @@ impl Decoder {
         &self,
         inp: &BatchInputs,
         tokens: &Tensor,
-        mode: Mode,
+        exec: Exec,
         device: &Device,
     ) -> Result<Decoded, ModelError> {
         let (r, d) = self.registers.dims2()?;
@@ -165,10 +194,12 @@ impl Decoder {
             cos: host_tensor(device, &cos, &[b, 1, t, p])?,
             sin: host_tensor(device, &sin, &[b, 1, t, p])?,
             tau: host_tensor(device, &inp.tau, &[b, 1])?,
+            key_bias: Arc::new(mask),
+            rope_rows: Arc::new(RotaryRows { cos, sin, pairs: p }),
         };
         let mut taps = Vec::with_capacity(self.taps.len());
         for (l, blk) in self.blocks.iter().enumerate() {
-            x = blk.forward(&x, &ctx, mode)?;
+            x = blk.forward(&x, &ctx, exec)?;
             for _ in self.taps.iter().filter(|&&tap| tap == l) {
                 taps.push(x.clone());
             }
@@ -178,6 +209,8 @@ impl Decoder {
             taps,
             mask: ctx.mask,
             rope: (ctx.cos, ctx.sin),
+            key_bias: ctx.key_bias,
+            rope_rows: ctx.rope_rows,
         })
     }
 }

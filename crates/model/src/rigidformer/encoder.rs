@@ -7,7 +7,8 @@ use candle_core::{Device, Tensor};
 use super::inputs::BatchInputs;
 use super::{host_index, host_tensor};
 use crate::config::POINT_FEATURES;
-use crate::layers::{Linear, Mlp, ParamStore};
+use crate::kernels::activation::silu_inference;
+use crate::layers::{Exec, Linear, Mlp, ParamStore};
 use crate::{ModelConfig, ModelError};
 
 /// The encoder's layers (`encoder.*` parameters).
@@ -43,22 +44,33 @@ impl Encoder {
         &self,
         inp: &BatchInputs,
         device: &Device,
+        exec: Exec,
     ) -> Result<(Tensor, Tensor), ModelError> {
+        let fused = exec.fused;
         let (o, n, s, g) = (inp.o, inp.nmax, self.sa_centres, self.sa_neighbours);
         let feats = host_tensor(device, &inp.feats, &[o * n, POINT_FEATURES])?;
-        let h = self.point.forward(&feats)?; // [O*N, C1]
+        let h = self.point.forward(&feats, fused)?; // [O*N, C1]
         let grouped = h.index_select(&host_index(device, &inp.group_idx)?, 0)?; // [O*S*G, C1]
         let rel = host_tensor(device, &inp.group_rel, &[o * s * g, 3])?;
         let x = Tensor::cat(&[rel, grouped], 1)?;
         let x = self
             .sa1
-            .forward(&x)?
+            .forward(&x, fused)?
             .reshape((o * s, g, self.sa_dim))?
             .max(1)?; // [O*S, C2]
         let crel = host_tensor(device, &inp.centre_rel, &[o * s, 3])?;
         let x = Tensor::cat(&[crel, x], 1)?;
-        let x = self.sa2.forward(&x)?.reshape((o, s, self.width))?.max(1)?; // [O, D]
-        let tokens = self.token.forward(&x.silu()?)?;
+        let x = self
+            .sa2
+            .forward(&x, fused)?
+            .reshape((o, s, self.width))?
+            .max(1)?; // [O, D]
+        let x = if exec.fused_inference() {
+            silu_inference(&x)?
+        } else {
+            x.silu()?
+        };
+        let tokens = self.token.forward(&x)?;
         Ok((h, tokens))
     }
 }

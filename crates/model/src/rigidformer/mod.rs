@@ -31,7 +31,7 @@ use self::decoder::Decoder;
 use self::encoder::Encoder;
 use self::inputs::{BatchInputs, SceneRequest, build_inputs};
 use crate::api::{Pose, StepItem, WorldModel};
-use crate::layers::{Mode, ParamStore};
+use crate::layers::{Exec, Mode, ParamStore};
 use crate::prepare::{PreparedScene, prepare_scene, validate_state};
 use crate::{ModelConfig, ModelError, ObjectInput};
 
@@ -75,6 +75,7 @@ pub struct RigidFormer {
     decoder: Decoder,
     anchors: AnchorHead,
     max_pass_objects: usize,
+    fused_kernels: bool,
 }
 
 /// A host buffer as an f32 tensor of `shape` on `device`.
@@ -120,6 +121,7 @@ impl RigidFormer {
             decoder,
             anchors,
             max_pass_objects: DEFAULT_MAX_PASS_OBJECTS,
+            fused_kernels: true,
         })
     }
 
@@ -127,6 +129,14 @@ impl RigidFormer {
     /// Results do not depend on it.
     pub fn with_max_pass_objects(mut self, objects: usize) -> RigidFormer {
         self.max_pass_objects = objects.max(1);
+        self
+    }
+
+    /// Allows (the default) or forbids the fused CPU kernels of [`crate::kernels`]; without
+    /// them every layer runs as a composition of candle ops, as on other devices. Results agree
+    /// within float rounding; this exists to compare the two.
+    pub fn with_fused_kernels(mut self, fused: bool) -> RigidFormer {
+        self.fused_kernels = fused;
         self
     }
 
@@ -168,14 +178,18 @@ impl RigidFormer {
         mode: Mode,
         profile: Option<&mut StepProfile>,
     ) -> Result<Tensor, ModelError> {
+        let exec = Exec {
+            mode,
+            fused: self.fused_kernels && self.device.is_cpu(),
+        };
         let t0 = Instant::now();
-        let (h, tokens) = self.encoder.forward(inp, &self.device)?;
+        let (h, tokens) = self.encoder.forward(inp, &self.device, exec)?;
         let t1 = Instant::now();
-        let decoded = self.decoder.forward(inp, &tokens, mode, &self.device)?;
+        let decoded = self.decoder.forward(inp, &tokens, exec, &self.device)?;
         let t2 = Instant::now();
         let acc = self
             .anchors
-            .forward(&self.config, inp, &h, &decoded, mode)?;
+            .forward(&self.config, inp, &h, &decoded, exec)?;
         if let Some(p) = profile {
             p.encoder += t1 - t0;
             p.decoder += t2 - t1;

@@ -1,0 +1,535 @@
+//! Fused multi-head attention for short sequences (a few dozen to a few hundred keys), for
+//! inference on the CPU: per query row and head, the rotary code, the scores against every
+//! key of its scene, the masked softmax, the weighted values and (self-attention) the
+//! per-head sigmoid gate run in one pass, with no `[B, H, Tq, Tk]` tensor, no head transposes
+//! and no padded query slots. Keys of a scene are rotated and transposed once (`[H, dh, Tk]`).
+//! Query rows are split over rayon's pool in chunks when the pass is large.
+//!
+//! Rotary codes rotate channel pairs `(2i, 2i + 1)`, `i < P`, of every head by the row's
+//! `(cos_i, sin_i)`, as [`crate::layers::rotate_pairs`] does.
+
+use std::sync::Arc;
+
+use candle_core::{CpuStorage, CustomOp2, Layout, Shape, Tensor};
+use rayon::prelude::*;
+
+use super::activation::f32_slice;
+use super::simd::{axpy, exp_slice};
+
+/// Rows of rotary cosines and sines, each `[rows, P]`.
+#[derive(Clone, Debug, Default)]
+pub struct RotaryRows {
+    /// Cosines `[rows, P]`.
+    pub cos: Vec<f32>,
+    /// Sines `[rows, P]`.
+    pub sin: Vec<f32>,
+    /// Rotated channel pairs per head (`P`).
+    pub pairs: usize,
+}
+
+impl RotaryRows {
+    fn row(&self, r: usize) -> (&[f32], &[f32]) {
+        let p = self.pairs;
+        (&self.cos[r * p..(r + 1) * p], &self.sin[r * p..(r + 1) * p])
+    }
+}
+
+/// Self-attention of a padded pass: `qkv [B, T, 3D]` (queries, keys, values) and gate logits
+/// `[B, T, H]` -> `sigmoid(gate) * attention` `[B, T, D]`, heads side by side.
+#[derive(Clone, Debug)]
+pub struct SelfAttention {
+    /// Heads (`D / H` channels each).
+    pub heads: usize,
+    /// Additive bias per key `[B, T]` (0, or a large negative value for a padded slot).
+    pub key_bias: Arc<Vec<f32>>,
+    /// Rotary code of every token `[B * T, P]` (applied to queries and keys).
+    pub rope: Arc<RotaryRows>,
+}
+
+/// Cross-attention of ragged query rows: `q [Nq, D]`, row `r` belonging to scene
+/// `query_scene[r]`, over `kv [B, Tk, 2D]` (keys then values) -> `[Nq, D]`.
+#[derive(Clone, Debug)]
+pub struct CrossAttention {
+    /// Heads (`D / H` channels each).
+    pub heads: usize,
+    /// Scene of each query row `[Nq]`.
+    pub query_scene: Arc<Vec<u32>>,
+    /// Additive bias per key `[B, Tk]`.
+    pub key_bias: Arc<Vec<f32>>,
+    /// Rotary code of every query row `[Nq, P]`.
+    pub q_rope: Arc<RotaryRows>,
+    /// Rotary code of every key `[B * Tk, P]`.
+    pub k_rope: Arc<RotaryRows>,
+}
+
+/// One scene's keys, rotated and transposed `[H, dh, Tk]`, and values `[H, Tk, dh]`.
+struct SceneKeys {
+    kt: Vec<f32>,
+    v: Vec<f32>,
+}
+
+/// Where the keys and values of scene `s` are: row `j` of its keys starts at
+/// `data[(s * tk + j) * stride + k_off]`, values at `.. + v_off`.
+#[derive(Clone, Copy)]
+struct KeySource<'a> {
+    data: &'a [f32],
+    stride: usize,
+    k_off: usize,
+    v_off: usize,
+    tk: usize,
+}
+
+fn rotate(x: &mut [f32], cos: &[f32], sin: &[f32]) {
+    for (i, (c, s)) in cos.iter().zip(sin).enumerate() {
+        let (e, o) = (x[2 * i], x[2 * i + 1]);
+        x[2 * i] = e * c - o * s;
+        x[2 * i + 1] = e * s + o * c;
+    }
+}
+
+fn scene_keys(
+    src: KeySource<'_>,
+    s: usize,
+    heads: usize,
+    dh: usize,
+    rope: &RotaryRows,
+) -> SceneKeys {
+    let tk = src.tk;
+    let mut kt = vec![0f32; heads * dh * tk];
+    let mut v = vec![0f32; heads * tk * dh];
+    let mut buf = vec![0f32; dh];
+    for j in 0..tk {
+        let row = (s * tk + j) * src.stride;
+        let (cos, sin) = rope.row(s * tk + j);
+        for h in 0..heads {
+            buf.copy_from_slice(&src.data[row + src.k_off + h * dh..][..dh]);
+            rotate(&mut buf, cos, sin);
+            for (d, x) in buf.iter().enumerate() {
+                kt[(h * dh + d) * tk + j] = *x;
+            }
+            v[(h * tk + j) * dh..][..dh]
+                .copy_from_slice(&src.data[row + src.v_off + h * dh..][..dh]);
+        }
+    }
+    SceneKeys { kt, v }
+}
+
+/// What one query row needs besides the keys.
+struct QueryRow<'a> {
+    q: &'a [f32],
+    cos: &'a [f32],
+    sin: &'a [f32],
+    bias: &'a [f32],
+    gate: Option<&'a [f32]>,
+}
+
+#[inline(always)]
+fn attend_row_body(
+    row: &QueryRow<'_>,
+    keys: &SceneKeys,
+    heads: usize,
+    out: &mut [f32],
+    scores: &mut Vec<f32>,
+) {
+    let dh = out.len() / heads;
+    let tk = row.bias.len();
+    let scale = 1.0 / (dh as f32).sqrt();
+    let mut q = [0f32; 256];
+    let q = &mut q[..dh];
+    for h in 0..heads {
+        q.copy_from_slice(&row.q[h * dh..(h + 1) * dh]);
+        rotate(q, row.cos, row.sin);
+        scores.clear();
+        scores.extend_from_slice(row.bias);
+        let kt = &keys.kt[h * dh * tk..(h + 1) * dh * tk];
+        for (d, &qd) in q.iter().enumerate() {
+            axpy(scores, qd * scale, &kt[d * tk..(d + 1) * tk]);
+        }
+        let max = scores.iter().fold(f32::NEG_INFINITY, |m, &x| m.max(x));
+        scores.iter_mut().for_each(|x| *x -= max);
+        exp_slice(scores);
+        let sum: f32 = scores.iter().sum();
+        let o = &mut out[h * dh..(h + 1) * dh];
+        o.fill(0.0);
+        let v = &keys.v[h * tk * dh..(h + 1) * tk * dh];
+        for (j, &p) in scores.iter().enumerate() {
+            axpy(o, p, &v[j * dh..(j + 1) * dh]);
+        }
+        let mut w = 1.0 / sum;
+        if let Some(g) = row.gate {
+            w /= 1.0 + (-g[h]).exp();
+        }
+        o.iter_mut().for_each(|x| *x *= w);
+    }
+}
+
+fn attend_row(
+    row: &QueryRow<'_>,
+    keys: &SceneKeys,
+    heads: usize,
+    out: &mut [f32],
+    scores: &mut Vec<f32>,
+) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx512f")]
+        unsafe fn avx512(
+            row: &QueryRow<'_>,
+            keys: &SceneKeys,
+            heads: usize,
+            out: &mut [f32],
+            scores: &mut Vec<f32>,
+        ) {
+            attend_row_body(row, keys, heads, out, scores)
+        }
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn avx2(
+            row: &QueryRow<'_>,
+            keys: &SceneKeys,
+            heads: usize,
+            out: &mut [f32],
+            scores: &mut Vec<f32>,
+        ) {
+            attend_row_body(row, keys, heads, out, scores)
+        }
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: the CPU supports AVX-512F (checked just above).
+            return unsafe { avx512(row, keys, heads, out, scores) };
+        }
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            // SAFETY: the CPU supports AVX2 and FMA (checked just above).
+            return unsafe { avx2(row, keys, heads, out, scores) };
+        }
+    }
+    attend_row_body(row, keys, heads, out, scores)
+}
+
+/// Query rows per rayon task: enough multiply-adds (about 256 k) to pay for a task.
+fn rows_per_task(tk: usize, d: usize) -> usize {
+    (262_144 / (2 * tk * d).max(1)).max(1)
+}
+
+/// Runs `nq` query rows: row `r` reads its query through `query(r)` and writes `[D]` outputs.
+fn run_rows<'a>(
+    nq: usize,
+    d: usize,
+    heads: usize,
+    keys: &[SceneKeys],
+    tk: usize,
+    query: impl Fn(usize) -> (usize, QueryRow<'a>) + Sync,
+) -> Vec<f32> {
+    let mut out = vec![0f32; nq * d];
+    let chunk = rows_per_task(tk, d);
+    let work = |(c, block): (usize, &mut [f32])| {
+        let mut scores = Vec::with_capacity(tk);
+        for (i, o) in block.chunks_exact_mut(d).enumerate() {
+            let (s, row) = query(c * chunk + i);
+            attend_row(&row, &keys[s], heads, o, &mut scores);
+        }
+    };
+    if nq > chunk && rayon::current_num_threads() > 1 {
+        out.par_chunks_mut(chunk * d).enumerate().for_each(work);
+    } else {
+        out.chunks_mut(chunk * d).enumerate().for_each(work);
+    }
+    out
+}
+
+fn check_heads(op: &str, d: usize, heads: usize, pairs: usize) -> candle_core::Result<usize> {
+    if heads == 0 || !d.is_multiple_of(heads) || d / heads > 256 || 2 * pairs > d / heads {
+        candle_core::bail!(
+            "{op}: width {d} does not split into {heads} heads with {pairs} rotary pairs"
+        );
+    }
+    Ok(d / heads)
+}
+
+impl CustomOp2 for SelfAttention {
+    fn name(&self) -> &'static str {
+        "fused-self-attention"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
+        let qkv = f32_slice(self.name(), s1, l1)?;
+        let gate = f32_slice(self.name(), s2, l2)?;
+        let (b, t, d3) = l1.shape().dims3()?;
+        let d = d3 / 3;
+        let h = self.heads;
+        let dh = check_heads(self.name(), d, h, self.rope.pairs)?;
+        if l2.shape().dims3()? != (b, t, h)
+            || self.key_bias.len() != b * t
+            || self.rope.cos.len() != b * t * self.rope.pairs
+        {
+            candle_core::bail!(
+                "{}: qkv {:?}, gate {:?} and the held codes disagree",
+                self.name(),
+                l1.shape(),
+                l2.shape()
+            );
+        }
+        let src = KeySource {
+            data: qkv,
+            stride: d3,
+            k_off: d,
+            v_off: 2 * d,
+            tk: t,
+        };
+        let keys: Vec<SceneKeys> = (0..b)
+            .into_par_iter()
+            .map(|s| scene_keys(src, s, h, dh, &self.rope))
+            .collect();
+        let out = run_rows(b * t, d, h, &keys, t, |r| {
+            let s = r / t;
+            let (cos, sin) = self.rope.row(r);
+            (
+                s,
+                QueryRow {
+                    q: &qkv[r * d3..r * d3 + d],
+                    cos,
+                    sin,
+                    bias: &self.key_bias[s * t..(s + 1) * t],
+                    gate: Some(&gate[r * h..(r + 1) * h]),
+                },
+            )
+        });
+        Ok((CpuStorage::F32(out), Shape::from((b, t, d))))
+    }
+}
+
+impl CustomOp2 for CrossAttention {
+    fn name(&self) -> &'static str {
+        "fused-cross-attention"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
+        let q = f32_slice(self.name(), s1, l1)?;
+        let kv = f32_slice(self.name(), s2, l2)?;
+        let (nq, d) = l1.shape().dims2()?;
+        let (b, tk, d2) = l2.shape().dims3()?;
+        let h = self.heads;
+        let dh = check_heads(self.name(), d, h, self.q_rope.pairs)?;
+        if d2 != 2 * d
+            || self.query_scene.len() != nq
+            || self.query_scene.iter().any(|&s| s as usize >= b)
+            || self.key_bias.len() != b * tk
+            || self.q_rope.cos.len() != nq * self.q_rope.pairs
+            || self.k_rope.cos.len() != b * tk * self.k_rope.pairs
+            || self.k_rope.pairs != self.q_rope.pairs
+        {
+            candle_core::bail!(
+                "{}: q {:?}, kv {:?} and the held codes disagree",
+                self.name(),
+                l1.shape(),
+                l2.shape()
+            );
+        }
+        let src = KeySource {
+            data: kv,
+            stride: d2,
+            k_off: 0,
+            v_off: d,
+            tk,
+        };
+        let keys: Vec<SceneKeys> = (0..b)
+            .into_par_iter()
+            .map(|s| scene_keys(src, s, h, dh, &self.k_rope))
+            .collect();
+        let out = run_rows(nq, d, h, &keys, tk, |r| {
+            let s = self.query_scene[r] as usize;
+            let (cos, sin) = self.q_rope.row(r);
+            (
+                s,
+                QueryRow {
+                    q: &q[r * d..(r + 1) * d],
+                    cos,
+                    sin,
+                    bias: &self.key_bias[s * tk..(s + 1) * tk],
+                    gate: None,
+                },
+            )
+        });
+        Ok((CpuStorage::F32(out), Shape::from((nq, d))))
+    }
+}
+
+/// Applies [`SelfAttention`] (CPU tensors only): `qkv [B, T, 3D]`, `gate [B, T, H]` ->
+/// `[B, T, D]`. No gradient: for inference.
+pub fn self_attention(
+    op: SelfAttention,
+    qkv: &Tensor,
+    gate: &Tensor,
+) -> candle_core::Result<Tensor> {
+    qkv.contiguous()?.apply_op2_no_bwd(&gate.contiguous()?, &op)
+}
+
+/// Applies [`CrossAttention`] (CPU tensors only): `q [Nq, D]`, `kv [B, Tk, 2D]` -> `[Nq, D]`.
+/// No gradient: for inference.
+pub fn cross_attention(op: CrossAttention, q: &Tensor, kv: &Tensor) -> candle_core::Result<Tensor> {
+    q.contiguous()?.apply_op2_no_bwd(&kv.contiguous()?, &op)
+}
+
+#[cfg(test)]
+mod tests {
+    use candle_core::{Device, Tensor};
+
+    use super::*;
+    use crate::layers::Mode;
+    use crate::rigidformer::attention::multi_head;
+
+    fn random(n: usize, seed: u64, scale: f32) -> Vec<f32> {
+        let mut x = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+        (0..n)
+            .map(|_| {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                ((x >> 40) as f32 / (1u64 << 24) as f32 - 0.5) * scale
+            })
+            .collect()
+    }
+
+    fn rotary(rows: usize, pairs: usize, seed: u64) -> RotaryRows {
+        let angles = random(rows * pairs, seed, 6.0);
+        RotaryRows {
+            cos: angles.iter().map(|a| a.cos()).collect(),
+            sin: angles.iter().map(|a| a.sin()).collect(),
+            pairs,
+        }
+    }
+
+    fn tensor(data: &[f32], shape: &[usize]) -> Tensor {
+        Tensor::from_slice(data, shape, &Device::Cpu).unwrap()
+    }
+
+    fn max_diff(a: &Tensor, b: &Tensor) -> f32 {
+        let d = (a - b).unwrap().abs().unwrap().flatten_all().unwrap();
+        d.max(0).unwrap().to_scalar::<f32>().unwrap()
+    }
+
+    /// Key bias with the last `padded[s]` keys of scene `s` masked.
+    fn bias(b: usize, t: usize, padded: &[usize]) -> Vec<f32> {
+        let mut v = vec![0f32; b * t];
+        for s in 0..b {
+            for j in t - padded[s]..t {
+                v[s * t + j] = -1.0e9;
+            }
+        }
+        v
+    }
+
+    #[test]
+    fn self_attention_matches_the_composition() {
+        for (b, t, heads, dh, pairs) in [(3, 18, 4, 32, 12), (1, 70, 2, 16, 6), (2, 5, 1, 8, 0)] {
+            let d = heads * dh;
+            let qkv = tensor(&random(b * t * 3 * d, 1, 2.0), &[b, t, 3 * d]);
+            let gate = tensor(&random(b * t * heads, 2, 4.0), &[b, t, heads]);
+            let rope = rotary(b * t, pairs, 3);
+            let key_bias = bias(b, t, &[2, 0, 3][..b]);
+            let op = SelfAttention {
+                heads,
+                key_bias: Arc::new(key_bias.clone()),
+                rope: Arc::new(rope.clone()),
+            };
+            let fused = self_attention(op, &qkv, &gate).unwrap();
+            let cos = tensor(&rope.cos, &[b, 1, t, pairs]);
+            let sin = tensor(&rope.sin, &[b, 1, t, pairs]);
+            let mask = tensor(&key_bias, &[b, 1, 1, t]);
+            let q = qkv.narrow(2, 0, d).unwrap();
+            let k = qkv.narrow(2, d, d).unwrap();
+            let v = qkv.narrow(2, 2 * d, d).unwrap();
+            let rope = (pairs > 0).then_some((&cos, &sin));
+            let o = multi_head(&q, &k, &v, &mask, rope, rope, heads, Mode::Inference).unwrap();
+            let g = candle_nn::ops::sigmoid(&gate).unwrap();
+            let g = g.transpose(1, 2).unwrap().unsqueeze(3).unwrap();
+            let reference = o
+                .broadcast_mul(&g)
+                .unwrap()
+                .transpose(1, 2)
+                .unwrap()
+                .reshape((b, t, d))
+                .unwrap();
+            let diff = max_diff(&fused, &reference);
+            assert!(diff < 2e-5, "b{b} t{t} h{heads}: {diff}");
+        }
+    }
+
+    #[test]
+    fn cross_attention_matches_the_composition() {
+        let (b, tk, heads, dh, pairs) = (3usize, 21usize, 4usize, 32usize, 12usize);
+        let d = heads * dh;
+        // Scenes with 2, 0 and 5 query rows (ragged, one empty).
+        let counts = [2usize, 0, 5];
+        let nq: usize = counts.iter().sum();
+        let q = tensor(&random(nq * d, 5, 2.0), &[nq, d]);
+        let kv = tensor(&random(b * tk * 2 * d, 6, 2.0), &[b, tk, 2 * d]);
+        let q_rope = rotary(nq, pairs, 7);
+        let k_rope = rotary(b * tk, pairs, 8);
+        let key_bias = bias(b, tk, &[4, 0, 1]);
+        let query_scene: Vec<u32> = counts
+            .iter()
+            .enumerate()
+            .flat_map(|(s, &c)| std::iter::repeat_n(s as u32, c))
+            .collect();
+        let op = CrossAttention {
+            heads,
+            query_scene: Arc::new(query_scene),
+            key_bias: Arc::new(key_bias.clone()),
+            q_rope: Arc::new(q_rope.clone()),
+            k_rope: Arc::new(k_rope.clone()),
+        };
+        let fused = cross_attention(op, &q, &kv).unwrap();
+        let mut row = 0;
+        for (s, &c) in counts.iter().enumerate() {
+            if c == 0 {
+                continue;
+            }
+            let qs = q.narrow(0, row, c).unwrap().unsqueeze(0).unwrap();
+            let kvs = kv.narrow(0, s, 1).unwrap();
+            let qcos = tensor(
+                &q_rope.cos[row * pairs..(row + c) * pairs],
+                &[1, 1, c, pairs],
+            );
+            let qsin = tensor(
+                &q_rope.sin[row * pairs..(row + c) * pairs],
+                &[1, 1, c, pairs],
+            );
+            let kcos = tensor(
+                &k_rope.cos[s * tk * pairs..(s + 1) * tk * pairs],
+                &[1, 1, tk, pairs],
+            );
+            let ksin = tensor(
+                &k_rope.sin[s * tk * pairs..(s + 1) * tk * pairs],
+                &[1, 1, tk, pairs],
+            );
+            let mask = tensor(&key_bias[s * tk..(s + 1) * tk], &[1, 1, 1, tk]);
+            let o = multi_head(
+                &qs,
+                &kvs.narrow(2, 0, d).unwrap(),
+                &kvs.narrow(2, d, d).unwrap(),
+                &mask,
+                Some((&qcos, &qsin)),
+                Some((&kcos, &ksin)),
+                heads,
+                Mode::Inference,
+            )
+            .unwrap();
+            let reference = o.transpose(1, 2).unwrap().reshape((c, d)).unwrap();
+            let diff = max_diff(&fused.narrow(0, row, c).unwrap(), &reference);
+            assert!(diff < 2e-5, "scene {s}: {diff}");
+            row += c;
+        }
+    }
+}
