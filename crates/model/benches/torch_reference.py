@@ -215,7 +215,7 @@ def main():
     for label, b, m, n, key in CASES:
         x = inputs(b, m, n)
         eager = median_ms(model, x, a.runs)
-        comp = median_ms(compiled, x, a.runs) if compiled else float("nan")
+        comp = median_ms(compiled, x, a.runs) if compiled is not None else float("nan")
         print(f"{label}: eager {eager:.2f} ms ({eager / b:.2f} per scene), compiled {comp:.2f} ms ({comp / b:.2f} per scene)")
         rows.append((label, b, key, eager, comp))
     if a.skip_ours:

@@ -62,7 +62,7 @@ impl AnchorHead {
         })
     }
 
-    /// Accelerations `[O, K, 3]` in metres per step^2 from the point features `[O * N, C1]`
+    /// Accelerations `[O, K, 3]` in metres per step^2 from the packed point features `[P, C1]`
     /// and the decoder's output.
     pub fn forward(
         &self,
@@ -115,7 +115,13 @@ impl AnchorHead {
             arg.exp()?
         };
         let w = w.broadcast_mul(&pmask)?; // [O, K, N]
-        let hp = point_features.reshape((o, n, c1))?;
+        // Packed point features laid out per object `[O, N, C1]`, zero rows for padding.
+        let hp = Tensor::cat(
+            &[point_features, &Tensor::zeros((1, c1), DType::F32, device)?],
+            0,
+        )?
+        .index_select(&host_index(device, &inp.pad_idx)?, 0)?
+        .reshape((o, n, c1))?;
         let num = w.matmul(&hp)?; // [O, K, C1]
         let den = w.sum_keepdim(2)?; // >= 1: the anchor itself has weight 1
         let avp = num.broadcast_div(&den)?;

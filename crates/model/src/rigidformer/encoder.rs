@@ -39,7 +39,7 @@ impl Encoder {
         })
     }
 
-    /// Per-point features `[O * N, C1]` (padded rows included) and object tokens `[O, D]`.
+    /// Per-point features `[P, C1]` (packed, no padding rows) and object tokens `[O, D]`.
     pub fn forward(
         &self,
         inp: &BatchInputs,
@@ -47,9 +47,9 @@ impl Encoder {
         exec: Exec,
     ) -> Result<(Tensor, Tensor), ModelError> {
         let fused = exec.fused;
-        let (o, n, s, g) = (inp.o, inp.nmax, self.sa_centres, self.sa_neighbours);
-        let feats = host_tensor(device, &inp.feats, &[o * n, POINT_FEATURES])?;
-        let h = self.point.forward(&feats, fused)?; // [O*N, C1]
+        let (o, s, g) = (inp.o, self.sa_centres, self.sa_neighbours);
+        let feats = host_tensor(device, &inp.feats, &[inp.points, POINT_FEATURES])?;
+        let h = self.point.forward(&feats, fused)?; // [P, C1]
         let grouped = h.index_select(&host_index(device, &inp.group_idx)?, 0)?; // [O*S*G, C1]
         let rel = host_tensor(device, &inp.group_rel, &[o * s * g, 3])?;
         let x = Tensor::cat(&[rel, grouped], 1)?;

@@ -1,7 +1,8 @@
 //! Per-scene input assembly: world points, the 12 per-point features (contact displacement,
 //! per-step increment, offset from the reference cloud, physical parameters), encoder
 //! grouping geometry, anchor kinematics and ARoPE descriptors, laid out for one batched pass.
-//! Scenes are processed in parallel with rayon; objects are laid out scene-major.
+//! Scenes are processed in parallel with rayon; objects are laid out scene-major, and the
+//! per-point rows are packed without padding (the point MLP never sees a padding row).
 
 use dynaserve_geometry::{ContactConfig, contact_features};
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
@@ -33,9 +34,14 @@ pub(crate) struct BatchInputs {
     pub o: usize,
     /// First object row of each scene, `[b + 1]`.
     pub scene_offsets: Vec<usize>,
-    /// Normalised features `[o, nmax, 12]` (zero padding).
+    /// Total points of the batch (`P`).
+    pub points: usize,
+    /// Normalised features of every point, packed without padding `[P, 12]` (objects in
+    /// order, each object's points contiguous).
     pub feats: Vec<f32>,
-    /// Neighbour rows into `[o * nmax]`, `[o, S, G]`.
+    /// Packed point row of every padded slot `[o, nmax]`; `P` (a zero row) for padding.
+    pub pad_idx: Vec<u32>,
+    /// Neighbour rows into the packed points, `[o, S, G]`.
     pub group_idx: Vec<u32>,
     /// Neighbour minus centre, world frame, scaled, `[o, S, G, 3]`.
     pub group_rel: Vec<f32>,
@@ -45,7 +51,7 @@ pub(crate) struct BatchInputs {
     pub avp_d2: Vec<f32>,
     /// 1 for a real point, 0 for padding, `[o, 1, nmax]`.
     pub point_mask: Vec<f32>,
-    /// Anchor rows into `[o * nmax]`, `[o, K]`.
+    /// Anchor rows into the packed points, `[o, K]`.
     pub anchor_idx: Vec<u32>,
     /// Anchor minus object centroid, world frame, scaled, `[o, K, 3]`.
     pub anchor_rel: Vec<f32>,
@@ -149,20 +155,37 @@ pub(crate) fn build_inputs(
     for r in requests {
         scene_offsets.push(scene_offsets.last().copied().unwrap_or(0) + r.scene.len());
     }
+    let o = scene_offsets[b];
+    let mut point_offsets = Vec::with_capacity(o + 1);
+    point_offsets.push(0usize);
+    for r in requests {
+        for obj in &r.scene.objects {
+            point_offsets.push(point_offsets[point_offsets.len() - 1] + obj.reference.len());
+        }
+    }
+    let points = point_offsets[o];
+    let mut pad_idx = vec![points as u32; o * nmax];
+    for (obj, slots) in pad_idx.chunks_mut(nmax.max(1)).enumerate().take(o) {
+        let (first, last) = (point_offsets[obj], point_offsets[obj + 1]);
+        for (slot, row) in slots.iter_mut().zip(first..last) {
+            *slot = row as u32;
+        }
+    }
     let freqs = rope_frequencies(cfg);
     let chunks: Vec<SceneChunk> = requests
         .par_iter()
         .zip(scene_offsets.par_iter())
-        .map(|(r, &first)| scene_chunk(cfg, r, first, nmax, &freqs))
+        .map(|(r, &first)| scene_chunk(cfg, r, point_offsets[first], nmax, &freqs))
         .collect();
-    let o = scene_offsets[b];
     let mut inp = BatchInputs {
         b,
         mmax,
         nmax,
         o,
         scene_offsets,
-        feats: Vec::with_capacity(o * nmax * POINT_FEATURES),
+        points,
+        feats: Vec::with_capacity(points * POINT_FEATURES),
+        pad_idx,
         group_idx: Vec::new(),
         group_rel: Vec::new(),
         centre_rel: Vec::new(),
@@ -215,7 +238,7 @@ pub(crate) fn build_inputs(
 fn scene_chunk(
     cfg: &ModelConfig,
     r: &SceneRequest<'_>,
-    first: usize,
+    first_point: usize,
     nmax: usize,
     freqs: &[f32],
 ) -> SceneChunk {
@@ -253,7 +276,7 @@ fn scene_chunk(
         },
     );
     let mut c = SceneChunk {
-        feats: vec![0.0; m * nmax * POINT_FEATURES],
+        feats: vec![0.0; scene.total_points() * POINT_FEATURES],
         group_idx: Vec::with_capacity(m * s * g),
         group_rel: Vec::with_capacity(m * s * g * 3),
         centre_rel: Vec::with_capacity(m * s * 3),
@@ -273,7 +296,6 @@ fn scene_chunk(
     let mut ang = Vec::with_capacity(3 * freqs.len());
     for (j, obj) in scene.objects.iter().enumerate() {
         let n = obj.reference.len();
-        let row = first + j;
         let base = offsets[j];
         let (rc, pc) = poses[j];
         let wc = rc * Vector3::from(obj.centroid) + pc;
@@ -285,8 +307,7 @@ fn scene_chunk(
             let wp = world_prev[base + i];
             let ct = contact[base + i];
             let raw = raw_point_features(ct, w, wp, x, obj.params, &frame);
-            let dst =
-                &mut c.feats[(j * nmax + i) * POINT_FEATURES..(j * nmax + i + 1) * POINT_FEATURES];
+            let dst = &mut c.feats[(base + i) * POINT_FEATURES..(base + i + 1) * POINT_FEATURES];
             for f in 0..POINT_FEATURES {
                 dst[f] = (raw[f] - norm.mean[f]) / norm.std[f];
             }
@@ -299,7 +320,7 @@ fn scene_chunk(
                 c.centre_rel.push((cw[d] - wc[d]) * inv_scale);
             }
             for &nb in &obj.neighbours[ci * g..(ci + 1) * g] {
-                c.group_idx.push((row * nmax + nb) as u32);
+                c.group_idx.push((first_point + base + nb) as u32);
                 let nw = world[base + nb];
                 for d in 0..3 {
                     c.group_rel.push((nw[d] - cw[d]) * inv_scale);
@@ -318,7 +339,7 @@ fn scene_chunk(
         let mut mean_cos = vec![0f32; p];
         let mut mean_sin = vec![0f32; p];
         for &a in &obj.anchors {
-            c.anchor_idx.push((row * nmax + a) as u32);
+            c.anchor_idx.push((first_point + base + a) as u32);
             let w = world[base + a];
             for d in 0..3 {
                 c.anchor_rel.push((w[d] - wc[d]) * inv_scale);
