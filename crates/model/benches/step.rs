@@ -1,6 +1,8 @@
 //! One model step for batches of MOVi-like scenes (10 objects x 512 points) split into phases,
-//! one step of a 216-cube wrecking-ball scene (both for the `small` and `paper` configs), padded vs block-diagonal decoder batching, and
-//! a training iteration (forward + backward + AdamW) for the `small` and `paper` configs.
+//! one step of a 216-cube wrecking-ball scene (both for the `small` and `paper` configs), padded
+//! vs block-diagonal decoder batching, the fused CPU kernels against the plain composition
+//! (`fused_ab`, interleaved in one process), the machine's matmul peak (`matmul_peak`) and a
+//! training iteration (forward + backward + AdamW) for the `small` and `paper` configs.
 //!
 //! `cargo bench -p dynaserve-model --bench step` (release). Phase medians are printed to
 //! stdout; criterion reports the totals.
@@ -458,6 +460,39 @@ fn bench_packing(c: &mut Criterion) {
     group.finish();
 }
 
+/// The machine's matrix-multiplication peak through candle: one f32 product of 1024 x 1024
+/// matrices (2 GFLOP), printed as GFLOP/s next to criterion's time.
+fn bench_matmul_peak(c: &mut Criterion) {
+    let n = 1024usize;
+    let a = Tensor::ones((n, n), DType::F32, &Device::Cpu).expect("a");
+    let b = Tensor::ones((n, n), DType::F32, &Device::Cpu).expect("b");
+    let mut group = c.benchmark_group("matmul_peak");
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(3));
+    let mut printed = false;
+    group.bench_function("f32_1024", |bench| {
+        if !printed {
+            let t: Vec<Duration> = (0..7)
+                .map(|_| {
+                    let t0 = Instant::now();
+                    black_box(a.matmul(&b).expect("matmul"));
+                    t0.elapsed()
+                })
+                .collect();
+            let s = median(t).as_secs_f64();
+            println!(
+                "matmul_peak: {:.1} GFLOP/s",
+                2.0 * (n as f64).powi(3) / s / 1e9
+            );
+            printed = true;
+        }
+        bench.iter(|| black_box(a.matmul(&b).expect("matmul")))
+    });
+    group.finish();
+}
+
 fn train_batch(model: &RigidFormer, seed: u64) -> Vec<(PreparedScene, SceneState, Vec<Pose>)> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     (0..16)
@@ -531,6 +566,7 @@ criterion_group!(
     bench_steps,
     bench_wrecking_ball,
     bench_fused_ab,
+    bench_matmul_peak,
     bench_training
 );
 fn main() {
