@@ -120,23 +120,11 @@ struct Exported {
 fn exported() -> Exported {
     let text = Metrics::new(&["rigidformer".to_string()]).render();
     let mut samples: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
-    for line in text
-        .lines()
-        .filter(|l| !l.starts_with('#') && !l.is_empty())
-    {
-        let name_end = line.find(['{', ' ']).unwrap_or(line.len());
-        let labels = if line[name_end..].starts_with('{') {
-            let close = line[name_end..]
-                .find('}')
-                .map_or(line.len(), |c| name_end + c);
-            selector_labels(&line[name_end + 1..close])
-        } else {
-            Vec::new()
-        };
+    for s in dynaserve_client::prom::parse(&text) {
         samples
-            .entry(line[..name_end].to_string())
+            .entry(s.name)
             .or_default()
-            .extend(labels);
+            .extend(s.labels.into_iter().map(|(k, _)| k));
     }
     let families = METRICS
         .iter()
