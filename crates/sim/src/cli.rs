@@ -3,6 +3,7 @@
 //! ```text
 //! dynaserve sim movi-b --scenes 1000 --out data/movi-b/train --seed 0 --split train
 //! dynaserve sim wrecking-ball --scenes 20 --out data/wb6 --seed 0 --size 6
+//! dynaserve sim physics-mix --scenes 500 --out data/physics-mix/train --seed 0 --split train
 //! dynaserve sim inspect data/movi-b/train
 //! dynaserve sim preview data/movi-b/train --out preview.png
 //! ```
@@ -17,6 +18,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use crate::dataset::DatasetReader;
 use crate::generators::{GenerateOptions, Generator, generate_dataset};
 use crate::preview::write_preview;
+use crate::scenarios::Scenario;
 use crate::stats::inspect;
 
 /// Arguments of `dynaserve sim`.
@@ -39,6 +41,20 @@ pub enum SimCommand {
     /// Generate WreckingBall scenes: a size^3 stack of cubes hit by a heavy ball.
     #[command(name = "wrecking-ball")]
     WreckingBall(WreckingBallArgs),
+    /// Physics scenario: objects at rest from frame 0 (single objects, box towers, piles).
+    Rest(GenerateArgs),
+    /// Physics scenario: one object dropped from 0.5-3 m with random attitude and spin.
+    Drop(GenerateArgs),
+    /// Physics scenario: objects launched along the floor that friction stops.
+    Slide(GenerateArgs),
+    /// Physics scenario: two objects thrown at each other, in the air or along the floor.
+    Collide(GenerateArgs),
+    /// Physics scenario: a tower of 2-4 boxes hit by a thrown object.
+    #[command(name = "stack-hit")]
+    StackHit(GenerateArgs),
+    /// Physics scenarios: each scene draws one of rest, drop, slide, collide, stack-hit.
+    #[command(name = "physics-mix")]
+    PhysicsMix(GenerateArgs),
     /// Print statistics of a dataset split.
     Inspect(InspectArgs),
     /// Draw a few trajectories of a dataset split into a PNG.
@@ -142,6 +158,12 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
         SimCommand::MoviA(a) => run_generate(Generator::movi_a(), &a),
         SimCommand::MoviB(a) => run_generate(Generator::movi_b(), &a),
         SimCommand::WreckingBall(a) => run_generate(Generator::wrecking_ball(a.size)?, &a.common),
+        SimCommand::Rest(a) => run_generate(Generator::scenario(Scenario::Rest), &a),
+        SimCommand::Drop(a) => run_generate(Generator::scenario(Scenario::Drop), &a),
+        SimCommand::Slide(a) => run_generate(Generator::scenario(Scenario::Slide), &a),
+        SimCommand::Collide(a) => run_generate(Generator::scenario(Scenario::Collide), &a),
+        SimCommand::StackHit(a) => run_generate(Generator::scenario(Scenario::StackHit), &a),
+        SimCommand::PhysicsMix(a) => run_generate(Generator::physics_mix(), &a),
         SimCommand::Inspect(a) => run_inspect(&a),
         SimCommand::Preview(a) => run_preview(&a),
     }

@@ -107,6 +107,16 @@ pub struct ShapeInfo {
     pub description: String,
 }
 
+/// What a scenario scene isolates, recorded per scene in the manifest's `scenarios`.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SceneLabel {
+    /// Scenario name: `rest`, `drop`, `slide`, `collide` or `stack-hit`.
+    pub scenario: String,
+    /// Arrangement within the scenario: `single`, `tower` or `pile` (rest), `drop`, `floor`
+    /// (slide), `air` or `floor` (collide), `tower` (stack-hit).
+    pub variant: String,
+}
+
 /// Description of one stored tensor.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TensorDoc {
@@ -171,6 +181,10 @@ pub struct Manifest {
     pub tensors: Vec<TensorDoc>,
     /// Tensor names reserved for mesh trajectories.
     pub reserved_tensors: Vec<String>,
+    /// Scenario generators only: the label of every scene, in scene order (absent in other
+    /// datasets and in datasets written before scenarios existed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scenarios: Option<Vec<SceneLabel>>,
 }
 
 fn doc(name: &str, dtype: &str, shape: &str, description: &str) -> TensorDoc {
@@ -257,6 +271,7 @@ impl Manifest {
                 ),
             ],
             reserved_tensors: RESERVED_TENSORS.iter().map(|s| s.to_string()).collect(),
+            scenarios: None,
         }
     }
 
@@ -302,6 +317,15 @@ impl Manifest {
                 return Err(bad(format!("shard file name {:?} is not plain", s.file)));
             }
             next += s.scenes;
+        }
+        if let Some(labels) = &self.scenarios
+            && labels.len() != self.scenes
+        {
+            return Err(bad(format!(
+                "{} scenario labels for {} scenes",
+                labels.len(),
+                self.scenes
+            )));
         }
         Ok(())
     }

@@ -1,5 +1,5 @@
-//! Scene generators (`movi-a`, `movi-b`, `wrecking-ball`), per-scene seeding and dataset
-//! generation in parallel.
+//! Scene generators (`movi-a`, `movi-b`, `wrecking-ball` and the physics scenarios of
+//! [`crate::scenarios`]), per-scene seeding and dataset generation in parallel.
 //!
 //! Scene `i` of split `split` draws from a ChaCha8 generator keyed by `(seed, split, generator,
 //! i)`, so scenes never repeat across splits or generators, and generating in parallel (rayon)
@@ -16,7 +16,8 @@ use rapier3d::prelude::SharedShape;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::dataset::{self, Manifest, ObjectRecord, SceneRecord, ShapeInfo, ShardInfo};
+use crate::dataset::{self, Manifest, ObjectRecord, SceneLabel, SceneRecord, ShapeInfo, ShardInfo};
+use crate::scenarios::{Scenario, ScenarioParameters, sample_scenario};
 use crate::scene::{FloorSpec, Material, ObjectSpec, SceneSpec, SimConfig, simulate};
 use crate::shapes::{Shape, ShapeKind};
 use crate::{Result, SimError};
@@ -194,6 +195,9 @@ pub enum Generator {
     MoviB(MoviParameters),
     /// WreckingBall scenes.
     WreckingBall(WreckingBallParameters),
+    /// Physics scenario scenes (`rest`, `drop`, `slide`, `collide`, `stack-hit`, or
+    /// `physics-mix` drawing one of them per scene).
+    Scenario(ScenarioParameters),
 }
 
 impl Generator {
@@ -217,12 +221,23 @@ impl Generator {
         Ok(Generator::WreckingBall(WreckingBallParameters::new(size)))
     }
 
+    /// One physics scenario with its default parameters.
+    pub fn scenario(scenario: Scenario) -> Self {
+        Generator::Scenario(ScenarioParameters::new(vec![scenario]))
+    }
+
+    /// `physics-mix`: each scene draws one of the five scenarios uniformly.
+    pub fn physics_mix() -> Self {
+        Generator::Scenario(ScenarioParameters::new(Scenario::ALL.to_vec()))
+    }
+
     /// Name as used on the command line and in manifests.
     pub fn name(&self) -> &'static str {
         match self {
             Generator::MoviA(_) => "movi-a",
             Generator::MoviB(_) => "movi-b",
             Generator::WreckingBall(_) => "wrecking-ball",
+            Generator::Scenario(p) => p.name(),
         }
     }
 
@@ -231,6 +246,7 @@ impl Generator {
         match self {
             Generator::MoviA(p) | Generator::MoviB(p) => p.shapes.clone(),
             Generator::WreckingBall(_) => vec![ShapeKind::Cube, ShapeKind::Sphere],
+            Generator::Scenario(p) => p.shapes.clone(),
         }
     }
 
@@ -239,6 +255,7 @@ impl Generator {
         match self {
             Generator::MoviA(p) | Generator::MoviB(p) => p.gravity,
             Generator::WreckingBall(p) => p.gravity,
+            Generator::Scenario(p) => p.gravity,
         }
     }
 
@@ -247,15 +264,27 @@ impl Generator {
         let v = match self {
             Generator::MoviA(p) | Generator::MoviB(p) => serde_json::to_value(p),
             Generator::WreckingBall(p) => serde_json::to_value(p),
+            Generator::Scenario(p) => serde_json::to_value(p),
         };
         v.unwrap_or(serde_json::Value::Null)
     }
 
     /// Draws a scene description.
     pub fn sample<R: Rng + ?Sized>(&self, rng: &mut R) -> Result<SceneSpec> {
+        self.sample_labelled(rng).map(|(spec, _)| spec)
+    }
+
+    /// Draws a scene description and, for scenario generators, its label.
+    pub fn sample_labelled<R: Rng + ?Sized>(
+        &self,
+        rng: &mut R,
+    ) -> Result<(SceneSpec, Option<SceneLabel>)> {
         match self {
-            Generator::MoviA(p) | Generator::MoviB(p) => sample_movi(p, rng),
-            Generator::WreckingBall(p) => sample_wrecking_ball(p, rng),
+            Generator::MoviA(p) | Generator::MoviB(p) => Ok((sample_movi(p, rng)?, None)),
+            Generator::WreckingBall(p) => Ok((sample_wrecking_ball(p, rng)?, None)),
+            Generator::Scenario(p) => {
+                sample_scenario(p, rng).map(|(spec, label)| (spec, Some(label)))
+            }
         }
     }
 }
@@ -527,6 +556,8 @@ pub struct GeneratedScene {
     pub spec: SceneSpec,
     /// Trajectories, reference clouds and parameters as stored in the dataset.
     pub record: SceneRecord,
+    /// Scenario generators only: what the scene isolates.
+    pub label: Option<SceneLabel>,
 }
 
 /// Generates scene `index`: draws the scene, samples each object's reference cloud (body frame,
@@ -534,7 +565,7 @@ pub struct GeneratedScene {
 pub fn generate_scene(opts: &GenerateOptions, index: u64) -> Result<GeneratedScene> {
     opts.validate()?;
     let mut rng = scene_rng(opts.seed, &opts.split, opts.generator.name(), index);
-    let spec = opts.generator.sample(&mut rng)?;
+    let (spec, label) = opts.generator.sample_labelled(&mut rng)?;
     let clouds = spec
         .objects
         .iter()
@@ -564,6 +595,7 @@ pub fn generate_scene(opts: &GenerateOptions, index: u64) -> Result<GeneratedSce
             objects,
             dt_frame: opts.sim.dt_frame(),
         },
+        label,
     })
 }
 
@@ -603,17 +635,20 @@ pub fn generate_dataset(
     let mut shards = Vec::new();
     let mut bytes = 0u64;
     let mut objects = 0usize;
+    let mut labels = Vec::new();
     let mut start = 0usize;
     while start < opts.scenes {
         let end = (start + opts.scenes_per_shard).min(opts.scenes);
         let scenes = (start..end)
             .into_par_iter()
             .map(|i| {
-                let s = generate_scene(opts, i as u64).map(|g| g.record);
+                let s = generate_scene(opts, i as u64).map(|g| (g.record, g.label));
                 on_scene();
                 s
             })
             .collect::<Result<Vec<_>>>()?;
+        let (scenes, shard_labels): (Vec<_>, Vec<_>) = scenes.into_iter().unzip();
+        labels.extend(shard_labels);
         let file = format!("shard-{:05}.safetensors", shards.len());
         let encoded = dataset::encode_shard(&scenes, opts.sim.frames, opts.points)?;
         dataset::write_file(&out.join(&file), &encoded)?;
@@ -628,7 +663,10 @@ pub fn generate_dataset(
         });
         start = end;
     }
-    let manifest = Manifest::new(opts, shapes, shards, objects);
+    let mut manifest = Manifest::new(opts, shapes, shards, objects);
+    if matches!(opts.generator, Generator::Scenario(_)) {
+        manifest.scenarios = labels.into_iter().collect();
+    }
     bytes += dataset::write_manifest(out, &manifest)?;
     Ok(GenerateSummary {
         dir: out.to_path_buf(),

@@ -9,6 +9,8 @@
 //! - [`scene`]: scene descriptions and their simulation with rapier;
 //! - [`generators`]: `movi-a`, `movi-b` and `wrecking-ball` scene samplers, seeded per split
 //!   and scene;
+//! - [`scenarios`]: physics scenario scenes (`rest`, `drop`, `slide`, `collide`,
+//!   `stack-hit`, `physics-mix`), each isolating one behaviour;
 //! - [`dataset`]: shards, manifest, writer and streaming reader;
 //! - [`stats`], [`preview`]: what `dynaserve sim inspect` and `dynaserve sim preview` print and
 //!   draw;
@@ -18,12 +20,14 @@ pub mod cli;
 pub mod dataset;
 pub mod generators;
 pub mod preview;
+pub mod scenarios;
 pub mod scene;
 pub mod shapes;
 pub mod stats;
 
-pub use dataset::{DatasetReader, Manifest, ObjectRecord, SceneRecord};
+pub use dataset::{DatasetReader, Manifest, ObjectRecord, SceneLabel, SceneRecord};
 pub use generators::{GenerateOptions, Generator};
+pub use scenarios::{Scenario, ScenarioParameters};
 pub use scene::{ObjectSpec, SceneSpec, SimConfig};
 pub use shapes::{Shape, ShapeKind};
 
