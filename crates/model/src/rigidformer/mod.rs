@@ -31,6 +31,7 @@ use self::decoder::Decoder;
 use self::encoder::Encoder;
 use self::inputs::{BatchInputs, SceneRequest, build_inputs};
 use crate::api::{Pose, StepItem, WorldModel};
+use crate::batching::PassBudget;
 use crate::layers::{Exec, Mode, ParamStore};
 use crate::prepare::{PreparedScene, prepare_scene, validate_state};
 use crate::{ModelConfig, ModelError, ObjectInput};
@@ -241,18 +242,11 @@ impl RigidFormer {
         if let Some(p) = profile.as_deref_mut() {
             p.features += t0.elapsed();
         }
-        // Split into passes of whole scenes under the object budget.
+        // Split into passes of whole scenes under the object budget (the one batching rule).
+        let objects: Vec<usize> = batch.iter().map(|it| it.scene.len()).collect();
         let mut out = Vec::with_capacity(batch.len());
-        let mut start = 0;
-        while start < batch.len() {
-            let mut end = start + 1;
-            let mut objects = batch[start].scene.len();
-            while end < batch.len() && objects + batch[end].scene.len() <= self.max_pass_objects {
-                objects += batch[end].scene.len();
-                end += 1;
-            }
-            out.extend(self.step_pass(&requests[start..end], mode, profile.as_deref_mut())?);
-            start = end;
+        for pass in PassBudget::objects(self.max_pass_objects).plan(&objects) {
+            out.extend(self.step_pass(&requests[pass], mode, profile.as_deref_mut())?);
         }
         Ok(out)
     }

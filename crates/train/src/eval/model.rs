@@ -270,7 +270,7 @@ impl Predictor for ModelPredictor {
             }
             for (&i, poses) in active.iter().zip(next) {
                 let state = &mut states[i];
-                state.previous = std::mem::replace(&mut state.current, poses.clone());
+                state.advance(poses.clone());
                 out[i].push(poses);
             }
         }
