@@ -25,6 +25,14 @@ pub enum BaselineKind {
     Ballistic,
 }
 
+/// Scenario suites `dynaserve eval --suite` knows.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SuiteKind {
+    /// Rest, drop, slide, collide and stack-hit scenes: each scenario's own figures against
+    /// rapier and the one-step error by contact regime.
+    Physics,
+}
+
 /// Arguments of `dynaserve eval`.
 ///
 /// With `--model`, one run evaluates the model with its nominal point count, with
@@ -44,9 +52,22 @@ pub struct EvalArgs {
     /// Checkpoint directory of a trained model (config.json, model.safetensors) to evaluate.
     #[arg(long)]
     pub model: Option<PathBuf>,
-    /// Dataset split directory (holding manifest.json).
-    #[arg(long)]
-    pub data: PathBuf,
+    /// Dataset split directory (holding manifest.json). With `--suite`, optional and
+    /// repeatable: scenario datasets to score instead of the generated suite.
+    #[arg(long, required_unless_present = "suite")]
+    pub data: Vec<PathBuf>,
+    /// Score a scenario suite instead of the error tables of a dataset.
+    #[arg(long, value_enum)]
+    pub suite: Option<SuiteKind>,
+    /// Seed of the generated suite (split `test`).
+    #[arg(long, default_value_t = crate::eval::physics_suite::DEFAULT_SUITE_SEED)]
+    pub seed: u64,
+    /// Scenes per group of the generated suite.
+    #[arg(long, default_value_t = crate::eval::physics_suite::DEFAULT_SCENES_PER_GROUP)]
+    pub suite_scenes: usize,
+    /// Suite: score every N-th one-step window of each scene in the regime table.
+    #[arg(long, default_value_t = 1)]
+    pub window_stride: usize,
     /// Step sizes in frames, comma-separated.
     #[arg(long, value_delimiter = ',', default_values_t = [1u32, 2, 4])]
     pub step_sizes: Vec<u32>,
@@ -148,9 +169,16 @@ fn write_file(path: &Path, text: &str) -> anyhow::Result<()> {
 /// Runs `dynaserve eval`: progress on stderr, the summary on stdout, JSON, Markdown and the
 /// plot to the requested files.
 pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
+    if args.suite.is_some() {
+        return crate::eval::suite_cli::run(&args);
+    }
     let started = std::time::Instant::now();
-    let reader = DatasetReader::open(&args.data)
-        .with_context(|| format!("opening dataset {}", args.data.display()))?;
+    let data = match args.data.as_slice() {
+        [one] => one,
+        _ => anyhow::bail!("give one --data directory (several only with --suite)"),
+    };
+    let reader =
+        DatasetReader::open(data).with_context(|| format!("opening dataset {}", data.display()))?;
     if !(0.0..1.0).contains(&args.occlude) {
         anyhow::bail!("--occlude must be in [0, 1), got {}", args.occlude);
     }
@@ -323,6 +351,21 @@ mod tests {
             ])
             .is_err()
         );
+    }
+
+    #[test]
+    fn the_physics_suite_needs_no_dataset() {
+        let cli =
+            Cli::try_parse_from(["eval", "--baseline", "ballistic", "--suite", "physics"]).unwrap();
+        assert_eq!(cli.eval.suite, Some(SuiteKind::Physics));
+        assert!(cli.eval.data.is_empty());
+        assert_eq!(cli.eval.seed, 7);
+        assert!(Cli::try_parse_from(["eval", "--baseline", "ballistic"]).is_err());
+        let two =
+            Cli::try_parse_from(["eval", "--baseline", "static", "--data", "a", "--data", "b"])
+                .unwrap();
+        let err = run_eval(two.eval).unwrap_err();
+        assert!(err.to_string().contains("--suite"), "{err}");
     }
 
     #[test]

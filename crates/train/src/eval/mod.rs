@@ -33,11 +33,19 @@
 //!   reference points) and, for RigidFormer, the pre-projection rigidity residual;
 //! - [`RestingReport`]: the drift of the predicted poses over the last second of the data for
 //!   the objects that are at rest in the ground truth.
+//!
+//! The physics scenario suite (`--suite physics`) is separate: [`physics_suite`] scores
+//! scenario figures ([`scenario_figures`]) and one-step errors by contact regime ([`regimes`]).
 
 pub mod baselines;
 pub mod model;
+pub mod physics_report;
+pub mod physics_suite;
 pub mod plot;
+pub mod regimes;
 pub mod report;
+pub mod scenario_figures;
+pub mod suite_cli;
 
 use std::time::Instant;
 

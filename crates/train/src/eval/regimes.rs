@@ -1,0 +1,340 @@
+//! Contact regimes of the ground truth, per object and prediction window, and the one-step
+//! error pooled per regime.
+//!
+//! A prediction window is the predictor's input and target, frames `t - k`, `t` and `t + k`;
+//! contact is looked for over its whole span `t - k ..= t + k`. An object is, from the ground
+//! truth (first match wins):
+//! 1. **resting**: in contact (floor or object) during the span, and its centre speed is
+//!    below [`RESTING_SPEED_M_S`] and its angular speed below [`RESTING_ANGULAR_DEG_S`] both at
+//!    `t` and at `t + k` (backward differences over one frame);
+//! 2. **object contact**: some frame of the span has one of its reference points within the
+//!    scene's contact distance of a point of another object;
+//! 3. **floor contact**: some frame of the span has its lowest reference point within its
+//!    floor distance of the floor (z = 0);
+//! 4. **free flight**: otherwise.
+//!
+//! A fast bounce can begin and end between two recorded frames, unseen by the distance tests.
+//! So a frame `f` also counts as a contact when the centre's acceleration there,
+//! `(p(f+1) - 2 p(f) + p(f-1)) / dt^2`, differs from gravity by more than
+//! [`IMPULSE_ACCELERATION_M_S2`] (rapier's free flight gives exactly gravity, up to `f32`
+//! rounding); such a contact without a nearby object or floor is a floor contact when the
+//! object's lowest point came within one frame's travel of the floor during the span, an
+//! object contact otherwise.
+//!
+//! Reference points are the stored clouds posed with the ground-truth poses. Because the
+//! clouds are samples, two touching surfaces can be a sampling gap apart: the contact distance
+//! between objects is [`CONTACT_DISTANCE_M`] plus the largest median nearest-neighbour spacing
+//! of the scene's clouds, and the floor distance of an object is [`CONTACT_DISTANCE_M`] plus
+//! half its own spacing.
+
+use dynaserve_geometry::contact::{ContactConfig, contact_features};
+use dynaserve_geometry::geodesic_angle;
+use dynaserve_sim::SceneRecord;
+use dynaserve_sim::stats::posed_cloud;
+use serde::{Deserialize, Serialize};
+
+use super::EvalError;
+
+/// Base contact distance, metres.
+pub const CONTACT_DISTANCE_M: f32 = 0.01;
+/// Largest centre speed of a resting object, m/s.
+pub const RESTING_SPEED_M_S: f64 = 0.05;
+/// Largest angular speed of a resting object, degrees per second.
+pub const RESTING_ANGULAR_DEG_S: f64 = 5.0;
+/// Deviation of the centre's acceleration from gravity that reveals a contact between recorded
+/// frames, m/s^2.
+pub const IMPULSE_ACCELERATION_M_S2: f64 = 1.0;
+/// Points per cloud used to estimate the sampling spacing.
+const SPACING_SAMPLES: usize = 128;
+
+/// What an object is doing during a prediction window (see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Regime {
+    /// No contact during the window.
+    FreeFlight,
+    /// Touching the floor, not another object.
+    FloorContact,
+    /// Touching another object.
+    ObjectContact,
+    /// In contact and still at both ends of the window.
+    Resting,
+}
+
+impl Regime {
+    /// All regimes in report order.
+    pub const ALL: [Regime; 4] = [
+        Regime::FreeFlight,
+        Regime::FloorContact,
+        Regime::ObjectContact,
+        Regime::Resting,
+    ];
+
+    /// Name used in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Regime::FreeFlight => "free flight",
+            Regime::FloorContact => "floor contact",
+            Regime::ObjectContact => "object contact",
+            Regime::Resting => "resting",
+        }
+    }
+
+    fn index(self) -> usize {
+        self as usize
+    }
+}
+
+/// Ground-truth contact flags of a scene, `[frames][objects]`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ContactFlags {
+    /// The object's lowest reference point is within its floor distance of z = 0.
+    pub floor: Vec<Vec<bool>>,
+    /// A reference point of the object is within the contact distance of another object's.
+    pub object: Vec<Vec<bool>>,
+    /// The centre's acceleration differs from gravity by more than
+    /// [`IMPULSE_ACCELERATION_M_S2`] (false at the first and last frame).
+    pub impulse: Vec<Vec<bool>>,
+    /// Height of the object's lowest reference point, metres.
+    pub lowest: Vec<Vec<f32>>,
+    /// Contact distance between objects used for this scene, metres.
+    pub object_distance_m: f32,
+}
+
+/// Median distance from a point of the cloud to its nearest neighbour in the cloud (over the
+/// first [`SPACING_SAMPLES`] points), metres; 0 for clouds of fewer than 2 points.
+pub fn sampling_spacing(cloud: &[[f32; 3]]) -> f32 {
+    if cloud.len() < 2 {
+        return 0.0;
+    }
+    let mut nearest: Vec<f32> = cloud
+        .iter()
+        .take(SPACING_SAMPLES)
+        .enumerate()
+        .map(|(i, a)| {
+            cloud
+                .iter()
+                .enumerate()
+                .filter(|(j, _)| *j != i)
+                .map(|(_, b)| (0..3).map(|c| (a[c] - b[c]).powi(2)).sum::<f32>())
+                .fold(f32::INFINITY, f32::min)
+                .sqrt()
+        })
+        .collect();
+    nearest.sort_by(f32::total_cmp);
+    nearest[nearest.len() / 2]
+}
+
+/// Contact flags of every object at every frame of the ground truth, under `gravity` (m/s^2).
+pub fn contact_flags(scene: &SceneRecord, gravity: [f32; 3]) -> Result<ContactFlags, EvalError> {
+    let n = scene.objects.len();
+    let frames = scene
+        .objects
+        .first()
+        .map(|o| o.positions.len())
+        .ok_or_else(|| EvalError::Invalid("scene without objects".into()))?;
+    let spacing: Vec<f32> = scene
+        .objects
+        .iter()
+        .map(|o| sampling_spacing(&o.reference_points))
+        .collect();
+    let radius = CONTACT_DISTANCE_M + spacing.iter().copied().fold(0.0, f32::max);
+    // The ground far below: never a candidate, so a point without a neighbour gets the
+    // fallback (0, 0, -radius), at exactly the radius.
+    let cfg = ContactConfig {
+        radius,
+        ground_z: Some(-1.0e6),
+    };
+    let mut floor = Vec::with_capacity(frames);
+    let mut object = Vec::with_capacity(frames);
+    let mut lowest = Vec::with_capacity(frames);
+    for t in 0..frames {
+        let mut points = Vec::new();
+        let mut offsets = vec![0usize];
+        let mut low = Vec::with_capacity(n);
+        for j in 0..n {
+            let cloud = posed_cloud(&scene.objects[j], t);
+            low.push(cloud.iter().map(|p| p[2]).fold(f32::INFINITY, f32::min));
+            points.extend(cloud);
+            offsets.push(points.len());
+        }
+        floor.push(
+            (0..n)
+                .map(|j| low[j] < CONTACT_DISTANCE_M + 0.5 * spacing[j])
+                .collect(),
+        );
+        lowest.push(low);
+        let row = if n > 1 {
+            let d = contact_features(&points, &offsets, &cfg);
+            (0..n)
+                .map(|j| {
+                    d[offsets[j]..offsets[j + 1]]
+                        .iter()
+                        .any(|v| v[0] * v[0] + v[1] * v[1] + v[2] * v[2] < radius * radius)
+                })
+                .collect()
+        } else {
+            vec![false; n]
+        };
+        object.push(row);
+    }
+    let dt = f64::from(scene.dt_frame);
+    let impulse = (0..frames)
+        .map(|f| {
+            scene
+                .objects
+                .iter()
+                .map(|o| {
+                    if f == 0 || f + 1 >= frames {
+                        return false;
+                    }
+                    let (a, b, c) = (o.positions[f - 1], o.positions[f], o.positions[f + 1]);
+                    let dev = (0..3)
+                        .map(|x| {
+                            let acc = (f64::from(c[x]) - 2.0 * f64::from(b[x]) + f64::from(a[x]))
+                                / (dt * dt);
+                            (acc - f64::from(gravity[x])).powi(2)
+                        })
+                        .sum::<f64>()
+                        .sqrt();
+                    dev > IMPULSE_ACCELERATION_M_S2
+                })
+                .collect()
+        })
+        .collect();
+    Ok(ContactFlags {
+        floor,
+        object,
+        impulse,
+        lowest,
+        object_distance_m: radius,
+    })
+}
+
+/// Centre speed (m/s) and angular speed (deg/s) of object `j` between frames `t - 1` and `t`.
+fn speeds(scene: &SceneRecord, j: usize, t: usize) -> (f64, f64) {
+    let o = &scene.objects[j];
+    let dt = f64::from(scene.dt_frame);
+    let (a, b) = (o.positions[t - 1], o.positions[t]);
+    let v = (0..3)
+        .map(|c| (f64::from(b[c]) - f64::from(a[c])).powi(2))
+        .sum::<f64>()
+        .sqrt()
+        / dt;
+    let w = geodesic_angle(o.rotations[t - 1], o.rotations[t]).to_degrees() / dt;
+    (v, w)
+}
+
+/// The regime of object `j` during the window `t - k, t -> t + k` (`1 <= t`, `t + k` a
+/// frame).
+pub fn regime(scene: &SceneRecord, flags: &ContactFlags, j: usize, t: usize, k: usize) -> Regime {
+    let span = t.saturating_sub(k)..=t + k;
+    let mut on_object = span.clone().any(|f| flags.object[f][j]);
+    let mut on_floor = span.clone().any(|f| flags.floor[f][j]);
+    if !(on_object || on_floor) && span.clone().any(|f| flags.impulse[f][j]) {
+        // Unseen contact: the floor if the object came within a frame's travel of it.
+        let reach = span
+            .clone()
+            .filter(|&f| f >= 1)
+            .map(|f| speeds(scene, j, f).0 * f64::from(scene.dt_frame))
+            .fold(0.0, f64::max);
+        let low = span
+            .clone()
+            .map(|f| f64::from(flags.lowest[f][j]))
+            .fold(f64::INFINITY, f64::min);
+        if low < reach + f64::from(CONTACT_DISTANCE_M) {
+            on_floor = true;
+        } else {
+            on_object = true;
+        }
+    }
+    let still = |f: usize| {
+        let (v, w) = speeds(scene, j, f);
+        v < RESTING_SPEED_M_S && w < RESTING_ANGULAR_DEG_S
+    };
+    if (on_object || on_floor) && still(t) && still(t + k) {
+        Regime::Resting
+    } else if on_object {
+        Regime::ObjectContact
+    } else if on_floor {
+        Regime::FloorContact
+    } else {
+        Regime::FreeFlight
+    }
+}
+
+/// Squared-error sums of one predictor for one (regime, step size).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ErrorSums {
+    /// Object-windows pooled.
+    pub count: u64,
+    /// Sum of squared centre errors, m^2.
+    pub translation_sq: f64,
+    /// Sum of squared geodesic angles, deg^2.
+    pub orientation_sq: f64,
+}
+
+impl ErrorSums {
+    /// Adds one object-window.
+    pub fn add(&mut self, translation_m: f64, orientation_deg: f64) {
+        self.count += 1;
+        self.translation_sq += translation_m * translation_m;
+        self.orientation_sq += orientation_deg * orientation_deg;
+    }
+
+    /// Adds another pool.
+    pub fn merge(&mut self, o: &ErrorSums) {
+        self.count += o.count;
+        self.translation_sq += o.translation_sq;
+        self.orientation_sq += o.orientation_sq;
+    }
+
+    /// Translation RMSE, metres (`None` without samples).
+    pub fn translation_rmse_m(&self) -> Option<f64> {
+        (self.count > 0).then(|| (self.translation_sq / self.count as f64).sqrt())
+    }
+
+    /// Orientation RMSE, degrees (`None` without samples).
+    pub fn orientation_rmse_deg(&self) -> Option<f64> {
+        (self.count > 0).then(|| (self.orientation_sq / self.count as f64).sqrt())
+    }
+}
+
+/// One-step error pools of one predictor: `[step size index][regime]`.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RegimeErrors {
+    /// Step sizes, frames, in order.
+    pub step_sizes: Vec<u32>,
+    /// Pools, `[step size][Regime::ALL order]`.
+    pub sums: Vec<[ErrorSums; 4]>,
+}
+
+impl RegimeErrors {
+    /// Empty pools for these step sizes.
+    pub fn new(step_sizes: &[u32]) -> Self {
+        RegimeErrors {
+            step_sizes: step_sizes.to_vec(),
+            sums: vec![[ErrorSums::default(); 4]; step_sizes.len()],
+        }
+    }
+
+    /// Adds one object-window of step size index `ki` in `regime`.
+    pub fn add(&mut self, ki: usize, regime: Regime, translation_m: f64, orientation_deg: f64) {
+        self.sums[ki][regime.index()].add(translation_m, orientation_deg);
+    }
+
+    /// The pool of (step size index, regime).
+    pub fn get(&self, ki: usize, regime: Regime) -> &ErrorSums {
+        &self.sums[ki][regime.index()]
+    }
+}
+
+/// The one-step windows of a scene of `frames` frames for step size `k`: the frames `t` with
+/// `t >= k`, `t >= 1` and `t + k <= frames - 1`, every `stride`-th from the first.
+pub fn windows(frames: usize, k: usize, stride: usize) -> Vec<usize> {
+    let first = k.max(1);
+    if k == 0 || frames < first + k + 1 {
+        return Vec::new();
+    }
+    (first..=frames - 1 - k).step_by(stride.max(1)).collect()
+}

@@ -1,0 +1,106 @@
+//! `dynaserve eval --suite physics`: builds the predictors, generates (or reads) the physics
+//! suite, scores it with progress on stderr, prints the summary and writes JSON and Markdown.
+
+use std::sync::Arc;
+
+use anyhow::Context;
+use indicatif::{ProgressBar, ProgressStyle};
+
+use super::physics_report::{format_physics_markdown, format_physics_text};
+use super::physics_suite::{SuiteOptions, generate_suite, load_suite, run_suite};
+use super::{Ballistic, ModelPredictor, PointSelection, Predictor, Static};
+use crate::cli::{BaselineKind, EvalArgs};
+
+/// Reference points per object of generated suite scenes (as in the datasets).
+const SUITE_POINTS: usize = 1024;
+
+/// Runs the physics suite for `dynaserve eval --suite physics`.
+pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
+    let started = std::time::Instant::now();
+    let (scenes, gravity, source) = if args.data.is_empty() {
+        eprintln!(
+            "generating the physics suite: {} scenes per group, seed {}, split test",
+            args.suite_scenes, args.seed
+        );
+        let scenes = generate_suite(args.seed, "test", args.suite_scenes, SUITE_POINTS)?;
+        let gravity = dynaserve_sim::ScenarioParameters::new(vec![]).gravity;
+        (
+            scenes,
+            gravity,
+            format!("generated scenes (seed {}, split test)", args.seed),
+        )
+    } else {
+        let (scenes, gravity) = load_suite(&args.data, args.max_scenes)?;
+        let dirs: Vec<String> = args.data.iter().map(|d| d.display().to_string()).collect();
+        (scenes, gravity, dirs.join(", "))
+    };
+    let ballistic = Ballistic {
+        gravity,
+        floor_z: Some(0.0),
+    };
+    let mut predictors: Vec<(String, Box<dyn Predictor>)> = Vec::new();
+    match (args.baseline, &args.model) {
+        (Some(BaselineKind::Static), None) => predictors.push(("static".into(), Box::new(Static))),
+        (Some(BaselineKind::Ballistic), None) => {
+            predictors.push(("ballistic".into(), Box::new(ballistic)))
+        }
+        (None, Some(dir)) => {
+            let model =
+                dynaserve_model::load_rigidformer(dir, &dynaserve_model::Device::Cpu, false)
+                    .with_context(|| format!("loading model {}", dir.display()))?;
+            let base = ModelPredictor::from_rigidformer(Arc::new(model));
+            let model = match args.points_per_object {
+                Some(n) => base.with_points_per_object(n),
+                None => base.with_points(PointSelection::Nominal),
+            };
+            predictors.push(("model".into(), Box::new(model)));
+            if !args.no_baselines {
+                predictors.push(("ballistic".into(), Box::new(ballistic)));
+            }
+        }
+        _ => anyhow::bail!("give exactly one of --baseline and --model"),
+    }
+    let opts = SuiteOptions {
+        start_frame: args.start_frame,
+        step_sizes: args.step_sizes.clone(),
+        window_stride: args.window_stride,
+        gravity,
+    };
+    let bar = ProgressBar::new((scenes.len() * predictors.len()) as u64);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{msg} [{elapsed_precise}] {wide_bar} {pos}/{len} scene evaluations (eta {eta})",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    bar.set_message("physics suite");
+    let refs: Vec<(&str, &dyn Predictor)> = predictors
+        .iter()
+        .map(|(l, p)| (l.as_str(), p.as_ref()))
+        .collect();
+    let per = scenes.len();
+    let mut report = run_suite(&refs, &scenes, &opts, &source, &|pi, done| {
+        bar.set_position((pi * per + done) as u64);
+        bar.set_message(format!("physics suite: {}", refs[pi].0));
+    })?;
+    bar.finish_and_clear();
+    report.elapsed_s = started.elapsed().as_secs_f64();
+    print!("{}", format_physics_text(&report));
+    println!(
+        "\nscored {} scenes x {} predictors in {:.1} s",
+        scenes.len(),
+        predictors.len(),
+        report.elapsed_s
+    );
+    if let Some(path) = &args.json {
+        std::fs::write(path, serde_json::to_string_pretty(&report)? + "\n")
+            .with_context(|| format!("writing {}", path.display()))?;
+        println!("wrote {}", path.display());
+    }
+    if let Some(path) = &args.markdown {
+        std::fs::write(path, format_physics_markdown(&report))
+            .with_context(|| format!("writing {}", path.display()))?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
+}
