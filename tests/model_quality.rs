@@ -20,7 +20,7 @@ async fn the_example_box_tower_stands_for_two_seconds() {
     let model = root.join(SHIPPED);
     let server = start(&model, |_| {}).await;
     let req =
-        dynaserve_client::scene_file::load(&root.join("examples/scenes/box_tower.json")).unwrap();
+        dynaserve_client::scene_file::load(root.join("examples/scenes/box_tower.json")).unwrap();
     assert_eq!(req.steps, 48);
     let start_positions: Vec<[f32; 3]> = req
         .scene
