@@ -197,7 +197,7 @@ pub enum Generator {
     WreckingBall(WreckingBallParameters),
     /// Physics scenario scenes (`rest`, `drop`, `slide`, `collide`, `stack-hit`, or
     /// `physics-mix` drawing one of them per scene).
-    Scenario(ScenarioParameters),
+    Scenario(Box<ScenarioParameters>),
 }
 
 impl Generator {
@@ -223,12 +223,12 @@ impl Generator {
 
     /// One physics scenario with its default parameters.
     pub fn scenario(scenario: Scenario) -> Self {
-        Generator::Scenario(ScenarioParameters::new(vec![scenario]))
+        Generator::Scenario(Box::new(ScenarioParameters::new(vec![scenario])))
     }
 
     /// `physics-mix`: each scene draws one of the five scenarios uniformly.
     pub fn physics_mix() -> Self {
-        Generator::Scenario(ScenarioParameters::new(Scenario::ALL.to_vec()))
+        Generator::Scenario(Box::new(ScenarioParameters::new(Scenario::ALL.to_vec())))
     }
 
     /// Name as used on the command line and in manifests.

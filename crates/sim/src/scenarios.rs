@@ -137,15 +137,20 @@ pub struct ScenarioParameters {
     pub slide_speed: [f32; 2],
     /// Longest stopping time under friction alone `v / (mu_object mu_floor |g|)`, seconds.
     pub slide_stop_time: f32,
+    /// Probability that a `collide` scene is thrown in the air rather than along the floor.
+    pub collide_air_fraction: f32,
     /// Speed of each object towards the other in `collide`, m/s (horizontal).
     pub collide_speed: [f32; 2],
     /// Time from release to the impact of the centres in the air variant, seconds.
     pub collide_air_time: [f32; 2],
     /// Clearance of both objects' lowest points above the floor at the air impact, metres.
     pub collide_air_clearance: [f32; 2],
-    /// Sideways offset of the two aim points, as a fraction of the sum of bounding radii.
+    /// Sideways offset of the two aim points, as a fraction of the sum of the objects'
+    /// bounding radii (air) or half-widths across the approach (floor).
     pub collide_offset: f32,
-    /// Gap between the two objects' surfaces at the start of the floor variant, metres.
+    /// Gap between the two objects along the approach direction at the start of the floor
+    /// variant, metres. Each object is launched at least 1.2 times as fast as friction alone
+    /// needs to stop it within half the gap, `sqrt(mu_object mu_floor |g| gap)`.
     pub collide_floor_gap: [f32; 2],
     /// Largest spin of objects thrown in the air, radians per second.
     pub collide_spin: f32,
@@ -201,11 +206,12 @@ impl ScenarioParameters {
             slide_objects: [1, 3],
             slide_speed: [1.0, 5.0],
             slide_stop_time: 3.0,
+            collide_air_fraction: 0.5,
             collide_speed: [2.5, 5.0],
-            collide_air_time: [0.35, 0.6],
+            collide_air_time: [0.5, 0.8],
             collide_air_clearance: [0.5, 1.5],
             collide_offset: 0.3,
-            collide_floor_gap: [0.5, 1.5],
+            collide_floor_gap: [2.0, 3.5],
             collide_spin: 2.0,
             stack_boxes: [2, 4],
             stack_scale: [0.5, 0.8],
@@ -276,6 +282,9 @@ impl ScenarioParameters {
             .any(|r| !(r[0].is_finite() && r[1].is_finite() && r[0] > 0.0 && r[0] <= r[1]))
         {
             return bad("a range is empty, not positive or not finite");
+        }
+        if !(0.0..=1.0).contains(&self.collide_air_fraction) {
+            return bad("collide_air_fraction must be in [0, 1]");
         }
         if self.gravity[2].is_nan() || self.gravity[2] >= 0.0 {
             return bad("gravity must point down (negative z)");
@@ -593,7 +602,7 @@ fn sample_collide<R: Rng + ?Sized>(
 ) -> Result<(Vec<ObjectSpec>, &'static str)> {
     let a = rng.random_range(0.0..TAU);
     let (dir, side) = ([a.cos(), a.sin(), 0.0], [-a.sin(), a.cos(), 0.0]);
-    if rng.random_bool(0.5) {
+    if rng.random_bool(f64::from(p.collide_air_fraction)) {
         // In the air: both centres would meet at the aim point at time `t` without the impact.
         let mut objects = [
             draw_object(p, &p.shapes, rng)?,
@@ -620,28 +629,34 @@ fn sample_collide<R: Rng + ?Sized>(
         }
         Ok((objects.to_vec(), "air"))
     } else {
-        // Along the floor: both resting on a face, launched towards each other.
+        // Along the floor: both resting on a face, launched towards each other, the gap
+        // measured along the approach direction and each fast enough to cross half of it
+        // against friction.
         let mut objects = Vec::with_capacity(2);
         let gap = uniform(rng, p.collide_floor_gap);
-        let mut reach = [0.0f32; 2];
-        for r in &mut reach {
+        // Per object: extent towards the other and half-width across the approach.
+        let mut front = [0.0f32; 2];
+        let mut width = [0.0f32; 2];
+        let to_dir_frame = Rotation::from_rotation_z(-a);
+        for k in 0..2 {
             let mut o = draw_object(p, &p.floor_shapes, rng)?;
             let (q, z) = rest_on_floor(p, &o, upright_start(o.shape.kind), rng)?;
             o.rotation = q;
             o.position[2] = z;
-            let (lo, hi) = extents(&o, q)?;
-            // Reach of the object towards the other along `dir` (conservative: its box).
-            *r = (0..2)
-                .map(|c| lo[c].abs().max(hi[c].abs()).powi(2))
-                .sum::<f32>()
-                .sqrt();
+            let local = quat(to_dir_frame * Rotation::from_xyzw(q[0], q[1], q[2], q[3]));
+            let (lo, hi) = extents(&o, local)?;
+            front[k] = if k == 0 { hi[0] } else { -lo[0] };
+            width[k] = lo[1].abs().max(hi[1].abs());
             objects.push(o);
         }
-        let offset = rng.random_range(-p.collide_offset..=p.collide_offset) * (reach[0] + reach[1]);
+        let offset = rng.random_range(-p.collide_offset..=p.collide_offset) * (width[0] + width[1]);
+        let g = -p.gravity[2];
         for (k, o) in objects.iter_mut().enumerate() {
             let sign = if k == 0 { -1.0 } else { 1.0 };
-            let d = 0.5 * gap + reach[k];
-            let speed = uniform(rng, p.collide_speed);
+            let d = 0.5 * gap + front[k];
+            let least = 1.2 * (floor_mu(p, o) * g * gap).sqrt();
+            let low = p.collide_speed[0].max(least);
+            let speed = uniform(rng, [low, p.collide_speed[1].max(low)]);
             let s = 0.5 * sign * offset;
             o.position[0] = sign * d * dir[0] + s * side[0];
             o.position[1] = sign * d * dir[1] + s * side[1];

@@ -89,7 +89,7 @@ fn dropped_objects_fall_bounce_and_end_on_the_floor() {
     ];
     p.rest_shapes = p.shapes.clone();
     p.floor_shapes = p.shapes.clone();
-    for g in scenes(Generator::Scenario(p.clone()), 2, 6) {
+    for g in scenes(Generator::Scenario(Box::new(p.clone())), 2, 6) {
         let o = &g.record.objects[0];
         let t_end = o.positions.len() - 1;
         let h0 = lowest(o, 0);
@@ -290,13 +290,13 @@ fn scenario_scenes_are_deterministic_and_parameters_are_checked() {
     let mut p = ScenarioParameters::new(vec![Scenario::Rest]);
     p.rest_variants = vec![RestVariant::Tower];
     p.tower_boxes = [4, 4];
-    let g = generate_scene(&options(Generator::Scenario(p.clone()), 7, 1), 0).unwrap();
+    let g = generate_scene(&options(Generator::Scenario(Box::new(p.clone())), 7, 1), 0).unwrap();
     assert_eq!(g.record.objects.len(), 4);
     p.tower_boxes = [0, 3];
-    assert!(generate_scene(&options(Generator::Scenario(p), 7, 1), 0).is_err());
+    assert!(generate_scene(&options(Generator::Scenario(Box::new(p)), 7, 1), 0).is_err());
     let mut p = ScenarioParameters::new(vec![]);
-    assert!(generate_scene(&options(Generator::Scenario(p.clone()), 7, 1), 0).is_err());
+    assert!(generate_scene(&options(Generator::Scenario(Box::new(p.clone())), 7, 1), 0).is_err());
     p.scenarios = vec![Scenario::Drop];
     p.drop_height = [2.0, 1.0];
-    assert!(generate_scene(&options(Generator::Scenario(p), 7, 1), 0).is_err());
+    assert!(generate_scene(&options(Generator::Scenario(Box::new(p)), 7, 1), 0).is_err());
 }

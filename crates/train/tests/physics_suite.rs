@@ -18,7 +18,7 @@ use dynaserve_train::eval::{Ballistic, EvalError, ModelPredictor, Predictor};
 
 const GRAVITY: [f32; 3] = [0.0, 0.0, -10.0];
 
-/// One scene of every suite group (seed 7, split test, 256 points), generated once.
+/// One scene of each of the 7 suite groups (seed 7, split test, 256 points), generated once.
 fn suite() -> &'static [SuiteScene] {
     static SUITE: OnceLock<Vec<SuiteScene>> = OnceLock::new();
     SUITE.get_or_init(|| generate_suite(7, "test", 1, 256).unwrap())
@@ -104,7 +104,7 @@ fn regimes_of(s: &SuiteScene, k: usize) -> Vec<Regime> {
 #[test]
 fn generated_suite_is_labelled_and_deterministic() {
     let scenes = suite();
-    assert_eq!(scenes.len(), 6);
+    assert_eq!(scenes.len(), 7);
     let again = generate_suite(7, "test", 1, 256).unwrap();
     for (a, b) in scenes.iter().zip(&again) {
         assert_eq!(a.scene, b.scene);
@@ -116,8 +116,14 @@ fn generated_suite_is_labelled_and_deterministic() {
         4,
         "the suite's towers have 4 boxes"
     );
-    for name in ["drop", "slide", "collide", "stack-hit"] {
-        scene_of(scenes, name, "");
+    for (name, variant) in [
+        ("drop", ""),
+        ("slide", ""),
+        ("collide", "air"),
+        ("collide", "floor"),
+        ("stack-hit", ""),
+    ] {
+        scene_of(scenes, name, variant);
     }
     assert!(generate_suite(7, "test", 0, 256).is_err());
 }
@@ -145,7 +151,10 @@ fn regimes_follow_what_the_scenes_do() {
     let slide = regimes_of(scene_of(scenes, "slide", ""), 1);
     assert!(!slide.contains(&Regime::FreeFlight) && !slide.contains(&Regime::ObjectContact));
     // Thrown objects meet; the stack is hit.
-    assert!(regimes_of(scene_of(scenes, "collide", ""), 1).contains(&Regime::ObjectContact));
+    for variant in ["air", "floor"] {
+        let r = regimes_of(scene_of(scenes, "collide", variant), 1);
+        assert!(r.contains(&Regime::ObjectContact), "{variant}");
+    }
     assert!(regimes_of(scene_of(scenes, "stack-hit", ""), 1).contains(&Regime::ObjectContact));
 }
 

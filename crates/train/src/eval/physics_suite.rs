@@ -44,21 +44,27 @@ pub struct SuiteScene {
 }
 
 /// The groups of the generated suite: (name, generator). `rest-tower` holds towers of
-/// [`SUITE_TOWER_BOXES`] cubes, `rest-single` single objects; the others use the scenario
-/// generators' defaults.
+/// [`SUITE_TOWER_BOXES`] cubes, `rest-single` single objects, `collide-air` and
+/// `collide-floor` one variant each; the others use the scenario generators' defaults.
 pub fn suite_groups() -> Vec<(&'static str, Generator)> {
     let rest = |variant: RestVariant| {
         let mut p = ScenarioParameters::new(vec![Scenario::Rest]);
         p.rest_variants = vec![variant];
         p.tower_boxes = [SUITE_TOWER_BOXES, SUITE_TOWER_BOXES];
-        Generator::Scenario(p)
+        Generator::Scenario(Box::new(p))
+    };
+    let collide = |air: f32| {
+        let mut p = ScenarioParameters::new(vec![Scenario::Collide]);
+        p.collide_air_fraction = air;
+        Generator::Scenario(Box::new(p))
     };
     vec![
         ("rest-tower", rest(RestVariant::Tower)),
         ("rest-single", rest(RestVariant::Single)),
         ("drop", Generator::scenario(Scenario::Drop)),
         ("slide", Generator::scenario(Scenario::Slide)),
-        ("collide", Generator::scenario(Scenario::Collide)),
+        ("collide-air", collide(1.0)),
+        ("collide-floor", collide(0.0)),
         ("stack-hit", Generator::scenario(Scenario::StackHit)),
     ]
 }

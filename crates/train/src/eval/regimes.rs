@@ -92,6 +92,9 @@ pub struct ContactFlags {
     pub floor: Vec<Vec<bool>>,
     /// A reference point of the object is within the contact distance of another object's.
     pub object: Vec<Vec<bool>>,
+    /// The same within the looser impact distance [`ContactFlags::impact_distance_m`], which
+    /// also catches touching surfaces whose sparse samples stay a few centimetres apart.
+    pub near_object: Vec<Vec<bool>>,
     /// The centre's acceleration differs from gravity by more than
     /// [`IMPULSE_ACCELERATION_M_S2`] (false at the first and last frame).
     pub impulse: Vec<Vec<bool>>,
@@ -99,6 +102,9 @@ pub struct ContactFlags {
     pub lowest: Vec<Vec<f32>>,
     /// Contact distance between objects used for this scene, metres.
     pub object_distance_m: f32,
+    /// Impact distance: [`CONTACT_DISTANCE_M`] plus three times the largest cloud spacing,
+    /// metres.
+    pub impact_distance_m: f32,
 }
 
 /// Median distance from a point of the cloud to its nearest neighbour in the cloud (over the
@@ -138,15 +144,18 @@ pub fn contact_flags(scene: &SceneRecord, gravity: [f32; 3]) -> Result<ContactFl
         .iter()
         .map(|o| sampling_spacing(&o.reference_points))
         .collect();
-    let radius = CONTACT_DISTANCE_M + spacing.iter().copied().fold(0.0, f32::max);
+    let widest = spacing.iter().copied().fold(0.0, f32::max);
+    let radius = CONTACT_DISTANCE_M + widest;
+    let loose = CONTACT_DISTANCE_M + 3.0 * widest;
     // The ground far below: never a candidate, so a point without a neighbour gets the
-    // fallback (0, 0, -radius), at exactly the radius.
+    // fallback (0, 0, -loose), at exactly the search radius.
     let cfg = ContactConfig {
-        radius,
+        radius: loose,
         ground_z: Some(-1.0e6),
     };
     let mut floor = Vec::with_capacity(frames);
     let mut object = Vec::with_capacity(frames);
+    let mut near_object = Vec::with_capacity(frames);
     let mut lowest = Vec::with_capacity(frames);
     for t in 0..frames {
         let mut points = Vec::new();
@@ -164,19 +173,22 @@ pub fn contact_flags(scene: &SceneRecord, gravity: [f32; 3]) -> Result<ContactFl
                 .collect(),
         );
         lowest.push(low);
-        let row = if n > 1 {
+        // Squared distance from each object to the nearest point of another (capped).
+        let gap: Vec<f32> = if n > 1 {
             let d = contact_features(&points, &offsets, &cfg);
             (0..n)
                 .map(|j| {
                     d[offsets[j]..offsets[j + 1]]
                         .iter()
-                        .any(|v| v[0] * v[0] + v[1] * v[1] + v[2] * v[2] < radius * radius)
+                        .map(|v| v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+                        .fold(f32::INFINITY, f32::min)
                 })
                 .collect()
         } else {
-            vec![false; n]
+            vec![f32::INFINITY; n]
         };
-        object.push(row);
+        object.push(gap.iter().map(|g| *g < radius * radius).collect());
+        near_object.push(gap.iter().map(|g| *g < loose * loose).collect());
     }
     let dt = f64::from(scene.dt_frame);
     let impulse = (0..frames)
@@ -205,9 +217,11 @@ pub fn contact_flags(scene: &SceneRecord, gravity: [f32; 3]) -> Result<ContactFl
     Ok(ContactFlags {
         floor,
         object,
+        near_object,
         impulse,
         lowest,
         object_distance_m: radius,
+        impact_distance_m: loose,
     })
 }
 

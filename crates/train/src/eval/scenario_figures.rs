@@ -11,8 +11,9 @@
 //! - `collide`: the momentum object 0 exchanges in the impact, `|m (v_after - v_before) -
 //!   m g (t_after - t_before)|` (air) or the horizontal part of `m (v_after - v_before)`
 //!   (floor), kg m/s, with velocities from the frame pairs `(c - 2, c - 1)` (or `(s - 1, s)` if
-//!   `c - 2 < s`) and `(c + 2, c + 3)` around the ground truth's first object-contact frame
-//!   `c >= s`;
+//!   `c - 2 < s`) and `(c + 2, c + 3)` around the ground truth's impact frame `c`, the first
+//!   frame with a point of object 0 within the impact distance of object 1
+//!   ([`ContactFlags::impact_distance_m`]; no sample unless `s < c` and `c + 3` is a frame);
 //! - `stack-hit`: the mean over the tower's boxes (every object but the last) of their centre
 //!   displacement from frame `s` to the last frame, m, and (predictor only) the mean distance
 //!   of the boxes' final centres from rapier's, m.
@@ -275,8 +276,9 @@ pub fn scene_samples(
             }
         }
         "collide" if n == 2 => {
-            let impact = (start..frames.saturating_sub(3)).find(|&f| flags.object[f][0]);
-            if let Some(c) = impact {
+            // The first contact of the scene; measurable only if the predictor has to make it.
+            let impact = (0..frames).find(|&f| flags.near_object[f][0]);
+            if let Some(c) = impact.filter(|&c| c > start && c + 3 < frames) {
                 let air = label.variant == "air";
                 out.push(sample(
                     "momentum exchanged",
