@@ -12,16 +12,18 @@
 //! and after `t`; else *object* if one of its points is within 8 cm of another object's at
 //! `t + 1`; else *floor* if its lowest point is below 2 cm at `t + 1`; else *air* (this last one
 //! still holds impacts that happen and end between two frames). `ballistic` is
-//! `2 x_t - x_{t-1} + g dt^2` with the data's gravity (-10 m/s^2, 24 fps) and no floor.
+//! `2 x_t - x_{t-1} + g dt^2` with the manifest's gravity and frame interval, and no floor.
 use std::path::Path;
 
-use dynaserve_model::{Device, ObjectInput, Pose, SceneState, StepItem, load_model};
+use dynaserve_model::{Device, ObjectInput, SceneState, StepItem, load_model};
 use dynaserve_sim::DatasetReader;
+use dynaserve_train::eval::poses_at;
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let model = load_model(Path::new(&args[1]), &Device::Cpu).unwrap();
     let reader = DatasetReader::open(&args[2]).unwrap();
+    let (gravity, dt) = (reader.manifest().gravity, reader.manifest().dt_frame);
     let scenes: usize = args[3].parse().unwrap();
     let frames: Vec<usize> = args[4].split(',').map(|s| s.parse().unwrap()).collect();
     // regime -> (count, sum sq err model, sum sq static, signed z model)
@@ -40,15 +42,7 @@ fn main() {
             .collect();
         let scene = model.prepare(objects).unwrap();
         for &t in &frames {
-            let pose = |f: usize| -> Vec<Pose> {
-                rec.objects
-                    .iter()
-                    .map(|o| Pose {
-                        translation: o.positions[f],
-                        rotation: o.rotations[f],
-                    })
-                    .collect()
-            };
+            let pose = |f: usize| poses_at(&rec, f).unwrap();
             let state = SceneState {
                 previous: pose(t - 1),
                 current: pose(t),
@@ -66,12 +60,12 @@ fn main() {
                     .map(|d| (o.positions[t][d] - o.positions[t - 1][d]).powi(2))
                     .sum::<f32>()
                     .sqrt()
-                    * 24.0;
+                    / dt;
                 let v1: f32 = (0..3)
                     .map(|d| (o.positions[t + 1][d] - o.positions[t][d]).powi(2))
                     .sum::<f32>()
                     .sqrt()
-                    * 24.0;
+                    / dt;
                 // lowest point height at t+1
                 let low = o.reference_points[..512]
                     .iter()
@@ -113,7 +107,7 @@ fn main() {
                 let e: f64 = (0..3)
                     .map(|d| (out[0][j].translation[d] - truth[j].translation[d]).powi(2) as f64)
                     .sum();
-                let g = [0.0f32, 0.0, -10.0 / 576.0];
+                let g = gravity.map(|a| a * dt * dt);
                 let es: f64 = (0..3)
                     .map(|d| {
                         (2.0 * state.current[j].translation[d] - state.previous[j].translation[d]
