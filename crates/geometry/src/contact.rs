@@ -37,6 +37,10 @@
 //! 3. The per-point searches run on rayon's pool when the scene has at least
 //!    [`PARALLEL_MIN_POINTS`] points; smaller scenes run serially.
 //!
+//! [`contact_hits`] runs the same search and also returns what each displacement reaches (the
+//! nearest point's index, the ground, or nothing), for features that need the motion of the
+//! contact surface.
+//!
 //! The cost is `O(n)` plus the work inside near pairs. Scratch buffers live in a per-thread
 //! [`ContactWorkspace`], so repeated calls do not allocate except for the returned vector
 //! (use [`contact_features_into`] to reuse that too).
@@ -171,19 +175,50 @@ fn dist2(a: &Point, b: &Point) -> f32 {
     dx * dx + dy * dy + dz * dz
 }
 
-/// The squared distance a point candidate must beat and the result when none does.
+/// What a point's contact displacement points at (see [`contact_hits`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ContactSource {
+    /// The nearest point of another object, by its index into `points`.
+    Point(u32),
+    /// The ground plane, within the radius and nearer than every other object's point.
+    Ground,
+    /// Nothing within the radius: the displacement is the clipped (or zero) fallback.
+    Free,
+}
+
+/// One point's contact feature together with what it points at.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ContactHit {
+    /// The contact displacement of [`contact_features`], metres, world frame.
+    pub displacement: Point,
+    /// The surface the displacement reaches.
+    pub source: ContactSource,
+}
+
+impl ContactHit {
+    #[inline(always)]
+    fn new(displacement: Point, source: ContactSource) -> ContactHit {
+        ContactHit {
+            displacement,
+            source,
+        }
+    }
+}
+
+/// The squared distance a point candidate must beat, the result when none does and what
+/// that result points at.
 #[inline(always)]
-fn ground_fallback(x: &Point, r: f32, ground_z: Option<f32>) -> (f32, Point) {
+fn ground_fallback(x: &Point, r: f32, ground_z: Option<f32>) -> (f32, Point, ContactSource) {
     let r2 = r * r;
     match ground_z {
-        None => (r2, [0.0; 3]),
+        None => (r2, [0.0; 3], ContactSource::Free),
         Some(gz) => {
             let g = gz - x[2];
             let g2 = g * g;
             if g2 < r2 {
-                (g2, [0.0, 0.0, g])
+                (g2, [0.0, 0.0, g], ContactSource::Ground)
             } else {
-                (r2, [0.0, 0.0, r.copysign(g)])
+                (r2, [0.0, 0.0, r.copysign(g)], ContactSource::Free)
             }
         }
     }
@@ -199,6 +234,22 @@ pub fn contact_features_brute_force(
     offsets: &[usize],
     cfg: &ContactConfig,
 ) -> Vec<Point> {
+    contact_hits_brute_force(points, offsets, cfg)
+        .into_iter()
+        .map(|h| h.displacement)
+        .collect()
+}
+
+/// Reference implementation of [`contact_hits`] by exhaustive search, `O(n^2)`; bit-identical
+/// displacements and the same sources. For tests and benchmarks.
+///
+/// # Panics
+/// If `offsets` is malformed (see [`validate_offsets`]).
+pub fn contact_hits_brute_force(
+    points: &[Point],
+    offsets: &[usize],
+    cfg: &ContactConfig,
+) -> Vec<ContactHit> {
     if let Err(e) = validate_offsets(points.len(), offsets) {
         panic!("contact_features_brute_force: {e}");
     }
@@ -206,23 +257,31 @@ pub fn contact_features_brute_force(
     let mut out = Vec::with_capacity(points.len());
     for i in 0..offsets.len() - 1 {
         for x in &points[offsets[i]..offsets[i + 1]] {
-            let (mut best_d2, fallback) = ground_fallback(x, r, cfg.ground_z);
+            let (mut best_d2, fallback, kind) = ground_fallback(x, r, cfg.ground_z);
             let mut best = None;
             for j in 0..offsets.len() - 1 {
                 if j == i {
                     continue;
                 }
-                for y in &points[offsets[j]..offsets[j + 1]] {
+                for (k, y) in points
+                    .iter()
+                    .enumerate()
+                    .take(offsets[j + 1])
+                    .skip(offsets[j])
+                {
                     let d2 = dist2(x, y);
                     if d2 < best_d2 {
                         best_d2 = d2;
-                        best = Some(y);
+                        best = Some((y, k));
                     }
                 }
             }
             out.push(match best {
-                Some(y) => [y[0] - x[0], y[1] - x[1], y[2] - x[2]],
-                None => fallback,
+                Some((y, k)) => ContactHit::new(
+                    [y[0] - x[0], y[1] - x[1], y[2] - x[2]],
+                    ContactSource::Point(k as u32),
+                ),
+                None => ContactHit::new(fallback, kind),
             });
         }
     }
@@ -253,14 +312,32 @@ pub fn contact_features_into(
     cfg: &ContactConfig,
     out: &mut Vec<Point>,
 ) {
+    with_workspace(|ws| ws.compute(points, offsets, cfg, out));
+}
+
+/// [`contact_features`] that also says what every displacement points at: the index of the
+/// nearest point of another object, the ground, or nothing within the radius. Same search,
+/// bit-identical displacements. `points`: `[n, 3]` metres; `offsets`: `[objects + 1]`;
+/// returns `[n]` hits.
+///
+/// # Panics
+/// If `offsets` is malformed (see [`validate_offsets`]).
+pub fn contact_hits(points: &[Point], offsets: &[usize], cfg: &ContactConfig) -> Vec<ContactHit> {
+    let mut out = Vec::new();
+    with_workspace(|ws| ws.compute_hits(points, offsets, cfg, &mut out));
+    out
+}
+
+/// Runs `f` on this thread's [`ContactWorkspace`].
+fn with_workspace(f: impl FnOnce(&mut ContactWorkspace)) {
     thread_local! {
         static WORKSPACE: RefCell<ContactWorkspace> = RefCell::new(ContactWorkspace::default());
     }
     WORKSPACE.with(|ws| match ws.try_borrow_mut() {
-        Ok(mut ws) => ws.compute(points, offsets, cfg, out),
+        Ok(mut ws) => f(&mut ws),
         // Re-entered from inside a computation on this thread (only possible through rayon
         // work stealing): use a fresh workspace.
-        Err(_) => ContactWorkspace::default().compute(points, offsets, cfg, out),
+        Err(_) => f(&mut ContactWorkspace::default()),
     });
 }
 
@@ -403,6 +480,37 @@ impl ContactWorkspace {
         cfg: &ContactConfig,
         out: &mut Vec<Point>,
     ) {
+        self.search(points, offsets, cfg, out, |d, _| d);
+    }
+
+    /// Computes the contact hits of one scene into `out` (see [`contact_hits`]).
+    ///
+    /// # Panics
+    /// If `offsets` is malformed (see [`validate_offsets`]).
+    pub fn compute_hits(
+        &mut self,
+        points: &[Point],
+        offsets: &[usize],
+        cfg: &ContactConfig,
+        out: &mut Vec<ContactHit>,
+    ) {
+        self.search(points, offsets, cfg, out, ContactHit::new);
+    }
+
+    /// The search behind [`ContactWorkspace::compute`] and [`ContactWorkspace::compute_hits`]:
+    /// `emit` turns a displacement and its source into one output row (monomorphised, so the
+    /// displacement-only path carries no source).
+    fn search<T, F>(
+        &mut self,
+        points: &[Point],
+        offsets: &[usize],
+        cfg: &ContactConfig,
+        out: &mut Vec<T>,
+        emit: F,
+    ) where
+        T: Copy + Send,
+        F: Fn(Point, ContactSource) -> T + Sync,
+    {
         if let Err(e) = validate_offsets(points.len(), offsets) {
             panic!("contact_features: {e}");
         }
@@ -411,7 +519,7 @@ impl ContactWorkspace {
         let r = cfg.effective_radius();
         let ground_z = cfg.ground_z;
         out.clear();
-        out.resize(n, [0.0; 3]);
+        out.resize(n, emit([0.0; 3], ContactSource::Free));
         if n == 0 {
             return;
         }
@@ -461,7 +569,10 @@ impl ContactWorkspace {
             }
         }
         if self.pairs.is_empty() {
-            fill_fallback(points, r, ground_z, out);
+            for (x, o) in points.iter().zip(out.iter_mut()) {
+                let (_, d, source) = ground_fallback(x, r, ground_z);
+                *o = emit(d, source);
+            }
             return;
         }
 
@@ -596,12 +707,12 @@ impl ContactWorkspace {
         let neighbours = &self.neighbours;
         let cell_start = &self.cell_start;
         let entries = &self.entries;
-        let query = |idx: usize, o: &mut Point| {
+        let query = |idx: usize, o: &mut T| {
             let x = &points[idx];
-            let (limit2, fallback) = ground_fallback(x, r, ground_z);
+            let (limit2, fallback, kind) = ground_fallback(x, r, ground_z);
             let obj = object_of[idx] as usize;
             if !interest[obj].contains(x) {
-                *o = fallback;
+                *o = emit(fallback, kind);
                 return;
             }
             let mut best_d2 = limit2;
@@ -671,8 +782,11 @@ impl ContactWorkspace {
                 }
             }
             *o = match best {
-                Some(y) => [y[0] - x[0], y[1] - x[1], y[2] - x[2]],
-                None => fallback,
+                Some(y) => emit(
+                    [y[0] - x[0], y[1] - x[1], y[2] - x[2]],
+                    ContactSource::Point(best_index),
+                ),
+                None => emit(fallback, kind),
             };
         };
 
@@ -689,12 +803,6 @@ impl ContactWorkspace {
                 query(idx, o);
             }
         }
-    }
-}
-
-fn fill_fallback(points: &[Point], r: f32, ground_z: Option<f32>, out: &mut [Point]) {
-    for (x, o) in points.iter().zip(out.iter_mut()) {
-        *o = ground_fallback(x, r, ground_z).1;
     }
 }
 
@@ -927,6 +1035,68 @@ mod tests {
         let points = vec![[0.0, 0.0, 0.125], [0.125, 0.0, 0.125]];
         let got = contact_features(&points, &[0, 1, 2], &cfg);
         assert_eq!(got[0], [0.0, 0.0, -0.125]);
+    }
+
+    /// The variant that names its source finds the same displacements as the plain search
+    /// and the same sources as the brute force, including for non-finite and empty inputs.
+    #[test]
+    fn hits_equal_brute_force_and_plain_features() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let configs = [
+            ContactConfig::default(),
+            ContactConfig {
+                radius: 0.5,
+                ground_z: None,
+            },
+        ];
+        let mut seen = [0usize; 3];
+        for s in 0..150 {
+            let (mut points, offsets) = random_scene(&mut rng);
+            if s % 10 == 0 && !points.is_empty() {
+                points[0] = [f32::NAN, 0.0, 0.0];
+            }
+            for cfg in &configs {
+                let hits = contact_hits(&points, &offsets, cfg);
+                let brute = contact_hits_brute_force(&points, &offsets, cfg);
+                let plain = contact_features(&points, &offsets, cfg);
+                let disp: Vec<Point> = hits.iter().map(|h| h.displacement).collect();
+                assert_bit_identical(&disp, &plain, &format!("scene {s}, {cfg:?}"));
+                for (k, (h, b)) in hits.iter().zip(&brute).enumerate() {
+                    assert_eq!(h.source, b.source, "scene {s}, point {k}, {cfg:?}");
+                    match h.source {
+                        ContactSource::Point(j) => {
+                            let y = points[j as usize];
+                            let x = points[k];
+                            let d = [y[0] - x[0], y[1] - x[1], y[2] - x[2]];
+                            assert_eq!(d, h.displacement);
+                            seen[0] += 1;
+                        }
+                        ContactSource::Ground => seen[1] += 1,
+                        ContactSource::Free => seen[2] += 1,
+                    }
+                }
+            }
+        }
+        assert!(
+            seen.iter().all(|&c| c > 100),
+            "every source occurs: {seen:?}"
+        );
+    }
+
+    #[test]
+    fn hits_name_the_ground_the_point_and_nothing() {
+        let cfg = ContactConfig::default();
+        // Object 0: one point high up, one near the ground; object 1: a point 0.05 m beside
+        // the high one.
+        let points = vec![[0.0, 0.0, 2.0], [3.0, 0.0, 0.1], [0.05, 0.0, 2.0]];
+        let hits = contact_hits(&points, &[0, 2, 3], &cfg);
+        assert_eq!(hits[0].source, ContactSource::Point(2));
+        assert_eq!(hits[1].source, ContactSource::Ground);
+        assert_eq!(hits[1].displacement, [0.0, 0.0, -0.1]);
+        assert_eq!(hits[2].source, ContactSource::Point(0));
+        let alone = contact_hits(&points[..1], &[0, 1], &cfg);
+        assert_eq!(alone[0].source, ContactSource::Free);
+        assert_eq!(alone[0].displacement, [0.0, 0.0, -0.25]);
     }
 
     #[test]

@@ -11,7 +11,10 @@ pub mod mesh;
 pub mod metrics;
 pub mod quat;
 
-pub use contact::{ContactConfig, contact_features, contact_features_brute_force};
+pub use contact::{
+    ContactConfig, ContactHit, ContactSource, contact_features, contact_features_brute_force,
+    contact_hits, contact_hits_brute_force,
+};
 pub use fps::farthest_point_sampling;
 pub use kabsch::{KabschSolution, kabsch, kabsch_backward};
 pub use mesh::{TriMesh, convex_hull, sample_surface};
