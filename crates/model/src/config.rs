@@ -11,41 +11,71 @@ pub const RIGIDFORMER: &str = "rigidformer";
 /// Current `config.json` format version.
 pub const FORMAT_VERSION: u32 = 1;
 
-/// Number of per-point input features: contact displacement (3), per-step increment (3),
-/// offset from the reference cloud (3), physical parameters (3).
-pub const POINT_FEATURES: usize = 12;
+/// Number of per-point input features every model has: contact displacement (3), per-step
+/// increment (3), offset from the reference cloud (3), physical parameters (3).
+pub const BASE_POINT_FEATURES: usize = 12;
 
-/// Affine normalisation of the 12 per-point input features: `(raw - mean) / std`.
+/// Features appended after the base ones when [`DynamicsConfig::contact_velocity`] is on: the
+/// contact surface's increment relative to the point's own (3).
+pub const CONTACT_VELOCITY_FEATURES: usize = 3;
+
+/// Affine normalisation of the per-point input features: `(raw - mean) / std`, one value per
+/// feature ([`DynamicsConfig::point_features`]: 12, or 15 with the contact velocity).
 ///
-/// Layout of the 12 values: `[contact_x, contact_y, contact_z, v_x, v_y, v_z, r_x, r_y, r_z,
-/// ln(mass / 1 kg), friction, restitution]`. Contact displacement, increment and offset are in
-/// metres (the increment per step of `dt_steps` frames); mass enters as its natural logarithm.
+/// Layout: `[contact_x, contact_y, contact_z, v_x, v_y, v_z, r_x, r_y, r_z, ln(mass / 1 kg),
+/// friction, restitution]`, then `[cv_x, cv_y, cv_z]` with the contact velocity. Contact
+/// displacement, increment, offset and contact velocity are in metres (increments per step of
+/// `dt_steps` frames, or per frame with per-frame units); mass enters as its natural logarithm.
 /// The trainer fits these from data; the defaults are sensible for MOVi-like scenes.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct FeatureNormalization {
-    /// Per-feature mean subtracted first.
-    pub mean: [f32; POINT_FEATURES],
-    /// Per-feature scale divided by afterwards (must be finite and > 0).
-    pub std: [f32; POINT_FEATURES],
+    /// Per-feature mean subtracted first, `[features]`.
+    pub mean: Vec<f32>,
+    /// Per-feature scale divided by afterwards (must be finite and > 0), `[features]`.
+    pub std: Vec<f32>,
 }
 
 impl Default for FeatureNormalization {
+    /// The 12 base features' defaults.
     fn default() -> Self {
         FeatureNormalization {
-            mean: [
+            mean: vec![
                 0.0, 0.0, -0.1, // contact (the ground pulls the mean down)
                 0.0, 0.0, 0.0, // per-step increment
                 0.0, 0.0, 1.0, // offset from the reference cloud ~ world position
                 0.5, 0.6, 0.5, // ln mass, friction, restitution
             ],
-            std: [
+            std: vec![
                 0.1, 0.1, 0.1, //
                 0.05, 0.05, 0.05, //
                 2.5, 2.5, 1.0, //
                 1.0, 0.2, 0.2,
             ],
         }
+    }
+}
+
+impl FeatureNormalization {
+    /// Default constants for the features `dynamics` selects (the contact velocity, if on,
+    /// gets mean 0 and the increment's scale).
+    pub fn defaults_for(dynamics: &DynamicsConfig) -> FeatureNormalization {
+        let mut n = FeatureNormalization::default();
+        if dynamics.contact_velocity {
+            n.mean.extend([0.0; CONTACT_VELOCITY_FEATURES]);
+            n.std.extend([0.05; CONTACT_VELOCITY_FEATURES]);
+        }
+        n
+    }
+
+    /// Number of features these constants normalise.
+    pub fn len(&self) -> usize {
+        self.mean.len()
+    }
+
+    /// True when there are no constants at all (never valid).
+    pub fn is_empty(&self) -> bool {
+        self.mean.is_empty()
     }
 }
 
@@ -96,6 +126,11 @@ pub struct DynamicsConfig {
     /// floor is at `ground_z`), and the anchor queries' positional features are relative to the
     /// object's centroid. Attention rotaries stay world-frame (only differences enter there).
     pub translation_invariant: bool,
+    /// Contact velocity feature: per point, the increment of the contact surface it reaches
+    /// relative to its own increment (zero when nothing is within the contact radius, minus
+    /// its own increment for the ground), in the increment feature's units. Adds
+    /// [`CONTACT_VELOCITY_FEATURES`] inputs after the base ones.
+    pub contact_velocity: bool,
 }
 
 impl DynamicsConfig {
@@ -105,7 +140,19 @@ impl DynamicsConfig {
             gravity_residual: true,
             per_frame_units: true,
             translation_invariant: true,
+            contact_velocity: true,
         }
+    }
+
+    /// Number of per-point input features: [`BASE_POINT_FEATURES`], plus
+    /// [`CONTACT_VELOCITY_FEATURES`] with the contact velocity.
+    pub fn point_features(&self) -> usize {
+        BASE_POINT_FEATURES
+            + if self.contact_velocity {
+                CONTACT_VELOCITY_FEATURES
+            } else {
+                0
+            }
     }
 
     /// Divisor of the per-point increment feature at step size `k` frames.
@@ -154,7 +201,7 @@ pub struct ModelConfig {
     pub contact_radius: f32,
     /// Height of the ground plane's top in metres, or `None` for no ground.
     pub ground_z: Option<f32>,
-    /// Normalisation of the 12 per-point features.
+    /// Normalisation of the per-point features (12, or 15 with the contact velocity).
     pub normalization: FeatureNormalization,
     /// Scale dividing relative point positions inside the encoder, metres.
     pub position_scale: f32,
@@ -234,7 +281,7 @@ impl ModelConfig {
             max_objects: 1024,
             contact_radius: 0.25,
             ground_z: Some(0.0),
-            normalization: FeatureNormalization::default(),
+            normalization: FeatureNormalization::defaults_for(&DynamicsConfig::residual()),
             position_scale: 0.5,
             point_dim: 32,
             sa_centres: 32,
@@ -302,6 +349,11 @@ impl ModelConfig {
             sa_centres: self.sa_centres,
             sa_neighbours: self.sa_neighbours,
         }
+    }
+
+    /// Number of per-point input features (see [`DynamicsConfig::point_features`]).
+    pub fn point_features(&self) -> usize {
+        self.dynamics.point_features()
     }
 
     /// Width of one attention head.
@@ -386,6 +438,14 @@ impl ModelConfig {
                 self.blocks
             ));
         }
+        let features = self.point_features();
+        if self.normalization.mean.len() != features || self.normalization.std.len() != features {
+            return bad(format!(
+                "normalization: {} means and {} stds, the features need {features} of each",
+                self.normalization.mean.len(),
+                self.normalization.std.len()
+            ));
+        }
         if self
             .normalization
             .std
@@ -466,5 +526,28 @@ mod tests {
                 .to_string()
                 .contains("anchor_taps")
         );
+        let mut c = ModelConfig::small();
+        c.dynamics.contact_velocity = false;
+        assert!(
+            c.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("the features need 12")
+        );
+    }
+
+    /// A `config.json` written before the contact velocity (no such key, 12 constants) reads
+    /// as a 12-feature model.
+    #[test]
+    fn configs_without_contact_velocity_read_as_twelve_features() {
+        let mut old = serde_json::to_value(ModelConfig::small()).unwrap();
+        let dynamics = old["dynamics"].as_object_mut().unwrap();
+        dynamics.remove("contact_velocity");
+        old["normalization"] = serde_json::to_value(FeatureNormalization::default()).unwrap();
+        let c: ModelConfig = serde_json::from_value(old).unwrap();
+        c.validate().unwrap();
+        assert!(!c.dynamics.contact_velocity);
+        assert_eq!(c.point_features(), 12);
+        assert_eq!(ModelConfig::small().point_features(), 15);
     }
 }

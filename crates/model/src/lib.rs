@@ -21,13 +21,16 @@ pub use api::{ObjectInput, Pose, SceneState, StepItem, WorldModel, rollout};
 pub use batching::PassBudget;
 pub use checkpoint::{load_model, load_rigidformer, read_config};
 pub use config::{
-    DynamicsConfig, FeatureNormalization, LossConfig, ModelConfig, POINT_FEATURES, PreparedKey,
+    BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig, FeatureNormalization,
+    LossConfig, ModelConfig, PreparedKey,
 };
 pub use error::ModelError;
 pub use kernels::kabsch::{self as kabsch_op, KabschOp};
 pub use layers::Mode;
 pub use prepare::{MAX_BODY_EXTENT, MAX_DT_STEPS, MAX_WORLD_EXTENT, PreparedScene};
-pub use rigidformer::features::{FeatureFrame, object_params, raw_point_features};
+pub use rigidformer::features::{
+    FeatureFrame, contact_velocity, object_params, raw_point_features,
+};
 pub use rigidformer::{RigidFormer, StepProfile, TrainItem, TrainOutput};
 pub use runtime::configure_compute;
 

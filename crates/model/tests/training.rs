@@ -291,7 +291,11 @@ fn free_fall_is_the_zero_output_with_a_gravity_residual() {
     for residual in [true, false] {
         let mut cfg = ModelConfig::tiny();
         if !residual {
-            cfg.dynamics = Default::default();
+            // Only the parametrisation switches off; the inputs stay those of the preset.
+            cfg.dynamics = dynaserve_model::DynamicsConfig {
+                contact_velocity: cfg.dynamics.contact_velocity,
+                ..Default::default()
+            };
         }
         let model = RigidFormer::new(cfg.clone(), 5, &Device::Cpu).unwrap();
         let (objs, _) = random_scene(6, 2, 40);

@@ -1,5 +1,6 @@
 //! Training end to end on tiny generated datasets: the loss falls when over-fitting a few
-//! windows, and `--resume` continues exactly (bit-identical weights to an uninterrupted run).
+//! windows, `--resume` continues exactly (bit-identical weights to an uninterrupted run), and
+//! fine-tuning widens a model for the contact velocity inputs.
 
 use std::path::{Path, PathBuf};
 
@@ -164,5 +165,43 @@ fn resume_is_exact() {
     .unwrap();
     let m = dynaserve_model::load_model(&dir.join("model"), &dynaserve_model::Device::Cpu).unwrap();
     assert_eq!(m.config().width, dynaserve_model::ModelConfig::tiny().width);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `model.contact_velocity = true` on a 12-feature `model.init` widens it: the run's model
+/// takes 15 features, keeps the 12 old normalisation constants and fits the 3 new ones; a
+/// model that has the inputs cannot lose them.
+#[test]
+fn init_widens_a_model_for_the_contact_velocity() {
+    let dir = scratch("widen");
+    let data = tiny_dataset(&dir);
+    let mut base = tiny_config(&data, &dir.join("base"), 2);
+    base.model.contact_velocity = Some(false);
+    train(&base, &TrainOptions::default()).unwrap();
+    let base_cfg = dynaserve_model::read_config(&dir.join("base/checkpoint")).unwrap();
+    assert_eq!(base_cfg.point_features(), 12);
+
+    let mut wide = tiny_config(&data, &dir.join("wide"), 2);
+    wide.model.init = Some(dir.join("base/checkpoint"));
+    wide.model.contact_velocity = Some(true);
+    train(&wide, &TrainOptions::default()).unwrap();
+    let wide_cfg = dynaserve_model::read_config(&dir.join("wide/checkpoint")).unwrap();
+    assert!(wide_cfg.dynamics.contact_velocity);
+    let (n, b) = (&wide_cfg.normalization, &base_cfg.normalization);
+    assert_eq!(n.mean[..12], b.mean[..]);
+    assert_eq!(n.std[..12], b.std[..]);
+    let defaults = dynaserve_model::FeatureNormalization::defaults_for(&wide_cfg.dynamics);
+    assert_ne!(
+        n.mean[12..],
+        defaults.mean[12..],
+        "the new constants are fitted"
+    );
+    assert!(n.std[12..].iter().all(|s| s.is_finite() && *s >= 0.01));
+
+    let mut narrow = tiny_config(&data, &dir.join("narrow"), 2);
+    narrow.model.init = Some(dir.join("wide/checkpoint"));
+    narrow.model.contact_velocity = Some(false);
+    let err = train(&narrow, &TrainOptions::default()).unwrap_err();
+    assert!(err.to_string().contains("cannot be removed"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }

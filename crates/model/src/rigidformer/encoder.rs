@@ -6,10 +6,13 @@ use candle_core::{Device, Tensor};
 
 use super::inputs::BatchInputs;
 use super::{host_index, host_tensor};
-use crate::config::POINT_FEATURES;
 use crate::kernels::activation::silu_inference;
 use crate::layers::{Exec, Linear, Mlp, ParamStore};
 use crate::{ModelConfig, ModelError};
+
+/// Name of the encoder's first weight matrix, `[point_dim, features]`: the only parameter
+/// whose shape depends on the number of per-point input features.
+pub(crate) const POINT_INPUT_WEIGHT: &str = "encoder.point.0.weight";
 
 /// The encoder's layers (`encoder.*` parameters).
 pub(crate) struct Encoder {
@@ -21,6 +24,7 @@ pub(crate) struct Encoder {
     sa_neighbours: usize,
     sa_dim: usize,
     width: usize,
+    features: usize,
 }
 
 impl Encoder {
@@ -28,7 +32,7 @@ impl Encoder {
     pub fn new(p: &mut ParamStore, c: &ModelConfig) -> Result<Encoder, ModelError> {
         let (c1, c2, d) = (c.point_dim, c.sa_dim, c.width);
         Ok(Encoder {
-            point: Mlp::new(p, "encoder.point", POINT_FEATURES, c1, c1)?,
+            point: Mlp::new(p, "encoder.point", c.point_features(), c1, c1)?,
             sa1: Mlp::new(p, "encoder.sa1", c1 + 3, c2, c2)?,
             sa2: Mlp::new(p, "encoder.sa2", c2 + 3, d, d)?,
             token: p.linear("encoder.token", d, d, true)?,
@@ -36,6 +40,7 @@ impl Encoder {
             sa_neighbours: c.sa_neighbours,
             sa_dim: c2,
             width: d,
+            features: c.point_features(),
         })
     }
 
@@ -48,7 +53,7 @@ impl Encoder {
     ) -> Result<(Tensor, Tensor), ModelError> {
         let fused = exec.fused;
         let (o, s, g) = (inp.o, self.sa_centres, self.sa_neighbours);
-        let feats = host_tensor(device, &inp.feats, &[inp.points, POINT_FEATURES])?;
+        let feats = host_tensor(device, &inp.feats, &[inp.points, self.features])?;
         let h = self.point.forward(&feats, fused)?; // [P, C1]
         let grouped = h.index_select(&host_index(device, &inp.group_idx)?, 0)?; // [O*S*G, C1]
         let rel = host_tensor(device, &inp.group_rel, &[o * s * g, 3])?;

@@ -1,7 +1,10 @@
 //! The per-point input features shared by the model and the trainer's normalisation fit:
-//! physical parameters, the frame features are measured from, and the 12 raw values.
+//! physical parameters, the frame features are measured from, the 12 base raw values and the
+//! optional contact velocity.
 
-use crate::config::{DynamicsConfig, POINT_FEATURES};
+use dynaserve_geometry::{ContactSource, Point};
+
+use crate::config::{BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig};
 
 /// Physical parameters as the model sees them: `[ln(mass / kg), friction, restitution]`.
 pub fn object_params(mass: f32, friction: f32, restitution: f32) -> [f32; 3] {
@@ -45,7 +48,7 @@ pub fn raw_point_features(
     reference: [f32; 3],
     params: [f32; 3],
     frame: &FeatureFrame,
-) -> [f32; POINT_FEATURES] {
+) -> [f32; BASE_POINT_FEATURES] {
     let inc = 1.0 / frame.increment_divisor;
     let o = frame.origin;
     [
@@ -62,4 +65,29 @@ pub fn raw_point_features(
         params[1],
         params[2],
     ]
+}
+
+/// The contact velocity of point `q` of a scene, metres (per step divided by
+/// `frame.increment_divisor`, like the increment feature): with `source` from the contact search
+/// of `world`, the nearest other object's point's increment minus the point's own,
+/// `(y_t - y_{t-1}) / d - (x_t - x_{t-1}) / d`; minus the own increment when the ground is the
+/// contact (the ground is still); zero when nothing is within the contact radius.
+/// `world` and `world_prev`: the scene's points at t and t-1, `[n, 3]` metres.
+pub fn contact_velocity(
+    source: ContactSource,
+    q: usize,
+    world: &[Point],
+    world_prev: &[Point],
+    frame: &FeatureFrame,
+) -> [f32; CONTACT_VELOCITY_FEATURES] {
+    let inc = 1.0 / frame.increment_divisor;
+    let increment = |k: usize| [0, 1, 2].map(|d| (world[k][d] - world_prev[k][d]) * inc);
+    match source {
+        ContactSource::Point(j) => {
+            let (other, own) = (increment(j as usize), increment(q));
+            [0, 1, 2].map(|d| other[d] - own[d])
+        }
+        ContactSource::Ground => increment(q).map(|v| -v),
+        ContactSource::Free => [0.0; 3],
+    }
 }

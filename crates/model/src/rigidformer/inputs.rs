@@ -1,16 +1,17 @@
-//! Per-scene input assembly: world points, the 12 per-point features (contact displacement,
-//! per-step increment, offset from the reference cloud, physical parameters), encoder
+//! Per-scene input assembly: world points, the per-point features (contact displacement,
+//! per-step increment, offset from the reference cloud, physical parameters, optionally the
+//! contact velocity), encoder
 //! grouping geometry, anchor kinematics and ARoPE descriptors, laid out for one batched pass.
 //! Scenes are processed in parallel with rayon; objects are laid out scene-major, and the
 //! per-point rows are packed without padding (the point MLP never sees a padding row).
 
-use dynaserve_geometry::{ContactConfig, contact_features};
+use dynaserve_geometry::{ContactConfig, contact_hits};
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
-use super::features::{FeatureFrame, raw_point_features};
+use super::features::{FeatureFrame, contact_velocity, raw_point_features};
 use crate::api::Pose;
-use crate::config::POINT_FEATURES;
+use crate::config::BASE_POINT_FEATURES;
 use crate::prepare::PreparedScene;
 use crate::{ModelConfig, ModelError};
 
@@ -36,7 +37,8 @@ pub(crate) struct BatchInputs {
     pub scene_offsets: Vec<usize>,
     /// Total points of the batch (`P`).
     pub points: usize,
-    /// Normalised features of every point, packed without padding `[P, 12]` (objects in
+    /// Normalised features of every point, packed without padding `[P, F]` (F from the
+    /// configuration, objects in
     /// order, each object's points contiguous).
     pub feats: Vec<f32>,
     /// Packed point row of every padded slot `[o, nmax]`; `P` (a zero row) for padding.
@@ -184,7 +186,7 @@ pub(crate) fn build_inputs(
         o,
         scene_offsets,
         points,
-        feats: Vec::with_capacity(points * POINT_FEATURES),
+        feats: Vec::with_capacity(points * cfg.point_features()),
         pad_idx,
         group_idx: Vec::new(),
         group_rel: Vec::new(),
@@ -248,6 +250,8 @@ fn scene_chunk(
     let p = cfg.rope_dim / 2;
     let inv_scale = 1.0 / cfg.position_scale;
     let norm = &cfg.normalization;
+    let nf = cfg.point_features();
+    let with_cv = cfg.dynamics.contact_velocity;
     // World points at t and t-1.
     let mut offsets = Vec::with_capacity(m + 1);
     offsets.push(0usize);
@@ -267,7 +271,7 @@ fn scene_chunk(
         }
         offsets.push(world.len());
     }
-    let contact = contact_features(
+    let contact = contact_hits(
         &world,
         &offsets,
         &ContactConfig {
@@ -276,7 +280,7 @@ fn scene_chunk(
         },
     );
     let mut c = SceneChunk {
-        feats: vec![0.0; scene.total_points() * POINT_FEATURES],
+        feats: vec![0.0; scene.total_points() * nf],
         group_idx: Vec::with_capacity(m * s * g),
         group_rel: Vec::with_capacity(m * s * g * 3),
         centre_rel: Vec::with_capacity(m * s * 3),
@@ -305,11 +309,18 @@ fn scene_chunk(
             let x = obj.reference[i];
             let w = world[base + i];
             let wp = world_prev[base + i];
-            let ct = contact[base + i];
-            let raw = raw_point_features(ct, w, wp, x, obj.params, &frame);
-            let dst = &mut c.feats[(base + i) * POINT_FEATURES..(base + i + 1) * POINT_FEATURES];
-            for f in 0..POINT_FEATURES {
+            let hit = contact[base + i];
+            let raw = raw_point_features(hit.displacement, w, wp, x, obj.params, &frame);
+            let dst = &mut c.feats[(base + i) * nf..(base + i + 1) * nf];
+            for f in 0..BASE_POINT_FEATURES {
                 dst[f] = (raw[f] - norm.mean[f]) / norm.std[f];
+            }
+            if with_cv {
+                let cv = contact_velocity(hit.source, base + i, &world, &world_prev, &frame);
+                for (k, v) in cv.iter().enumerate() {
+                    let f = BASE_POINT_FEATURES + k;
+                    dst[f] = (v - norm.mean[f]) / norm.std[f];
+                }
             }
             c.point_mask[j * nmax + i] = 1.0;
         }
@@ -378,4 +389,134 @@ fn scene_chunk(
         c.anchors_ref.push(ar);
     }
     c
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{UnitQuaternion, Vector3};
+
+    use super::*;
+    use crate::ObjectInput;
+    use crate::prepare::prepare_scene;
+
+    /// 96 points on the surface of a cube of half extent 0.1 m (a 4 x 4 grid on each face).
+    fn cube() -> Vec<[f32; 3]> {
+        let g = [-0.075f32, -0.025, 0.025, 0.075];
+        let mut out = Vec::new();
+        for axis in 0..3 {
+            for side in [-0.1f32, 0.1] {
+                for a in g {
+                    for b in g {
+                        let mut p = [a, b, a];
+                        p[axis] = side;
+                        p[(axis + 1) % 3] = a;
+                        p[(axis + 2) % 3] = b;
+                        out.push(p);
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// Two cubes 0.1 m apart closing in along x, and a third far away resting 0.05 m above the
+    /// ground and sinking: points near the other cube see the closing velocity, points near
+    /// the ground minus their own increment, every other point zero.
+    #[test]
+    fn contact_velocity_is_closing_velocity_ground_or_zero() {
+        let cfg = ModelConfig::tiny();
+        assert!(cfg.dynamics.contact_velocity && cfg.dynamics.per_frame_units);
+        let centres = [[0.0f32, 0.0, 1.0], [0.3, 0.0, 1.0], [5.0, 0.0, 0.15]];
+        // Increments over one step of k = 2 frames, metres.
+        let steps = [[0.02f32, 0.0, 0.0], [-0.04, 0.0, 0.01], [0.0, 0.0, -0.03]];
+        let k = 2u32;
+        let objects: Vec<ObjectInput> = (0..3)
+            .map(|_| ObjectInput {
+                reference: cube(),
+                mass: 1.0,
+                friction: 0.5,
+                restitution: 0.5,
+            })
+            .collect();
+        let scene = prepare_scene(&cfg, objects).unwrap();
+        let pose = |c: [f32; 3]| Pose::from_parts(Vector3::from(c), UnitQuaternion::identity());
+        let current: Vec<Pose> = centres.iter().map(|&c| pose(c)).collect();
+        let previous: Vec<Pose> = (0..3)
+            .map(|j| pose([0, 1, 2].map(|d| centres[j][d] - steps[j][d])))
+            .collect();
+        let inp = build_inputs(
+            &cfg,
+            &[SceneRequest {
+                scene: &scene,
+                previous,
+                current: current.clone(),
+                dt_steps: k,
+            }],
+        )
+        .unwrap();
+        let nf = cfg.point_features();
+        assert_eq!(nf, 15);
+        let norm = &cfg.normalization;
+        // World points at t, by brute force, to classify each point's nearest surface.
+        let world: Vec<Vec<[f32; 3]>> = (0..3)
+            .map(|j| {
+                let (r, t) = rot(&current[j]);
+                scene.objects[j]
+                    .reference
+                    .iter()
+                    .map(|x| {
+                        let w = r * Vector3::from(*x) + t;
+                        [w.x, w.y, w.z]
+                    })
+                    .collect()
+            })
+            .collect();
+        let per_frame = |v: [f32; 3]| v.map(|c| c / k as f32);
+        let mut counts = [0usize; 3];
+        let mut row = 0;
+        for j in 0..3 {
+            for x in &world[j] {
+                let nearest_other = (0..3)
+                    .filter(|&o| o != j)
+                    .flat_map(|o| world[o].iter().map(move |y| (o, y)))
+                    .map(|(o, y)| {
+                        let d2: f32 = (0..3).map(|d| (y[d] - x[d]).powi(2)).sum();
+                        (d2, o)
+                    })
+                    .min_by(|a, b| a.0.total_cmp(&b.0));
+                let r2 = cfg.contact_radius.powi(2);
+                let ground2 = x[2].powi(2);
+                let expected = match nearest_other {
+                    Some((d2, o)) if d2 < r2 && d2 < ground2 => {
+                        counts[0] += 1;
+                        let (a, b) = (per_frame(steps[o]), per_frame(steps[j]));
+                        [0, 1, 2].map(|d| a[d] - b[d])
+                    }
+                    _ if ground2 < r2 => {
+                        counts[1] += 1;
+                        per_frame(steps[j]).map(|v| -v)
+                    }
+                    _ => {
+                        counts[2] += 1;
+                        [0.0; 3]
+                    }
+                };
+                let f = &inp.feats[row * nf..(row + 1) * nf];
+                for (d, want) in expected.iter().enumerate() {
+                    let i = BASE_POINT_FEATURES + d;
+                    let raw = f[i] * norm.std[i] + norm.mean[i];
+                    assert!(
+                        (raw - want).abs() < 1e-6,
+                        "object {j} point {x:?}: contact velocity {d} is {raw}, expected {want}"
+                    );
+                }
+                row += 1;
+            }
+        }
+        assert_eq!(row, inp.points);
+        assert!(
+            counts.iter().all(|&c| c > 0),
+            "every case occurs: {counts:?}"
+        );
+    }
 }

@@ -20,6 +20,7 @@ pub mod features;
 pub(crate) mod inputs;
 pub(crate) mod projection;
 pub mod train;
+mod widen;
 
 use std::time::{Duration, Instant};
 

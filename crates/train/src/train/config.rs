@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use dynaserve_model::ModelConfig;
+use dynaserve_model::{FeatureNormalization, ModelConfig};
 use serde::{Deserialize, Serialize};
 
 use super::TrainError;
@@ -96,14 +96,21 @@ pub struct ModelSection {
     pub config: Option<PathBuf>,
     /// Seed of the random initialisation.
     pub seed: u64,
-    /// Fit the 12 feature normalisation constants from the training data before training
-    /// (recorded in the checkpoint's `config.json`); otherwise keep the config's values.
+    /// Fit the feature normalisation constants (12, or 15 with the contact velocity) from the
+    /// training data before training (recorded in the checkpoint's `config.json`); otherwise
+    /// keep the config's values.
     pub fit_normalization: bool,
     /// Start from the weights, configuration and normalisation of this model directory
     /// (a released model or a run's `checkpoint/`) instead of a random initialisation:
     /// fine-tuning. `preset`, `config`, `seed` and `fit_normalization` are then unused. The
     /// optimiser state starts fresh (warm-up and schedule as configured).
     pub init: Option<PathBuf>,
+    /// The contact velocity inputs (`DynamicsConfig::contact_velocity`): unset keeps what the
+    /// preset, config or `init` model has. `true` on an `init` model without them widens it
+    /// (zero weights on the 3 new inputs, so it starts as the same function; its 12
+    /// normalisation constants are kept and the 3 new ones fitted from the training data).
+    /// `false` on an `init` model that has them is an error.
+    pub contact_velocity: Option<bool>,
 }
 
 impl Default for ModelSection {
@@ -114,13 +121,26 @@ impl Default for ModelSection {
             seed: 0,
             fit_normalization: true,
             init: None,
+            contact_velocity: None,
         }
     }
 }
 
 impl ModelSection {
-    /// The model configuration this section names (before normalisation fitting).
+    /// The model configuration this section names (before normalisation fitting), with
+    /// `contact_velocity` applied (the normalisation then resized to its defaults).
     pub fn model_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {
+        let mut c = self.named_config(base)?;
+        if let Some(cv) = self.contact_velocity
+            && cv != c.dynamics.contact_velocity
+        {
+            c.dynamics.contact_velocity = cv;
+            c.normalization = FeatureNormalization::defaults_for(&c.dynamics);
+        }
+        Ok(c)
+    }
+
+    fn named_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {
         if let Some(path) = &self.config {
             let path = resolve(base, path);
             let text = std::fs::read_to_string(&path).map_err(|e| TrainError::Io {

@@ -15,8 +15,10 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-use dynaserve_geometry::{ContactConfig, contact_features};
-use dynaserve_model::{FeatureFrame, POINT_FEATURES, object_params, raw_point_features};
+use dynaserve_geometry::{ContactConfig, contact_hits};
+use dynaserve_model::{
+    BASE_POINT_FEATURES, FeatureFrame, contact_velocity, object_params, raw_point_features,
+};
 use dynaserve_model::{
     FeatureNormalization, ModelConfig, ObjectInput, Pose, PreparedScene, SceneState, WorldModel,
 };
@@ -444,9 +446,9 @@ fn worker(
     }
 }
 
-/// Per-feature mean and standard deviation of the 12 raw point features (contact
+/// Per-feature mean and standard deviation of the raw point features of `model` (contact
 /// displacement, per-step increment, offset from the reference cloud, `[ln mass, friction,
-/// restitution]`) over `c.norm_windows` augmented windows of each of the first `c.norm_scenes`
+/// restitution]`, then the contact velocity if the model takes it) over `c.norm_windows` augmented windows of each of the first `c.norm_scenes`
 /// scenes, computed exactly as the model computes them. Standard deviations are floored at
 /// 0.01 so constant features do not explode.
 pub fn fit_normalization(
@@ -455,8 +457,11 @@ pub fn fit_normalization(
     model: &ModelConfig,
     seed: u64,
 ) -> Result<FeatureNormalization, TrainError> {
-    let mut sum = [0f64; 12];
-    let mut sq = [0f64; 12];
+    let nf = model.point_features();
+    let with_cv = model.dynamics.contact_velocity;
+    let mut sum = vec![0f64; nf];
+    let mut sq = vec![0f64; nf];
+    let mut raw = vec![0f32; nf];
     let mut count = 0f64;
     let contact_cfg = ContactConfig {
         radius: model.contact_radius,
@@ -485,7 +490,7 @@ pub fn fit_normalization(
                 }
                 offsets.push(world.len());
             }
-            let contact = contact_features(&world, &offsets, &contact_cfg);
+            let contact = contact_hits(&world, &offsets, &contact_cfg);
             for (j, o) in win.objects.iter().enumerate() {
                 let params = object_params(o.mass, o.friction, o.restitution);
                 let frame = FeatureFrame::new(
@@ -494,9 +499,25 @@ pub fn fit_normalization(
                     win.state.current[j].translation,
                 );
                 for (q, x) in (offsets[j]..offsets[j + 1]).zip(&o.reference) {
-                    let (wc, wp, ct) = (world[q], world_prev[q], contact[q]);
-                    let raw = raw_point_features(ct, wc, wp, *x, params, &frame);
-                    for f in 0..POINT_FEATURES {
+                    let (wc, wp, hit) = (world[q], world_prev[q], contact[q]);
+                    raw[..BASE_POINT_FEATURES].copy_from_slice(&raw_point_features(
+                        hit.displacement,
+                        wc,
+                        wp,
+                        *x,
+                        params,
+                        &frame,
+                    ));
+                    if with_cv {
+                        raw[BASE_POINT_FEATURES..].copy_from_slice(&contact_velocity(
+                            hit.source,
+                            q,
+                            &world,
+                            &world_prev,
+                            &frame,
+                        ));
+                    }
+                    for f in 0..nf {
                         sum[f] += raw[f] as f64;
                         sq[f] += (raw[f] as f64).powi(2);
                     }
@@ -510,8 +531,8 @@ pub fn fit_normalization(
             "no points to fit the normalisation from".into(),
         ));
     }
-    let mut n = FeatureNormalization::default();
-    for f in 0..12 {
+    let mut n = FeatureNormalization::defaults_for(&model.dynamics);
+    for f in 0..nf {
         let mean = sum[f] / count;
         let var = (sq[f] / count - mean * mean).max(0.0);
         n.mean[f] = mean as f32;

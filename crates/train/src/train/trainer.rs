@@ -19,7 +19,10 @@ use std::time::Instant;
 
 use candle_core::{DType, Device, Tensor};
 use dynaserve_model::checkpoint::{CONFIG_FILE, WEIGHTS_FILE};
-use dynaserve_model::{RigidFormer, TrainItem, WorldModel, load_model, load_rigidformer};
+use dynaserve_model::{
+    BASE_POINT_FEATURES, FeatureNormalization, RigidFormer, TrainItem, WorldModel, load_model,
+    load_rigidformer,
+};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
 
@@ -201,6 +204,38 @@ fn truncate_log(path: &Path, step: u64) -> Result<(), TrainError> {
     std::fs::write(path, out).map_err(io(path))
 }
 
+/// Applies `model.contact_velocity` to a model loaded from `model.init`: widens a model without
+/// the contact velocity inputs when asked (3 zero weight columns, the 3 new normalisation
+/// constants fitted from the training data like a fresh run's, the 12 old ones kept).
+fn init_contact_velocity(
+    m: RigidFormer,
+    cfg: &TrainConfig,
+    reader: &Sources,
+) -> Result<RigidFormer, TrainError> {
+    let has = m.config().dynamics.contact_velocity;
+    match cfg.model.contact_velocity {
+        Some(true) if !has => {
+            let mut wide = m.config().clone();
+            wide.dynamics.contact_velocity = true;
+            wide.normalization = FeatureNormalization::defaults_for(&wide.dynamics);
+            let fitted = fit_normalization(reader, &cfg.data, &wide, cfg.run.seed)?;
+            let extra = FeatureNormalization {
+                mean: fitted.mean[BASE_POINT_FEATURES..].to_vec(),
+                std: fitted.std[BASE_POINT_FEATURES..].to_vec(),
+            };
+            eprintln!(
+                "widened for the contact velocity: fitted mean {:?} std {:?}",
+                extra.mean, extra.std
+            );
+            Ok(m.widened_with_contact_velocity(&extra, true)?)
+        }
+        Some(false) if has => Err(TrainError::Config(
+            "model.contact_velocity = false, but the model.init model takes the contact velocity (inputs cannot be removed)".into(),
+        )),
+        _ => Ok(m),
+    }
+}
+
 /// Trains (or resumes) the run described by `cfg`; see the module docs for the outputs.
 pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, TrainError> {
     cfg.validate()?;
@@ -251,6 +286,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                 )));
             }
             eprintln!("initialised from {}", init.display());
+            let m = init_contact_velocity(m, cfg, &reader)?;
             let st = RunState {
                 step: 0,
                 elapsed_seconds: 0.0,

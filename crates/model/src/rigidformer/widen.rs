@@ -1,0 +1,79 @@
+//! Widening a trained model's inputs: a 12-feature model becomes one that also reads the
+//! contact velocity, computing exactly the same function until training moves the new weights.
+
+use std::collections::HashMap;
+
+use candle_core::Tensor;
+
+use super::RigidFormer;
+use super::encoder::POINT_INPUT_WEIGHT;
+use crate::config::CONTACT_VELOCITY_FEATURES;
+use crate::layers::ParamStore;
+use crate::{FeatureNormalization, ModelError};
+
+impl RigidFormer {
+    /// A copy of this model that also takes the contact velocity features
+    /// ([`crate::DynamicsConfig::contact_velocity`]). The encoder's first layer gets
+    /// [`CONTACT_VELOCITY_FEATURES`] zero input columns, so the copy's outputs equal this
+    /// model's; every other weight and the existing normalisation constants are copied, and
+    /// `extra` (the new features' `mean` and `std`, 3 values each) is appended to the
+    /// normalisation. `trainable` keeps gradient tracking on the copy's weights.
+    ///
+    /// Errors if the model already takes the contact velocity or `extra` is not 3 finite means
+    /// and 3 finite positive scales.
+    pub fn widened_with_contact_velocity(
+        &self,
+        extra: &FeatureNormalization,
+        trainable: bool,
+    ) -> Result<RigidFormer, ModelError> {
+        if self.config.dynamics.contact_velocity {
+            return Err(ModelError::InvalidInput(
+                "the model already takes the contact velocity".into(),
+            ));
+        }
+        if extra.mean.len() != CONTACT_VELOCITY_FEATURES
+            || extra.std.len() != CONTACT_VELOCITY_FEATURES
+        {
+            return Err(ModelError::InvalidInput(format!(
+                "contact velocity normalisation needs {CONTACT_VELOCITY_FEATURES} means and stds, got {} and {}",
+                extra.mean.len(),
+                extra.std.len()
+            )));
+        }
+        let mut config = self.config.clone();
+        config.dynamics.contact_velocity = true;
+        config.normalization.mean.extend_from_slice(&extra.mean);
+        config.normalization.std.extend_from_slice(&extra.std);
+        config.validate()?;
+        let mut tensors = HashMap::new();
+        {
+            let vars = self
+                .varmap
+                .data()
+                .lock()
+                .map_err(|_| ModelError::Internal("parameter map lock poisoned".into()))?;
+            for (name, var) in vars.iter() {
+                // A copy: the new model's weights never share storage with this one's.
+                tensors.insert(name.clone(), var.as_tensor().detach().copy()?);
+            }
+        }
+        let w = tensors.remove(POINT_INPUT_WEIGHT).ok_or_else(|| {
+            ModelError::Internal(format!("the model has no parameter {POINT_INPUT_WEIGHT}"))
+        })?;
+        let zeros = Tensor::zeros(
+            (w.dim(0)?, CONTACT_VELOCITY_FEATURES),
+            w.dtype(),
+            w.device(),
+        )?;
+        tensors.insert(
+            POINT_INPUT_WEIGHT.to_string(),
+            Tensor::cat(&[&w, &zeros], 1)?,
+        );
+        let store = ParamStore::loaded(tensors, &self.device, trainable);
+        Ok(
+            RigidFormer::from_store(self.name.clone(), config, store, &self.device)?
+                .with_max_pass_objects(self.max_pass_objects)
+                .with_fused_kernels(self.fused_kernels),
+        )
+    }
+}

@@ -1,0 +1,138 @@
+//! The contact velocity inputs: a 12-feature model (the shipped checkpoint, or a random one)
+//! widened to 15 features computes the same steps, the new weight columns receive gradients,
+//! and a widened model saves and loads as a 15-feature checkpoint.
+mod common;
+
+use std::path::Path;
+
+use common::{max_pose_diff, random_scene};
+use dynaserve_model::{
+    Device, FeatureNormalization, ModelConfig, RigidFormer, SceneState, StepItem, TrainItem,
+    WorldModel, load_rigidformer,
+};
+
+const FIRST_LAYER: &str = "encoder.point.0.weight";
+
+fn first_layer_dims(model: &RigidFormer) -> Vec<usize> {
+    let vars = model.varmap().data().lock().unwrap();
+    vars[FIRST_LAYER].as_tensor().dims().to_vec()
+}
+
+fn extra() -> FeatureNormalization {
+    FeatureNormalization {
+        mean: vec![0.01, -0.02, 0.03],
+        std: vec![0.05, 0.06, 0.07],
+    }
+}
+
+fn step(model: &dyn WorldModel, seed: u64, dt_steps: u32) -> Vec<dynaserve_model::Pose> {
+    let (objects, state): (_, SceneState) = random_scene(seed, 4, 96);
+    let scene = model.prepare(objects).unwrap();
+    model
+        .step(&[StepItem {
+            scene: &scene,
+            state: &state,
+            dt_steps,
+        }])
+        .unwrap()
+        .remove(0)
+}
+
+/// The shipped checkpoint predates the contact velocity: it reads as a 12-feature model and
+/// its widened copy steps the same scenes to within float rounding.
+#[test]
+fn shipped_checkpoint_reads_as_twelve_features_and_widens_without_change() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/rigidformer-small");
+    let old = load_rigidformer(&dir, &Device::Cpu, false).unwrap();
+    assert!(!old.config().dynamics.contact_velocity);
+    assert_eq!(old.config().point_features(), 12);
+    assert_eq!(first_layer_dims(&old)[1], 12);
+    let wide = old.widened_with_contact_velocity(&extra(), false).unwrap();
+    assert_eq!(wide.config().point_features(), 15);
+    assert_eq!(first_layer_dims(&wide)[1], 15);
+    assert_eq!(
+        wide.config().normalization.mean[..12],
+        old.config().normalization.mean[..]
+    );
+    for (seed, k) in [(1, 1), (2, 4)] {
+        let (a, b) = (step(&old, seed, k), step(&wide, seed, k));
+        let diff = max_pose_diff(&a, &b);
+        assert!(
+            diff < 1e-5,
+            "seed {seed}, k {k}: widened model differs by {diff}"
+        );
+    }
+}
+
+/// A random 12-feature model widened for training: same outputs, every parameter (the new
+/// columns included) gets a gradient, and the result round-trips through a checkpoint.
+#[test]
+fn widened_model_trains_its_new_columns_and_saves_as_fifteen_features() {
+    let mut cfg = ModelConfig::tiny();
+    cfg.dynamics.contact_velocity = false;
+    cfg.normalization = FeatureNormalization::default();
+    let old = RigidFormer::new(cfg, 9, &Device::Cpu).unwrap();
+    let wide = old.widened_with_contact_velocity(&extra(), true).unwrap();
+    let diff = max_pose_diff(&step(&old, 3, 2), &step(&wide, 3, 2));
+    assert!(diff < 1e-5, "widened model differs by {diff}");
+
+    let (objects, state) = random_scene(4, 5, 64);
+    let scene = wide.prepare(objects).unwrap();
+    // Targets: constant velocity (any pose works for a gradient).
+    let target: Vec<_> = state
+        .previous
+        .iter()
+        .zip(&state.current)
+        .map(|(p, c)| {
+            let mut t = *c;
+            for d in 0..3 {
+                t.translation[d] = 2.0 * c.translation[d] - p.translation[d];
+            }
+            t
+        })
+        .collect();
+    let out = wide
+        .train_forward(&[TrainItem {
+            scene: &scene,
+            state: &state,
+            target: &target,
+            dt_steps: 2,
+        }])
+        .unwrap();
+    let grads = out.loss.backward().unwrap();
+    let vars = wide.varmap().data().lock().unwrap().clone();
+    let g = grads.get(vars[FIRST_LAYER].as_tensor()).unwrap();
+    let new_cols = g
+        .narrow(1, 12, 3)
+        .unwrap()
+        .sqr()
+        .unwrap()
+        .sum_all()
+        .unwrap();
+    let norm = new_cols.to_scalar::<f32>().unwrap();
+    assert!(
+        norm > 0.0 && norm.is_finite(),
+        "new columns' gradient {norm}"
+    );
+    // The old model's weights are not shared with the widened one.
+    let old_vars = old.varmap().data().lock().unwrap().clone();
+    assert!(grads.get(old_vars[FIRST_LAYER].as_tensor()).is_none());
+
+    let dir = std::env::temp_dir().join(format!("dynaserve-cv-widen-{}", std::process::id()));
+    wide.save(&dir).unwrap();
+    let back = load_rigidformer(&dir, &Device::Cpu, false).unwrap();
+    assert_eq!(back.config(), wide.config());
+    let diff = max_pose_diff(&step(&wide, 5, 1), &step(&back, 5, 1));
+    assert!(diff < 1e-6, "reloaded model differs by {diff}");
+    std::fs::remove_dir_all(&dir).unwrap();
+
+    // Widening twice or with the wrong number of constants is refused with a message.
+    let twice = wide.widened_with_contact_velocity(&extra(), false);
+    assert!(twice.err().unwrap().to_string().contains("already"));
+    let short = FeatureNormalization {
+        mean: vec![0.0; 2],
+        std: vec![1.0; 2],
+    };
+    let bad = old.widened_with_contact_velocity(&short, false);
+    assert!(bad.err().unwrap().to_string().contains("needs 3"));
+}
