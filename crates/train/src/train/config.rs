@@ -99,6 +99,11 @@ pub struct ModelSection {
     /// Fit the 12 feature normalisation constants from the training data before training
     /// (recorded in the checkpoint's `config.json`); otherwise keep the config's values.
     pub fit_normalization: bool,
+    /// Start from the weights, configuration and normalisation of this model directory
+    /// (a released model or a run's `checkpoint/`) instead of a random initialisation:
+    /// fine-tuning. `preset`, `config`, `seed` and `fit_normalization` are then unused. The
+    /// optimiser state starts fresh (warm-up and schedule as configured).
+    pub init: Option<PathBuf>,
 }
 
 impl Default for ModelSection {
@@ -108,6 +113,7 @@ impl Default for ModelSection {
             config: None,
             seed: 0,
             fit_normalization: true,
+            init: None,
         }
     }
 }

@@ -237,24 +237,47 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                 out.display()
             )));
         }
-        let mut mc = cfg.model.model_config(Path::new("."))?;
-        mc.dt_frame = reader.primary().manifest().dt_frame;
-        mc.gravity = reader.primary().manifest().gravity;
-        if cfg.model.fit_normalization {
-            mc.normalization = fit_normalization(&reader, &cfg.data, &mc, cfg.run.seed)?;
-            eprintln!(
-                "fitted feature normalisation: mean {:?} std {:?}",
-                mc.normalization.mean, mc.normalization.std
-            );
+        if let Some(init) = &cfg.model.init {
+            let m = load_rigidformer(init, &device, true)?.with_name("rigidformer");
+            let manifest = reader.primary().manifest();
+            if m.config().dt_frame != manifest.dt_frame || m.config().gravity != manifest.gravity {
+                return Err(TrainError::Config(format!(
+                    "model.init {}: trained at dt {} s and gravity {:?}, the data has {} s and {:?}",
+                    init.display(),
+                    m.config().dt_frame,
+                    m.config().gravity,
+                    manifest.dt_frame,
+                    manifest.gravity
+                )));
+            }
+            eprintln!("initialised from {}", init.display());
+            let st = RunState {
+                step: 0,
+                elapsed_seconds: 0.0,
+                threads: cfg.run.threads,
+                config: cfg.clone(),
+            };
+            (m, st)
+        } else {
+            let mut mc = cfg.model.model_config(Path::new("."))?;
+            mc.dt_frame = reader.primary().manifest().dt_frame;
+            mc.gravity = reader.primary().manifest().gravity;
+            if cfg.model.fit_normalization {
+                mc.normalization = fit_normalization(&reader, &cfg.data, &mc, cfg.run.seed)?;
+                eprintln!(
+                    "fitted feature normalisation: mean {:?} std {:?}",
+                    mc.normalization.mean, mc.normalization.std
+                );
+            }
+            let m = RigidFormer::new(mc, cfg.model.seed, &device)?.with_name("rigidformer");
+            let st = RunState {
+                step: 0,
+                elapsed_seconds: 0.0,
+                threads: cfg.run.threads,
+                config: cfg.clone(),
+            };
+            (m, st)
         }
-        let m = RigidFormer::new(mc, cfg.model.seed, &device)?.with_name("rigidformer");
-        let st = RunState {
-            step: 0,
-            elapsed_seconds: 0.0,
-            threads: cfg.run.threads,
-            config: cfg.clone(),
-        };
-        (m, st)
     };
     state.config.run = cfg.run.clone();
     state.threads = cfg.run.threads;
