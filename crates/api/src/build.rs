@@ -92,13 +92,13 @@ fn shape(shape: &Shape, field: &str, limits: &Limits) -> Result<Vec<[f32; 3]>, F
             if points.is_empty() {
                 return Err(FieldError::new(f, "must hold at least one point"));
             }
-            if points.len() > limits.max_points_per_object {
+            if points.len() > limits.caps.max_points_per_object {
                 return Err(FieldError::new(
                     f,
                     format!(
                         "{} points exceed the limit of {} per object",
                         points.len(),
-                        limits.max_points_per_object
+                        limits.caps.max_points_per_object
                     ),
                 ));
             }
@@ -140,12 +140,12 @@ fn shape(shape: &Shape, field: &str, limits: &Limits) -> Result<Vec<[f32; 3]>, F
             } else {
                 mesh.samples as usize
             };
-            if samples > limits.max_points_per_object {
+            if samples > limits.caps.max_points_per_object {
                 return Err(FieldError::new(
                     format!("{f}.samples"),
                     format!(
                         "{samples} exceeds the limit of {} points per object",
-                        limits.max_points_per_object
+                        limits.caps.max_points_per_object
                     ),
                 ));
             }
@@ -194,13 +194,13 @@ pub fn build_scene(
     if scene.objects.is_empty() {
         return Err(FieldError::new(of, "must hold at least one object"));
     }
-    if scene.objects.len() > limits.max_objects {
+    if scene.objects.len() > limits.caps.max_objects {
         return Err(FieldError::new(
             of,
             format!(
                 "{} objects exceed the limit of {}",
                 scene.objects.len(),
-                limits.max_objects
+                limits.caps.max_objects
             ),
         ));
     }
@@ -214,12 +214,12 @@ pub fn build_scene(
             Shape::Mesh(_) => limits.default_points,
         })
         .sum();
-    if total_points > limits.max_scene_points {
+    if total_points > limits.caps.max_scene_points {
         return Err(FieldError::new(
             of,
             format!(
                 "{total_points} points in all exceed the limit of {} per scene",
-                limits.max_scene_points
+                limits.caps.max_scene_points
             ),
         ));
     }
@@ -280,17 +280,20 @@ pub fn build_scene(
 
 /// Checks `steps` and `dt_steps` (0 means 1); returns the effective `dt_steps`.
 pub fn check_steps(steps: u32, dt_steps: u32, limits: &Limits) -> Result<u32, FieldError> {
-    if steps == 0 || steps > limits.max_steps {
+    if steps == 0 || steps > limits.caps.max_steps {
         return Err(FieldError::new(
             "steps",
-            format!("{steps} is outside 1..={}", limits.max_steps),
+            format!("{steps} is outside 1..={}", limits.caps.max_steps),
         ));
     }
     let dt = dt_steps.max(1);
-    if dt > limits.max_dt_steps {
+    if dt > limits.caps.max_dt_steps {
         return Err(FieldError::new(
             "dt_steps",
-            format!("{dt_steps} is outside 1..={} frames", limits.max_dt_steps),
+            format!(
+                "{dt_steps} is outside 1..={} frames",
+                limits.caps.max_dt_steps
+            ),
         ));
     }
     Ok(dt)
@@ -300,15 +303,18 @@ pub fn check_steps(steps: u32, dt_steps: u32, limits: &Limits) -> Result<u32, Fi
 mod tests {
     use super::*;
     use crate::json;
+    use crate::limits::Caps;
 
     fn limits() -> Limits {
         Limits {
-            max_objects: 4,
-            max_points_per_object: 64,
-            max_scene_points: 128,
-            max_steps: 100,
-            max_dt_steps: 4,
-            max_variants: 8,
+            caps: Caps {
+                max_objects: 4,
+                max_points_per_object: 64,
+                max_scene_points: 128,
+                max_steps: 100,
+                max_dt_steps: 4,
+                max_variants: 8,
+            },
             default_points: 32,
         }
     }
