@@ -186,7 +186,38 @@ pub async fn router(engine: Arc<Engine>) -> anyhow::Result<(axum::Router, Health
         .add_service(reflection_v1)
         .add_service(reflection_v1alpha)
         .prepare();
-    Ok((routes.into_axum_router(), reporter))
+    let router = routes
+        .into_axum_router()
+        .layer(axum::middleware::map_response(move |r| {
+            oversized_is_invalid(r, hard_cap)
+        }));
+    Ok((router, reporter))
+}
+
+/// tonic refuses a message above the decoding cap with OUT_OF_RANGE and its own text; our
+/// contract is INVALID_ARGUMENT naming `request`, like every other payload limit.
+async fn oversized_is_invalid(
+    mut r: axum::response::Response,
+    hard_cap: usize,
+) -> axum::response::Response {
+    let h = r.headers();
+    let oversized = h.get("grpc-status").is_some_and(|v| v == "11")
+        && h.get("grpc-message")
+            .and_then(|v| v.to_str().ok())
+            .is_some_and(|m| {
+                m.contains("message%20length%20too%20large")
+                    || m.contains("message length too large")
+            });
+    if oversized {
+        let status = ApiError::invalid(
+            "request",
+            format!("the message is larger than the server accepts ({hard_cap} bytes)"),
+        )
+        .to_status();
+        let mut fresh = status.into_http::<axum::body::Body>();
+        std::mem::swap(r.headers_mut(), fresh.headers_mut());
+    }
+    r
 }
 
 #[cfg(test)]

@@ -76,6 +76,7 @@ pub fn router(engine: Arc<Engine>) -> Router {
         .route("/metrics", get(metrics))
         .route("/openapi.json", get(openapi))
         .fallback(not_found)
+        .method_not_allowed_fallback(method_not_allowed)
         // Bodies are read with the configured limit in `read_json`, which names the field.
         .layer(DefaultBodyLimit::disable())
         .with_state(AppState { engine })
@@ -127,12 +128,24 @@ fn timing_headers(headers: &mut HeaderMap, t: &json::RequestTiming) {
 async fn read_json<T: DeserializeOwned>(engine: &Engine, body: Body) -> Result<T, ApiError> {
     let limit = engine.config().max_request_bytes;
     let bytes = axum::body::to_bytes(body, limit).await.map_err(|e| {
+        if crate::security::is_body_timeout(&e) {
+            return ApiError::body_timeout(
+                "the request body stopped arriving before it was complete",
+            );
+        }
         ApiError::invalid(
             "request",
             format!("payload could not be read within the limit of {limit} bytes: {e}"),
         )
     })?;
     engine.check_payload(bytes.len())?;
+    // Serde would read a JSON array as a struct's fields in order; only objects are requests.
+    if bytes.iter().find(|b| !b.is_ascii_whitespace()) != Some(&b'{') {
+        return Err(ApiError::invalid(
+            "request",
+            "the body must be a JSON object",
+        ));
+    }
     let de = &mut serde_json::Deserializer::from_slice(&bytes);
     serde_path_to_error::deserialize(de).map_err(|e| {
         let path = e.path().to_string();
@@ -394,6 +407,21 @@ async fn metrics(State(s): State<AppState>) -> Response {
 
 async fn openapi() -> Response {
     axum::Json(ApiDoc::openapi()).into_response()
+}
+
+async fn method_not_allowed(method: axum::http::Method) -> Response {
+    (
+        StatusCode::METHOD_NOT_ALLOWED,
+        axum::Json(json::ErrorResponse {
+            error: json::ErrorDetail {
+                code: "METHOD_NOT_ALLOWED".into(),
+                message: format!("{method} is not allowed on this route; see /openapi.json"),
+                field: None,
+                retry_after_ms: None,
+            },
+        }),
+    )
+        .into_response()
 }
 
 async fn not_found() -> Response {

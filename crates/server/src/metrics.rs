@@ -169,7 +169,38 @@ pub const METRICS: &[MetricSpec] = &[
         &["model"],
         "Scene variants of admitted Predict calls not yet finished.",
     ),
+    spec(
+        "dynaserve_stalled_streams_total",
+        Counter,
+        &["model"],
+        "Rollout streams ended because their client read nothing for --stream-stall-timeout-s.",
+    ),
+    spec(
+        "dynaserve_scene_step_failures_total",
+        Counter,
+        &["model"],
+        "Scene-steps that failed alone (a state outside the model's domain, a non-finite \
+         output) while their pass-mates got their frames.",
+    ),
+    spec(
+        "dynaserve_open_connections",
+        G,
+        &["listener"],
+        "Open client connections (listener: grpc, http).",
+    ),
+    spec(
+        "dynaserve_closed_connections_total",
+        Counter,
+        &["listener", "reason"],
+        "Connections the server closed itself, by reason (limit: over --max-connections; \
+         timeout: no request in time; tls: failed handshake).",
+    ),
 ];
+
+/// Values of the `listener` label.
+pub const LISTENERS: &[&str] = &["grpc", "http"];
+/// Values of the `reason` label of `dynaserve_closed_connections_total`.
+pub const CLOSE_REASONS: &[&str] = &["limit", "timeout", "tls"];
 
 /// Values of the `reason` label of `dynaserve_request_failures_total`.
 pub const FAILURE_REASONS: &[&str] = &[
@@ -270,6 +301,14 @@ pub struct Metrics {
     pub active_rollouts: IntGaugeVec,
     /// `dynaserve_active_predict_variants`.
     pub active_predict: IntGaugeVec,
+    /// `dynaserve_stalled_streams_total`.
+    pub stalled_streams: IntCounterVec,
+    /// `dynaserve_scene_step_failures_total`.
+    pub scene_step_failures: IntCounterVec,
+    /// `dynaserve_open_connections`.
+    pub open_connections: IntGaugeVec,
+    /// `dynaserve_closed_connections_total`.
+    pub closed_connections: IntCounterVec,
 }
 
 impl Metrics {
@@ -310,6 +349,10 @@ impl Metrics {
             dropped: counter(&registry, "dynaserve_dropped_steps_total"),
             active_rollouts: gauge(&registry, "dynaserve_active_rollouts"),
             active_predict: gauge(&registry, "dynaserve_active_predict_variants"),
+            stalled_streams: counter(&registry, "dynaserve_stalled_streams_total"),
+            scene_step_failures: counter(&registry, "dynaserve_scene_step_failures_total"),
+            open_connections: gauge(&registry, "dynaserve_open_connections"),
+            closed_connections: counter(&registry, "dynaserve_closed_connections_total"),
             registry,
         };
         m.registry
@@ -325,8 +368,16 @@ impl Metrics {
                 }
             }
         }
+        for l in LISTENERS {
+            m.open_connections.with_label_values(&[l]);
+            for r in CLOSE_REASONS {
+                m.closed_connections.with_label_values(&[l, r]);
+            }
+        }
         for model in models {
             let model = model.as_str();
+            m.stalled_streams.with_label_values(&[model]);
+            m.scene_step_failures.with_label_values(&[model]);
             for pr in PRIORITIES {
                 m.queue_wait.with_label_values(&[model, pr]);
                 m.queue_depth.with_label_values(&[model, pr]);
