@@ -13,6 +13,11 @@ pub const MAX_SPEED: f32 = 1.0e3;
 pub const MAX_ANGULAR_SPEED: f32 = 1.0e3;
 /// Quaternions whose norm is within this of 1 are renormalised; others are rejected.
 pub const QUATERNION_TOLERANCE: f32 = 1.0e-3;
+/// Smallest accepted mass, kilograms (a milligram; lighter objects are below the model's
+/// training range by orders of magnitude and only feed it denormal logarithms).
+pub const MIN_MASS: f32 = 1.0e-6;
+/// Fewest points of an object's cloud (or mesh samples): fewer cannot describe a shape.
+pub const MIN_POINTS: usize = 4;
 /// Largest accepted mass, kilograms.
 pub const MAX_MASS: f32 = 1.0e4;
 /// Largest accepted friction coefficient.

@@ -427,7 +427,12 @@ mod tests {
         assert_eq!(*family.passes.lock().unwrap(), vec![vec![100], expected]);
         let text = metrics.render();
         assert!(
-            text.contains("dynaserve_scene_steps_total{model=\"test\"} 12"),
+            text.contains("dynaserve_scene_steps_total{model=\"test\"} 11"),
+            "{text}"
+        );
+        // The item that failed alone is counted as a failure, not as a step.
+        assert!(
+            text.contains("dynaserve_scene_step_failures_total{model=\"test\"} 1"),
             "{text}"
         );
         // A panicking pass fails its jobs, not the scheduler.
