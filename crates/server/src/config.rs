@@ -103,6 +103,10 @@ pub struct ServeConfig {
     #[command(flatten)]
     pub security: crate::security::SecurityConfig,
 
+    /// Sessions: how many, how much memory, how long they live idle.
+    #[command(flatten)]
+    pub sessions: crate::engine::SessionConfig,
+
     /// On SIGTERM or Ctrl-C: how long running rollouts may continue, seconds, before they are
     /// closed with UNAVAILABLE.
     #[arg(long, env = "DYNASERVE_DRAIN_TIMEOUT_S", default_value_t = 30.0)]
@@ -218,6 +222,7 @@ impl ServeConfig {
             return Err("--stream-stall-timeout-s must be a finite number >= 0".into());
         }
         self.connections.validate()?;
+        self.sessions.validate()?;
         self.security.validate(&[self.grpc_addr, self.http_addr])
     }
 }

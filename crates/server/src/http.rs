@@ -9,6 +9,7 @@
 //! | `GET /ready` | readiness: 200 once models are loaded and warmed up, 503 while warming up or draining |
 //! | `GET /metrics` | Prometheus text format |
 //! | `GET /openapi.json` | OpenAPI 3.1 document generated from the handlers and JSON types |
+//! | `/v1/sessions...` | sessions: create, step, state, fork, predict, delete ([`sessions`]) |
 //!
 //! Every response carries `x-request-id` (taken from the request header when valid); rollout
 //! and predict responses also carry `x-dynaserve-queue-ms`, `x-dynaserve-forward-ms`,
@@ -35,6 +36,8 @@ use utoipa::OpenApi;
 
 use crate::engine::{Engine, Protocol, RequestCtx};
 use crate::error::ApiError;
+
+pub mod sessions;
 
 #[derive(Clone)]
 struct AppState {
@@ -75,6 +78,7 @@ pub fn router(engine: Arc<Engine>) -> Router {
         .route("/ready", get(ready))
         .route("/metrics", get(metrics))
         .route("/openapi.json", get(openapi))
+        .merge(sessions::routes())
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
         // Bodies are read with the configured limit in `read_json`, which names the field.
@@ -406,7 +410,9 @@ async fn metrics(State(s): State<AppState>) -> Response {
 }
 
 async fn openapi() -> Response {
-    axum::Json(ApiDoc::openapi()).into_response()
+    let mut doc = ApiDoc::openapi();
+    doc.merge(sessions::SessionsDoc::openapi());
+    axum::Json(doc).into_response()
 }
 
 async fn method_not_allowed(method: axum::http::Method) -> Response {
