@@ -5,6 +5,7 @@
 use std::collections::BTreeMap;
 use std::fmt;
 
+use dynaserve_geometry::kabsch;
 use serde::Serialize;
 
 use super::reader::MeshDatasetReader;
@@ -114,6 +115,35 @@ pub fn max_edge_strain(scene: &MeshScene, object: usize) -> f64 {
         }
     }
     worst
+}
+
+/// `object`'s vertices at frame `t` moved by the best rigid fit (Kabsch) onto their frame-0
+/// positions, and the root-mean-square distance left (metres): zero for a rigid object, the
+/// deformation for an elastic one.
+pub fn rigid_fit_to_first_frame(
+    scene: &MeshScene,
+    object: usize,
+    t: usize,
+) -> Result<(Vec<[f32; 3]>, f64)> {
+    let r = scene.objects[object].vertices.clone();
+    let at = |t: usize| -> Vec<[f64; 3]> {
+        r.clone()
+            .map(|v| scene.position(v, t).map(|c| c as f64))
+            .collect()
+    };
+    let (xt, x0) = (at(t), at(0));
+    let fit = kabsch(&xt, &x0, None)?;
+    let moved: Vec<[f64; 3]> = xt.iter().map(|&p| fit.apply(p)).collect();
+    let ms = moved
+        .iter()
+        .zip(&x0)
+        .map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>())
+        .sum::<f64>()
+        / moved.len().max(1) as f64;
+    Ok((
+        moved.iter().map(|p| p.map(|c| c as f32)).collect(),
+        ms.sqrt(),
+    ))
 }
 
 /// Largest `|volume_t / volume_0 - 1|` of `object` over the trajectory.
