@@ -108,12 +108,18 @@ async fn sigterm_drains_a_running_rollout_to_completion() {
     assert_eq!(first.step, 1);
     let t = Instant::now();
     sigterm(&server.child);
-    // Readiness turns off and new connections are refused while the rollout goes on.
+    // Readiness turns off while the rollout goes on: /ready answers 503 "draining", new work
+    // is refused, and metrics can still be scraped.
     tokio::time::sleep(Duration::from_millis(100)).await;
-    assert!(
-        tokio::net::TcpStream::connect(server.http).await.is_err(),
-        "still accepting"
+    let ready = http(server.http, "GET", "/ready", &[], None).await;
+    assert_eq!(ready.status, 503, "{}", ready.text());
+    assert!(ready.text().contains("draining"), "{}", ready.text());
+    assert_eq!(
+        http(server.http, "GET", "/metrics", &[], None).await.status,
+        200
     );
+    let refused = post_json(server.http, "/v1/rollout", &probe).await;
+    assert_eq!(refused.status, 503, "{}", refused.text());
     let mut last = first.step;
     while let Some(f) = rollout.frames.next().await {
         let f = f.expect("drained rollout must end cleanly");

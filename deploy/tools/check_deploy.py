@@ -41,6 +41,8 @@ GRPC_PORT = 50051
 # After the drain deadline the server gives connections this long to close before it exits
 # (CLOSE_GRACE in crates/server/src/server.rs).
 SERVER_CLOSE_GRACE_S = 5.0
+# Header the clients send so that the gateway routes all calls of a session to one pod.
+AFFINITY_HEADER = "x-dynaserve-affinity"
 GRAFANA_BUILTINS = {"__rate_interval", "__interval", "__range", "__interval_ms", "__range_s"}
 METRIC_RE = re.compile(r"\bdynaserve_[a-z0-9_]+\b")
 
@@ -399,6 +401,28 @@ def check_k8s(deploy: Path, out: Path) -> str:
                        f"cluster {cl['name']} must resolve the headless Service, not {sa['address']}")
                 expect(sa["port_value"] in hs_ports, f"cluster {cl['name']}: port {sa['port_value']} not on the headless Service")
     expect("http2_protocol_options" in json.dumps(clusters["dynaserve_grpc"]), "gRPC upstream must speak HTTP/2")
+    # Session affinity: on both listeners, a request with the affinity header is routed first,
+    # by consistent hashing of that header, to a hashing cluster of the same pods and port.
+    affinity = 0
+    for lst in envoy["static_resources"]["listeners"]:
+        port = lst["address"]["socket_address"]["port_value"]
+        routes = [r for fc in lst["filter_chains"] for flt in fc["filters"]
+                  for vh in flt["typed_config"]["route_config"]["virtual_hosts"] for r in vh["routes"]]
+        first = routes[0]
+        headers = [h["name"] for h in first["match"].get("headers", []) if h.get("present_match")]
+        expect(headers == [AFFINITY_HEADER], f"listener {port}: the first route must match on {AFFINITY_HEADER}")
+        hashed = [h["header"]["header_name"] for h in first["route"].get("hash_policy", []) if "header" in h]
+        expect(hashed == [AFFINITY_HEADER], f"listener {port}: the affinity route must hash {AFFINITY_HEADER}")
+        target = clusters[first["route"]["cluster"]]
+        expect(target["lb_policy"] in {"RING_HASH", "MAGLEV"},
+               f"listener {port}: affinity cluster {target['name']} must balance by consistent hashing")
+        plain = clusters[routes[-1]["route"]["cluster"]]
+        ports = lambda cl: {lb["endpoint"]["address"]["socket_address"]["port_value"]
+                            for ep in cl["load_assignment"]["endpoints"] for lb in ep["lb_endpoints"]}
+        expect(ports(target) == ports(plain), f"listener {port}: affinity and plain clusters must reach the same port")
+        expect(target.get("typed_extension_protocol_options") == plain.get("typed_extension_protocol_options"),
+               f"listener {port}: affinity cluster must speak the plain cluster's protocol")
+        affinity += 1
     gw = objs[("Deployment", "dynaserve-gateway")]
     gw_ports = {p["containerPort"] for p in gw["spec"]["template"]["spec"]["containers"][0]["ports"]}
     expect(gw_ports == listener_ports, f"gateway container ports {gw_ports} != Envoy listeners {listener_ports}")
@@ -407,7 +431,8 @@ def check_k8s(deploy: Path, out: Path) -> str:
     files = {f.name for f in (deploy / "k8s").glob("*.yaml")} - {"kustomization.yaml"}
     expect(set(kust["resources"]) == files, f"kustomization resources {kust['resources']} != files {sorted(files)}")
     return (f"{len(objs)} objects; probes ok; grace {grace}s > preStop {pre_s:.0f}s + drain {drain:.0f}s + close {SERVER_CLOSE_GRACE_S:.0f}s; "
-            f"HPA metrics {sorted(kinds)}; Envoy {len(clusters)} clusters -> {hs['metadata']['name']}")
+            f"HPA metrics {sorted(kinds)}; Envoy {len(clusters)} clusters -> {hs['metadata']['name']}, "
+            f"session affinity on {affinity} listeners")
 
 
 def check_envoy(deploy: Path, out: Path) -> str:

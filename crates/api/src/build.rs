@@ -4,14 +4,15 @@
 //! Rules (the numbers are in [`crate::limits`]; every limit is also reported by `ListModels`):
 //! - every number finite;
 //! - a scene holds 1..=`max_objects` objects and at most `max_scene_points` points in all;
-//! - `points`: 1..=`max_points_per_object` points, each coordinate within ±[`MAX_BODY_EXTENT`]
+//! - `points`: [`MIN_POINTS`]..=`max_points_per_object` points, each coordinate within ±[`MAX_BODY_EXTENT`]
 //!   of the centre of mass; `mesh`: vertices within the same bound, faces indexing existing
-//!   vertices, positive area, `samples` up to `max_points_per_object`;
+//!   vertices, positive area, `samples` 0 (the model's default) or [`MIN_POINTS`] up to
+//!   `max_points_per_object`;
 //! - pose translations within ±[`MAX_WORLD_EXTENT`]; quaternions must have norm
 //!   1 ± [`QUATERNION_TOLERANCE`] and are then renormalised (anything else, including the zero
 //!   quaternion, is rejected rather than guessed at);
 //! - speeds up to [`MAX_SPEED`] and [`MAX_ANGULAR_SPEED`] per component;
-//! - mass in (0, [`MAX_MASS`]] kg, friction in [0, [`MAX_FRICTION`]], restitution in [0, 1];
+//! - mass in [[`MIN_MASS`], [`MAX_MASS`]] kg, friction in [0, [`MAX_FRICTION`]], restitution in [0, 1];
 //! - steps in 1..=`max_steps`, dt_steps in 1..=`max_dt_steps` (0 means 1).
 
 use dynaserve_geometry::{TriMesh, sample_surface};
@@ -20,7 +21,7 @@ use dynaserve_model::{ObjectInput, Pose, SceneState};
 use crate::error::FieldError;
 use crate::limits::{
     Limits, MAX_ANGULAR_SPEED, MAX_BODY_EXTENT, MAX_FRICTION, MAX_MASS, MAX_SPEED,
-    MAX_WORLD_EXTENT, QUATERNION_TOLERANCE,
+    MAX_WORLD_EXTENT, MIN_MASS, MIN_POINTS, QUATERNION_TOLERANCE,
 };
 use crate::spec::{Motion, Scene, Shape};
 
@@ -89,16 +90,22 @@ fn shape(shape: &Shape, field: &str, limits: &Limits) -> Result<Vec<[f32; 3]>, F
     match shape {
         Shape::Points(points) => {
             let f = format!("{field}.points");
-            if points.is_empty() {
-                return Err(FieldError::new(f, "must hold at least one point"));
+            if points.len() < MIN_POINTS {
+                return Err(FieldError::new(
+                    f,
+                    format!(
+                        "{} points given; an object needs at least {MIN_POINTS}",
+                        points.len()
+                    ),
+                ));
             }
-            if points.len() > limits.max_points_per_object {
+            if points.len() > limits.caps.max_points_per_object {
                 return Err(FieldError::new(
                     f,
                     format!(
                         "{} points exceed the limit of {} per object",
                         points.len(),
-                        limits.max_points_per_object
+                        limits.caps.max_points_per_object
                     ),
                 ));
             }
@@ -140,12 +147,18 @@ fn shape(shape: &Shape, field: &str, limits: &Limits) -> Result<Vec<[f32; 3]>, F
             } else {
                 mesh.samples as usize
             };
-            if samples > limits.max_points_per_object {
+            if samples < MIN_POINTS {
+                return Err(FieldError::new(
+                    format!("{f}.samples"),
+                    format!("{samples} samples; at least {MIN_POINTS} (or 0 for the default)"),
+                ));
+            }
+            if samples > limits.caps.max_points_per_object {
                 return Err(FieldError::new(
                     format!("{f}.samples"),
                     format!(
                         "{samples} exceeds the limit of {} points per object",
-                        limits.max_points_per_object
+                        limits.caps.max_points_per_object
                     ),
                 ));
             }
@@ -194,13 +207,13 @@ pub fn build_scene(
     if scene.objects.is_empty() {
         return Err(FieldError::new(of, "must hold at least one object"));
     }
-    if scene.objects.len() > limits.max_objects {
+    if scene.objects.len() > limits.caps.max_objects {
         return Err(FieldError::new(
             of,
             format!(
                 "{} objects exceed the limit of {}",
                 scene.objects.len(),
-                limits.max_objects
+                limits.caps.max_objects
             ),
         ));
     }
@@ -214,12 +227,12 @@ pub fn build_scene(
             Shape::Mesh(_) => limits.default_points,
         })
         .sum();
-    if total_points > limits.max_scene_points {
+    if total_points > limits.caps.max_scene_points {
         return Err(FieldError::new(
             of,
             format!(
                 "{total_points} points in all exceed the limit of {} per scene",
-                limits.max_scene_points
+                limits.caps.max_scene_points
             ),
         ));
     }
@@ -246,7 +259,14 @@ pub fn build_scene(
             }
             Motion::Rest => now,
         };
-        let mass = parameter(o.mass, 0.0, MAX_MASS, true, &format!("{f}.mass"), " kg")?;
+        let mass = parameter(
+            o.mass,
+            MIN_MASS,
+            MAX_MASS,
+            false,
+            &format!("{f}.mass"),
+            " kg",
+        )?;
         let friction = parameter(
             o.friction,
             0.0,
@@ -280,17 +300,20 @@ pub fn build_scene(
 
 /// Checks `steps` and `dt_steps` (0 means 1); returns the effective `dt_steps`.
 pub fn check_steps(steps: u32, dt_steps: u32, limits: &Limits) -> Result<u32, FieldError> {
-    if steps == 0 || steps > limits.max_steps {
+    if steps == 0 || steps > limits.caps.max_steps {
         return Err(FieldError::new(
             "steps",
-            format!("{steps} is outside 1..={}", limits.max_steps),
+            format!("{steps} is outside 1..={}", limits.caps.max_steps),
         ));
     }
     let dt = dt_steps.max(1);
-    if dt > limits.max_dt_steps {
+    if dt > limits.caps.max_dt_steps {
         return Err(FieldError::new(
             "dt_steps",
-            format!("{dt_steps} is outside 1..={} frames", limits.max_dt_steps),
+            format!(
+                "{dt_steps} is outside 1..={} frames",
+                limits.caps.max_dt_steps
+            ),
         ));
     }
     Ok(dt)
@@ -300,22 +323,30 @@ pub fn check_steps(steps: u32, dt_steps: u32, limits: &Limits) -> Result<u32, Fi
 mod tests {
     use super::*;
     use crate::json;
+    use crate::limits::Caps;
 
     fn limits() -> Limits {
         Limits {
-            max_objects: 4,
-            max_points_per_object: 64,
-            max_scene_points: 128,
-            max_steps: 100,
-            max_dt_steps: 4,
-            max_variants: 8,
+            caps: Caps {
+                max_objects: 4,
+                max_points_per_object: 64,
+                max_scene_points: 128,
+                max_steps: 100,
+                max_dt_steps: 4,
+                max_variants: 8,
+            },
             default_points: 32,
         }
     }
 
     fn object() -> json::ObjectSpec {
         json::ObjectSpec {
-            points: Some(vec![[0.1, 0.0, 0.0], [-0.1, 0.0, 0.0], [0.0, 0.1, 0.0]]),
+            points: Some(vec![
+                [0.1, 0.0, 0.0],
+                [-0.1, 0.0, 0.0],
+                [0.0, 0.1, 0.0],
+                [0.0, 0.0, 0.1],
+            ]),
             mesh: None,
             pose: json::Pose {
                 translation: [0.0, 0.0, 1.0],
@@ -361,6 +392,11 @@ mod tests {
             .field
         };
         assert_eq!(one(&|o| o.mass = 0.0), "scene.objects[1].mass");
+        assert_eq!(one(&|o| o.mass = 1e-45), "scene.objects[1].mass");
+        assert_eq!(
+            one(&|o| o.points = Some(vec![[0.0; 3]])),
+            "scene.objects[1].points"
+        );
         assert_eq!(one(&|o| o.friction = f32::NAN), "scene.objects[1].friction");
         assert_eq!(
             one(&|o| o.restitution = 1.5),

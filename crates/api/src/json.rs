@@ -11,6 +11,12 @@
 
 use serde::{Deserialize, Serialize};
 
+mod session;
+pub use session::{
+    Action, CreateSessionRequest, ObjectPose, ObjectState, SessionInfo, SessionPredictRequest,
+    SessionState, SessionVariant, SetStateRequest, StepRequest, StepResponse,
+};
+
 /// Identity quaternion `[x, y, z, w]`.
 pub const IDENTITY_ROTATION: [f32; 4] = [0.0, 0.0, 0.0, 1.0];
 

@@ -1,8 +1,9 @@
 //! The Dynaserve API: one vocabulary for both protocols.
 //!
 //! Wire forms (always built):
-//! - [`v1`]: types and gRPC service stubs generated from `proto/dynaserve/v1/world_model.proto`
-//!   (package `dynaserve.v1`), plus [`v1::FILE_DESCRIPTOR_SET`] for server reflection;
+//! - [`v1`]: types and gRPC service stubs generated from `proto/dynaserve/v1/*.proto` (package
+//!   `dynaserve.v1`: the `WorldModel` and `Sessions` services), plus
+//!   [`v1::FILE_DESCRIPTOR_SET`] for server reflection;
 //! - [`json`]: the same messages as JSON documents (HTTP bodies and scene files);
 //! - [`wire`]: JSON form <-> gRPC, what a client sends and receives;
 //! - [`listening`]: the start-up line a server prints, and its parser;
@@ -13,7 +14,9 @@
 //! - [`spec`]: the protocol-neutral requests and results the engine takes and emits, with
 //!   conversions from and to each wire form ([`spec::json`], [`spec::v1`]);
 //! - [`limits`]: every request limit, defined once (the extents are the model's);
-//! - [`build`]: validation of a neutral scene into model inputs.
+//! - [`build`]: validation of a neutral scene into model inputs;
+//! - [`session_input`]: validation of session inputs (kinematic objects, object states,
+//!   actions) against a session's scene.
 //!
 //! Units and conventions (metres, seconds, kilograms, z up, quaternions `[x, y, z, w]`) are
 //! documented on every field of the `.proto` file and of [`json`].
@@ -25,6 +28,8 @@ pub mod json;
 #[cfg(feature = "model")]
 pub mod limits;
 pub mod listening;
+#[cfg(feature = "model")]
+pub mod session_input;
 #[cfg(feature = "model")]
 pub mod spec;
 pub mod wire;

@@ -13,12 +13,18 @@ pub const MAX_SPEED: f32 = 1.0e3;
 pub const MAX_ANGULAR_SPEED: f32 = 1.0e3;
 /// Quaternions whose norm is within this of 1 are renormalised; others are rejected.
 pub const QUATERNION_TOLERANCE: f32 = 1.0e-3;
+/// Smallest accepted mass, kilograms (a milligram; lighter objects are below the model's
+/// training range by orders of magnitude and only feed it denormal logarithms).
+pub const MIN_MASS: f32 = 1.0e-6;
+/// Fewest points of an object's cloud (or mesh samples): fewer cannot describe a shape.
+pub const MIN_POINTS: usize = 4;
 /// Largest accepted mass, kilograms.
 pub const MAX_MASS: f32 = 1.0e4;
 /// Largest accepted friction coefficient.
 pub const MAX_FRICTION: f32 = 10.0;
 
-/// The server's caps on requests, before a model's own limits apply.
+/// Caps on requests. The server's flags are one `Caps` (defaults in [`Caps::DEFAULT`]); a
+/// model's [`Limits`] hold the same caps lowered to what that model accepts.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Caps {
     /// Objects per scene.
@@ -45,6 +51,18 @@ impl Caps {
         max_dt_steps: 8,
         max_variants: 256,
     };
+
+    /// These caps lowered to the own limits of a model with configuration `model` (objects
+    /// and points per object) and to the largest step size any model takes
+    /// ([`MAX_DT_STEPS`]).
+    pub fn for_model(&self, model: &ModelConfig) -> Caps {
+        Caps {
+            max_objects: self.max_objects.min(model.max_objects),
+            max_points_per_object: self.max_points_per_object.min(model.max_points_per_object),
+            max_dt_steps: self.max_dt_steps.min(MAX_DT_STEPS),
+            ..*self
+        }
+    }
 }
 
 impl Default for Caps {
@@ -53,37 +71,23 @@ impl Default for Caps {
     }
 }
 
-/// Request limits for one model: the server's caps capped again by the model's own limits.
+/// Request limits for one model: the server's caps lowered to the model's own limits, and the
+/// point count a mesh is sampled with when it names none.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Limits {
-    /// Objects per scene.
-    pub max_objects: usize,
-    /// Points (or mesh samples) per object.
-    pub max_points_per_object: usize,
-    /// Points per scene.
-    pub max_scene_points: usize,
-    /// Steps per request.
-    pub max_steps: u32,
-    /// Frames per step.
-    pub max_dt_steps: u32,
-    /// Variants per Predict call.
-    pub max_variants: usize,
-    /// Points sampled from a mesh when `samples` is 0.
+    /// The caps in force for this model.
+    pub caps: Caps,
+    /// Points sampled from a mesh when `samples` is 0 (at most `caps.max_points_per_object`).
     pub default_points: usize,
 }
 
 impl Limits {
     /// Limits for a model with configuration `model` under the server caps `caps`.
     pub fn new(caps: &Caps, model: &ModelConfig) -> Limits {
-        let max_points_per_object = caps.max_points_per_object.min(model.max_points_per_object);
+        let caps = caps.for_model(model);
         Limits {
-            max_objects: caps.max_objects.min(model.max_objects),
-            max_points_per_object,
-            max_scene_points: caps.max_scene_points,
-            max_steps: caps.max_steps,
-            max_dt_steps: caps.max_dt_steps.min(MAX_DT_STEPS),
-            max_variants: caps.max_variants,
-            default_points: model.points_per_object.min(max_points_per_object),
+            caps,
+            default_points: model.points_per_object.min(caps.max_points_per_object),
         }
     }
 }

@@ -36,7 +36,10 @@ pub fn read_config(dir: &Path) -> Result<ModelConfig, ModelError> {
     Ok(config)
 }
 
-fn read_weights(dir: &Path, device: &Device) -> Result<HashMap<String, Tensor>, ModelError> {
+pub(crate) fn read_weights(
+    dir: &Path,
+    device: &Device,
+) -> Result<HashMap<String, Tensor>, ModelError> {
     let path = dir.join(WEIGHTS_FILE);
     let bytes = std::fs::read(&path)
         .map_err(|e| ModelError::Checkpoint(format!("cannot read {}: {e}", path.display())))?;

@@ -13,6 +13,7 @@ pub mod config;
 pub mod error;
 pub mod kernels;
 pub mod layers;
+pub mod physiformer;
 mod prepare;
 pub mod rigidformer;
 pub mod runtime;
@@ -27,6 +28,7 @@ pub use config::{
 pub use error::ModelError;
 pub use kernels::kabsch::{self as kabsch_op, KabschOp};
 pub use layers::Mode;
+pub use physiformer::PhysiFormer;
 pub use prepare::{MAX_BODY_EXTENT, MAX_DT_STEPS, MAX_WORLD_EXTENT, PreparedScene};
 pub use rigidformer::features::{
     FeatureFrame, contact_velocity, object_params, raw_point_features,

@@ -1,7 +1,9 @@
 //! Server configuration: command-line flags, each with an environment variable.
 //!
 //! With no flags the server loads every model directory under `models/` and listens for gRPC
-//! on `0.0.0.0:50051` and HTTP on `0.0.0.0:8080`.
+//! on `127.0.0.1:50051` and HTTP on `127.0.0.1:8080`, without authentication. Binding another
+//! address needs bearer tokens (`--auth-token-file` or `DYNASERVE_AUTH_TOKENS`) or an explicit
+//! `--allow-unauthenticated`.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -10,9 +12,9 @@ use std::time::Duration;
 use dynaserve_api::limits::Caps;
 
 /// Default gRPC listen address.
-pub const DEFAULT_GRPC_ADDR: &str = "0.0.0.0:50051";
+pub const DEFAULT_GRPC_ADDR: &str = "127.0.0.1:50051";
 /// Default HTTP listen address.
-pub const DEFAULT_HTTP_ADDR: &str = "0.0.0.0:8080";
+pub const DEFAULT_HTTP_ADDR: &str = "127.0.0.1:8080";
 
 /// Log output format.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -89,6 +91,22 @@ pub struct ServeConfig {
     #[arg(long, env = "DYNASERVE_MAX_REQUEST_BYTES", default_value_t = 16 << 20)]
     pub max_request_bytes: usize,
 
+    /// A stream whose client has read nothing for this long, seconds, is ended and its rollout
+    /// slot freed (`dynaserve_stalled_streams_total`); 0 disables.
+    #[arg(long, env = "DYNASERVE_STREAM_STALL_TIMEOUT_S", default_value_t = 30.0)]
+    pub stream_stall_timeout_s: f64,
+
+    /// Connection limits and timeouts of both listeners.
+    #[command(flatten)]
+    pub connections: crate::listener::ConnectionConfig,
+    /// Authentication, TLS and the browser (CORS) policy.
+    #[command(flatten)]
+    pub security: crate::security::SecurityConfig,
+
+    /// Sessions: how many, how much memory, how long they live idle.
+    #[command(flatten)]
+    pub sessions: crate::engine::SessionConfig,
+
     /// On SIGTERM or Ctrl-C: how long running rollouts may continue, seconds, before they are
     /// closed with UNAVAILABLE.
     #[arg(long, env = "DYNASERVE_DRAIN_TIMEOUT_S", default_value_t = 30.0)]
@@ -141,8 +159,15 @@ impl ServeConfig {
             max_scene_points: self.max_scene_points,
             max_steps: self.max_steps,
             max_dt_steps: self.max_dt_steps,
-            max_variants: self.max_variants,
+            // A Predict call above the in-flight cap could never be admitted, so the cap on one
+            // call (reported by ListModels) is the smaller of the two.
+            max_variants: self.max_variants.min(self.max_predict_variants),
         }
+    }
+
+    /// `stream_stall_timeout_s` as a duration; `None` when 0 (disabled).
+    pub fn stream_stall_timeout(&self) -> Option<Duration> {
+        secs(self.stream_stall_timeout_s)
     }
 
     /// `max_queue_delay_ms` as a duration (negative or non-finite values mean zero).
@@ -193,7 +218,31 @@ impl ServeConfig {
         if !self.drain_timeout_s.is_finite() || self.drain_timeout_s < 0.0 {
             return Err("--drain-timeout-s must be a finite number >= 0".into());
         }
+        if !self.stream_stall_timeout_s.is_finite() || self.stream_stall_timeout_s < 0.0 {
+            return Err("--stream-stall-timeout-s must be a finite number >= 0".into());
+        }
+        self.connections.validate()?;
+        self.sessions.validate()?;
+        self.security.validate(&[self.grpc_addr, self.http_addr])
+    }
+}
+
+/// A non-negative number of seconds as a duration; `None` for 0 (disabled). Callers validate
+/// first; out-of-range values are clamped to a day.
+pub(crate) fn secs(s: f64) -> Option<Duration> {
+    if s.is_finite() && s > 0.0 {
+        Some(Duration::from_secs_f64(s.min(86_400.0)))
+    } else {
+        None
+    }
+}
+
+/// Checks that a seconds flag is a finite number >= 0.
+pub(crate) fn check_secs(name: &str, s: f64) -> Result<(), String> {
+    if s.is_finite() && s >= 0.0 {
         Ok(())
+    } else {
+        Err(format!("{name} must be a finite number >= 0"))
     }
 }
 
@@ -205,6 +254,7 @@ mod tests {
     fn defaults_are_the_documented_ports_and_valid() {
         let c = ServeConfig::default();
         assert_eq!(c.grpc_addr.port(), 50051);
+        assert!(c.grpc_addr.ip().is_loopback() && c.http_addr.ip().is_loopback());
         assert_eq!(c.http_addr.port(), 8080);
         assert_eq!(c.models_dir, PathBuf::from("models"));
         assert!(c.validate().is_ok());
@@ -212,5 +262,25 @@ mod tests {
         let mut bad = c.clone();
         bad.max_batch_scenes = 0;
         assert!(bad.validate().unwrap_err().contains("--max-batch-scenes"));
+    }
+
+    #[test]
+    fn predict_cap_never_exceeds_the_in_flight_cap() {
+        let mut c = ServeConfig::default();
+        c.max_predict_variants = 10;
+        assert_eq!(c.caps().max_variants, 10);
+    }
+
+    #[test]
+    fn a_public_bind_needs_tokens_or_an_explicit_opt_out() {
+        let mut c = ServeConfig::default();
+        c.http_addr = "0.0.0.0:8080".parse().unwrap();
+        let e = c.validate().unwrap_err();
+        assert!(e.contains("--allow-unauthenticated"), "{e}");
+        c.security.auth_tokens = vec!["secret-token-0123".into()];
+        assert!(c.validate().is_ok());
+        c.security.auth_tokens.clear();
+        c.security.allow_unauthenticated = true;
+        assert!(c.validate().is_ok());
     }
 }

@@ -24,6 +24,8 @@ pub struct ApiError {
     pub field: Option<String>,
     /// Suggested wait before retrying (overload only).
     pub retry_after: Option<Duration>,
+    /// HTTP status when it is not the one derived from `code` (415, 408).
+    pub http_override: Option<StatusCode>,
 }
 
 impl ApiError {
@@ -33,6 +35,7 @@ impl ApiError {
             message: message.into(),
             field: None,
             retry_after: None,
+            http_override: None,
         }
     }
 
@@ -44,6 +47,7 @@ impl ApiError {
             message: format!("{field}: {message}"),
             field: Some(field),
             retry_after: None,
+            http_override: None,
         }
     }
 
@@ -70,6 +74,28 @@ impl ApiError {
         ApiError::new(Code::Cancelled, message)
     }
 
+    /// UNAUTHENTICATED (HTTP 401): missing or rejected credentials.
+    pub fn unauthenticated(message: impl Into<String>) -> ApiError {
+        ApiError::new(Code::Unauthenticated, message)
+    }
+
+    /// INVALID_ARGUMENT naming `request`, answered over HTTP as 415 Unsupported Media Type.
+    pub fn unsupported_media_type(message: impl Into<String>) -> ApiError {
+        ApiError {
+            http_override: Some(StatusCode::UNSUPPORTED_MEDIA_TYPE),
+            ..ApiError::invalid("request", message.into())
+        }
+    }
+
+    /// INVALID_ARGUMENT naming `request` for a body that stopped arriving, answered over HTTP as
+    /// 408 Request Timeout.
+    pub fn body_timeout(message: impl Into<String>) -> ApiError {
+        ApiError {
+            http_override: Some(StatusCode::REQUEST_TIMEOUT),
+            ..ApiError::invalid("request", message.into())
+        }
+    }
+
     /// INTERNAL.
     pub fn internal(message: impl Into<String>) -> ApiError {
         ApiError::new(Code::Internal, message)
@@ -92,10 +118,15 @@ impl ApiError {
         dynaserve_api::code_name(self.code)
     }
 
-    /// The HTTP status of this error (422 invalid input, 429 overload, 504 deadline, 503
-    /// unavailable, 499 cancelled, 500 otherwise).
+    /// The HTTP status of this error (422 invalid input, 415 non-JSON body, 408 body not
+    /// received in time, 401 unauthenticated, 429 overload, 504 deadline, 503 unavailable, 499
+    /// cancelled, 500 otherwise).
     pub fn http_status(&self) -> StatusCode {
+        if let Some(s) = self.http_override {
+            return s;
+        }
         match self.code {
+            Code::Unauthenticated => StatusCode::UNAUTHORIZED,
             Code::InvalidArgument | Code::OutOfRange => StatusCode::UNPROCESSABLE_ENTITY,
             Code::NotFound => StatusCode::NOT_FOUND,
             Code::ResourceExhausted => StatusCode::TOO_MANY_REQUESTS,
@@ -118,9 +149,24 @@ impl ApiError {
         }
     }
 
-    /// The gRPC status, with `grpc-retry-pushback-ms` and `retry-after-ms` for overload.
+    /// The gRPC status, with `grpc-retry-pushback-ms` and `retry-after-ms` for overload and a
+    /// `google.rpc.BadRequest` detail naming the field for invalid input.
     pub fn to_status(&self) -> tonic::Status {
-        let mut status = tonic::Status::new(self.code, self.message.clone());
+        let mut status = match &self.field {
+            Some(field) => {
+                use tonic_types::{ErrorDetails, StatusExt};
+                let description = self
+                    .message
+                    .strip_prefix(&format!("{field}: "))
+                    .unwrap_or(&self.message);
+                tonic::Status::with_error_details(
+                    self.code,
+                    self.message.clone(),
+                    ErrorDetails::with_bad_request_violation(field.clone(), description),
+                )
+            }
+            None => tonic::Status::new(self.code, self.message.clone()),
+        };
         if let Some(d) = self.retry_after {
             let ms = d.as_millis().to_string();
             if let Ok(v) = ms.parse() {
@@ -171,6 +217,21 @@ mod tests {
         assert_eq!(e.message, "scene.objects[1].mass: must be > 0");
         assert_eq!(e.http_status(), StatusCode::UNPROCESSABLE_ENTITY);
         assert_eq!(e.to_status().code(), Code::InvalidArgument);
+        use tonic_types::StatusExt;
+        let details = e.to_status().get_error_details();
+        let v = &details.bad_request().unwrap().field_violations[0];
+        assert_eq!(
+            (v.field.as_str(), v.description.as_str()),
+            ("scene.objects[1].mass", "must be > 0")
+        );
+        assert_eq!(
+            ApiError::unsupported_media_type("x").http_status(),
+            StatusCode::UNSUPPORTED_MEDIA_TYPE
+        );
+        assert_eq!(
+            ApiError::unauthenticated("x").http_status(),
+            StatusCode::UNAUTHORIZED
+        );
         let o = ApiError::exhausted("full", Duration::from_millis(1500));
         let s = o.to_status();
         assert_eq!(s.metadata().get(RETRY_PUSHBACK_KEY).unwrap(), "1500");

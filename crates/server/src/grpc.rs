@@ -1,5 +1,6 @@
-//! gRPC front end (tonic): the `dynaserve.v1.WorldModel` service, standard health checking and
-//! server reflection, served as an axum router on the gRPC port.
+//! gRPC front end (tonic): the `dynaserve.v1.WorldModel` and `dynaserve.v1.Sessions`
+//! (`sessions`) services, standard health checking and server reflection, served as an axum
+//! router on the gRPC port.
 //!
 //! Deadlines: the `grpc-timeout` header is read here and enforced by the engine, which answers
 //! DEADLINE_EXCEEDED on time (also for work still queued). tonic's own server timeout layer is
@@ -21,6 +22,8 @@ use tonic_health::server::HealthReporter;
 
 use crate::engine::{Engine, Protocol, RequestCtx};
 use crate::error::ApiError;
+
+mod sessions;
 
 /// Parses a `grpc-timeout` header value (`<digits><unit>`, unit one of H M S m u n).
 pub fn parse_grpc_timeout(value: &str) -> Option<Duration> {
@@ -162,8 +165,8 @@ pub async fn set_health(reporter: &HealthReporter, serving: bool) {
     reporter.set_service_status(SERVICE_NAME, status).await;
 }
 
-/// Builds the gRPC router: WorldModel, grpc.health.v1.Health and server reflection (v1 and
-/// v1alpha). The health status starts as NOT_SERVING.
+/// Builds the gRPC router: WorldModel, Sessions, grpc.health.v1.Health and server reflection
+/// (v1 and v1alpha). The health status starts as NOT_SERVING.
 pub async fn router(engine: Arc<Engine>) -> anyhow::Result<(axum::Router, HealthReporter)> {
     let (reporter, health) = tonic_health::server::health_reporter();
     set_health(&reporter, false).await;
@@ -178,15 +181,48 @@ pub async fn router(engine: Arc<Engine>) -> anyhow::Result<(axum::Router, Health
     // Messages up to 4x the configured limit are decoded so that the limit itself is reported
     // as INVALID_ARGUMENT naming `request`; beyond that tonic refuses to decode.
     let hard_cap = engine.config().max_request_bytes.saturating_mul(4);
+    let sessions = sessions::server(engine.clone(), hard_cap);
     let service = WorldModelServer::new(GrpcService { engine })
         .max_decoding_message_size(hard_cap)
         .max_encoding_message_size(usize::MAX);
     let routes = tonic::service::Routes::new(service)
+        .add_service(sessions)
         .add_service(health)
         .add_service(reflection_v1)
         .add_service(reflection_v1alpha)
         .prepare();
-    Ok((routes.into_axum_router(), reporter))
+    let router = routes
+        .into_axum_router()
+        .layer(axum::middleware::map_response(move |r| {
+            oversized_is_invalid(r, hard_cap)
+        }));
+    Ok((router, reporter))
+}
+
+/// tonic refuses a message above the decoding cap with OUT_OF_RANGE and its own text; our
+/// contract is INVALID_ARGUMENT naming `request`, like every other payload limit.
+async fn oversized_is_invalid(
+    mut r: axum::response::Response,
+    hard_cap: usize,
+) -> axum::response::Response {
+    let h = r.headers();
+    let oversized = h.get("grpc-status").is_some_and(|v| v == "11")
+        && h.get("grpc-message")
+            .and_then(|v| v.to_str().ok())
+            .is_some_and(|m| {
+                m.contains("message%20length%20too%20large")
+                    || m.contains("message length too large")
+            });
+    if oversized {
+        let status = ApiError::invalid(
+            "request",
+            format!("the message is larger than the server accepts ({hard_cap} bytes)"),
+        )
+        .to_status();
+        let mut fresh = status.into_http::<axum::body::Body>();
+        std::mem::swap(r.headers_mut(), fresh.headers_mut());
+    }
+    r
 }
 
 #[cfg(test)]

@@ -9,6 +9,7 @@
 //! | `GET /ready` | readiness: 200 once models are loaded and warmed up, 503 while warming up or draining |
 //! | `GET /metrics` | Prometheus text format |
 //! | `GET /openapi.json` | OpenAPI 3.1 document generated from the handlers and JSON types |
+//! | `/v1/sessions...` | sessions: create, step, state, fork, predict, delete ([`sessions`]) |
 //!
 //! Every response carries `x-request-id` (taken from the request header when valid); rollout
 //! and predict responses also carry `x-dynaserve-queue-ms`, `x-dynaserve-forward-ms`,
@@ -35,6 +36,8 @@ use utoipa::OpenApi;
 
 use crate::engine::{Engine, Protocol, RequestCtx};
 use crate::error::ApiError;
+
+pub mod sessions;
 
 #[derive(Clone)]
 struct AppState {
@@ -75,7 +78,9 @@ pub fn router(engine: Arc<Engine>) -> Router {
         .route("/ready", get(ready))
         .route("/metrics", get(metrics))
         .route("/openapi.json", get(openapi))
+        .merge(sessions::routes())
         .fallback(not_found)
+        .method_not_allowed_fallback(method_not_allowed)
         // Bodies are read with the configured limit in `read_json`, which names the field.
         .layer(DefaultBodyLimit::disable())
         .with_state(AppState { engine })
@@ -127,12 +132,24 @@ fn timing_headers(headers: &mut HeaderMap, t: &json::RequestTiming) {
 async fn read_json<T: DeserializeOwned>(engine: &Engine, body: Body) -> Result<T, ApiError> {
     let limit = engine.config().max_request_bytes;
     let bytes = axum::body::to_bytes(body, limit).await.map_err(|e| {
+        if crate::security::is_body_timeout(&e) {
+            return ApiError::body_timeout(
+                "the request body stopped arriving before it was complete",
+            );
+        }
         ApiError::invalid(
             "request",
             format!("payload could not be read within the limit of {limit} bytes: {e}"),
         )
     })?;
     engine.check_payload(bytes.len())?;
+    // Serde would read a JSON array as a struct's fields in order; only objects are requests.
+    if bytes.iter().find(|b| !b.is_ascii_whitespace()) != Some(&b'{') {
+        return Err(ApiError::invalid(
+            "request",
+            "the body must be a JSON object",
+        ));
+    }
     let de = &mut serde_json::Deserializer::from_slice(&bytes);
     serde_path_to_error::deserialize(de).map_err(|e| {
         let path = e.path().to_string();
@@ -393,7 +410,24 @@ async fn metrics(State(s): State<AppState>) -> Response {
 }
 
 async fn openapi() -> Response {
-    axum::Json(ApiDoc::openapi()).into_response()
+    let mut doc = ApiDoc::openapi();
+    doc.merge(sessions::SessionsDoc::openapi());
+    axum::Json(doc).into_response()
+}
+
+async fn method_not_allowed(method: axum::http::Method) -> Response {
+    (
+        StatusCode::METHOD_NOT_ALLOWED,
+        axum::Json(json::ErrorResponse {
+            error: json::ErrorDetail {
+                code: "METHOD_NOT_ALLOWED".into(),
+                message: format!("{method} is not allowed on this route; see /openapi.json"),
+                field: None,
+                retry_after_ms: None,
+            },
+        }),
+    )
+        .into_response()
 }
 
 async fn not_found() -> Response {

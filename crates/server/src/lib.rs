@@ -14,15 +14,18 @@
 //!   queue delay, two priority levels, deadlines and cancellation honoured before each pass).
 //! - [`metrics`]: every exported metric; [`config`]: flags and environment variables;
 //!   [`server`]: start-up and graceful shutdown; [`error`]: the one error type of both
-//!   protocols.
+//!   protocols; [`listener`]: the accept loop (connection cap, timeouts, TLS);
+//!   [`security`]: authentication, TLS configuration, CORS and content-type policy.
 
 pub mod config;
 pub mod engine;
 pub mod error;
 pub mod grpc;
 pub mod http;
+pub mod listener;
 pub mod metrics;
 pub mod scheduler;
+pub mod security;
 pub mod server;
 
 pub use config::ServeConfig;

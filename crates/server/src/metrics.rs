@@ -64,7 +64,7 @@ const fn spec(
 use MetricKind::{Counter, Gauge as G, Histogram as H};
 
 /// Every metric the server exports. Label values: `protocol` in {grpc, http}; `method` in
-/// {rollout, predict, list_models}; `reason` in [`FAILURE_REASONS`]; `priority` in
+/// [`METHODS`]; `reason` in [`FAILURE_REASONS`]; `priority` in
 /// {interactive, bulk}; `model` is a resident model's name.
 pub const METRICS: &[MetricSpec] = &[
     spec(
@@ -169,7 +169,62 @@ pub const METRICS: &[MetricSpec] = &[
         &["model"],
         "Scene variants of admitted Predict calls not yet finished.",
     ),
+    spec(
+        "dynaserve_sessions_open",
+        G,
+        &["model"],
+        "Sessions held (created or forked, not yet deleted or expired).",
+    ),
+    spec(
+        "dynaserve_sessions_created_total",
+        Counter,
+        &["model"],
+        "Sessions created (CreateSession and Interact streams that create their own).",
+    ),
+    spec(
+        "dynaserve_session_forks_total",
+        Counter,
+        &["model"],
+        "Sessions created by Fork.",
+    ),
+    spec(
+        "dynaserve_sessions_reaped_total",
+        Counter,
+        &["model"],
+        "Sessions deleted because they were idle for longer than --session-ttl-s.",
+    ),
+    spec(
+        "dynaserve_stalled_streams_total",
+        Counter,
+        &["model"],
+        "Rollout streams ended because their client read nothing for --stream-stall-timeout-s.",
+    ),
+    spec(
+        "dynaserve_scene_step_failures_total",
+        Counter,
+        &["model"],
+        "Scene-steps that failed alone (a state outside the model's domain, a non-finite \
+         output) while their pass-mates got their frames.",
+    ),
+    spec(
+        "dynaserve_open_connections",
+        G,
+        &["listener"],
+        "Open client connections (listener: grpc, http).",
+    ),
+    spec(
+        "dynaserve_closed_connections_total",
+        Counter,
+        &["listener", "reason"],
+        "Connections the server closed itself, by reason (limit: over --max-connections; \
+         timeout: no request in time; tls: failed handshake).",
+    ),
 ];
+
+/// Values of the `listener` label.
+pub const LISTENERS: &[&str] = &["grpc", "http"];
+/// Values of the `reason` label of `dynaserve_closed_connections_total`.
+pub const CLOSE_REASONS: &[&str] = &["limit", "timeout", "tls"];
 
 /// Values of the `reason` label of `dynaserve_request_failures_total`.
 pub const FAILURE_REASONS: &[&str] = &[
@@ -184,7 +239,19 @@ pub const FAILURE_REASONS: &[&str] = &[
 /// Values of the `protocol` label.
 pub const PROTOCOLS: &[&str] = &["grpc", "http"];
 /// Values of the `method` label.
-pub const METHODS: &[&str] = &["rollout", "predict", "list_models"];
+pub const METHODS: &[&str] = &[
+    "rollout",
+    "predict",
+    "list_models",
+    "create_session",
+    "session_step",
+    "set_state",
+    "get_state",
+    "fork_session",
+    "delete_session",
+    "session_predict",
+    "interact",
+];
 /// Values of the `priority` label.
 pub const PRIORITIES: &[&str] = &["interactive", "bulk"];
 
@@ -270,6 +337,22 @@ pub struct Metrics {
     pub active_rollouts: IntGaugeVec,
     /// `dynaserve_active_predict_variants`.
     pub active_predict: IntGaugeVec,
+    /// `dynaserve_sessions_open`.
+    pub sessions_open: IntGaugeVec,
+    /// `dynaserve_sessions_created_total`.
+    pub sessions_created: IntCounterVec,
+    /// `dynaserve_session_forks_total`.
+    pub session_forks: IntCounterVec,
+    /// `dynaserve_sessions_reaped_total`.
+    pub sessions_reaped: IntCounterVec,
+    /// `dynaserve_stalled_streams_total`.
+    pub stalled_streams: IntCounterVec,
+    /// `dynaserve_scene_step_failures_total`.
+    pub scene_step_failures: IntCounterVec,
+    /// `dynaserve_open_connections`.
+    pub open_connections: IntGaugeVec,
+    /// `dynaserve_closed_connections_total`.
+    pub closed_connections: IntCounterVec,
 }
 
 impl Metrics {
@@ -310,6 +393,14 @@ impl Metrics {
             dropped: counter(&registry, "dynaserve_dropped_steps_total"),
             active_rollouts: gauge(&registry, "dynaserve_active_rollouts"),
             active_predict: gauge(&registry, "dynaserve_active_predict_variants"),
+            sessions_open: gauge(&registry, "dynaserve_sessions_open"),
+            sessions_created: counter(&registry, "dynaserve_sessions_created_total"),
+            session_forks: counter(&registry, "dynaserve_session_forks_total"),
+            sessions_reaped: counter(&registry, "dynaserve_sessions_reaped_total"),
+            stalled_streams: counter(&registry, "dynaserve_stalled_streams_total"),
+            scene_step_failures: counter(&registry, "dynaserve_scene_step_failures_total"),
+            open_connections: gauge(&registry, "dynaserve_open_connections"),
+            closed_connections: counter(&registry, "dynaserve_closed_connections_total"),
             registry,
         };
         m.registry
@@ -325,8 +416,16 @@ impl Metrics {
                 }
             }
         }
+        for l in LISTENERS {
+            m.open_connections.with_label_values(&[l]);
+            for r in CLOSE_REASONS {
+                m.closed_connections.with_label_values(&[l, r]);
+            }
+        }
         for model in models {
             let model = model.as_str();
+            m.stalled_streams.with_label_values(&[model]);
+            m.scene_step_failures.with_label_values(&[model]);
             for pr in PRIORITIES {
                 m.queue_wait.with_label_values(&[model, pr]);
                 m.queue_depth.with_label_values(&[model, pr]);
@@ -339,6 +438,10 @@ impl Metrics {
             m.fps.with_label_values(&[model]);
             m.active_rollouts.with_label_values(&[model]);
             m.active_predict.with_label_values(&[model]);
+            m.sessions_open.with_label_values(&[model]);
+            m.sessions_created.with_label_values(&[model]);
+            m.session_forks.with_label_values(&[model]);
+            m.sessions_reaped.with_label_values(&[model]);
             for r in ["cancelled", "deadline_exceeded"] {
                 m.dropped.with_label_values(&[model, r]);
             }

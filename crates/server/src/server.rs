@@ -3,11 +3,12 @@
 //! Start-up: load every model, start one scheduler thread per model, bind both listeners
 //! (liveness answers at once), warm each model up, then report ready (`/ready`, gRPC health).
 //!
-//! Shutdown (SIGTERM, Ctrl-C or [`RunningServer::shutdown`]): readiness turns off, the
-//! listeners stop accepting, new requests on open connections get UNAVAILABLE, running
-//! rollouts and Predict calls continue until they finish or the drain deadline passes; then
-//! what is left is closed with UNAVAILABLE ("the drain deadline passed"), the schedulers stop
-//! and the process exits.
+//! Shutdown (SIGTERM, Ctrl-C or [`RunningServer::shutdown`]): readiness turns off (`/ready`
+//! answers 503 `draining`, gRPC health NOT_SERVING), new work gets UNAVAILABLE, while probes
+//! and `/metrics` keep answering; running rollouts and Predict calls continue until they finish
+//! or the drain deadline passes, then what is left is closed with UNAVAILABLE ("the drain
+//! deadline passed"). Only then do the listeners stop accepting and open connections close;
+//! the schedulers stop and the process exits.
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -24,6 +25,8 @@ use crate::config::{LogFormat, ServeConfig};
 use crate::engine::Engine;
 use crate::grpc;
 use crate::http;
+use crate::listener;
+use crate::security::{Auth, Wire};
 
 /// Extra time after the drain deadline for connections to close before serving stops anyway.
 const CLOSE_GRACE: Duration = Duration::from_secs(5);
@@ -133,22 +136,37 @@ pub async fn start(
         .with_context(|| format!("binding HTTP address {}", config.http_addr))?;
     let grpc_addr = grpc_listener.local_addr()?;
     let http_addr = http_listener.local_addr()?;
+    let tls = config.security.tls_acceptor()?;
+    let auth = Auth::from_config(&config.security).map_err(anyhow::Error::msg)?;
     let (grpc_router, health) = grpc::router(engine.clone()).await?;
-    let http_router = http::router(engine.clone());
+    let grpc_router = match &auth {
+        Some(a) => a.protect(grpc_router, Wire::Grpc),
+        None => grpc_router,
+    };
+    let http_router =
+        crate::security::http_policy(http::router(engine.clone()), &config, auth.as_ref());
 
     let (stop_tx, stop_rx) = watch::channel(false);
-    // Listeners stop accepting when `accept_rx` flips, which happens at the start of a drain.
+    // Listeners stop accepting when `accept_rx` flips, at the end of a drain.
     let (accept_tx, accept_rx) = watch::channel(false);
-    let grpc_task = tokio::spawn(
-        axum::serve(grpc_listener, grpc_router)
-            .with_graceful_shutdown(stop_signal(accept_rx.clone()))
-            .into_future(),
-    );
-    let http_task = tokio::spawn(
-        axum::serve(http_listener, http_router)
-            .with_graceful_shutdown(stop_signal(accept_rx))
-            .into_future(),
-    );
+    let grpc_task = tokio::spawn(listener::serve(
+        "grpc",
+        grpc_listener,
+        grpc_router,
+        tls.clone(),
+        config.connections.clone(),
+        engine.metrics().clone(),
+        accept_rx.clone(),
+    ));
+    let http_task = tokio::spawn(listener::serve(
+        "http",
+        http_listener,
+        http_router,
+        tls,
+        config.connections.clone(),
+        engine.metrics().clone(),
+        accept_rx,
+    ));
 
     let (ready_tx, ready_rx) = watch::channel(None);
     let warm_engine = engine.clone();
@@ -189,7 +207,6 @@ pub async fn start(
         );
         engine.start_drain();
         grpc::set_health(&health, false).await;
-        accept_tx.send_replace(true);
         warm_task.abort();
         // Let running work finish, up to the drain deadline.
         let deadline = started + drain;
@@ -203,6 +220,7 @@ pub async fn start(
             );
             engine.close_running();
         }
+        accept_tx.send_replace(true);
         let servers = async {
             let g = grpc_task.await;
             let h = http_task.await;
@@ -210,8 +228,8 @@ pub async fn start(
         };
         match tokio::time::timeout(CLOSE_GRACE, servers).await {
             Ok((g, h)) => {
-                g.context("gRPC server task")?.context("gRPC server")?;
-                h.context("HTTP server task")?.context("HTTP server")?;
+                g.context("gRPC server task")?;
+                h.context("HTTP server task")?;
             }
             Err(_) => tracing::warn!("connections still open after the grace period; stopping"),
         }

@@ -4,6 +4,7 @@
 //! dynaserve sim movi-b --scenes 1000 --out data/movi-b/train --seed 0 --split train
 //! dynaserve sim wrecking-ball --scenes 20 --out data/wb6 --seed 0 --size 6
 //! dynaserve sim physics-mix --scenes 500 --out data/physics-mix/train --seed 0 --split train
+//! dynaserve sim mesh-d1 --scenes 400 --out data/physi/d1/train --seed 0 --split train
 //! dynaserve sim inspect data/movi-b/train
 //! dynaserve sim preview data/movi-b/train --out preview.png
 //! ```
@@ -17,6 +18,8 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::dataset::DatasetReader;
 use crate::generators::{GenerateOptions, Generator, generate_dataset};
+use crate::mesh_scenes::cli::{self as mesh_cli, MeshGenerateArgs};
+use crate::mesh_scenes::{MeshSet, is_mesh_dataset};
 use crate::preview::write_preview;
 use crate::scenarios::Scenario;
 use crate::stats::inspect;
@@ -55,6 +58,18 @@ pub enum SimCommand {
     /// Physics scenarios: each scene draws one of rest, drop, slide, collide, stack-hit.
     #[command(name = "physics-mix")]
     PhysicsMix(GenerateArgs),
+    /// Mesh scenes: 1-5 convex rigid objects resting on the floor of a closed box, some sliding.
+    #[command(name = "mesh-d1")]
+    MeshD1(MeshGenerateArgs),
+    /// Mesh scenes: as mesh-d1 with concave templates too.
+    #[command(name = "mesh-d2")]
+    MeshD2(MeshGenerateArgs),
+    /// Mesh scenes: 1-5 or 6-10 rigid objects starting in the air, some spinning.
+    #[command(name = "mesh-d3")]
+    MeshD3(MeshGenerateArgs),
+    /// Mesh scenes: elastic or mixed rigid/elastic objects, floor or airborne starts.
+    #[command(name = "mesh-d4")]
+    MeshD4(MeshGenerateArgs),
     /// Print statistics of a dataset split.
     Inspect(InspectArgs),
     /// Draw a few trajectories of a dataset split into a PNG.
@@ -164,6 +179,10 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
         SimCommand::Collide(a) => run_generate(Generator::scenario(Scenario::Collide), &a),
         SimCommand::StackHit(a) => run_generate(Generator::scenario(Scenario::StackHit), &a),
         SimCommand::PhysicsMix(a) => run_generate(Generator::physics_mix(), &a),
+        SimCommand::MeshD1(a) => mesh_cli::run_generate(MeshSet::D1, &a),
+        SimCommand::MeshD2(a) => mesh_cli::run_generate(MeshSet::D2, &a),
+        SimCommand::MeshD3(a) => mesh_cli::run_generate(MeshSet::D3, &a),
+        SimCommand::MeshD4(a) => mesh_cli::run_generate(MeshSet::D4, &a),
         SimCommand::Inspect(a) => run_inspect(&a),
         SimCommand::Preview(a) => run_preview(&a),
     }
@@ -244,6 +263,9 @@ fn run_generate(generator: Generator, a: &GenerateArgs) -> anyhow::Result<()> {
 }
 
 fn run_inspect(a: &InspectArgs) -> anyhow::Result<()> {
+    if is_mesh_dataset(&a.dir)? {
+        return mesh_cli::run_inspect(&a.dir, a.limit, a.json);
+    }
     let reader = DatasetReader::open(&a.dir)?;
     let stats = inspect(&reader, a.limit)?;
     if a.json {
@@ -255,6 +277,9 @@ fn run_inspect(a: &InspectArgs) -> anyhow::Result<()> {
 }
 
 fn run_preview(a: &PreviewArgs) -> anyhow::Result<()> {
+    if is_mesh_dataset(&a.dir)? {
+        return mesh_cli::run_preview(&a.dir, a.scene, &a.out);
+    }
     let reader = DatasetReader::open(&a.dir)?;
     if a.count == 0 {
         bail!("--count must be at least 1");

@@ -642,6 +642,14 @@ impl DatasetReader {
         let dir = dir.as_ref().to_path_buf();
         let path = dir.join("manifest.json");
         let text = std::fs::read_to_string(&path).map_err(io_err(&path))?;
+        if crate::mesh_scenes::is_mesh_dataset(&dir)? {
+            return Err(SimError::Manifest {
+                path,
+                message: "a mesh dataset (\"content\": \"mesh\"); read it with \
+                          mesh_scenes::MeshDatasetReader"
+                    .into(),
+            });
+        }
         let manifest: Manifest = serde_json::from_str(&text).map_err(|e| SimError::Manifest {
             path: path.clone(),
             message: e.to_string(),

@@ -14,11 +14,14 @@
 //! - [`dataset`]: shards, manifest, writer and streaming reader;
 //! - [`stats`], [`preview`]: what `dynaserve sim inspect` and `dynaserve sim preview` print and
 //!   draw;
+//! - [`mesh_scenes`]: rigid and elastic triangle meshes in a closed box, recorded per vertex
+//!   (sets `mesh-d1` to `mesh-d4`), with their own shard format and reader;
 //! - [`cli`]: the `dynaserve sim` subcommand.
 
 pub mod cli;
 pub mod dataset;
 pub mod generators;
+pub mod mesh_scenes;
 pub mod preview;
 pub mod scenarios;
 pub mod scene;

@@ -119,6 +119,12 @@ pub struct EvalArgs {
     /// Write the error-against-time PNG to this file (default: next to --json, with .png).
     #[arg(long)]
     pub plot: Option<PathBuf>,
+    /// PhysiFormer models: samples drawn per scene (their mean and spread are reported).
+    #[arg(long, default_value_t = 3)]
+    pub samples: usize,
+    /// PhysiFormer models: denoising steps per sample.
+    #[arg(long, default_value_t = 25)]
+    pub denoise_steps: usize,
 }
 
 impl EvalArgs {
@@ -169,6 +175,19 @@ fn write_file(path: &Path, text: &str) -> anyhow::Result<()> {
 /// Runs `dynaserve eval`: progress on stderr, the summary on stdout, JSON, Markdown and the
 /// plot to the requested files.
 pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
+    if let (Some(model), [data]) = (&args.model, args.data.as_slice())
+        && crate::physi::eval::is_physi_model(model)
+    {
+        return crate::physi::eval::run(&crate::physi::eval::PhysiEvalOptions {
+            model: model.clone(),
+            data: data.clone(),
+            scenes: args.max_scenes.unwrap_or(50),
+            samples: args.samples,
+            steps: args.denoise_steps,
+            seed: args.seed,
+            plot: args.plot.clone(),
+        });
+    }
     if args.suite.is_some() {
         return crate::eval::suite_cli::run(&args);
     }

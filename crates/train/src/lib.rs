@@ -2,4 +2,5 @@
 
 pub mod cli;
 pub mod eval;
+pub mod physi;
 pub mod train;

@@ -8,6 +8,7 @@
 //! Units: metres, seconds, kilograms, radians; z up; quaternions `[x, y, z, w]`.
 
 pub mod json;
+pub mod session;
 pub mod v1;
 
 use std::time::Duration;

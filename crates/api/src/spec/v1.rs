@@ -174,11 +174,11 @@ impl ModelInfo {
             architecture: self.config.architecture.clone(),
             dt_frame: f64::from(self.config.dt_frame),
             default_points: l.default_points as u32,
-            max_objects: l.max_objects as u32,
-            max_points_per_object: l.max_points_per_object as u32,
-            max_steps: l.max_steps,
-            max_dt_steps: l.max_dt_steps,
-            max_variants: l.max_variants as u32,
+            max_objects: l.caps.max_objects as u32,
+            max_points_per_object: l.caps.max_points_per_object as u32,
+            max_steps: l.caps.max_steps,
+            max_dt_steps: l.caps.max_dt_steps,
+            max_variants: l.caps.max_variants as u32,
             gravity: Some(vec3_to(self.config.gravity)),
             config_json: serde_json::to_value(&self.config)
                 .unwrap_or(serde_json::Value::Null)

@@ -7,12 +7,15 @@
 //! - [`registry`]: resident models with their schedulers and limits, scene preparation;
 //! - [`request`]: request context, ids and the metrics record of each request;
 //! - [`stepper`]: one scene stepping through the scheduler (the only code that submits steps);
-//! - [`rollout`], [`predict`], [`warmup`]: the three users of steppers.
+//! - [`rollout`], [`predict`], [`warmup`]: the three users of steppers;
+//! - [`sessions`]: scenes kept with their state between calls (planners), stepped through
+//!   steppers whose kinematic objects follow given poses.
 
 mod predict;
 pub mod registry;
 pub mod request;
 mod rollout;
+pub mod sessions;
 mod stepper;
 mod warmup;
 
@@ -28,6 +31,7 @@ use tokio::sync::{Semaphore, watch};
 pub use registry::ModelEntry;
 pub use request::{Protocol, RequestCtx, new_request_id};
 pub use rollout::RolloutHandle;
+pub use sessions::{InteractHandle, SessionConfig, StepHandle};
 
 use crate::config::ServeConfig;
 use crate::error::ApiError;
@@ -46,6 +50,7 @@ pub struct Engine {
     draining: AtomicBool,
     close_tx: watch::Sender<bool>,
     next_stream: AtomicU64,
+    sessions: Arc<sessions::SessionStore>,
 }
 
 impl Engine {
@@ -72,7 +77,12 @@ impl Engine {
             anyhow::bail!("no models to serve");
         }
         let (close_tx, _) = watch::channel(false);
+        let sessions = Arc::new(sessions::SessionStore::new(
+            config.sessions.clone(),
+            metrics.clone(),
+        ));
         Ok(Engine {
+            sessions,
             rollout_slots: Arc::new(Semaphore::new(config.max_active_rollouts)),
             predict_slots: Arc::new(Semaphore::new(config.max_predict_variants)),
             config,

@@ -51,12 +51,12 @@ impl Engine {
         tracing::Span::current().record("model", entry.name.as_str());
         let dt_steps = check_steps(req.steps, req.dt_steps, &entry.limits)?;
         let n = req.variants.len();
-        if n == 0 || n > entry.limits.max_variants {
+        if n == 0 || n > entry.limits.caps.max_variants {
             return Err(ApiError::invalid(
                 "variants",
                 format!(
                     "{n} variants given; 1..={} accepted",
-                    entry.limits.max_variants
+                    entry.limits.caps.max_variants
                 ),
             ));
         }

@@ -67,6 +67,26 @@ impl ModelEntry {
     }
 }
 
+/// The pose one step before the start (`translation - velocity * dt`) must lie in the model's
+/// domain too, or the first step would fail; the error names the velocity that puts it there.
+fn check_previous(state: &SceneState, path: &str) -> Result<(), ApiError> {
+    let limit = dynaserve_model::MAX_WORLD_EXTENT;
+    match state.previous.iter().position(|p| {
+        p.translation
+            .iter()
+            .any(|v| !v.is_finite() || v.abs() > limit)
+    }) {
+        None => Ok(()),
+        Some(j) => Err(ApiError::invalid(
+            format!("{path}.objects[{j}].velocity.linear"),
+            format!(
+                "with this translation and velocity the object was beyond {limit} m one step \
+                 earlier; the model accepts positions within {limit} m"
+            ),
+        )),
+    }
+}
+
 /// Validates, builds and prepares scenes on a blocking thread (mesh sampling and the model's
 /// per-scene caches are CPU work that must not run on the async runtime). `field` names the
 /// scenes in errors: `scene` for one, `variants` for `variants[i]`.
@@ -91,6 +111,7 @@ pub(crate) async fn prepare_scenes(
                 };
                 let BuiltScene { objects, state } =
                     build_scene(s, &path, &entry.limits, dt_seconds)?;
+                check_previous(&state, &path)?;
                 let prepared = entry.model().prepare(objects).map_err(|e| match e {
                     dynaserve_model::ModelError::InvalidInput(m) => {
                         ApiError::invalid(path.clone(), m)

@@ -1,5 +1,8 @@
 //! Streamed rollouts: admission, then a session task that steps the scene and sends every
-//! frame into a bounded channel, so that a slow reader pauses only its own rollout.
+//! frame into a bounded channel, so that a slow reader pauses only its own rollout. A reader
+//! that takes nothing for `--stream-stall-timeout-s` loses the stream: the session ends with
+//! an error (kept in a slot reserved for it, so the client sees it after the buffered frames
+//! if it ever reads again) and its rollout slot is freed.
 
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
@@ -28,6 +31,7 @@ pub struct RolloutHandle {
 }
 
 const DEADLINE_MSG: &str = "deadline exceeded";
+const STALL_MSG: &str = "stream ended: the client read no frame for";
 const CLOSE_MSG: &str =
     "server shutting down: the drain deadline passed before the rollout finished";
 
@@ -90,12 +94,18 @@ impl Engine {
             Ok(p) => p,
             Err(e) => return Err(span.in_scope(|| rec.fail(e))),
         };
-        let (tx, rx) = mpsc::channel(self.config.stream_buffer);
+        // One slot more than the buffer, held for the final error.
+        let (tx, rx) = mpsc::channel(self.config.stream_buffer + 1);
         let session = Session {
             stepper,
             steps,
             deadline,
             close: self.close_tx.subscribe(),
+            stall_timeout: self.config.stream_stall_timeout(),
+            stalled: self
+                .metrics
+                .stalled_streams
+                .with_label_values(&[entry.name.as_str()]),
         };
         let gauge = self
             .metrics
@@ -137,6 +147,10 @@ struct Session {
     steps: u32,
     deadline: Option<Instant>,
     close: watch::Receiver<bool>,
+    /// How long the client may read nothing before the stream ends.
+    stall_timeout: Option<std::time::Duration>,
+    /// `dynaserve_stalled_streams_total` of the model.
+    stalled: prometheus::IntCounter,
 }
 
 impl Session {
@@ -144,6 +158,24 @@ impl Session {
     /// The final error, if any, is also sent to the client.
     async fn run(mut self, tx: mpsc::Sender<Result<Frame, ApiError>>) -> Result<(), ApiError> {
         let mut close = self.close.clone();
+        // The slot of the final error: reserved first, so an error reaches even a client whose
+        // buffer is full.
+        let last = match tx.clone().reserve_owned().await {
+            Ok(p) => p,
+            Err(_) => return Err(ApiError::cancelled("client went away")),
+        };
+        let r = self.steps_into(&tx, &mut close).await;
+        if let Err(e) = &r {
+            last.send(Err(e.clone()));
+        }
+        r
+    }
+
+    async fn steps_into(
+        &mut self,
+        tx: &mpsc::Sender<Result<Frame, ApiError>>,
+        close: &mut watch::Receiver<bool>,
+    ) -> Result<(), ApiError> {
         for step in 1..=self.steps {
             // Reserve room for the frame before asking for the step: a client that reads slowly
             // pauses only this rollout, and the scheduler is told not to wait for it meanwhile.
@@ -154,14 +186,20 @@ impl Session {
                 }
                 Err(mpsc::error::TrySendError::Full(())) => {
                     self.stepper.pause();
+                    let stall = self.stall_timeout.map(|t| Instant::now() + t);
                     tokio::select! {
                         p = tx.reserve() => match p {
                             Ok(p) => p,
                             Err(_) => return Err(ApiError::cancelled("client went away")),
                         },
                         _ = sleep_until(self.deadline) => {
-                            // The client is not reading; the error cannot be delivered either.
                             return Err(ApiError::deadline(DEADLINE_MSG));
+                        }
+                        _ = sleep_until(stall) => {
+                            self.stalled.inc();
+                            let t = self.stall_timeout.unwrap_or_default().as_secs_f64();
+                            tracing::info!(step, stall_s = t, "client stopped reading; stream ended");
+                            return Err(ApiError::cancelled(format!("{STALL_MSG} {t} s")));
                         }
                         _ = close.wait_for(|c| *c) => {
                             return Err(ApiError::unavailable(CLOSE_MSG));
@@ -182,11 +220,9 @@ impl Session {
                 _ = close.wait_for(|c| *c) => Err(ApiError::unavailable(CLOSE_MSG)),
             };
             match outcome {
-                Ok(done) => permit.send(Ok(self.stepper.accept(done))),
-                Err(e) => {
-                    permit.send(Err(e.clone()));
-                    return Err(e);
-                }
+                Ok(done) => permit.send(Ok(self.stepper.accept(done)?)),
+                // The error goes into the reserved slot (`run`).
+                Err(e) => return Err(e),
             }
         }
         Ok(())

@@ -6,7 +6,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use dynaserve_api::spec::{Frame, StepTiming};
-use dynaserve_model::{Pose, PreparedScene, SceneState};
+use dynaserve_model::{MAX_WORLD_EXTENT, Pose, PreparedScene, SceneState};
 use tokio::sync::oneshot;
 
 use super::registry::ModelEntry;
@@ -93,12 +93,16 @@ impl Stepper {
         rx
     }
 
-    /// Takes a finished step: advances the state and returns the frame (with its timing).
-    pub(crate) fn accept(&mut self, done: Done<Vec<Pose>>) -> Frame {
+    /// Takes a finished step: advances the state and returns the frame (with its timing). A
+    /// step whose poses leave the model's domain (not finite, or a translation beyond
+    /// `MAX_WORLD_EXTENT`) ends the scene with OUT_OF_RANGE naming the object; the state is not
+    /// advanced, so no later step runs on it.
+    pub(crate) fn accept(&mut self, done: Done<Vec<Pose>>) -> Result<Frame, ApiError> {
+        check_domain(&done.output, self.step + 1)?;
         self.step += 1;
         tracing::trace!(step = self.step, batch = done.batch_id, "step");
         self.state.advance(done.output.clone());
-        Frame {
+        Ok(Frame {
             step: self.step,
             time: self.entry.time_at(self.step, self.dt_steps),
             poses: done.output,
@@ -107,13 +111,13 @@ impl Stepper {
                 forward: done.forward,
                 batch_scenes: done.batch_scenes,
             }),
-        }
+        })
     }
 
     /// Submits the next step, waits for it and accepts it.
     pub(crate) async fn next(&mut self, more_steps: bool) -> Result<Frame, ApiError> {
         match self.submit(more_steps).await {
-            Ok(Ok(done)) => Ok(self.accept(done)),
+            Ok(Ok(done)) => self.accept(done),
             Ok(Err(e)) => Err(step_error(e)),
             Err(_) => Err(ApiError::unavailable("server shutting down")),
         }
@@ -122,6 +126,37 @@ impl Stepper {
     /// Tells the scheduler not to wait for this stream's next step (it paused).
     pub(crate) fn pause(&self) {
         self.entry.scheduler.idle(self.stream_id);
+    }
+}
+
+/// OUT_OF_RANGE naming the first object whose new pose at `step` lies outside the model's
+/// domain (a non-finite value, a translation beyond `MAX_WORLD_EXTENT` metres, a degenerate
+/// rotation).
+pub(crate) fn check_domain(poses: &[Pose], step: u32) -> Result<(), ApiError> {
+    let bad = poses.iter().position(|p| {
+        let t_ok = p
+            .translation
+            .iter()
+            .all(|v| v.is_finite() && v.abs() <= MAX_WORLD_EXTENT);
+        let n2: f32 = p.rotation.iter().map(|v| v * v).sum();
+        !(t_ok && n2.is_finite() && n2 > 1e-6)
+    });
+    match bad {
+        None => Ok(()),
+        Some(j) => {
+            let field = format!("scene.objects[{j}]");
+            Err(ApiError {
+                code: tonic::Code::OutOfRange,
+                message: format!(
+                    "{field}: left the model's domain at step {step} (translation {:?} m; \
+                     positions must stay finite and within {MAX_WORLD_EXTENT} m)",
+                    poses[j].translation
+                ),
+                field: Some(field),
+                retry_after: None,
+                http_override: None,
+            })
+        }
     }
 }
 

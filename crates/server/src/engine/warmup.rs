@@ -60,7 +60,7 @@ impl Engine {
                     priority: Priority::Interactive,
                     deadline: None,
                     stream_id: self.next_stream.fetch_add(1, Ordering::Relaxed),
-                    request_id: "warm-up".into(),
+                    request_id: crate::scheduler::WARMUP_REQUEST_ID.into(),
                 },
             );
             for step in 1..=STEPS {

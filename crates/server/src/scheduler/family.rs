@@ -4,7 +4,7 @@
 
 use std::sync::Arc;
 
-use dynaserve_model::{Pose, PreparedScene, SceneState, StepItem, WorldModel};
+use dynaserve_model::{MAX_WORLD_EXTENT, Pose, PreparedScene, SceneState, StepItem, WorldModel};
 
 /// A model family as the scheduler sees it.
 pub trait Family: Send + Sync + 'static {
@@ -63,7 +63,32 @@ impl Family for RigidSteps {
         item.scene.len()
     }
 
+    /// Items whose state the model would refuse (see [`state_problem`]) fail alone before
+    /// the pass; the others go through one [`WorldModel::step`].
     fn run(&self, items: &[&SceneStep]) -> Result<Vec<Result<Vec<Pose>, String>>, String> {
+        let problems: Vec<Option<String>> = items.iter().map(|s| state_problem(&s.state)).collect();
+        if problems.iter().any(Option::is_some) {
+            let good: Vec<&SceneStep> = items
+                .iter()
+                .zip(&problems)
+                .filter(|(_, p)| p.is_none())
+                .map(|(s, _)| *s)
+                .collect();
+            let mut out = if good.is_empty() {
+                Vec::new().into_iter()
+            } else {
+                self.run(&good)?.into_iter()
+            };
+            return Ok(problems
+                .into_iter()
+                .map(|p| match p {
+                    Some(msg) => Err(msg),
+                    None => out
+                        .next()
+                        .unwrap_or_else(|| Err("model returned too few scenes".to_string())),
+                })
+                .collect());
+        }
         let batch: Vec<StepItem<'_>> = items
             .iter()
             .map(|s| StepItem {
@@ -89,4 +114,27 @@ impl Family for RigidSteps {
             })
             .collect())
     }
+}
+
+/// Why a state is outside the model's domain (a pose translation not finite or beyond
+/// [`MAX_WORLD_EXTENT`] metres, a rotation that is not a usable quaternion), naming the object;
+/// `None` for a usable state. The message holds only this scene's data.
+pub fn state_problem(state: &SceneState) -> Option<String> {
+    for (which, poses) in [("previous", &state.previous), ("current", &state.current)] {
+        for (j, p) in poses.iter().enumerate() {
+            let t_ok = p
+                .translation
+                .iter()
+                .all(|v| v.is_finite() && v.abs() <= MAX_WORLD_EXTENT);
+            let n2: f32 = p.rotation.iter().map(|v| v * v).sum();
+            if !(t_ok && n2.is_finite() && n2 > 1e-6) {
+                return Some(format!(
+                    "objects[{j}]: {which} pose outside the model's domain (translation {:?} m, \
+                     limit {MAX_WORLD_EXTENT} m)",
+                    p.translation
+                ));
+            }
+        }
+    }
+    None
 }

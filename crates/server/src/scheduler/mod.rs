@@ -35,6 +35,9 @@ pub use queue::{Dropped, Queue, Queued, Ticket};
 
 use crate::metrics::Metrics;
 
+/// Request id of warm-up jobs; their passes are not counted in the serving metrics.
+pub const WARMUP_REQUEST_ID: &str = "warm-up";
+
 /// Scheduling class of a job.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Priority {

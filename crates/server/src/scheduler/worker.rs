@@ -1,6 +1,8 @@
 //! The scheduler thread: moves commands from its channel into the [`Queue`], waits as the
-//! queue says, runs one pass of the [`Family`] at a time (a panic or error fails that pass's
-//! jobs, not the thread) and records queue, pass and throughput metrics.
+//! queue says, runs one pass of the [`Family`] at a time and records queue, pass and throughput
+//! metrics (not for warm-up passes). A pass that fails as a whole (an error or a panic) is run
+//! again one job at a time, so a job that cannot be computed fails alone, with its own error,
+//! and its pass-mates still get their results; the thread never dies with a pass.
 
 use std::panic::AssertUnwindSafe;
 use std::sync::Arc;
@@ -169,21 +171,33 @@ impl<F: Family> Worker<F> {
         let objects: usize = batch.iter().map(|q| q.ticket.cost).sum();
         let start = Instant::now();
         let items: Vec<&F::Item> = batch.iter().map(|q| &q.payload.item).collect();
-        let family = self.family.clone();
-        let result = std::panic::catch_unwind(AssertUnwindSafe(|| family.run(&items)));
+        let mut result = run_guarded(&*self.family, &items);
+        if let Err(msg) = &result
+            && scenes > 1
+        {
+            tracing::warn!(
+                model = self.name.as_str(),
+                batch = batch_id,
+                scenes,
+                error = %msg,
+                "pass failed; running its jobs one at a time"
+            );
+            result = Ok(items
+                .iter()
+                .map(|it| match run_guarded(&*self.family, &[*it]) {
+                    Ok(mut one) => one.pop().unwrap_or_else(|| Err("no result".into())),
+                    Err(e) => Err(e),
+                })
+                .collect());
+        }
         drop(items);
         let forward = start.elapsed();
         let finished = Instant::now();
-        let result = match result {
-            Ok(Ok(out)) if out.len() == scenes => Ok(out),
-            Ok(Ok(out)) => Err(format!(
-                "model returned {} scenes for a batch of {scenes}",
-                out.len()
-            )),
-            Ok(Err(e)) => Err(e),
-            Err(_) => Err("model panicked".to_string()),
-        };
         let name = self.name.as_str();
+        // Warm-up passes are not serving work: they stay out of the metrics.
+        let metered = batch
+            .iter()
+            .any(|q| &*q.payload.request_id != super::WARMUP_REQUEST_ID);
         if tracing::enabled!(tracing::Level::DEBUG) {
             let ids: Vec<&str> = batch.iter().map(|q| &*q.payload.request_id).collect();
             tracing::debug!(
@@ -196,35 +210,54 @@ impl<F: Family> Worker<F> {
                 "batch"
             );
         }
-        self.metrics
-            .batch_scenes
-            .with_label_values(&[name])
-            .observe(scenes as f64);
-        self.metrics
-            .batch_objects
-            .with_label_values(&[name])
-            .observe(objects as f64);
-        self.metrics
-            .forward_duration
-            .with_label_values(&[name])
-            .observe(forward.as_secs_f64());
+        if metered {
+            self.metrics
+                .batch_scenes
+                .with_label_values(&[name])
+                .observe(scenes as f64);
+            self.metrics
+                .batch_objects
+                .with_label_values(&[name])
+                .observe(objects as f64);
+            self.metrics
+                .forward_duration
+                .with_label_values(&[name])
+                .observe(forward.as_secs_f64());
+        }
         let mut expected = Vec::new();
         match result {
             Ok(out) => {
-                self.metrics
-                    .scene_steps
-                    .with_label_values(&[name])
-                    .inc_by(scenes as u64);
-                self.metrics
-                    .object_steps
-                    .with_label_values(&[name])
-                    .inc_by(objects as u64);
+                let failed = out.iter().filter(|r| r.is_err()).count();
+                if metered {
+                    self.metrics
+                        .scene_steps
+                        .with_label_values(&[name])
+                        .inc_by((scenes - failed) as u64);
+                    self.metrics
+                        .object_steps
+                        .with_label_values(&[name])
+                        .inc_by(objects as u64);
+                    self.metrics
+                        .scene_step_failures
+                        .with_label_values(&[name])
+                        .inc_by(failed as u64);
+                }
                 for (item, output) in batch.into_iter().zip(out) {
                     let queue_wait = start.saturating_duration_since(item.ticket.enqueued);
-                    self.metrics
-                        .queue_wait
-                        .with_label_values(&[name, item.ticket.priority.as_str()])
-                        .observe(queue_wait.as_secs_f64());
+                    if metered {
+                        self.metrics
+                            .queue_wait
+                            .with_label_values(&[name, item.ticket.priority.as_str()])
+                            .observe(queue_wait.as_secs_f64());
+                    }
+                    if let Err(e) = &output {
+                        tracing::info!(
+                            model = name,
+                            request_id = %item.payload.request_id,
+                            error = %e,
+                            "scene step failed alone"
+                        );
+                    }
                     let reply = output
                         .map(|output| Done {
                             output,
@@ -248,7 +281,9 @@ impl<F: Family> Worker<F> {
             }
         }
         self.queue.expect(expected);
-        self.recent.push_back((finished, scenes as u64));
+        if metered {
+            self.recent.push_back((finished, scenes as u64));
+        }
         self.update_fps(finished);
     }
 
@@ -265,6 +300,24 @@ impl<F: Family> Worker<F> {
             .fps
             .with_label_values(&[self.name.as_str()])
             .set(total as f64);
+    }
+}
+
+/// One pass of `family` over `items`: a panic or a wrong number of results becomes the pass's
+/// error.
+fn run_guarded<F: Family>(
+    family: &F,
+    items: &[&F::Item],
+) -> Result<Vec<Result<F::Output, String>>, String> {
+    match std::panic::catch_unwind(AssertUnwindSafe(|| family.run(items))) {
+        Ok(Ok(out)) if out.len() == items.len() => Ok(out),
+        Ok(Ok(out)) => Err(format!(
+            "model returned {} results for a pass of {}",
+            out.len(),
+            items.len()
+        )),
+        Ok(Err(e)) => Err(e),
+        Err(_) => Err("model panicked".to_string()),
     }
 }
 
@@ -374,7 +427,12 @@ mod tests {
         assert_eq!(*family.passes.lock().unwrap(), vec![vec![100], expected]);
         let text = metrics.render();
         assert!(
-            text.contains("dynaserve_scene_steps_total{model=\"test\"} 12"),
+            text.contains("dynaserve_scene_steps_total{model=\"test\"} 11"),
+            "{text}"
+        );
+        // The item that failed alone is counted as a failure, not as a step.
+        assert!(
+            text.contains("dynaserve_scene_step_failures_total{model=\"test\"} 1"),
             "{text}"
         );
         // A panicking pass fails its jobs, not the scheduler.
@@ -389,5 +447,45 @@ mod tests {
             submit(&s, 2).blocking_recv().unwrap().unwrap_err(),
             StepError::Stopped
         );
+    }
+
+    #[test]
+    fn a_job_that_breaks_its_pass_fails_alone_and_its_pass_mates_get_their_results() {
+        let (started_tx, started) = mpsc::channel();
+        let (release, hold) = mpsc::channel();
+        let family = Arc::new(Tags {
+            passes: Mutex::new(Vec::new()),
+            started: Mutex::new(Some(started_tx)),
+            hold: Mutex::new(Some(hold)),
+        });
+        let metrics = Metrics::new(&["test".to_string()]);
+        let config = SchedulerConfig {
+            max_batch_scenes: 64,
+            max_batch_objects: 1000,
+            max_queue_delay: Duration::from_millis(2),
+        };
+        let s = Scheduler::start(family.clone(), config, metrics.clone()).unwrap();
+        let first = submit(&s, 100);
+        started.recv().unwrap();
+        let (a, bad, b) = (submit(&s, 7), submit(&s, 666), submit(&s, 8));
+        release.send(()).unwrap();
+        assert_eq!(first.blocking_recv().unwrap().unwrap().output, 101);
+        assert_eq!(a.blocking_recv().unwrap().unwrap().output, 8);
+        assert_eq!(b.blocking_recv().unwrap().unwrap().output, 9);
+        assert_eq!(
+            bad.blocking_recv().unwrap().unwrap_err(),
+            StepError::Model("model panicked".into())
+        );
+        // The failing pass [7, 666, 8] was run again one job at a time.
+        assert_eq!(
+            *family.passes.lock().unwrap(),
+            vec![vec![100], vec![7], vec![8]]
+        );
+        let text = metrics.render();
+        assert!(
+            text.contains("dynaserve_scene_step_failures_total{model=\"test\"} 1"),
+            "{text}"
+        );
+        s.shutdown();
     }
 }

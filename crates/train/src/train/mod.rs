@@ -156,6 +156,11 @@ pub fn run_cli(args: TrainArgs) -> anyhow::Result<()> {
     let Some(path) = args.config else {
         anyhow::bail!("dynaserve train needs --config FILE (or the export subcommand)");
     };
+    if crate::physi::train::is_physi_config(&path) {
+        let stop = Arc::new(AtomicBool::new(false));
+        stop_on_signals(stop.clone())?;
+        return crate::physi::train::run(&path, args.resume, args.stop_after, stop);
+    }
     let cfg = TrainConfig::from_file(&path)?;
     let stop = Arc::new(AtomicBool::new(false));
     stop_on_signals(stop.clone())?;

@@ -135,13 +135,13 @@ impl AdamW {
             let Some(g) = grads.get(s.var.as_tensor()) else {
                 continue;
             };
-            let g = (g * clip_scale)?;
-            s.m = ((&s.m * c.beta1)? + (&g * (1.0 - c.beta1))?)?;
-            s.v = ((&s.v * c.beta2)? + (g.sqr()? * (1.0 - c.beta2))?)?;
+            let g = (g * clip_scale)?.detach();
+            s.m = ((&s.m * c.beta1)? + (&g * (1.0 - c.beta1))?)?.detach();
+            s.v = ((&s.v * c.beta2)? + (g.sqr()? * (1.0 - c.beta2))?)?.detach();
             let mhat = (&s.m / bc1)?;
             let vhat = (&s.v / bc2)?;
             let update = (mhat / (vhat.sqrt()? + c.eps)?)?;
-            let w = s.var.as_tensor();
+            let w = &s.var.as_tensor().detach();
             let w = if s.decay && c.weight_decay > 0.0 {
                 (w * (1.0 - lr * c.weight_decay))?
             } else {

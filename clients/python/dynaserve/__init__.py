@@ -1,0 +1,24 @@
+"""Python client of Dynaserve, the learned-physics world-model server.
+
+>>> from dynaserve import Client, Body, box_points
+>>> c = Client("http://127.0.0.1:8080")
+>>> s = c.create_session([Body(box_points([0.1, 0.1, 0.1]), pose=[0, 0, 0.1, 0, 0, 0, 1])])
+>>> frames = s.step(10)          # frames[-1].poses is [objects, 7]
+"""
+
+from .client import AFFINITY_HEADER, AsyncClient, Client, Frame, Session
+from .errors import DynaserveError
+from .scene import Body, box_points, pose_array, pose_doc
+
+__all__ = [
+    "AFFINITY_HEADER",
+    "AsyncClient",
+    "Body",
+    "Client",
+    "DynaserveError",
+    "Frame",
+    "Session",
+    "box_points",
+    "pose_array",
+    "pose_doc",
+]

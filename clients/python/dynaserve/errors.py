@@ -1,0 +1,33 @@
+"""Errors raised by the client: one exception type carrying the server's error document."""
+
+from __future__ import annotations
+
+from typing import Optional
+
+
+class DynaserveError(Exception):
+    """A request the server refused or failed.
+
+    Attributes:
+        status: HTTP status (422 invalid input, 404 unknown session, 429 overload, 503
+            unavailable, 504 deadline exceeded, 500 internal).
+        code: gRPC-style code name, e.g. ``INVALID_ARGUMENT`` or ``NOT_FOUND``.
+        field: path of the offending field for invalid input, e.g.
+            ``actions[3].kinematic[0].pose.rotation``; ``None`` otherwise.
+        retry_after_ms: suggested wait before retrying (overload only).
+    """
+
+    def __init__(
+        self,
+        status: int,
+        code: str,
+        message: str,
+        field: Optional[str] = None,
+        retry_after_ms: Optional[int] = None,
+    ) -> None:
+        super().__init__(f"{code} ({status}): {message}")
+        self.status = status
+        self.code = code
+        self.message = message
+        self.field = field
+        self.retry_after_ms = retry_after_ms

@@ -1,0 +1,66 @@
+"""Tests of the Python client against a real server whose HTTP address is in DYNASERVE_HTTP
+(started by the workspace test `tests/python_client.rs`)."""
+
+import os
+import unittest
+
+import numpy as np
+
+from dynaserve import Body, Client, DynaserveError, box_points
+
+
+def bodies():
+    return [
+        Body(box_points([0.1, 0.1, 0.1], 64, 1), pose=[0, 0, 0.6, 0, 0, 0, 1], velocity=[0.5, 0, 0, 0, 0, 0]),
+        Body(box_points([0.05, 0.05, 0.05], 64, 2), pose=[-0.3, 0, 0.05, 0, 0, 0, 1]),
+    ]
+
+
+class ClientTest(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.c = Client(os.environ["DYNASERVE_HTTP"])
+
+    def test_rollout_session_and_predict_agree(self):
+        models = self.c.list_models()
+        self.assertEqual(len(models), 1)
+        frames = list(self.c.rollout(bodies(), steps=6))
+        self.assertEqual([f.step for f in frames], list(range(1, 7)))
+        self.assertEqual(frames[0].poses.shape, (2, 7))
+        s = self.c.create_session(bodies())
+        stepped = s.step(3) + s.step(3)
+        for a, b in zip(frames, stepped):
+            np.testing.assert_allclose(a.poses, b.poses, atol=1e-5)
+        # Predict from a fresh fork of the start equals Predict from full scenes.
+        start = self.c.create_session(bodies())
+        from_session = start.predict(6, poses=[{}, {1: [-0.2, 0, 0.05, 0, 0, 0, 1]}])
+        moved = bodies()
+        moved[1].pose = np.array([-0.2, 0, 0.05, 0, 0, 0, 1])
+        full = self.c.predict([bodies(), moved], steps=6)
+        self.assertEqual(from_session.shape, (2, 1, 2, 7))
+        np.testing.assert_allclose(from_session, full, atol=1e-5)
+        np.testing.assert_allclose(full[0, -1], frames[-1].poses, atol=1e-5)
+
+    def test_fork_set_state_kinematic_and_errors(self):
+        s = self.c.create_session(bodies(), kinematic=[1])
+        f = s.fork()
+        self.assertNotEqual(f.id, s.id)
+        path = np.tile([-0.3, 0, 0.05, 0, 0, 0, 1.0], (4, 1))
+        path[:, 0] += 0.02 * np.arange(1, 5)
+        frames = s.step(4, kinematic={1: path})
+        np.testing.assert_allclose(frames[-1].poses[1], path[-1], atol=1e-6)
+        self.assertEqual(f.state()["step"], 0)
+        st = f.set_state({0: [1.0, 1.0, 0.1, 0, 0, 0, 1]})
+        np.testing.assert_allclose(st["poses"][0], [1.0, 1.0, 0.1, 0, 0, 0, 1], atol=1e-6)
+        with self.assertRaises(DynaserveError) as e:
+            s.step(1, kinematic={0: path[:1]})
+        self.assertEqual(e.exception.status, 422)
+        self.assertEqual(e.exception.field, "actions[0].kinematic[0].object")
+        s.delete()
+        with self.assertRaises(DynaserveError) as e:
+            s.state()
+        self.assertEqual((e.exception.status, e.exception.code), (404, "NOT_FOUND"))
+
+
+if __name__ == "__main__":
+    unittest.main()

@@ -1,0 +1,280 @@
+//! Validation of session inputs against a session's scene: the set of kinematic objects, object
+//! states (SetState, Predict overrides, Interact corrections) and per-step actions, and how a
+//! step's output is driven by the given kinematic poses. Errors name the field.
+//!
+//! Kinematic objects: the model's inputs for a step are the state's previous and current poses,
+//! which for a kinematic object are the poses the caller gave (or its initial ones); its output
+//! is replaced by the pose given for the end of the step, or by its current pose when none is
+//! given (it holds still). See [`drive`].
+
+use dynaserve_model::{Pose, SceneState};
+
+use crate::build::unit_quaternion;
+use crate::error::FieldError;
+use crate::limits::{MAX_ANGULAR_SPEED, MAX_SPEED, MAX_WORLD_EXTENT};
+use crate::spec::Motion;
+use crate::spec::session::{Action, ObjectState};
+
+/// Kinematic poses of one step, validated: `(object index, normalised pose)`, each object at
+/// most once, every one kinematic.
+pub type Targets = Vec<(usize, Pose)>;
+
+fn within(v: &[f32], bound: f32, field: &str, unit: &str) -> Result<(), FieldError> {
+    if v.iter().all(|x| x.is_finite() && x.abs() <= bound) {
+        Ok(())
+    } else {
+        Err(FieldError::new(
+            field,
+            format!("components must be finite and within ±{bound} {unit}"),
+        ))
+    }
+}
+
+/// Checks a pose (translation within ±[`MAX_WORLD_EXTENT`] m, unit quaternion) and
+/// renormalises its rotation.
+pub fn check_pose(p: &Pose, field: &str) -> Result<Pose, FieldError> {
+    within(
+        &p.translation,
+        MAX_WORLD_EXTENT,
+        &format!("{field}.translation"),
+        "m",
+    )?;
+    Ok(Pose {
+        translation: p.translation,
+        rotation: unit_quaternion(p.rotation, &format!("{field}.rotation"))?,
+    })
+}
+
+fn index(object: u32, objects: usize, seen: &mut [bool], field: &str) -> Result<usize, FieldError> {
+    let j = object as usize;
+    if j >= objects {
+        return Err(FieldError::new(
+            field,
+            format!("object {object} does not exist (the scene has {objects})"),
+        ));
+    }
+    if std::mem::replace(&mut seen[j], true) {
+        return Err(FieldError::new(
+            field,
+            format!("object {object} is named twice"),
+        ));
+    }
+    Ok(j)
+}
+
+/// The kinematic mask `[objects]` of a session from its list of indices (field `kinematic`).
+pub fn kinematic_mask(indices: &[u32], objects: usize) -> Result<Vec<bool>, FieldError> {
+    let mut mask = vec![false; objects];
+    for (i, &k) in indices.iter().enumerate() {
+        index(k, objects, &mut mask, &format!("kinematic[{i}]"))?;
+    }
+    Ok(mask)
+}
+
+/// Overwrites the listed objects' states in `state` (each object at most once; `field` names
+/// the list, e.g. `objects`). A velocity is turned into a previous pose `dt_seconds` earlier.
+/// Nothing is changed when any entry is invalid.
+pub fn apply_states(
+    state: &mut SceneState,
+    objects: &[ObjectState],
+    dt_seconds: f32,
+    field: &str,
+) -> Result<(), FieldError> {
+    let n = state.len();
+    let mut seen = vec![false; n];
+    let mut updates = Vec::with_capacity(objects.len());
+    for (i, o) in objects.iter().enumerate() {
+        let f = format!("{field}[{i}]");
+        let j = index(o.object, n, &mut seen, &format!("{f}.object"))?;
+        let now = check_pose(&o.pose, &format!("{f}.pose"))?;
+        let before = match &o.motion {
+            Motion::Rest => now,
+            Motion::PreviousPose(p) => check_pose(p, &format!("{f}.previous_pose"))?,
+            Motion::Velocity { linear, angular } => {
+                within(linear, MAX_SPEED, &format!("{f}.velocity.linear"), "m/s")?;
+                within(
+                    angular,
+                    MAX_ANGULAR_SPEED,
+                    &format!("{f}.velocity.angular"),
+                    "rad/s",
+                )?;
+                SceneState::from_velocities(vec![now], &[*linear], &[*angular], dt_seconds)
+                    .map_err(|e| FieldError::new(format!("{f}.velocity"), e.to_string()))?
+                    .previous[0]
+            }
+        };
+        updates.push((j, before, now));
+    }
+    for (j, before, now) in updates {
+        state.previous[j] = before;
+        state.current[j] = now;
+    }
+    Ok(())
+}
+
+/// Checks one action (`field`, e.g. `actions[3]`) against the kinematic mask.
+pub fn check_action(
+    action: &Action,
+    kinematic: &[bool],
+    field: &str,
+) -> Result<Targets, FieldError> {
+    let mut seen = vec![false; kinematic.len()];
+    action
+        .kinematic
+        .iter()
+        .enumerate()
+        .map(|(i, (object, pose))| {
+            let f = format!("{field}.kinematic[{i}]");
+            let j = index(*object, kinematic.len(), &mut seen, &format!("{f}.object"))?;
+            if !kinematic[j] {
+                return Err(FieldError::new(
+                    format!("{f}.object"),
+                    format!("object {object} is not kinematic; only kinematic objects take poses"),
+                ));
+            }
+            Ok((j, check_pose(pose, &format!("{f}.pose"))?))
+        })
+        .collect()
+}
+
+/// Checks a list of actions (`field`, e.g. `actions`): empty, or exactly `steps` of them.
+/// Returns one [`Targets`] per step (all empty for an empty list).
+pub fn check_actions(
+    actions: &[Action],
+    steps: u32,
+    kinematic: &[bool],
+    field: &str,
+) -> Result<Vec<Targets>, FieldError> {
+    if actions.is_empty() {
+        return Ok(vec![Vec::new(); steps as usize]);
+    }
+    if actions.len() != steps as usize {
+        return Err(FieldError::new(
+            field,
+            format!(
+                "{} actions given for {steps} steps; give none or one per step",
+                actions.len()
+            ),
+        ));
+    }
+    actions
+        .iter()
+        .enumerate()
+        .map(|(i, a)| check_action(a, kinematic, &format!("{field}[{i}]")))
+        .collect()
+}
+
+/// Replaces the model's output for kinematic objects: the given pose of `targets`, or the
+/// object's current pose in `state` (before the step) when none is given.
+/// `output`, `state` and `kinematic` have one entry per object.
+pub fn drive(
+    output: &mut [Pose],
+    state: &SceneState,
+    kinematic: &[bool],
+    targets: &[(usize, Pose)],
+) {
+    for (j, k) in kinematic.iter().enumerate() {
+        if *k && let (Some(o), Some(c)) = (output.get_mut(j), state.current.get(j)) {
+            *o = *c;
+        }
+    }
+    for (j, p) in targets {
+        if let Some(o) = output.get_mut(*j) {
+            *o = *p;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn at(x: f32) -> Pose {
+        Pose {
+            translation: [x, 0.0, 0.5],
+            rotation: [0.0, 0.0, 0.0, 1.0],
+        }
+    }
+
+    #[test]
+    fn kinematic_indices_must_exist_and_be_unique() {
+        assert_eq!(kinematic_mask(&[1], 3).unwrap(), vec![false, true, false]);
+        assert_eq!(kinematic_mask(&[3], 3).unwrap_err().field, "kinematic[0]");
+        assert_eq!(
+            kinematic_mask(&[0, 0], 3).unwrap_err().field,
+            "kinematic[1]"
+        );
+    }
+
+    #[test]
+    fn actions_take_only_kinematic_objects_and_one_per_step() {
+        let mask = [true, false];
+        let a = Action {
+            kinematic: vec![(0, at(1.0))],
+        };
+        let t = check_actions(&[a.clone(), a.clone()], 2, &mask, "actions").unwrap();
+        assert_eq!(t[1], vec![(0, at(1.0))]);
+        assert_eq!(
+            check_actions(&[a.clone()], 2, &mask, "actions")
+                .unwrap_err()
+                .field,
+            "actions"
+        );
+        let wrong = Action {
+            kinematic: vec![(1, at(1.0))],
+        };
+        let e = check_actions(&[a, wrong], 2, &mask, "actions").unwrap_err();
+        assert_eq!(e.field, "actions[1].kinematic[0].object");
+        let bad = Action {
+            kinematic: vec![(
+                0,
+                Pose {
+                    rotation: [0.0; 4],
+                    ..at(0.0)
+                },
+            )],
+        };
+        let e = check_action(&bad, &mask, "action").unwrap_err();
+        assert_eq!(e.field, "action.kinematic[0].pose.rotation");
+    }
+
+    #[test]
+    fn states_overwrite_only_the_listed_objects_or_nothing() {
+        let mut s = SceneState {
+            previous: vec![at(0.0), at(5.0)],
+            current: vec![at(0.0), at(5.0)],
+        };
+        let moving = ObjectState {
+            object: 1,
+            pose: at(2.0),
+            motion: Motion::Velocity {
+                linear: [1.0, 0.0, 0.0],
+                angular: [0.0; 3],
+            },
+        };
+        apply_states(&mut s, &[moving], 0.5, "objects").unwrap();
+        assert_eq!(s.current[1], at(2.0));
+        assert!((s.previous[1].translation[0] - 1.5).abs() < 1e-6);
+        assert_eq!(s.current[0], at(0.0));
+        let before = s.clone();
+        let twice = [moving, moving];
+        assert_eq!(
+            apply_states(&mut s, &twice, 0.5, "objects")
+                .unwrap_err()
+                .field,
+            "objects[1].object"
+        );
+        assert_eq!(s, before);
+    }
+
+    #[test]
+    fn drive_holds_unposed_kinematic_objects_and_places_posed_ones() {
+        let state = SceneState {
+            previous: vec![at(0.0), at(1.0), at(2.0)],
+            current: vec![at(0.1), at(1.1), at(2.1)],
+        };
+        let mut out = vec![at(0.2), at(1.2), at(2.2)];
+        drive(&mut out, &state, &[true, false, true], &[(2, at(3.0))]);
+        assert_eq!(out, vec![at(0.1), at(1.2), at(3.0)]);
+    }
+}

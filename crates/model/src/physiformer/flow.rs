@@ -1,0 +1,337 @@
+//! Flow matching in world coordinates: the training loss (x-prediction, v-loss, logit-normal
+//! flow time) and the Heun sampler with frame 0 clamped to the scene's initial positions.
+//!
+//! `z_t = t x + (1 - t) e` with `e ~ N(0, noise_scale^2)`, `t = 0` noise and `t = 1` data;
+//! the network predicts `x_hat`, the velocity is `v_hat = (x_hat - z_t) / max(1 - t, t_eps)`
+//! and the loss is the mean over valid `(frame, vertex)` tokens of `|v_hat - (x - e)|^2`.
+
+use candle_core::{D, Device, Tensor};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use super::PhysiFormer;
+use super::config::PhysiConfig;
+use super::inputs::{DenoiseItem, build};
+use super::scene::MeshScene;
+use crate::ModelError;
+use crate::layers::Mode;
+
+/// One standard normal draw (Box-Muller; deterministic for a seeded generator).
+pub fn standard_normal(rng: &mut impl Rng) -> f32 {
+    let u1: f32 = rng.random::<f32>().max(f32::MIN_POSITIVE);
+    let u2: f32 = rng.random::<f32>();
+    (-2.0 * u1.ln()).sqrt() * (std::f32::consts::TAU * u2).cos()
+}
+
+/// A flow time from the logit-normal distribution `sigmoid(N(mu, sigma))`.
+pub fn logit_normal(rng: &mut impl Rng, mu: f32, sigma: f32) -> f32 {
+    let n = mu + sigma * standard_normal(rng);
+    1.0 / (1.0 + (-n).exp())
+}
+
+/// One training example: a scene's condition and its true trajectory.
+#[derive(Clone, Debug)]
+pub struct TrainScene {
+    /// Condition (frame-0 positions and velocities, objects, materials).
+    pub scene: MeshScene,
+    /// True positions `[frames, V, 3]` flattened, metres; frame 0 equals the condition's.
+    pub trajectory: Vec<f32>,
+    /// Frames of the trajectory.
+    pub frames: usize,
+}
+
+/// The training loss of a batch, with the flow time drawn for each scene.
+pub struct TrainLoss {
+    /// Scalar v-loss (differentiable), m^2/s^2 in flow units.
+    pub loss: Tensor,
+    /// The flow time of each scene.
+    pub times: Vec<f32>,
+}
+
+impl PhysiFormer {
+    /// The flow-matching loss of `items`, each at its own logit-normal flow time drawn from
+    /// `rng` (training kernels: every parameter receives its gradient).
+    pub fn train_loss(
+        &self,
+        items: &[&TrainScene],
+        rng: &mut impl Rng,
+    ) -> Result<TrainLoss, ModelError> {
+        let c = &self.config;
+        let mut zs = Vec::with_capacity(items.len());
+        let mut targets = Vec::with_capacity(items.len());
+        let mut times = Vec::with_capacity(items.len());
+        for (i, it) in items.iter().enumerate() {
+            it.scene
+                .validate(c)
+                .map_err(|e| ModelError::InvalidInput(format!("training scene {i}: {e}")))?;
+            let t = logit_normal(rng, c.t_mu, c.t_sigma);
+            let mut z = Vec::with_capacity(it.trajectory.len());
+            let mut v = Vec::with_capacity(it.trajectory.len());
+            for x in &it.trajectory {
+                let e = c.noise_scale * standard_normal(rng);
+                z.push(t * x + (1.0 - t) * e);
+                v.push(x - e);
+            }
+            zs.push(z);
+            targets.push(v);
+            times.push(t);
+        }
+        let den: Vec<DenoiseItem<'_>> = items
+            .iter()
+            .zip(&zs)
+            .zip(&times)
+            .map(|((it, z), &t)| DenoiseItem {
+                scene: &it.scene,
+                z,
+                frames: it.frames,
+                t,
+            })
+            .collect();
+        let inp = build(c, &den, &self.device)?;
+        let x_hat = self.forward(&inp, Mode::Training)?;
+        let target = pad(&targets, &den, inp.t, inp.v, &self.device)?;
+        let denom: Vec<f32> = times.iter().map(|t| (1.0 - t).max(c.t_eps)).collect();
+        let denom = Tensor::from_vec(denom, (items.len(), 1, 1, 1), &Device::Cpu)?
+            .to_device(&self.device)?;
+        let v_hat = (x_hat - &inp.z)?.broadcast_div(&denom)?;
+        let err = (v_hat - target)?.sqr()?.sum_keepdim(D::Minus1)?;
+        let loss = (err.broadcast_mul(&inp.token_mask)?.sum_all()? / inp.token_mask.sum_all()?)?;
+        Ok(TrainLoss { loss, times })
+    }
+}
+
+/// Pads per-scene `[frames, V, 3]` values into `[B, T, V, 3]` as the pass layout does.
+fn pad(
+    values: &[Vec<f32>],
+    items: &[DenoiseItem<'_>],
+    t: usize,
+    v: usize,
+    device: &Device,
+) -> Result<Tensor, ModelError> {
+    let mut out = vec![0f32; items.len() * t * v * 3];
+    for (s, (vals, it)) in values.iter().zip(items).enumerate() {
+        let nv = it.scene.vertices();
+        for fr in 0..it.frames {
+            out[((s * t + fr) * v) * 3..][..nv * 3]
+                .copy_from_slice(&vals[fr * nv * 3..(fr + 1) * nv * 3]);
+        }
+    }
+    Ok(Tensor::from_vec(out, (items.len(), t, v, 3), &Device::Cpu)?.to_device(device)?)
+}
+
+#[derive(Clone, Debug)]
+enum Stage {
+    /// The next evaluation is the predictor at the interval's start.
+    Predict,
+    /// The next evaluation is the corrector at the interval's end.
+    Correct { z_prev: Vec<f32>, v1: Vec<f32> },
+}
+
+/// The Heun sampler of one scene as a state machine, so that a scheduler can interleave the
+/// network evaluations of many scenes at different flow times: [`Sampler::query`] says what
+/// to evaluate next, [`Sampler::advance`] takes the network's prediction.
+///
+/// The time grid is `i / steps`; every interval but the last takes two evaluations (Heun),
+/// the last one (Euler), so a sample costs `2 steps - 1` evaluations. Frame 0 starts from its
+/// own noise, is reset to `t X_0 + (1 - t) n_0` after every step and to `X_0` at the end.
+#[derive(Clone, Debug)]
+pub struct Sampler {
+    frames: usize,
+    vertices: usize,
+    steps: usize,
+    step: usize,
+    stage: Stage,
+    z: Vec<f32>,
+    n0: Vec<f32>,
+    x0: Vec<f32>,
+    noise_scale: f32,
+    t_eps: f32,
+}
+
+impl Sampler {
+    /// A sampler for `scene` over `frames` frames with `steps` denoising steps; `seed` fixes
+    /// the starting noise (same seed, same trajectory).
+    pub fn new(
+        config: &PhysiConfig,
+        scene: &MeshScene,
+        frames: usize,
+        steps: usize,
+        seed: u64,
+    ) -> Result<Sampler, ModelError> {
+        scene.validate(config)?;
+        if frames < 2 || frames > config.frames {
+            return Err(ModelError::InvalidInput(format!(
+                "frames: {frames} outside 2..={}",
+                config.frames
+            )));
+        }
+        if steps == 0 || steps > MAX_STEPS {
+            return Err(ModelError::InvalidInput(format!(
+                "steps: {steps} outside 1..={MAX_STEPS}"
+            )));
+        }
+        let nv = scene.vertices();
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let z: Vec<f32> = (0..frames * nv * 3)
+            .map(|_| config.noise_scale * standard_normal(&mut rng))
+            .collect();
+        let n0 = z[..nv * 3].to_vec();
+        let x0 = scene.positions.iter().flatten().copied().collect();
+        Ok(Sampler {
+            frames,
+            vertices: nv,
+            steps,
+            step: 0,
+            stage: Stage::Predict,
+            z,
+            n0,
+            x0,
+            noise_scale: config.noise_scale,
+            t_eps: config.t_eps,
+        })
+    }
+
+    fn time(&self, i: usize) -> f32 {
+        i as f32 / self.steps as f32
+    }
+
+    /// Frames of the trajectory being sampled.
+    pub fn frames(&self) -> usize {
+        self.frames
+    }
+
+    /// Denoising steps completed so far.
+    pub fn step(&self) -> usize {
+        self.step
+    }
+
+    /// Denoising steps in total.
+    pub fn steps(&self) -> usize {
+        self.steps
+    }
+
+    /// The starting noise scale this sampler used, metres.
+    pub fn noise_scale(&self) -> f32 {
+        self.noise_scale
+    }
+
+    /// True when every step is done and [`Sampler::trajectory`] is the sample.
+    pub fn done(&self) -> bool {
+        self.step >= self.steps
+    }
+
+    /// What the network must evaluate next: the noisy trajectory `[frames, V, 3]` and its
+    /// flow time. Meaningless once [`Sampler::done`].
+    pub fn query(&self) -> (&[f32], f32) {
+        match &self.stage {
+            Stage::Predict => (&self.z, self.time(self.step)),
+            Stage::Correct { .. } => (&self.z, self.time(self.step + 1)),
+        }
+    }
+
+    /// Takes the network's predicted clean trajectory for the last [`Sampler::query`]; returns
+    /// true when this completed a denoising step.
+    pub fn advance(&mut self, x_hat: &[f32]) -> Result<bool, ModelError> {
+        if self.done() {
+            return Err(ModelError::InvalidInput(
+                "the sampler is already done".into(),
+            ));
+        }
+        if x_hat.len() != self.z.len() {
+            return Err(ModelError::InvalidInput(format!(
+                "prediction holds {} values, expected {}",
+                x_hat.len(),
+                self.z.len()
+            )));
+        }
+        let (t0, t1) = (self.time(self.step), self.time(self.step + 1));
+        let dt = t1 - t0;
+        let last = self.step + 1 == self.steps;
+        let eps = self.t_eps;
+        let velocity = |x: &[f32], z: &[f32], t: f32| -> Vec<f32> {
+            let d = (1.0 - t).max(eps);
+            x.iter().zip(z).map(|(x, z)| (x - z) / d).collect()
+        };
+        match std::mem::replace(&mut self.stage, Stage::Predict) {
+            Stage::Predict => {
+                let v1 = velocity(x_hat, &self.z, t0);
+                if last {
+                    for (z, v) in self.z.iter_mut().zip(&v1) {
+                        *z += dt * v;
+                    }
+                } else {
+                    let z_prev = self.z.clone();
+                    for (z, v) in self.z.iter_mut().zip(&v1) {
+                        *z += dt * v;
+                    }
+                    self.stage = Stage::Correct { z_prev, v1 };
+                    return Ok(false);
+                }
+            }
+            Stage::Correct { z_prev, v1 } => {
+                let v2 = velocity(x_hat, &self.z, t1);
+                for (i, z) in self.z.iter_mut().enumerate() {
+                    *z = z_prev[i] + dt * 0.5 * (v1[i] + v2[i]);
+                }
+            }
+        }
+        self.step += 1;
+        let n = self.vertices * 3;
+        if self.done() {
+            self.z[..n].copy_from_slice(&self.x0);
+        } else {
+            let t = self.time(self.step);
+            for i in 0..n {
+                self.z[i] = t * self.x0[i] + (1.0 - t) * self.n0[i];
+            }
+        }
+        Ok(true)
+    }
+
+    /// The current trajectory `[frames, V, 3]`; the sample once [`Sampler::done`].
+    pub fn trajectory(&self) -> &[f32] {
+        &self.z
+    }
+}
+
+/// Largest accepted number of denoising steps.
+pub const MAX_STEPS: usize = 1000;
+
+impl PhysiFormer {
+    /// Samples one trajectory per `(scene, frames)` with `steps` Heun steps, all scenes
+    /// evaluated together; scene `i` uses seed `seed + i`. Returns `[frames, V, 3]` per scene.
+    pub fn sample(
+        &self,
+        scenes: &[(&MeshScene, usize)],
+        steps: usize,
+        seed: u64,
+    ) -> Result<Vec<Vec<f32>>, ModelError> {
+        let mut samplers = scenes
+            .iter()
+            .enumerate()
+            .map(|(i, (s, f))| Sampler::new(&self.config, s, *f, steps, seed + i as u64))
+            .collect::<Result<Vec<_>, _>>()?;
+        while samplers.first().is_some_and(|s| !s.done()) {
+            let preds = {
+                let items: Vec<DenoiseItem<'_>> = samplers
+                    .iter()
+                    .zip(scenes)
+                    .map(|(s, (scene, frames))| {
+                        let (z, t) = s.query();
+                        DenoiseItem {
+                            scene,
+                            z,
+                            frames: *frames,
+                            t,
+                        }
+                    })
+                    .collect();
+                self.denoise(&items)?
+            };
+            for (s, p) in samplers.iter_mut().zip(&preds) {
+                s.advance(p)?;
+            }
+        }
+        Ok(samplers.into_iter().map(|s| s.z).collect())
+    }
+}

@@ -1,0 +1,577 @@
+//! Sessions: scenes prepared once and kept with their state between calls, for planners.
+//!
+//! - this module: the store (ids, caps on count and memory, idle TTL and reaping, metrics) and
+//!   the calls that do not step (create, fork, get, set, delete);
+//! - [`driven`]: a [`super::stepper::Stepper`] whose kinematic objects follow given poses, and
+//!   the `Step` call;
+//! - [`predict`]: Predict from a session (variants of its state with their own actions);
+//! - [`interact`]: the closed loop, one step per client message.
+//!
+//! Steps of a session go through the model's scheduler like any rollout step (interactive
+//! priority; Predict variants bulk), so they share its batches. One call at a time holds a
+//! session's state (an async mutex); a reaper removes sessions idle for longer than the TTL
+//! unless a call holds them.
+
+mod driven;
+mod interact;
+mod predict;
+
+use std::collections::HashMap;
+use std::hash::{BuildHasher, Hasher};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex, Weak};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use dynaserve_api::session_input::{apply_states, kinematic_mask};
+use dynaserve_api::spec::session::{
+    CreateSessionSpec, SessionInfo, SessionStateView, SetStateSpec,
+};
+use dynaserve_model::{PreparedScene, SceneState};
+
+pub use driven::StepHandle;
+pub use interact::InteractHandle;
+
+use super::Engine;
+use super::registry::{ModelEntry, prepare_scenes};
+use super::request::{RequestCtx, RequestRecord};
+use crate::error::ApiError;
+use crate::metrics::Metrics;
+
+/// Flags of the session store.
+#[derive(Clone, Debug, clap::Args)]
+pub struct SessionConfig {
+    /// Most sessions held at once over all models; creating or forking past it answers
+    /// RESOURCE_EXHAUSTED / HTTP 429.
+    #[arg(long, env = "DYNASERVE_MAX_SESSIONS", default_value_t = 4096)]
+    pub max_sessions: usize,
+    /// Most memory held by sessions (prepared scenes and states), MiB; past it creating or
+    /// forking answers RESOURCE_EXHAUSTED / HTTP 429.
+    #[arg(long, env = "DYNASERVE_MAX_SESSION_MIB", default_value_t = 1024)]
+    pub max_session_mib: usize,
+    /// A session not used for this long, seconds, is deleted.
+    #[arg(long, env = "DYNASERVE_SESSION_TTL_S", default_value_t = 300.0)]
+    pub session_ttl_s: f64,
+}
+
+impl SessionConfig {
+    /// The idle TTL (at least 1 ms).
+    pub fn ttl(&self) -> Duration {
+        let s = if self.session_ttl_s.is_finite() {
+            self.session_ttl_s.clamp(0.001, 30.0 * 86_400.0)
+        } else {
+            300.0
+        };
+        Duration::from_secs_f64(s)
+    }
+
+    /// Checks the flags for values that cannot work.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.max_sessions == 0 || self.max_session_mib == 0 {
+            return Err("--max-sessions and --max-session-mib must be at least 1".into());
+        }
+        if !self.session_ttl_s.is_finite() || self.session_ttl_s <= 0.0 {
+            return Err("--session-ttl-s must be a finite number > 0".into());
+        }
+        Ok(())
+    }
+}
+
+impl Default for SessionConfig {
+    fn default() -> Self {
+        SessionConfig {
+            max_sessions: 4096,
+            max_session_mib: 1024,
+            session_ttl_s: 300.0,
+        }
+    }
+}
+
+/// A prepared scene held by sessions, counted once in the store's memory however many forks
+/// share it; its bytes are released when the last holder goes.
+struct HeldScene {
+    scene: Arc<PreparedScene>,
+    bytes: usize,
+    total: Arc<AtomicUsize>,
+}
+
+impl Drop for HeldScene {
+    fn drop(&mut self) {
+        self.total.fetch_sub(self.bytes, Ordering::Relaxed);
+    }
+}
+
+/// Approximate heap bytes of a prepared scene: reference points (12 B each), the anchor
+/// distance table (4 B per anchor and point) and the index lists.
+fn scene_bytes(s: &PreparedScene) -> usize {
+    (0..s.len())
+        .map(|j| {
+            let n = s.points_of(j).unwrap_or(0);
+            let k = s.anchor_indices(j).map_or(0, <[usize]>::len);
+            n * 12 + k * n * 4 + (k + 2 * n) * 8 + 64
+        })
+        .sum()
+}
+
+/// Bytes of one session's own state (two poses per object and bookkeeping).
+fn state_bytes(objects: usize) -> usize {
+    objects * 2 * std::mem::size_of::<dynaserve_model::Pose>() + 512
+}
+
+/// What a call holding a session may change.
+#[derive(Clone, Debug)]
+pub(crate) struct Progress {
+    /// Previous and current poses.
+    pub state: SceneState,
+    /// Steps taken since creation.
+    pub step: u32,
+}
+
+/// One session.
+pub(crate) struct Session {
+    pub id: String,
+    pub entry: Arc<ModelEntry>,
+    held: Arc<HeldScene>,
+    /// Kinematic mask `[objects]`.
+    pub kinematic: Arc<[bool]>,
+    /// Frames per step.
+    pub dt_steps: u32,
+    /// The state, held by one call at a time.
+    pub progress: Arc<tokio::sync::Mutex<Progress>>,
+    last_used: Mutex<Instant>,
+    own_bytes: usize,
+    total: Arc<AtomicUsize>,
+    open: prometheus::IntGauge,
+}
+
+impl Session {
+    /// The prepared scene.
+    pub fn scene(&self) -> &Arc<PreparedScene> {
+        &self.held.scene
+    }
+
+    /// Seconds per step.
+    pub fn dt_seconds(&self) -> f32 {
+        (f64::from(self.dt_steps) * self.entry.dt_frame) as f32
+    }
+
+    fn touch(&self) {
+        if let Ok(mut t) = self.last_used.lock() {
+            *t = Instant::now();
+        }
+    }
+
+    fn idle_since(&self) -> Instant {
+        self.last_used
+            .lock()
+            .map_or_else(|_| Instant::now(), |t| *t)
+    }
+
+    fn kinematic_indices(&self) -> Vec<u32> {
+        self.kinematic
+            .iter()
+            .enumerate()
+            .filter(|(_, k)| **k)
+            .map(|(j, _)| j as u32)
+            .collect()
+    }
+}
+
+impl Drop for Session {
+    fn drop(&mut self) {
+        self.total.fetch_sub(self.own_bytes, Ordering::Relaxed);
+        self.open.dec();
+    }
+}
+
+/// Every session of the engine.
+pub(crate) struct SessionStore {
+    config: SessionConfig,
+    map: Mutex<HashMap<String, Arc<Session>>>,
+    bytes: Arc<AtomicUsize>,
+    reaper_started: std::sync::Once,
+    metrics: Metrics,
+}
+
+/// Milliseconds since the Unix epoch at `at`.
+fn unix_ms(at: Instant) -> u64 {
+    let now = Instant::now();
+    let wall = SystemTime::now();
+    let t = if at >= now {
+        wall + (at - now)
+    } else {
+        wall - (now - at)
+    };
+    t.duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis() as u64)
+}
+
+/// A new session id: 32 hex digits from two independently keyed hashes of a counter and the
+/// clock (std's randomly keyed SipHash), so ids neither repeat nor follow a pattern.
+fn new_session_id() -> String {
+    static N: AtomicU64 = AtomicU64::new(0);
+    let n = N.fetch_add(1, Ordering::Relaxed);
+    let nanos = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64);
+    let part = |salt: u64| {
+        let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+        h.write_u64(n);
+        h.write_u64(nanos);
+        h.write_u64(salt);
+        h.finish()
+    };
+    format!("{:016x}{:016x}", part(1), part(2))
+}
+
+/// NOT_FOUND for an unknown or expired session.
+pub(crate) fn not_found(id: &str) -> ApiError {
+    ApiError {
+        code: tonic::Code::NotFound,
+        message: format!("session_id: no session {id:?} (unknown, deleted or expired)"),
+        field: Some("session_id".into()),
+        ..ApiError::internal(String::new())
+    }
+}
+
+impl SessionStore {
+    pub(crate) fn new(config: SessionConfig, metrics: Metrics) -> SessionStore {
+        SessionStore {
+            config,
+            map: Mutex::new(HashMap::new()),
+            bytes: Arc::new(AtomicUsize::new(0)),
+            reaper_started: std::sync::Once::new(),
+            metrics,
+        }
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<String, Arc<Session>>> {
+        self.map.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Number of sessions held.
+    pub(crate) fn len(&self) -> usize {
+        self.lock().len()
+    }
+
+    /// Looks a session up and renews its TTL.
+    pub(crate) fn get(&self, id: &str) -> Result<Arc<Session>, ApiError> {
+        let s = self.lock().get(id).cloned().ok_or_else(|| not_found(id))?;
+        s.touch();
+        Ok(s)
+    }
+
+    fn expires_at(&self, s: &Session) -> u64 {
+        unix_ms(s.idle_since() + self.config.ttl())
+    }
+
+    fn info(&self, s: &Session) -> SessionInfo {
+        SessionInfo {
+            session_id: s.id.clone(),
+            model: s.entry.name.clone(),
+            expires_at_unix_ms: self.expires_at(s),
+            objects: s.scene().len() as u32,
+            dt_steps: s.dt_steps,
+            kinematic: s.kinematic_indices(),
+        }
+    }
+
+    /// Checks the caps for `extra` more bytes and one more session.
+    fn admit(&self, extra: usize, retry: Duration) -> Result<(), ApiError> {
+        let n = self.len();
+        if n >= self.config.max_sessions {
+            return Err(ApiError::exhausted(
+                format!("{n} sessions are open, the server's limit; delete some or retry later"),
+                retry,
+            ));
+        }
+        let cap = self.config.max_session_mib << 20;
+        let used = self.bytes.load(Ordering::Relaxed);
+        if used + extra > cap {
+            return Err(ApiError::exhausted(
+                format!(
+                    "sessions hold {used} bytes; {extra} more would exceed the server's limit \
+                     of {} MiB; delete some or retry later",
+                    self.config.max_session_mib
+                ),
+                retry,
+            ));
+        }
+        Ok(())
+    }
+
+    fn insert(
+        &self,
+        entry: Arc<ModelEntry>,
+        held: Arc<HeldScene>,
+        kinematic: Arc<[bool]>,
+        dt_steps: u32,
+        progress: Progress,
+    ) -> Arc<Session> {
+        let own_bytes = state_bytes(progress.state.len());
+        self.bytes.fetch_add(own_bytes, Ordering::Relaxed);
+        let open = self
+            .metrics
+            .sessions_open
+            .with_label_values(&[entry.name.as_str()]);
+        open.inc();
+        let s = Arc::new(Session {
+            id: new_session_id(),
+            entry,
+            held,
+            kinematic,
+            dt_steps,
+            progress: Arc::new(tokio::sync::Mutex::new(progress)),
+            last_used: Mutex::new(Instant::now()),
+            own_bytes,
+            total: self.bytes.clone(),
+            open,
+        });
+        self.lock().insert(s.id.clone(), s.clone());
+        s
+    }
+
+    /// Removes a session; false if it was not there.
+    pub(crate) fn remove(&self, id: &str) -> bool {
+        self.lock().remove(id).is_some()
+    }
+
+    /// Starts the reaper once (on the current runtime); it stops when the store is dropped.
+    fn start_reaper(self: &Arc<Self>) {
+        self.reaper_started.call_once(|| {
+            let weak: Weak<SessionStore> = Arc::downgrade(self);
+            let period =
+                (self.config.ttl() / 4).clamp(Duration::from_millis(20), Duration::from_secs(10));
+            tokio::spawn(async move {
+                let mut tick = tokio::time::interval(period);
+                tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+                loop {
+                    tick.tick().await;
+                    let Some(store) = weak.upgrade() else { return };
+                    store.reap(Instant::now());
+                }
+            });
+        });
+    }
+
+    /// Removes the sessions idle for longer than the TTL at `now` that no call holds.
+    fn reap(&self, now: Instant) {
+        let ttl = self.config.ttl();
+        let mut reaped = Vec::new();
+        {
+            let mut map = self.lock();
+            map.retain(|_, s| {
+                let expired = now.saturating_duration_since(s.idle_since()) > ttl;
+                // A session in use (its state held by a call) is not idle, whatever its clock.
+                let busy = s.progress.try_lock().is_err();
+                if expired && !busy {
+                    reaped.push(s.clone());
+                    false
+                } else {
+                    true
+                }
+            });
+        }
+        for s in reaped {
+            tracing::info!(session = %s.id, model = %s.entry.name, "session expired");
+            self.metrics
+                .sessions_reaped
+                .with_label_values(&[s.entry.name.as_str()])
+                .inc();
+        }
+    }
+}
+
+impl Engine {
+    fn session_call<T>(
+        &self,
+        ctx: &RequestCtx,
+        method: &'static str,
+        f: impl FnOnce() -> Result<T, ApiError>,
+    ) -> Result<T, ApiError> {
+        let mut rec = RequestRecord::new(&self.metrics, ctx, method);
+        let span = tracing::info_span!("session", request_id = %ctx.request_id, method);
+        span.in_scope(|| match self.admit_check().and_then(|()| f()) {
+            Ok(v) => {
+                rec.finish(None);
+                Ok(v)
+            }
+            Err(e) => Err(rec.fail(e)),
+        })
+    }
+
+    /// Number of sessions held.
+    pub fn sessions_open(&self) -> usize {
+        self.sessions.len()
+    }
+
+    /// Validates and prepares a scene and keeps it as a new session.
+    pub async fn create_session(
+        self: &Arc<Self>,
+        req: CreateSessionSpec,
+        ctx: RequestCtx,
+    ) -> Result<SessionInfo, ApiError> {
+        let mut rec = RequestRecord::new(&self.metrics, &ctx, "create_session");
+        match self.create_session_inner(req).await {
+            Ok(s) => {
+                rec.finish(None);
+                Ok(self.sessions.info(&s))
+            }
+            Err(e) => Err(rec.fail(e)),
+        }
+    }
+
+    pub(crate) async fn create_session_inner(
+        self: &Arc<Self>,
+        req: CreateSessionSpec,
+    ) -> Result<Arc<Session>, ApiError> {
+        self.admit_check()?;
+        let entry = self.resolve(&req.model)?;
+        let dt_steps = dynaserve_api::build::check_steps(1, req.dt_steps, &entry.limits)?;
+        let kinematic: Arc<[bool]> =
+            kinematic_mask(&req.kinematic, req.scene.objects.len())?.into();
+        // The count cap first, before preparing anything.
+        self.sessions.admit(0, self.retry_after())?;
+        let (scene, state) = prepare_scenes(&entry, vec![req.scene], dt_steps, "scene")
+            .await?
+            .pop()
+            .ok_or_else(|| ApiError::internal("no scene prepared"))?;
+        let bytes = scene_bytes(&scene);
+        self.sessions
+            .admit(bytes + state_bytes(state.len()), self.retry_after())?;
+        self.sessions.bytes.fetch_add(bytes, Ordering::Relaxed);
+        let held = Arc::new(HeldScene {
+            scene,
+            bytes,
+            total: self.sessions.bytes.clone(),
+        });
+        let s = self.sessions.insert(
+            entry,
+            held,
+            kinematic,
+            dt_steps,
+            Progress { state, step: 0 },
+        );
+        self.sessions.start_reaper();
+        self.metrics
+            .sessions_created
+            .with_label_values(&[s.entry.name.as_str()])
+            .inc();
+        tracing::info!(session = %s.id, objects = s.scene().len(), "session created");
+        Ok(s)
+    }
+
+    /// Copies a session's state under a new id (the prepared scene is shared).
+    pub async fn fork_session(&self, id: &str, ctx: RequestCtx) -> Result<SessionInfo, ApiError> {
+        let mut rec = RequestRecord::new(&self.metrics, &ctx, "fork_session");
+        let r = async {
+            self.admit_check()?;
+            let s = self.sessions.get(id)?;
+            let progress = s.progress.lock().await.clone();
+            self.sessions
+                .admit(state_bytes(progress.state.len()), self.retry_after())?;
+            let f = self.sessions.insert(
+                s.entry.clone(),
+                s.held.clone(),
+                s.kinematic.clone(),
+                s.dt_steps,
+                progress,
+            );
+            self.metrics
+                .session_forks
+                .with_label_values(&[s.entry.name.as_str()])
+                .inc();
+            Ok(self.sessions.info(&f))
+        }
+        .await;
+        match r {
+            Ok(v) => {
+                rec.finish(None);
+                Ok(v)
+            }
+            Err(e) => Err(rec.fail(e)),
+        }
+    }
+
+    fn view(&self, s: &Session, p: &Progress) -> SessionStateView {
+        SessionStateView {
+            session_id: s.id.clone(),
+            step: p.step,
+            time: s.entry.time_at(p.step, s.dt_steps),
+            state: p.state.clone(),
+            expires_at_unix_ms: self.sessions.expires_at(s),
+        }
+    }
+
+    /// A session's current state (waits for a running call on it to finish).
+    pub async fn session_state(
+        &self,
+        id: &str,
+        ctx: RequestCtx,
+    ) -> Result<SessionStateView, ApiError> {
+        let s = self.session_call(&ctx, "get_state", || self.sessions.get(id))?;
+        let p = s.progress.lock().await;
+        Ok(self.view(&s, &p))
+    }
+
+    /// Overwrites some objects' states (waits for a running call on the session to finish).
+    pub async fn set_session_state(
+        &self,
+        req: SetStateSpec,
+        ctx: RequestCtx,
+    ) -> Result<SessionStateView, ApiError> {
+        let mut rec = RequestRecord::new(&self.metrics, &ctx, "set_state");
+        let r = async {
+            self.admit_check()?;
+            let s = self.sessions.get(&req.session_id)?;
+            let mut p = s.progress.lock().await;
+            apply_states(&mut p.state, &req.objects, s.dt_seconds(), "objects")?;
+            Ok(self.view(&s, &p))
+        }
+        .await;
+        match r {
+            Ok(v) => {
+                rec.finish(None);
+                Ok(v)
+            }
+            Err(e) => Err(rec.fail(e)),
+        }
+    }
+
+    /// Deletes a session (a call running on it finishes first, on its own copy).
+    pub fn delete_session(&self, id: &str, ctx: RequestCtx) -> Result<(), ApiError> {
+        self.session_call(&ctx, "delete_session", || {
+            if self.sessions.remove(id) {
+                Ok(())
+            } else {
+                Err(not_found(id))
+            }
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ids_are_32_hex_digits_and_distinct() {
+        let a = new_session_id();
+        let b = new_session_id();
+        assert_eq!(a.len(), 32);
+        assert!(a.bytes().all(|c| c.is_ascii_hexdigit()));
+        assert_ne!(a, b);
+    }
+
+    #[test]
+    fn expiry_is_in_the_future_by_the_ttl() {
+        let now_ms = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .unwrap()
+            .as_millis() as u64;
+        let at = unix_ms(Instant::now() + Duration::from_secs(10));
+        assert!(
+            at >= now_ms + 9_000 && at <= now_ms + 11_000,
+            "{at} vs {now_ms}"
+        );
+    }
+}

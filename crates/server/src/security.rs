@@ -1,0 +1,415 @@
+//! Who may talk to the server: bearer-token authentication on both protocols, TLS for both
+//! listeners, and the browser policy (CORS allow-list, JSON-only bodies).
+//!
+//! - Tokens come from `--auth-token-file` (one per line, `#` comments) and/or
+//!   `DYNASERVE_AUTH_TOKENS` (comma-separated). With none, authentication is off, which is
+//!   allowed only when both listeners are on loopback addresses or `--allow-unauthenticated`
+//!   is given. A request carries `authorization: Bearer <token>` (HTTP header or gRPC
+//!   metadata); tokens are compared in constant time. Probes (`/health`, `/ready`, gRPC
+//!   health) are open unless `--auth-probes`; `/metrics` is open only with
+//!   `--auth-exempt-metrics`.
+//! - TLS: `--tls-cert` and `--tls-key` (PEM) serve both ports over TLS 1.2/1.3 (rustls),
+//!   offering `h2` and `http/1.1` by ALPN.
+//! - CORS: off unless `--cors-origin` names allowed origins; POST bodies must be
+//!   `application/json` (415 otherwise), so a page cannot make a browser post a "simple"
+//!   cross-origin `text/plain` request.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use axum::body::Body;
+use axum::extract::Request;
+use axum::http::{HeaderMap, HeaderValue, Method, header};
+use axum::middleware::Next;
+use axum::response::{IntoResponse, Response};
+use subtle::ConstantTimeEq;
+use tokio_rustls::TlsAcceptor;
+use tokio_rustls::rustls;
+use tower_http::cors::{AllowOrigin, CorsLayer};
+
+use crate::error::ApiError;
+
+/// Shortest accepted token, bytes (a guessable token is no protection).
+pub const MIN_TOKEN_LEN: usize = 16;
+
+/// Flags of authentication, TLS and CORS.
+#[derive(Clone, Debug, Default, clap::Args)]
+pub struct SecurityConfig {
+    /// File of bearer tokens, one per line (blank lines and `#` comments ignored). A request
+    /// must send `authorization: Bearer <token>` with one of them.
+    #[arg(long, env = "DYNASERVE_AUTH_TOKEN_FILE")]
+    pub auth_token_file: Option<PathBuf>,
+    /// Bearer tokens, comma-separated (environment only, so they stay out of `ps`).
+    #[arg(skip)]
+    pub auth_tokens: Vec<String>,
+    /// Serve a non-loopback address without any token (e.g. behind an authenticating proxy).
+    #[arg(long, env = "DYNASERVE_ALLOW_UNAUTHENTICATED")]
+    pub allow_unauthenticated: bool,
+    /// Require a token on the probes too (`/health`, `/ready`, grpc.health.v1.Health).
+    #[arg(long, env = "DYNASERVE_AUTH_PROBES")]
+    pub auth_probes: bool,
+    /// Serve `/metrics` without a token (for a scraper inside a trusted network).
+    #[arg(long, env = "DYNASERVE_AUTH_EXEMPT_METRICS")]
+    pub auth_exempt_metrics: bool,
+    /// PEM certificate chain; with --tls-key, both listeners speak TLS.
+    #[arg(long, env = "DYNASERVE_TLS_CERT", requires = "tls_key")]
+    pub tls_cert: Option<PathBuf>,
+    /// PEM private key of --tls-cert.
+    #[arg(long, env = "DYNASERVE_TLS_KEY", requires = "tls_cert")]
+    pub tls_key: Option<PathBuf>,
+    /// Origins allowed to call the HTTP API from a browser (CORS), e.g.
+    /// `https://viewer.example.com`. Repeatable or comma-separated; none (the default) sends no
+    /// CORS headers, so browsers refuse cross-origin calls.
+    #[arg(
+        long = "cors-origin",
+        env = "DYNASERVE_CORS_ORIGINS",
+        value_delimiter = ','
+    )]
+    pub cors_origins: Vec<String>,
+}
+
+impl SecurityConfig {
+    /// Every configured token: `auth_tokens`, `DYNASERVE_AUTH_TOKENS` and the token file.
+    pub fn load_tokens(&self) -> Result<Vec<String>, String> {
+        let mut tokens: Vec<String> = self.auth_tokens.clone();
+        if let Ok(env) = std::env::var("DYNASERVE_AUTH_TOKENS") {
+            tokens.extend(env.split(',').map(|t| t.trim().to_string()));
+        }
+        if let Some(path) = &self.auth_token_file {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| format!("--auth-token-file {}: cannot read: {e}", path.display()))?;
+            tokens.extend(
+                text.lines()
+                    .map(str::trim)
+                    .filter(|l| !l.is_empty() && !l.starts_with('#'))
+                    .map(str::to_string),
+            );
+        }
+        tokens.retain(|t| !t.is_empty());
+        if let Some(t) = tokens.iter().find(|t| t.len() < MIN_TOKEN_LEN) {
+            return Err(format!(
+                "an authentication token of {} bytes is too short; at least {MIN_TOKEN_LEN}",
+                t.len()
+            ));
+        }
+        if let Some(t) = tokens
+            .iter()
+            .find(|t| !t.bytes().all(|b| b.is_ascii_graphic()))
+        {
+            return Err(format!(
+                "an authentication token of {} bytes has spaces or non-ASCII characters",
+                t.len()
+            ));
+        }
+        tokens.sort();
+        tokens.dedup();
+        Ok(tokens)
+    }
+
+    /// Checks the flags: readable tokens, a loopback bind or tokens (or the explicit opt-out),
+    /// valid CORS origins.
+    pub fn validate(&self, binds: &[SocketAddr]) -> Result<(), String> {
+        let tokens = self.load_tokens()?;
+        if tokens.is_empty() && !self.allow_unauthenticated {
+            if let Some(a) = binds.iter().find(|a| !a.ip().is_loopback()) {
+                return Err(format!(
+                    "refusing to serve {a} without authentication: give tokens with \
+                     --auth-token-file or DYNASERVE_AUTH_TOKENS, bind a loopback address, or \
+                     pass --allow-unauthenticated"
+                ));
+            }
+        }
+        for o in &self.cors_origins {
+            cors_origin(o)?;
+        }
+        Ok(())
+    }
+
+    /// The TLS acceptor of `--tls-cert`/`--tls-key`, or `None` for plain TCP.
+    pub fn tls_acceptor(&self) -> anyhow::Result<Option<TlsAcceptor>> {
+        let (Some(cert), Some(key)) = (&self.tls_cert, &self.tls_key) else {
+            return Ok(None);
+        };
+        Ok(Some(tls_acceptor(
+            &std::fs::read(cert)
+                .map_err(|e| anyhow::anyhow!("--tls-cert {}: {e}", cert.display()))?,
+            &std::fs::read(key).map_err(|e| anyhow::anyhow!("--tls-key {}: {e}", key.display()))?,
+        )?))
+    }
+
+    /// The CORS layer of the HTTP API, or `None` when no origin is allowed.
+    pub fn cors_layer(&self) -> Option<CorsLayer> {
+        if self.cors_origins.is_empty() {
+            return None;
+        }
+        let origins: Vec<HeaderValue> = self
+            .cors_origins
+            .iter()
+            .filter_map(|o| cors_origin(o).ok())
+            .collect();
+        Some(
+            CorsLayer::new()
+                .allow_origin(AllowOrigin::list(origins))
+                .allow_methods([Method::GET, Method::POST])
+                .allow_headers([
+                    header::CONTENT_TYPE,
+                    header::AUTHORIZATION,
+                    header::ACCEPT,
+                    header::HeaderName::from_static("x-request-id"),
+                ])
+                .expose_headers([
+                    header::HeaderName::from_static("x-request-id"),
+                    header::HeaderName::from_static("x-dynaserve-model"),
+                    header::RETRY_AFTER,
+                ])
+                .max_age(std::time::Duration::from_secs(600)),
+        )
+    }
+}
+
+/// An origin as browsers send it: `scheme://host[:port]`, no path.
+fn cors_origin(o: &str) -> Result<HeaderValue, String> {
+    let ok = (o.starts_with("http://") || o.starts_with("https://"))
+        && !o
+            .split_once("://")
+            .is_some_and(|(_, rest)| rest.contains('/'))
+        && !o.ends_with("://");
+    if !ok {
+        return Err(format!(
+            "--cors-origin {o:?} is not an origin like https://viewer.example.com"
+        ));
+    }
+    HeaderValue::from_str(o).map_err(|_| format!("--cors-origin {o:?} is not a valid header value"))
+}
+
+/// A rustls server configuration (ring provider, ALPN h2 and http/1.1) from PEM bytes.
+pub fn tls_acceptor(cert_pem: &[u8], key_pem: &[u8]) -> anyhow::Result<TlsAcceptor> {
+    use rustls::pki_types::pem::PemObject;
+    use rustls::pki_types::{CertificateDer, PrivateKeyDer};
+    let certs: Vec<CertificateDer<'static>> = CertificateDer::pem_slice_iter(cert_pem)
+        .collect::<Result<_, _>>()
+        .map_err(|e| anyhow::anyhow!("TLS certificate: {e}"))?;
+    if certs.is_empty() {
+        anyhow::bail!("TLS certificate: no PEM certificate found");
+    }
+    let key = PrivateKeyDer::from_pem_slice(key_pem)
+        .map_err(|e| anyhow::anyhow!("TLS key: no usable PEM private key: {e}"))?;
+    let provider = Arc::new(rustls::crypto::ring::default_provider());
+    let mut config = rustls::ServerConfig::builder_with_provider(provider)
+        .with_safe_default_protocol_versions()
+        .map_err(|e| anyhow::anyhow!("TLS: {e}"))?
+        .with_no_client_auth()
+        .with_single_cert(certs, key)
+        .map_err(|e| anyhow::anyhow!("TLS certificate and key: {e}"))?;
+    config.alpn_protocols = vec![b"h2".to_vec(), b"http/1.1".to_vec()];
+    Ok(TlsAcceptor::from(Arc::new(config)))
+}
+
+/// The accepted tokens and which paths are open; shared by both listeners' middleware.
+#[derive(Clone, Debug)]
+pub struct Auth {
+    tokens: Arc<Vec<Vec<u8>>>,
+    probes_open: bool,
+    metrics_open: bool,
+}
+
+/// Which protocol a listener speaks, for the form of the refusal.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Wire {
+    /// gRPC: refusals are `UNAUTHENTICATED` statuses.
+    Grpc,
+    /// HTTP/JSON: refusals are 401 with `WWW-Authenticate: Bearer`.
+    Http,
+}
+
+impl Auth {
+    /// Authentication for `config`; `None` when no token is configured (authentication off).
+    pub fn from_config(config: &SecurityConfig) -> Result<Option<Auth>, String> {
+        let tokens = config.load_tokens()?;
+        if tokens.is_empty() {
+            return Ok(None);
+        }
+        Ok(Some(Auth {
+            tokens: Arc::new(tokens.into_iter().map(String::into_bytes).collect()),
+            probes_open: !config.auth_probes,
+            metrics_open: config.auth_exempt_metrics,
+        }))
+    }
+
+    /// True when `path` needs no token.
+    fn is_open(&self, path: &str) -> bool {
+        match path {
+            "/health"
+            | "/ready"
+            | "/grpc.health.v1.Health/Check"
+            | "/grpc.health.v1.Health/Watch" => self.probes_open,
+            "/metrics" => self.metrics_open,
+            _ => false,
+        }
+    }
+
+    /// True when `headers` carry one of the tokens. Every token is compared, each in constant
+    /// time, so timing does not tell which one (or how much of one) matched.
+    pub fn accepts(&self, headers: &HeaderMap) -> bool {
+        let Some(given) = headers
+            .get(header::AUTHORIZATION)
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| {
+                v.strip_prefix("Bearer ")
+                    .or_else(|| v.strip_prefix("bearer "))
+            })
+            .map(str::trim)
+        else {
+            return false;
+        };
+        let mut ok = subtle::Choice::from(0u8);
+        for t in self.tokens.iter() {
+            ok |= t.as_slice().ct_eq(given.as_bytes());
+        }
+        ok.into()
+    }
+
+    /// `router` behind this authentication; refusals take the form of `wire`.
+    pub fn protect(&self, router: axum::Router, wire: Wire) -> axum::Router {
+        let auth = self.clone();
+        router.layer(axum::middleware::from_fn(
+            move |req: Request, next: Next| auth.clone().check(wire, req, next),
+        ))
+    }
+
+    /// The middleware: passes authorised (or open) requests on, answers the others.
+    async fn check(self, wire: Wire, req: Request, next: Next) -> Response {
+        if self.is_open(req.uri().path())
+            || req.method() == Method::OPTIONS
+            || self.accepts(req.headers())
+        {
+            return next.run(req).await;
+        }
+        let missing = !req.headers().contains_key(header::AUTHORIZATION);
+        let msg = if missing {
+            "missing credentials: send `authorization: Bearer <token>`"
+        } else {
+            "invalid credentials: the bearer token is not accepted"
+        };
+        match wire {
+            Wire::Grpc => tonic::Status::unauthenticated(msg).into_http::<Body>(),
+            Wire::Http => {
+                let mut r = ApiError::unauthenticated(msg).into_response();
+                r.headers_mut().insert(
+                    header::WWW_AUTHENTICATE,
+                    HeaderValue::from_static("Bearer realm=\"dynaserve\""),
+                );
+                r
+            }
+        }
+    }
+}
+
+/// The HTTP router with its policy around it, outermost first: CORS (when origins are allowed),
+/// authentication (when tokens are configured), JSON-only POST bodies, and the body read
+/// timeout.
+pub fn http_policy(
+    router: axum::Router,
+    config: &crate::ServeConfig,
+    auth: Option<&Auth>,
+) -> axum::Router {
+    let mut router = router.layer(axum::middleware::from_fn(require_json));
+    if let Some(t) = config.connections.body_read_timeout() {
+        router = router.layer(axum::middleware::map_request(
+            move |req: Request| async move {
+                req.map(|b| Body::new(tower_http::timeout::TimeoutBody::new(t, b)))
+            },
+        ));
+    }
+    if let Some(a) = auth {
+        router = a.protect(router, Wire::Http);
+    }
+    if let Some(cors) = config.security.cors_layer() {
+        router = router.layer(cors);
+    }
+    router
+}
+
+/// Middleware of the HTTP API: POST bodies must be JSON (`application/json` or `+json`),
+/// otherwise 415 naming the content type received.
+pub async fn require_json(req: Request, next: Next) -> Response {
+    if req.method() == Method::POST {
+        let ct = req
+            .headers()
+            .get(header::CONTENT_TYPE)
+            .and_then(|v| v.to_str().ok())
+            .unwrap_or("");
+        let essence = ct
+            .split(';')
+            .next()
+            .unwrap_or("")
+            .trim()
+            .to_ascii_lowercase();
+        if essence != "application/json" && !essence.ends_with("+json") {
+            let shown = if ct.is_empty() { "none" } else { ct };
+            let e = ApiError::unsupported_media_type(format!(
+                "content-type must be application/json, got {shown}"
+            ));
+            return e.into_response();
+        }
+    }
+    next.run(req).await
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn auth(tokens: &[&str]) -> Auth {
+        Auth::from_config(&SecurityConfig {
+            auth_tokens: tokens.iter().map(|t| t.to_string()).collect(),
+            ..SecurityConfig::default()
+        })
+        .unwrap()
+        .unwrap()
+    }
+
+    fn with(v: &str) -> HeaderMap {
+        let mut h = HeaderMap::new();
+        h.insert(header::AUTHORIZATION, HeaderValue::from_str(v).unwrap());
+        h
+    }
+
+    #[test]
+    fn tokens_match_exactly() {
+        let a = auth(&["0123456789abcdef", "fedcba9876543210xyz"]);
+        assert!(a.accepts(&with("Bearer 0123456789abcdef")));
+        assert!(a.accepts(&with("Bearer fedcba9876543210xyz")));
+        assert!(!a.accepts(&with("Bearer 0123456789abcde")));
+        assert!(!a.accepts(&with("Bearer 0123456789abcdefg")));
+        assert!(!a.accepts(&with("Basic 0123456789abcdef")));
+        assert!(!a.accepts(&HeaderMap::new()));
+        assert!(a.is_open("/health") && !a.is_open("/metrics") && !a.is_open("/v1/rollout"));
+    }
+
+    #[test]
+    fn short_tokens_and_bad_origins_are_refused() {
+        let c = SecurityConfig {
+            auth_tokens: vec!["short".into()],
+            ..SecurityConfig::default()
+        };
+        assert!(c.load_tokens().unwrap_err().contains("too short"));
+        for bad in ["*", "example.com", "https://a.example/path", "https://"] {
+            assert!(cors_origin(bad).is_err(), "{bad}");
+        }
+        assert!(cors_origin("http://localhost:3000").is_ok());
+    }
+}
+
+/// True when `e` (from reading a request body) is the body read timeout.
+pub fn is_body_timeout(e: &(dyn std::error::Error + 'static)) -> bool {
+    let mut cur = Some(e);
+    while let Some(err) = cur {
+        if err.is::<tower_http::timeout::TimeoutError>() {
+            return true;
+        }
+        cur = err.source();
+    }
+    false
+}
