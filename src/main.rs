@@ -3,6 +3,8 @@
 
 use clap::{Parser, Subcommand};
 
+mod view;
+
 #[global_allocator]
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
@@ -21,6 +23,9 @@ enum Command {
     /// Serve world models over gRPC (default :50051) and HTTP (default :8080). With no flags,
     /// serves every model directory under models/.
     Serve(dynaserve_server::ServeConfig),
+    /// Serve a model and show a dataset scene's ground truth beside the model's rollout from
+    /// the same start in the browser viewer, with the error against time.
+    View(view::ViewArgs),
     /// Run a scene file on a server and print the frames (one JSON line each) or save them.
     Rollout(dynaserve_client::cli::RolloutArgs),
     /// Train a world model from a configuration file, or export a run's checkpoint.
@@ -43,6 +48,7 @@ fn main() -> anyhow::Result<()> {
             Ok(())
         }
         Command::Serve(config) => dynaserve_server::run(config),
+        Command::View(args) => view::run(args),
         Command::Rollout(args) => dynaserve_client::cli::run(args),
         Command::Train(args) => dynaserve_train::train::run_cli(args),
         Command::Eval(args) => dynaserve_train::cli::run_eval(args),

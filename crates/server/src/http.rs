@@ -9,6 +9,7 @@
 //! | `GET /ready` | readiness: 200 once models are loaded and warmed up, 503 while warming up or draining |
 //! | `GET /metrics` | Prometheus text format |
 //! | `GET /openapi.json` | OpenAPI 3.1 document generated from the handlers and JSON types |
+//! | `GET /`, `GET /dashboard`, `GET /v1/examples` | the browser viewer and the operator dashboard ([`crate::viewer`]) |
 //! | `/v1/sessions...` | sessions: create, step, state, fork, predict, delete ([`sessions`]) |
 //!
 //! Every response carries `x-request-id` (taken from the request header when valid); rollout
@@ -411,6 +412,7 @@ async fn metrics(State(s): State<AppState>) -> Response {
 
 async fn openapi() -> Response {
     let mut doc = ApiDoc::openapi();
+    doc.merge(crate::viewer::ViewerDoc::openapi());
     doc.merge(sessions::SessionsDoc::openapi());
     axum::Json(doc).into_response()
 }

@@ -12,6 +12,7 @@
 //! - [`scheduler`]: one thread per resident model gathers the step jobs of every rollout
 //!   stream and Predict call into batched forward passes (object budget, scene cap, maximum
 //!   queue delay, two priority levels, deadlines and cancellation honoured before each pass).
+//! - [`viewer`]: the browser viewer, the operator dashboard and `GET /v1/examples`.
 //! - [`metrics`]: every exported metric; [`config`]: flags and environment variables;
 //!   [`server`]: start-up and graceful shutdown; [`error`]: the one error type of both
 //!   protocols; [`listener`]: the accept loop (connection cap, timeouts, TLS);
@@ -27,6 +28,7 @@ pub mod metrics;
 pub mod scheduler;
 pub mod security;
 pub mod server;
+pub mod viewer;
 
 pub use config::ServeConfig;
 pub use engine::Engine;

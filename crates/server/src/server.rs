@@ -27,6 +27,7 @@ use crate::grpc;
 use crate::http;
 use crate::listener;
 use crate::security::{Auth, Wire};
+use crate::viewer::{self, Viewer};
 
 /// Extra time after the drain deadline for connections to close before serving stops anyway.
 const CLOSE_GRACE: Duration = Duration::from_secs(5);
@@ -120,12 +121,21 @@ async fn stop_signal(mut rx: watch::Receiver<bool>) {
     let _ = rx.wait_for(|s| *s).await;
 }
 
-/// Starts the server on the current tokio runtime with already loaded models. Returns once
-/// both listeners are bound; warm-up continues in the background (see
-/// [`RunningServer::wait_ready`]).
+/// Starts the server on the current tokio runtime with already loaded models and the built-in
+/// viewer examples. Returns once both listeners are bound; warm-up continues in the background
+/// (see [`RunningServer::wait_ready`]).
 pub async fn start(
     config: ServeConfig,
     models: Vec<Arc<dyn WorldModel>>,
+) -> anyhow::Result<RunningServer> {
+    start_with_viewer(config, models, Viewer::builtin()).await
+}
+
+/// [`start`] with the scenes the browser viewer offers (`GET /v1/examples`).
+pub async fn start_with_viewer(
+    config: ServeConfig,
+    models: Vec<Arc<dyn WorldModel>>,
+    viewer: Viewer,
 ) -> anyhow::Result<RunningServer> {
     let engine = Arc::new(Engine::new(config.clone(), models)?);
     let grpc_listener = TcpListener::bind(config.grpc_addr)
@@ -143,8 +153,11 @@ pub async fn start(
         Some(a) => a.protect(grpc_router, Wire::Grpc),
         None => grpc_router,
     };
-    let http_router =
-        crate::security::http_policy(http::router(engine.clone()), &config, auth.as_ref());
+    let http_router = crate::security::http_policy(
+        http::router(engine.clone()).merge(viewer::router(viewer)),
+        &config,
+        auth.as_ref(),
+    );
 
     let (stop_tx, stop_rx) = watch::channel(false);
     // Listeners stop accepting when `accept_rx` flips, at the end of a drain.
@@ -291,6 +304,11 @@ async fn termination() {
 
 /// `dynaserve serve`: loads the models, serves until SIGTERM or Ctrl-C, drains, exits.
 pub fn run(config: ServeConfig) -> anyhow::Result<()> {
+    run_with_viewer(config, Viewer::builtin())
+}
+
+/// [`run`] with the scenes the browser viewer offers (`dynaserve view` adds a comparison).
+pub fn run_with_viewer(config: ServeConfig, viewer: Viewer) -> anyhow::Result<()> {
     if config.print_metrics {
         print!("{}", crate::metrics::metrics_table());
         return Ok(());
@@ -306,7 +324,7 @@ pub fn run(config: ServeConfig) -> anyhow::Result<()> {
         .context("starting the async runtime")?;
     runtime.block_on(async move {
         let names: Vec<String> = models.iter().map(|m| m.name().to_string()).collect();
-        let server = start(config, models).await?;
+        let server = start_with_viewer(config, models, viewer).await?;
         println!(
             "{}",
             dynaserve_api::listening::listening_line(server.grpc_addr, server.http_addr, &names)

@@ -1,0 +1,449 @@
+// The viewer page: pick a model and a scene (an example, or a dropped scene file), stream its
+// rollout from the server and draw each frame as it arrives; play, pause and scrub; chart the
+// server's per-step timings and, when the scene has ground truth, the error against time.
+//
+// The page reports its progress on <body> for people and for tests: data-state (loading, idle,
+// running, done, stopped, error), data-frames (frames received), data-requested (steps asked
+// for) and data-shown (the step on screen).
+
+import { View, bodiesOf, initialPositions, meanDistance, objectColour, positionsOf } from './scene.js';
+import { ApiFailure, getJson, setToken, streamRollout } from './sse.js';
+import { drawChart } from './charts.js';
+
+const $ = (id) => document.getElementById(id);
+
+const st = {
+  view: null,
+  models: [],
+  examples: [],
+  example: null,
+  bodies: null,
+  /** index 0: the initial state; index k: step k. Each {step, time, positions, timing}. */
+  frames: [],
+  /** ground truth in the same layout, or null */
+  truth: null,
+  requested: 0,
+  running: false,
+  abort: null,
+  playing: false,
+  cursor: 0,
+  shown: 0,
+  stepSeconds: 1 / 24,
+  startedAt: 0,
+  finishedAt: 0,
+};
+
+function setState(s) {
+  document.body.dataset.state = s;
+}
+
+function showError(message) {
+  $('error').textContent = message || '';
+}
+
+function currentModel() {
+  return st.models.find((m) => m.name === $('model').value) || st.models[0];
+}
+
+// ----- scene selection -----
+
+function fillExamples(selectName) {
+  const sel = $('example');
+  sel.replaceChildren(
+    ...st.examples.map((e, i) => {
+      const o = document.createElement('option');
+      o.value = String(i);
+      o.textContent = e.ground_truth && e.ground_truth.length ? `${e.title} (with ground truth)` : e.title;
+      return o;
+    }),
+  );
+  const i = Math.max(0, st.examples.findIndex((e) => e.name === selectName));
+  sel.value = String(i);
+}
+
+/** Shows a scene's initial state without running it (and points the camera at it unless
+ * `keepCamera`). */
+function selectExample(example, keepCamera = false) {
+  st.example = example;
+  const req = example.request;
+  $('steps').value = String(req.steps || 48);
+  $('dt-steps').value = String(req.dt_steps || 1);
+  try {
+    st.bodies = bodiesOf(req);
+  } catch (e) {
+    showError(`${example.name}: ${e.message}`);
+    return false;
+  }
+  const initial = initialPositions(req, st.bodies);
+  st.frames = [{ step: 0, time: 0, positions: initial, timing: null }];
+  st.truth = null;
+  st.requested = 0;
+  st.view.setBodies(st.bodies, hasTruth(example));
+  st.view.show(initial);
+  st.view.show(null, 'truth');
+  if (!keepCamera) st.view.frame(initial);
+  legend();
+  showFrame(0);
+  charts();
+  return true;
+}
+
+function hasTruth(example) {
+  return !!(example.ground_truth && example.ground_truth.length);
+}
+
+function legend() {
+  const box = $('legend');
+  const items = st.bodies.map((b, j) => {
+    const row = document.createElement('div');
+    const sw = document.createElement('span');
+    sw.className = 'swatch';
+    sw.style.background = objectColour(j);
+    row.append(sw, `object ${j}: ${b.faces ? `mesh, ${b.points.length / 3} vertices` : `${b.points.length / 3} points`}`);
+    return row;
+  });
+  if (hasTruth(st.example)) {
+    const row = document.createElement('div');
+    const sw = document.createElement('span');
+    sw.className = 'swatch';
+    sw.style.background = '#bfc5cc';
+    row.append(sw, 'ghost: ground truth');
+    items.push(row);
+  }
+  box.replaceChildren(...items);
+}
+
+/** Reads a dropped or chosen file: a rollout request, a bare scene, or an example document. */
+async function loadFile(file) {
+  showError('');
+  let doc;
+  try {
+    doc = JSON.parse(await file.text());
+  } catch (e) {
+    showError(`${file.name}: not JSON (${e.message})`);
+    return;
+  }
+  let example;
+  if (doc && doc.request && doc.request.scene) {
+    example = { name: doc.name || file.name, title: doc.title || file.name, request: doc.request, ground_truth: doc.ground_truth || [] };
+  } else if (doc && doc.scene && Array.isArray(doc.scene.objects)) {
+    example = { name: file.name, title: `${file.name}: ${doc.scene.objects.length} objects`, request: doc, ground_truth: [] };
+  } else if (doc && Array.isArray(doc.objects)) {
+    example = { name: file.name, title: `${file.name}: ${doc.objects.length} objects`, request: { scene: doc, steps: 48 }, ground_truth: [] };
+  } else {
+    showError(`${file.name}: expected a rollout request ({"scene": {"objects": [...]}, "steps": n}) or a scene ({"objects": [...]})`);
+    return;
+  }
+  st.examples.push(example);
+  fillExamples(example.name);
+  if (selectExample(example)) run();
+}
+
+// ----- running -----
+
+function positiveInt(id, name, max) {
+  const v = Number($(id).value);
+  if (!Number.isInteger(v) || v < 1) throw new Error(`${name} must be a whole number >= 1`);
+  if (max && v > max) throw new Error(`${name} must be at most ${max} for this model`);
+  return v;
+}
+
+async function run() {
+  if (!st.example) return;
+  stop();
+  showError('');
+  const model = currentModel();
+  let steps, dtSteps;
+  try {
+    steps = positiveInt('steps', 'steps', model && model.max_steps);
+    dtSteps = positiveInt('dt-steps', 'step size', model && model.max_dt_steps);
+  } catch (e) {
+    showError(e.message);
+    return;
+  }
+  if (!selectExampleKeepInputs()) return;
+  const req = { ...st.example.request, model: model ? model.name : '', steps, dt_steps: dtSteps, stream: true };
+  delete req.timeout_ms;
+  st.requested = steps;
+  st.stepSeconds = dtSteps * (model ? model.dt_frame : 1 / 24);
+  st.truth = truthFrames(st.example, dtSteps);
+  st.view.show(st.truth ? st.truth[0].positions : null, 'truth');
+  st.running = true;
+  st.playing = true;
+  st.cursor = 0;
+  st.startedAt = performance.now();
+  const abort = new AbortController();
+  st.abort = abort;
+  setState('running');
+  buttons();
+  progress();
+  try {
+    await streamRollout(req, (name, data) => onEvent(name, data), abort.signal);
+    if (st.abort !== abort || !st.running) return;
+    if (document.body.dataset.state === 'error') finish('error');
+    else if (received() < st.requested) {
+      showError(`the stream ended after ${received()} of ${st.requested} steps`);
+      finish('error');
+    } else finish('done');
+  } catch (e) {
+    if (st.abort !== abort) return; // superseded by another run
+    if (e.name === 'AbortError') {
+      finish('stopped');
+      return;
+    }
+    if (e instanceof ApiFailure && e.status === 401) $('token-box').hidden = false;
+    showError(e.message);
+    finish('error');
+  }
+}
+
+/** Re-selects the current example's bodies while keeping the step inputs the user typed. */
+function selectExampleKeepInputs() {
+  const steps = $('steps').value;
+  const dt = $('dt-steps').value;
+  const ok = selectExample(st.example, true);
+  $('steps').value = steps;
+  $('dt-steps').value = dt;
+  return ok;
+}
+
+function truthFrames(example, dtSteps) {
+  if (!hasTruth(example)) return null;
+  if ((example.request.dt_steps || 1) !== dtSteps) {
+    showError(`ground truth is for step size ${example.request.dt_steps || 1}; not shown at step size ${dtSteps}`);
+    return null;
+  }
+  const frames = [st.frames[0]];
+  for (const f of example.ground_truth) frames.push({ step: f.step, time: f.time, positions: positionsOf(f, st.bodies) });
+  return frames;
+}
+
+function onEvent(name, data) {
+  if (name === 'frame') {
+    let positions;
+    try {
+      positions = positionsOf(data, st.bodies);
+    } catch (e) {
+      showError(e.message);
+      return;
+    }
+    st.frames.push({ step: data.step, time: data.time, positions, timing: data.timing || null });
+    if (st.frames.length === 2 && data.time > 0) st.stepSeconds = data.time / data.step;
+    progress();
+    charts();
+  } else if (name === 'error') {
+    showError(`${data.error.code}: ${data.error.message}`);
+    setState('error');
+  } else if (name === 'done') {
+    st.done = data;
+  }
+}
+
+function finish(state) {
+  st.running = false;
+  st.finishedAt = performance.now();
+  setState(state);
+  buttons();
+  progress();
+  charts();
+}
+
+function stop() {
+  if (st.abort) st.abort.abort();
+}
+
+function buttons() {
+  $('stop').disabled = !st.running;
+}
+
+// ----- playback -----
+
+function received() {
+  return st.frames.length - 1;
+}
+
+function progress() {
+  const n = received();
+  document.body.dataset.frames = String(n);
+  document.body.dataset.requested = String(st.requested);
+  $('frames').textContent = `${n} / ${st.requested} frames`;
+  $('timeline').max = String(Math.max(st.requested, n));
+  const wall = ((st.running ? performance.now() : st.finishedAt) - st.startedAt) / 1000;
+  const state = document.body.dataset.state;
+  const rate = n && wall > 0 ? ` · ${(n / wall).toFixed(0)} steps/s` : '';
+  $('status').textContent = st.requested ? `${state}: ${n} of ${st.requested} steps in ${wall.toFixed(2)} s${rate}` : 'ready';
+}
+
+function showFrame(i) {
+  i = Math.max(0, Math.min(i, received()));
+  st.shown = i;
+  const f = st.frames[i];
+  st.view.show(f.positions);
+  if (st.truth) {
+    const t = st.truth[Math.min(i, st.truth.length - 1)];
+    st.view.show(t.positions, 'truth');
+  }
+  document.body.dataset.shown = String(i);
+  $('timeline').value = String(i);
+  $('clock').textContent = `step ${f.step} · ${f.time.toFixed(3)} s`;
+  $('play').textContent = st.playing ? '❚❚' : '▶';
+}
+
+function tick(now) {
+  const dt = (now - (tick.last || now)) / 1000;
+  tick.last = now;
+  if (st.playing) {
+    st.cursor = Math.min(st.cursor + dt / st.stepSeconds, received());
+    const i = Math.floor(st.cursor);
+    if (i !== st.shown) showFrame(i);
+    if (i >= received() && !st.running) {
+      st.playing = false;
+      showFrame(i);
+    }
+  }
+  requestAnimationFrame(tick);
+}
+
+function togglePlay() {
+  st.playing = !st.playing;
+  if (st.playing && st.shown >= received() && !st.running) st.cursor = 0;
+  else st.cursor = st.shown;
+  showFrame(Math.floor(st.cursor));
+  charts();
+}
+
+// ----- charts -----
+
+function charts() {
+  const steps = st.frames.slice(1).filter((f) => f.timing);
+  drawChart(
+    $('timing-chart'),
+    [
+      { label: 'forward ms', colour: '#4aa3df', points: steps.map((f) => [f.step, f.timing.forward_ms]) },
+      { label: 'queue ms', colour: '#f3a712', points: steps.map((f) => [f.step, f.timing.queue_ms]) },
+      { label: 'batch', colour: '#3bb273', kind: 'bar', right: true, points: steps.map((f) => [f.step, f.timing.batch_scenes]) },
+    ],
+    { xMax: Math.max(st.requested, 1), xLabel: 'step', yLabel: 'ms', y2Label: 'scenes', marker: st.shown },
+  );
+  const last = steps[steps.length - 1];
+  if (last) {
+    const mean = (k) => steps.reduce((s, f) => s + f.timing[k], 0) / steps.length;
+    $('timing-text').textContent =
+      `step ${last.step}: queue ${last.timing.queue_ms.toFixed(2)} ms, forward ${last.timing.forward_ms.toFixed(2)} ms, ` +
+      `batch ${last.timing.batch_scenes} scenes · mean forward ${mean('forward_ms').toFixed(2)} ms, mean batch ${mean('batch_scenes').toFixed(1)}`;
+  } else {
+    $('timing-text').textContent = 'per-step server timing';
+  }
+  $('error-figure').hidden = !st.truth;
+  if (st.truth) {
+    const n = Math.min(st.frames.length, st.truth.length);
+    const pts = [];
+    for (let i = 0; i < n; i++) pts.push([st.frames[i].time, meanDistance(st.frames[i].positions, st.truth[i].positions)]);
+    const end = st.truth[st.truth.length - 1].time;
+    drawChart($('error-chart'), [{ label: 'mean point error, m', colour: '#e4572e', points: pts }], {
+      xMax: Math.max(end, st.requested * st.stepSeconds),
+      xLabel: 'time, s',
+      yLabel: 'm',
+      marker: st.frames[st.shown] ? st.frames[st.shown].time : null,
+    });
+    const lastErr = pts[pts.length - 1];
+    $('error-text').textContent = lastErr
+      ? `model (solid) against ground truth (ghost): ${(lastErr[1] * 100).toFixed(1)} cm mean point error at ${lastErr[0].toFixed(2)} s`
+      : 'model against ground truth';
+  }
+}
+
+// ----- start-up -----
+
+async function loadLists() {
+  const [models, examples] = await Promise.all([getJson('v1/models'), getJson('v1/examples')]);
+  st.models = models.models;
+  st.examples = examples.examples;
+  $('model').replaceChildren(
+    ...st.models.map((m) => {
+      const o = document.createElement('option');
+      o.value = m.name;
+      o.textContent = `${m.name} (${m.architecture})`;
+      return o;
+    }),
+  );
+  fillExamples(st.examples[0] && st.examples[0].name);
+}
+
+function wire() {
+  $('run').addEventListener('click', () => run());
+  $('stop').addEventListener('click', () => stop());
+  $('play').addEventListener('click', () => togglePlay());
+  $('example').addEventListener('change', () => {
+    stop();
+    const e = st.examples[Number($('example').value)];
+    if (e && selectExample(e)) setState('idle');
+  });
+  $('timeline').addEventListener('input', () => {
+    st.playing = false;
+    st.cursor = Number($('timeline').value);
+    showFrame(st.cursor);
+    charts();
+  });
+  $('file').addEventListener('change', () => {
+    const f = $('file').files[0];
+    if (f) loadFile(f);
+  });
+  $('token-save').addEventListener('click', async () => {
+    setToken($('token').value.trim());
+    $('token-box').hidden = true;
+    await start();
+  });
+  document.addEventListener('keydown', (e) => {
+    if (e.code === 'Space' && e.target === document.body) {
+      e.preventDefault();
+      togglePlay();
+    }
+  });
+  document.addEventListener('dragover', (e) => {
+    e.preventDefault();
+    document.body.classList.add('dragging');
+  });
+  document.addEventListener('dragleave', (e) => {
+    if (!e.relatedTarget) document.body.classList.remove('dragging');
+  });
+  document.addEventListener('drop', (e) => {
+    e.preventDefault();
+    document.body.classList.remove('dragging');
+    const f = e.dataTransfer.files[0];
+    if (f) loadFile(f);
+  });
+  new ResizeObserver(() => charts()).observe($('charts'));
+}
+
+async function start() {
+  try {
+    await loadLists();
+  } catch (e) {
+    if (e instanceof ApiFailure && e.status === 401) $('token-box').hidden = false;
+    showError(`cannot list models and scenes: ${e.message}`);
+    setState('error');
+    return;
+  }
+  if (!st.examples.length) {
+    setState('idle');
+    $('status').textContent = 'no example scenes; drop a scene JSON file';
+    return;
+  }
+  if (!selectExample(st.examples[0])) return;
+  setState('idle');
+  // Opening the page shows a scene rolling out; ?autoplay=0 waits for Run.
+  if (new URLSearchParams(location.search).get('autoplay') !== '0') run();
+}
+
+try {
+  st.view = new View($('view'));
+} catch (e) {
+  showError(`cannot draw in 3D here (WebGL unavailable): ${e.message}`);
+  setState('error');
+}
+if (st.view) {
+  wire();
+  requestAnimationFrame(tick);
+  start();
+}
