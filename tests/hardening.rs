@@ -93,7 +93,9 @@ async fn a_scene_leaving_the_domain_fails_alone_while_its_batch_mates_get_every_
     };
     assert_eq!(status.code(), Code::OutOfRange, "{status:?}");
     assert!(
-        status.message().starts_with("scene.objects[0]: left the model's domain at step 1"),
+        status
+            .message()
+            .starts_with("scene.objects[0]: left the model's domain at step 1"),
         "{}",
         status.message()
     );
@@ -121,7 +123,10 @@ async fn a_scene_leaving_the_domain_fails_alone_while_its_batch_mates_get_every_
     );
     let text = metrics(&server).await;
     assert_eq!(
-        sample(&text, "dynaserve_request_failures_total{protocol=\"grpc\",method=\"rollout\",reason=\"invalid_argument\"}"),
+        sample(
+            &text,
+            "dynaserve_request_failures_total{protocol=\"grpc\",method=\"rollout\",reason=\"invalid_argument\"}"
+        ),
         Some(1.0),
         "OUT_OF_RANGE is counted with invalid input"
     );
@@ -170,13 +175,18 @@ async fn slow_idle_and_half_sent_connections_are_closed() {
     for listener in ["http", "grpc"] {
         let closed = sample(
             &text,
-            &format!("dynaserve_closed_connections_total{{listener=\"{listener}\",reason=\"timeout\"}}"),
+            &format!(
+                "dynaserve_closed_connections_total{{listener=\"{listener}\",reason=\"timeout\"}}"
+            ),
         )
         .unwrap();
         assert!(closed >= 1.0, "{listener}: {closed}");
     }
     // The server still serves.
-    assert_eq!(http(http_addr, "GET", "/ready", &[], None).await.status, 200);
+    assert_eq!(
+        http(http_addr, "GET", "/ready", &[], None).await.status,
+        200
+    );
     server.shutdown();
     server.wait().await.unwrap();
 }
@@ -244,7 +254,10 @@ async fn a_client_that_never_reads_loses_its_stream_and_slot() {
     let t = Instant::now();
     loop {
         let text = metrics(&server).await;
-        let stalled = sample(&text, &format!("dynaserve_stalled_streams_total{{model=\"{}\"}}", m.name));
+        let stalled = sample(
+            &text,
+            &format!("dynaserve_stalled_streams_total{{model=\"{}\"}}", m.name),
+        );
         if stalled == Some(1.0) {
             break;
         }
@@ -266,7 +279,10 @@ async fn a_client_that_never_reads_loses_its_stream_and_slot() {
         got.extend_from_slice(&buf[..n]);
     }
     let text = String::from_utf8_lossy(&got);
-    assert!(text.contains("the client read no frame for 1 s"), "{text:.300}");
+    assert!(
+        text.contains("the client read no frame for 1 s"),
+        "{text:.300}"
+    );
     assert!(!text.contains("event: done"));
     server.shutdown();
     server.wait().await.unwrap();
@@ -299,26 +315,45 @@ async fn bearer_tokens_guard_both_protocols() {
     };
     let missing = post(vec![]).await;
     assert_eq!(missing.status, 401, "{}", missing.text());
-    assert!(missing.header("www-authenticate").unwrap().starts_with("Bearer"));
+    assert!(
+        missing
+            .header("www-authenticate")
+            .unwrap()
+            .starts_with("Bearer")
+    );
     assert!(missing.text().contains("UNAUTHENTICATED"));
-    let wrong = post(vec![("authorization", "Bearer wrong-token-0123456789".into())]).await;
+    let wrong = post(vec![(
+        "authorization",
+        "Bearer wrong-token-0123456789".into(),
+    )])
+    .await;
     assert_eq!(wrong.status, 401);
     let right = post(vec![("authorization", format!("Bearer {TOKEN}"))]).await;
     assert_eq!(right.status, 200, "{}", right.text());
     // Probes are open; metrics are not.
-    assert_eq!(http(server.http_addr, "GET", "/ready", &[], None).await.status, 200);
-    assert_eq!(http(server.http_addr, "GET", "/metrics", &[], None).await.status, 401);
+    assert_eq!(
+        http(server.http_addr, "GET", "/ready", &[], None)
+            .await
+            .status,
+        200
+    );
+    assert_eq!(
+        http(server.http_addr, "GET", "/metrics", &[], None)
+            .await
+            .status,
+        401
+    );
 
     let mut g = WorldModelClient::connect(format!("http://{}", server.grpc_addr))
         .await
         .unwrap();
-    let e = g
-        .list_models(v1::ListModelsRequest {})
-        .await
-        .unwrap_err();
+    let e = g.list_models(v1::ListModelsRequest {}).await.unwrap_err();
     assert_eq!(e.code(), Code::Unauthenticated, "{e:?}");
     let e = g
-        .list_models(authed(tonic::Request::new(v1::ListModelsRequest {}), "nope-nope-nope-nope"))
+        .list_models(authed(
+            tonic::Request::new(v1::ListModelsRequest {}),
+            "nope-nope-nope-nope",
+        ))
         .await
         .unwrap_err();
     assert_eq!(e.code(), Code::Unauthenticated, "{e:?}");
@@ -334,7 +369,9 @@ async fn bearer_tokens_guard_both_protocols() {
         .unwrap();
     let mut health = tonic_health::pb::health_client::HealthClient::new(channel);
     let h = health
-        .check(tonic_health::pb::HealthCheckRequest { service: String::new() })
+        .check(tonic_health::pb::HealthCheckRequest {
+            service: String::new(),
+        })
         .await
         .unwrap();
     assert_eq!(h.into_inner().status, 1, "SERVING without a token");
@@ -409,7 +446,9 @@ async fn tls_handshakes_on_both_listeners() {
     assert_eq!(frames.len(), 3);
     // Plain text to a TLS port is refused.
     let mut s = TcpStream::connect(server.http_addr).await.unwrap();
-    s.write_all(b"GET /ready HTTP/1.1\r\nHost: x\r\n\r\n").await.unwrap();
+    s.write_all(b"GET /ready HTTP/1.1\r\nHost: x\r\n\r\n")
+        .await
+        .unwrap();
     let got = read_to_close(&mut s, HANG).await.unwrap();
     assert!(!got.starts_with(b"HTTP/1.1 200"));
     server.shutdown();
@@ -458,7 +497,10 @@ async fn cors_allow_list_and_json_only_bodies() {
     }
     let text = metrics(&server).await;
     assert_eq!(
-        sample(&text, "dynaserve_requests_total{protocol=\"http\",method=\"rollout\"}"),
+        sample(
+            &text,
+            "dynaserve_requests_total{protocol=\"http\",method=\"rollout\"}"
+        ),
         Some(0.0)
     );
     server.shutdown();
@@ -476,7 +518,10 @@ async fn odd_requests_get_the_right_status() {
     // Warm-up is not serving work.
     let text = metrics(&server).await;
     assert_eq!(
-        sample(&text, &format!("dynaserve_scene_steps_total{{model=\"{}\"}}", m.name)),
+        sample(
+            &text,
+            &format!("dynaserve_scene_steps_total{{model=\"{}\"}}", m.name)
+        ),
         Some(0.0)
     );
     // A Predict above the in-flight cap can never run: 422 naming `variants`, and ListModels
@@ -491,30 +536,50 @@ async fn odd_requests_get_the_right_status() {
     };
     let r = post_json(server.http_addr, "/v1/predict", &predict).await;
     assert_eq!(r.status, 422, "{}", r.text());
-    assert_eq!(r.json::<json::ErrorResponse>().error.field.as_deref(), Some("variants"));
+    assert_eq!(
+        r.json::<json::ErrorResponse>().error.field.as_deref(),
+        Some("variants")
+    );
     let models = http(server.http_addr, "GET", "/v1/models", &[], None).await;
     let models: json::ListModelsResponse = models.json();
     assert_eq!(models.models[0].max_variants, 4);
     // A JSON array is not a request.
-    let r = http(server.http_addr, "POST", "/v1/rollout", &[], Some(b"[\"m\", {}, 3]")).await;
+    let r = http(
+        server.http_addr,
+        "POST",
+        "/v1/rollout",
+        &[],
+        Some(b"[\"m\", {}, 3]"),
+    )
+    .await;
     assert_eq!(r.status, 422, "{}", r.text());
     assert!(r.text().contains("JSON object"), "{}", r.text());
     // GET on a POST route: 405 with a JSON error.
     let r = http(server.http_addr, "GET", "/v1/rollout", &[], None).await;
     assert_eq!(r.status, 405);
-    assert_eq!(r.json::<json::ErrorResponse>().error.code, "METHOD_NOT_ALLOWED");
+    assert_eq!(
+        r.json::<json::ErrorResponse>().error.code,
+        "METHOD_NOT_ALLOWED"
+    );
     // Oversized gRPC messages (beyond the decoding cap of 4x the limit) are INVALID_ARGUMENT
     // naming `request`, with a google.rpc.BadRequest detail.
     let mut g = WorldModelClient::connect(format!("http://{}", server.grpc_addr))
         .await
         .unwrap();
     let big = rollout_request(&m.name, scene(90, 64, 64), 2).to_proto();
-    let e = g.rollout(big).await.err().expect("oversized message accepted");
+    let e = g
+        .rollout(big)
+        .await
+        .err()
+        .expect("oversized message accepted");
     assert_eq!(e.code(), Code::InvalidArgument, "{e:?}");
     assert!(e.message().starts_with("request: "), "{}", e.message());
     use tonic_types::StatusExt;
     let details = e.get_error_details();
-    assert_eq!(details.bad_request().unwrap().field_violations[0].field, "request");
+    assert_eq!(
+        details.bad_request().unwrap().field_violations[0].field,
+        "request"
+    );
     server.shutdown();
     server.wait().await.unwrap();
 }
