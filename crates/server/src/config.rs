@@ -266,15 +266,19 @@ mod tests {
 
     #[test]
     fn predict_cap_never_exceeds_the_in_flight_cap() {
-        let mut c = ServeConfig::default();
-        c.max_predict_variants = 10;
+        let c = ServeConfig {
+            max_predict_variants: 10,
+            ..ServeConfig::default()
+        };
         assert_eq!(c.caps().max_variants, 10);
     }
 
     #[test]
     fn a_public_bind_needs_tokens_or_an_explicit_opt_out() {
-        let mut c = ServeConfig::default();
-        c.http_addr = "0.0.0.0:8080".parse().unwrap();
+        let mut c = ServeConfig {
+            http_addr: "0.0.0.0:8080".parse().unwrap(),
+            ..ServeConfig::default()
+        };
         let e = c.validate().unwrap_err();
         assert!(e.contains("--allow-unauthenticated"), "{e}");
         c.security.auth_tokens = vec!["secret-token-0123".into()];

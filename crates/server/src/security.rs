@@ -111,14 +111,15 @@ impl SecurityConfig {
     /// valid CORS origins.
     pub fn validate(&self, binds: &[SocketAddr]) -> Result<(), String> {
         let tokens = self.load_tokens()?;
-        if tokens.is_empty() && !self.allow_unauthenticated {
-            if let Some(a) = binds.iter().find(|a| !a.ip().is_loopback()) {
-                return Err(format!(
-                    "refusing to serve {a} without authentication: give tokens with \
-                     --auth-token-file or DYNASERVE_AUTH_TOKENS, bind a loopback address, or \
-                     pass --allow-unauthenticated"
-                ));
-            }
+        if tokens.is_empty()
+            && !self.allow_unauthenticated
+            && let Some(a) = binds.iter().find(|a| !a.ip().is_loopback())
+        {
+            return Err(format!(
+                "refusing to serve {a} without authentication: give tokens with \
+                 --auth-token-file or DYNASERVE_AUTH_TOKENS, bind a loopback address, or \
+                 pass --allow-unauthenticated"
+            ));
         }
         for o in &self.cors_origins {
             cors_origin(o)?;
@@ -245,7 +246,9 @@ impl Auth {
             | "/grpc.health.v1.Health/Check"
             | "/grpc.health.v1.Health/Watch" => self.probes_open,
             "/metrics" => self.metrics_open,
-            _ => false,
+            // The viewer's static page and assets carry no data; its API calls send the token.
+            "/" | "/dashboard" => true,
+            p => p.starts_with("/viewer/"),
         }
     }
 
@@ -357,6 +360,18 @@ pub async fn require_json(req: Request, next: Next) -> Response {
     next.run(req).await
 }
 
+/// True when `e` (from reading a request body) is the body read timeout.
+pub fn is_body_timeout(e: &(dyn std::error::Error + 'static)) -> bool {
+    let mut cur = Some(e);
+    while let Some(err) = cur {
+        if err.is::<tower_http::timeout::TimeoutError>() {
+            return true;
+        }
+        cur = err.source();
+    }
+    false
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -386,6 +401,9 @@ mod tests {
         assert!(!a.accepts(&with("Basic 0123456789abcdef")));
         assert!(!a.accepts(&HeaderMap::new()));
         assert!(a.is_open("/health") && !a.is_open("/metrics") && !a.is_open("/v1/rollout"));
+        // The viewer's page and assets load without a token; its data calls still need one.
+        assert!(a.is_open("/") && a.is_open("/dashboard") && a.is_open("/viewer/viewer.js"));
+        assert!(!a.is_open("/v1/examples") && !a.is_open("/viewerx"));
     }
 
     #[test]
@@ -400,16 +418,4 @@ mod tests {
         }
         assert!(cors_origin("http://localhost:3000").is_ok());
     }
-}
-
-/// True when `e` (from reading a request body) is the body read timeout.
-pub fn is_body_timeout(e: &(dyn std::error::Error + 'static)) -> bool {
-    let mut cur = Some(e);
-    while let Some(err) = cur {
-        if err.is::<tower_http::timeout::TimeoutError>() {
-            return true;
-        }
-        cur = err.source();
-    }
-    false
 }

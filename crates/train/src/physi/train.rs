@@ -154,7 +154,7 @@ pub fn run(
         acc += value;
         acc_n += 1;
         gn += stats.grad_norm;
-        if state.step % cfg.log_every == 0 || state.step == cfg.optim.iterations {
+        if state.step.is_multiple_of(cfg.log_every) || state.step == cfg.optim.iterations {
             let secs = start.elapsed().as_secs_f64();
             writeln!(
                 log,

@@ -124,7 +124,7 @@ impl Engine {
                     if let Some(t) = frame.timing.take() {
                         timing.add_step(&t);
                     }
-                    if step == steps || (every > 0 && step % every == 0) {
+                    if step == steps || (every > 0 && step.is_multiple_of(every)) {
                         frames.push(frame);
                     }
                 }
