@@ -19,6 +19,7 @@
 //! A scene's result does not depend on its pass-mates: the model computes every scene of a
 //! pass independently (tested end to end).
 
+pub mod denoise;
 mod family;
 pub mod queue;
 mod worker;

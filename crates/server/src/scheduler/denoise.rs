@@ -1,0 +1,173 @@
+//! PhysiFormer work for the scheduler: one network evaluation of one scene at its own flow
+//! time ([`DenoiseStep`]), so the evaluations of requests at different denoising steps share
+//! a pass ([`DenoiseSteps`]), and [`generate`], which drives one sample through the scheduler
+//! evaluation by evaluation with the Heun sampler.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use dynaserve_model::PhysiFormer;
+use dynaserve_model::physiformer::flow::Sampler;
+use dynaserve_model::physiformer::inputs::DenoiseItem;
+use dynaserve_model::physiformer::scene::MeshScene;
+use tokio::sync::oneshot;
+
+use super::{Family, Job, Priority, Scheduler, StepError};
+
+/// One evaluation: the scene, its current noisy trajectory and its flow time.
+#[derive(Clone, Debug)]
+pub struct DenoiseStep {
+    /// The scene's condition (shared by every evaluation of a request).
+    pub scene: Arc<MeshScene>,
+    /// Noisy trajectory `[frames, V, 3]` flattened, metres.
+    pub z: Vec<f32>,
+    /// Frames of the trajectory.
+    pub frames: usize,
+    /// Flow time in `[0, 1]`.
+    pub t: f32,
+}
+
+/// PhysiFormer models as a scheduler family: items are [`DenoiseStep`]s costing their vertex
+/// count; a pass is one [`PhysiFormer::denoise`] and yields each item's predicted clean
+/// trajectory `[frames, V, 3]`.
+pub struct DenoiseSteps {
+    model: Arc<PhysiFormer>,
+}
+
+impl DenoiseSteps {
+    /// The family of `model`.
+    pub fn new(model: Arc<PhysiFormer>) -> DenoiseSteps {
+        DenoiseSteps { model }
+    }
+
+    /// The model.
+    pub fn model(&self) -> &Arc<PhysiFormer> {
+        &self.model
+    }
+}
+
+impl Family for DenoiseSteps {
+    type Item = DenoiseStep;
+    type Output = Vec<f32>;
+
+    fn name(&self) -> &str {
+        self.model.name()
+    }
+
+    fn cost(&self, item: &DenoiseStep) -> usize {
+        item.scene.vertices()
+    }
+
+    fn run(&self, items: &[&DenoiseStep]) -> Result<Vec<Result<Vec<f32>, String>>, String> {
+        let batch: Vec<DenoiseItem<'_>> = items
+            .iter()
+            .map(|s| DenoiseItem {
+                scene: &s.scene,
+                z: &s.z,
+                frames: s.frames,
+                t: s.t,
+            })
+            .collect();
+        let out = self.model.denoise(&batch).map_err(|e| e.to_string())?;
+        Ok(out.into_iter().map(Ok).collect())
+    }
+}
+
+/// A generation request as the scheduler needs it.
+#[derive(Clone, Debug)]
+pub struct GenerateJob {
+    /// The scene (validated by [`Sampler::new`]).
+    pub scene: Arc<MeshScene>,
+    /// Frames to sample (frame 0 included).
+    pub frames: usize,
+    /// Denoising steps.
+    pub steps: usize,
+    /// Seed of the starting noise.
+    pub seed: u64,
+    /// Scheduling class.
+    pub priority: Priority,
+    /// Instant after which the result is no longer wanted.
+    pub deadline: Option<Instant>,
+    /// Identifies this request's evaluations across passes.
+    pub stream_id: u64,
+    /// Request id for logs.
+    pub request_id: Arc<str>,
+}
+
+/// What one completed denoising step reports.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepProgress {
+    /// Steps completed.
+    pub step: usize,
+    /// Steps in total.
+    pub steps: usize,
+    /// Flow time reached.
+    pub t: f32,
+    /// Largest number of scenes in the passes of this step's evaluations.
+    pub batch_scenes: u32,
+}
+
+/// Why a generation failed.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum GenerateError {
+    /// The request is invalid; the message names the field.
+    #[error("invalid request: {0}")]
+    Invalid(String),
+    /// An evaluation failed or was not run.
+    #[error(transparent)]
+    Step(#[from] StepError),
+}
+
+/// Samples one trajectory `[frames, V, 3]` by submitting one evaluation at a time to
+/// `scheduler`, so it joins whatever passes other requests are running; `progress` is called
+/// after every denoising step. The result depends only on the model, the scene, `frames`,
+/// `steps` and `seed`, never on the pass-mates.
+pub async fn generate(
+    scheduler: &Scheduler<DenoiseSteps>,
+    job: GenerateJob,
+    mut progress: impl FnMut(StepProgress),
+) -> Result<Vec<f32>, GenerateError> {
+    let config = scheduler.family().model().config().clone();
+    let mut sampler = Sampler::new(&config, &job.scene, job.frames, job.steps, job.seed)
+        .map_err(|e| GenerateError::Invalid(e.to_string()))?;
+    let mut widest = 0u32;
+    let result = async {
+        while !sampler.done() {
+            let (z, t) = sampler.query();
+            let (tx, rx) = oneshot::channel();
+            scheduler.submit(Job {
+                item: DenoiseStep {
+                    scene: job.scene.clone(),
+                    z: z.to_vec(),
+                    frames: job.frames,
+                    t,
+                },
+                priority: job.priority,
+                deadline: job.deadline,
+                stream_id: job.stream_id,
+                more_steps: true,
+                request_id: job.request_id.clone(),
+                reply: tx,
+            });
+            let done = rx.await.map_err(|_| StepError::Stopped)??;
+            widest = widest.max(done.batch_scenes);
+            if sampler
+                .advance(&done.output)
+                .map_err(|e| StepError::Model(e.to_string()))?
+            {
+                progress(StepProgress {
+                    step: sampler.step(),
+                    steps: sampler.steps(),
+                    t: sampler.step() as f32 / sampler.steps() as f32,
+                    batch_scenes: widest,
+                });
+                widest = 0;
+            }
+        }
+        Ok::<(), GenerateError>(())
+    }
+    .await;
+    scheduler.idle(job.stream_id);
+    result?;
+    Ok(sampler.trajectory().to_vec())
+}
