@@ -567,11 +567,10 @@ async fn odd_requests_get_the_right_status() {
         .await
         .unwrap();
     let big = rollout_request(&m.name, scene(90, 64, 64), 2).to_proto();
-    let e = g
-        .rollout(big)
-        .await
-        .err()
-        .expect("oversized message accepted");
+    let e = match g.rollout(big).await {
+        Ok(_) => panic!("oversized message accepted"),
+        Err(e) => e,
+    };
     assert_eq!(e.code(), Code::InvalidArgument, "{e:?}");
     assert!(e.message().starts_with("request: "), "{}", e.message());
     use tonic_types::StatusExt;
