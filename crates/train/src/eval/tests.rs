@@ -4,8 +4,8 @@
 use std::sync::Arc;
 
 use super::*;
-use dynaserve_model::{Device, ModelConfig, RigidFormer, WorldModel};
-use dynaserve_sim::ObjectRecord;
+use dynaserve_model::{Device, ModelConfig, Pose, RigidFormer, SceneState, WorldModel};
+use dynaserve_sim::{DatasetReader, ObjectRecord, SceneRecord};
 use nalgebra::{UnitQuaternion, Vector3};
 
 const DT: f32 = 1.0 / 24.0;

@@ -1,0 +1,209 @@
+//! The figures an evaluation reports (serialised as the `--json` report) and the accumulator
+//! behind its mean/maximum statistics.
+
+use serde::{Deserialize, Serialize};
+
+use super::RestingOptions;
+
+/// Result at one (step size, horizon).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct HorizonReport {
+    /// Horizon in seconds after the start frame.
+    pub horizon_s: f64,
+    /// Horizon in frames, when it is a whole number of frames.
+    pub frames: Option<usize>,
+    /// Rollout steps to reach it (`frames / dt_steps`), when available.
+    pub steps: Option<usize>,
+    /// Pooled centre-of-mass translation RMSE, metres; `None` when missing.
+    pub translation_rmse_m: Option<f64>,
+    /// Pooled geodesic orientation RMSE, degrees; `None` when missing.
+    pub orientation_rmse_deg: Option<f64>,
+    /// Number of objects pooled.
+    pub objects: u64,
+    /// Why the horizon is missing, if it is.
+    pub missing: Option<String>,
+}
+
+/// Pooled errors after one rollout step (for error-against-time curves).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CurvePoint {
+    /// Time after the start frame, seconds.
+    pub time_s: f64,
+    /// Frames after the start frame.
+    pub frames: usize,
+    /// Pooled translation RMSE, metres.
+    pub translation_rmse_m: f64,
+    /// Pooled orientation RMSE, degrees.
+    pub orientation_rmse_deg: f64,
+}
+
+/// Results of one step size.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StepSizeReport {
+    /// Step size in frames.
+    pub dt_steps: u32,
+    /// One entry per requested horizon, in the requested order.
+    pub horizons: Vec<HorizonReport>,
+    /// The pooled errors after every step that lands inside the data.
+    pub curve: Vec<CurvePoint>,
+}
+
+/// Mean and maximum of a non-negative quantity over a set of samples.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Stat {
+    /// Mean over the samples (0 when there are none).
+    pub mean: f64,
+    /// Maximum over the samples (0 when there are none).
+    pub max: f64,
+    /// Number of samples.
+    pub count: u64,
+}
+
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct StatAcc {
+    sum: f64,
+    max: f64,
+    count: u64,
+}
+
+impl StatAcc {
+    pub(super) fn add(&mut self, x: f64) {
+        self.sum += x;
+        self.max = self.max.max(x);
+        self.count += 1;
+    }
+    pub(super) fn merge(&mut self, o: &StatAcc) {
+        self.sum += o.sum;
+        self.max = self.max.max(o.max);
+        self.count += o.count;
+    }
+    pub(super) fn stat(&self) -> Stat {
+        Stat {
+            mean: if self.count > 0 {
+                self.sum / self.count as f64
+            } else {
+                0.0
+            },
+            max: self.max,
+            count: self.count,
+        }
+    }
+}
+
+/// Stability and rigidity of a `k = 1` rollout of many steps from the start frame.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LongRolloutReport {
+    /// Step size, frames (always 1).
+    pub dt_steps: u32,
+    /// Steps per scene.
+    pub steps: usize,
+    /// Objects checked (every object of every scene).
+    pub objects: u64,
+    /// Objects with at least one pose that is not finite or whose quaternion norm differs
+    /// from 1 by more than [`QUATERNION_NORM_TOLERANCE`](super::QUATERNION_NORM_TOLERANCE).
+    pub failed_objects: u64,
+    /// Scenes with at least one failed object.
+    pub failed_scenes: u64,
+    /// Objects with a non-finite pose (a subset of the failures).
+    pub non_finite_objects: u64,
+    /// Largest `| |q| - 1 |` over all finite predicted quaternions.
+    pub max_quaternion_norm_error: f64,
+    /// Pose rigidity: the largest `| |R x_a + p - (R x_b + p)| - |x_a - x_b| |`, metres, over
+    /// all steps, objects and pairs of the object's first [`PAIRWISE_POINTS`](super::PAIRWISE_POINTS) reference
+    /// points, with `R x` computed from the raw predicted quaternion as `q x q*` (so a
+    /// non-unit quaternion shows up as a scaled distance).
+    pub max_pairwise_deviation_m: f64,
+    /// Pre-projection rigidity residual (see [`Predictor::projection_residuals`](super::Predictor::projection_residuals)) in metres at
+    /// every [`EvalOptions::projection_every`](super::EvalOptions::projection_every)-th state of the rollout, over objects and
+    /// states; `None` for predictors without a projection.
+    pub projection_residual_m: Option<Stat>,
+    /// Why the check did not run, if it did not.
+    pub missing: Option<String>,
+}
+
+/// Drift of one predictor over the resting window at one step size.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DriftReport {
+    /// Step size in frames (0 for the ground truth).
+    pub dt_steps: u32,
+    /// `|p(b) - p(a)|` over the resting objects, metres.
+    pub translation_m: Option<Stat>,
+    /// Geodesic angle between `q(a)` and `q(b)` over the resting objects, degrees.
+    pub rotation_deg: Option<Stat>,
+    /// Why it is missing, if it is.
+    pub missing: Option<String>,
+}
+
+/// Drift of the predicted poses over the last second of the data, for objects that are at rest
+/// in the ground truth over that window.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RestingReport {
+    /// The settings.
+    pub options: RestingOptions,
+    /// First frame `a` of the window (`T - 1 - window frames`).
+    pub first_frame: usize,
+    /// Last frame `b` of the window (`T - 1`).
+    pub last_frame: usize,
+    /// Objects at rest in the ground truth over the window.
+    pub objects_at_rest: u64,
+    /// All objects evaluated.
+    pub objects: u64,
+    /// The same measure on the ground truth (below the thresholds by construction).
+    pub truth: DriftReport,
+    /// The prediction, one entry per step size.
+    pub predicted: Vec<DriftReport>,
+}
+
+/// A full evaluation report of one predictor (what `dynaserve eval --baseline --json` writes).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EvalReport {
+    /// Predictor name.
+    pub predictor: String,
+    /// Dataset directory, generator, split and seed when evaluated from a dataset.
+    pub dataset: Option<DatasetInfo>,
+    /// Scenes evaluated.
+    pub scenes: usize,
+    /// Objects in those scenes.
+    pub objects: usize,
+    /// Frames per scene.
+    pub frames: usize,
+    /// Seconds per frame.
+    pub dt_frame: f64,
+    /// Start frame `s`.
+    pub start_frame: usize,
+    /// How the metrics pool errors.
+    pub pooling: String,
+    /// Results per step size, in the requested order.
+    pub step_sizes: Vec<StepSizeReport>,
+    /// Stability of the long `k = 1` rollout; `None` when disabled.
+    pub long_rollout: Option<LongRolloutReport>,
+    /// Drift of objects at rest; `None` when disabled or when the window does not fit.
+    pub resting: Option<RestingReport>,
+    /// Wall-clock time of the evaluation, seconds.
+    pub elapsed_s: f64,
+}
+
+impl EvalReport {
+    /// The entry at step size `k` and horizon `horizon_s`, if requested.
+    pub fn entry(&self, k: u32, horizon_s: f64) -> Option<&HorizonReport> {
+        self.step_sizes
+            .iter()
+            .find(|s| s.dt_steps == k)
+            .and_then(|s| s.horizons.iter().find(|h| h.horizon_s == horizon_s))
+    }
+}
+
+/// Where evaluated data came from.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DatasetInfo {
+    /// Split directory.
+    pub dir: String,
+    /// Generator name from the manifest.
+    pub generator: String,
+    /// Split name.
+    pub split: String,
+    /// Dataset seed.
+    pub seed: u64,
+    /// Gravity recorded in the manifest, m/s^2.
+    pub gravity: [f32; 3],
+}
