@@ -215,7 +215,7 @@ mod tests {
         let t = check_actions(&[a.clone(), a.clone()], 2, &mask, "actions").unwrap();
         assert_eq!(t[1], vec![(0, at(1.0))]);
         assert_eq!(
-            check_actions(&[a.clone()], 2, &mask, "actions")
+            check_actions(std::slice::from_ref(&a), 2, &mask, "actions")
                 .unwrap_err()
                 .field,
             "actions"
