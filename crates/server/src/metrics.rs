@@ -203,8 +203,8 @@ pub const METRICS: &[MetricSpec] = &[
         "dynaserve_scene_step_failures_total",
         Counter,
         &["model"],
-        "Scene-steps that failed alone (a state outside the model's domain, a non-finite \
-         output) while their pass-mates got their frames.",
+        "Scene-steps that failed (a state outside the model's domain, a non-finite output, a \
+         model error or panic); a failure in a shared pass reaches only its own scene.",
     ),
     spec(
         "dynaserve_open_connections",

@@ -171,25 +171,7 @@ impl<F: Family> Worker<F> {
         let objects: usize = batch.iter().map(|q| q.ticket.cost).sum();
         let start = Instant::now();
         let items: Vec<&F::Item> = batch.iter().map(|q| &q.payload.item).collect();
-        let mut result = run_guarded(&*self.family, &items);
-        if let Err(msg) = &result
-            && scenes > 1
-        {
-            tracing::warn!(
-                model = self.name.as_str(),
-                batch = batch_id,
-                scenes,
-                error = %msg,
-                "pass failed; running its jobs one at a time"
-            );
-            result = Ok(items
-                .iter()
-                .map(|it| match run_guarded(&*self.family, &[*it]) {
-                    Ok(mut one) => one.pop().unwrap_or_else(|| Err("no result".into())),
-                    Err(e) => Err(e),
-                })
-                .collect());
-        }
+        let results = self.run_isolated(&items, batch_id);
         drop(items);
         let forward = start.elapsed();
         let finished = Instant::now();
@@ -224,60 +206,56 @@ impl<F: Family> Worker<F> {
                 .with_label_values(&[name])
                 .observe(forward.as_secs_f64());
         }
+        let failed = results.iter().filter(|r| r.is_err()).count();
+        if metered {
+            let objects_ok: usize = batch
+                .iter()
+                .zip(&results)
+                .filter(|(_, r)| r.is_ok())
+                .map(|(q, _)| q.ticket.cost)
+                .sum();
+            self.metrics
+                .scene_steps
+                .with_label_values(&[name])
+                .inc_by((scenes - failed) as u64);
+            self.metrics
+                .object_steps
+                .with_label_values(&[name])
+                .inc_by(objects_ok as u64);
+            self.metrics
+                .scene_step_failures
+                .with_label_values(&[name])
+                .inc_by(failed as u64);
+        }
         let mut expected = Vec::new();
-        match result {
-            Ok(out) => {
-                let failed = out.iter().filter(|r| r.is_err()).count();
-                if metered {
-                    self.metrics
-                        .scene_steps
-                        .with_label_values(&[name])
-                        .inc_by((scenes - failed) as u64);
-                    self.metrics
-                        .object_steps
-                        .with_label_values(&[name])
-                        .inc_by(objects as u64);
-                    self.metrics
-                        .scene_step_failures
-                        .with_label_values(&[name])
-                        .inc_by(failed as u64);
-                }
-                for (item, output) in batch.into_iter().zip(out) {
-                    let queue_wait = start.saturating_duration_since(item.ticket.enqueued);
-                    if metered {
-                        self.metrics
-                            .queue_wait
-                            .with_label_values(&[name, item.ticket.priority.as_str()])
-                            .observe(queue_wait.as_secs_f64());
-                    }
-                    if let Err(e) = &output {
-                        tracing::info!(
-                            model = name,
-                            request_id = %item.payload.request_id,
-                            error = %e,
-                            "scene step failed alone"
-                        );
-                    }
-                    let reply = output
-                        .map(|output| Done {
-                            output,
-                            queue_wait,
-                            forward,
-                            batch_scenes: scenes as u32,
-                            batch_id,
-                        })
-                        .map_err(StepError::Model);
-                    let delivered = item.payload.reply.send(reply).is_ok();
-                    if delivered && item.ticket.more_steps {
-                        expected.push(item.ticket.stream_id);
-                    }
-                }
+        for (item, output) in batch.into_iter().zip(results) {
+            let queue_wait = start.saturating_duration_since(item.ticket.enqueued);
+            if metered {
+                self.metrics
+                    .queue_wait
+                    .with_label_values(&[name, item.ticket.priority.as_str()])
+                    .observe(queue_wait.as_secs_f64());
             }
-            Err(msg) => {
-                tracing::error!(model = name, batch = batch_id, error = %msg, "batch failed");
-                for item in batch {
-                    let _ = item.payload.reply.send(Err(StepError::Model(msg.clone())));
-                }
+            if let Err(e) = &output {
+                tracing::info!(
+                    model = name,
+                    request_id = %item.payload.request_id,
+                    error = %e,
+                    "scene step failed"
+                );
+            }
+            let reply = output
+                .map(|output| Done {
+                    output,
+                    queue_wait,
+                    forward,
+                    batch_scenes: scenes as u32,
+                    batch_id,
+                })
+                .map_err(StepError::Model);
+            let delivered = item.payload.reply.send(reply).is_ok();
+            if delivered && item.ticket.more_steps {
+                expected.push(item.ticket.stream_id);
             }
         }
         self.queue.expect(expected);
@@ -285,6 +263,35 @@ impl<F: Family> Worker<F> {
             self.recent.push_back((finished, scenes as u64));
         }
         self.update_fps(finished);
+    }
+
+    /// One result per item, in order. A pass that fails as a whole (an error or a panic) is
+    /// run again one job at a time, so only a job that cannot be computed fails, with its own
+    /// error; a one-job pass's error is that job's.
+    fn run_isolated(&self, items: &[&F::Item], batch_id: u64) -> Vec<Result<F::Output, String>> {
+        match run_guarded(&*self.family, items) {
+            Ok(out) => out,
+            Err(msg) => {
+                tracing::warn!(
+                    model = self.name.as_str(),
+                    batch = batch_id,
+                    scenes = items.len(),
+                    error = %msg,
+                    "pass failed"
+                );
+                if items.len() == 1 {
+                    return vec![Err(msg)];
+                }
+                items
+                    .iter()
+                    .map(|it| {
+                        run_guarded(&*self.family, &[*it]).and_then(|mut one| {
+                            one.pop().unwrap_or_else(|| Err("no result".into()))
+                        })
+                    })
+                    .collect()
+            }
+        }
     }
 
     fn update_fps(&mut self, now: Instant) {
@@ -391,8 +398,17 @@ mod tests {
         rx
     }
 
-    #[test]
-    fn jobs_queued_behind_a_pass_share_the_next_one_and_get_their_own_results() {
+    /// A scheduler over [`Tags`] whose first pass (tag 100) has started and is held, so the
+    /// jobs submitted next queue behind it until `release` is sent.
+    struct Held {
+        family: Arc<Tags>,
+        metrics: Metrics,
+        s: Scheduler<Tags>,
+        first: Rx,
+        release: mpsc::Sender<()>,
+    }
+
+    fn held() -> Held {
         let (started_tx, started) = mpsc::channel();
         let (release, hold) = mpsc::channel();
         let family = Arc::new(Tags {
@@ -409,6 +425,24 @@ mod tests {
         let s = Scheduler::start(family.clone(), config, metrics.clone()).unwrap();
         let first = submit(&s, 100);
         started.recv().unwrap();
+        Held {
+            family,
+            metrics,
+            s,
+            first,
+            release,
+        }
+    }
+
+    #[test]
+    fn jobs_queued_behind_a_pass_share_the_next_one_and_get_their_own_results() {
+        let Held {
+            family,
+            metrics,
+            s,
+            first,
+            release,
+        } = held();
         let rxs: Vec<Rx> = (0..10).map(|t| submit(&s, t)).collect();
         let unlucky = submit(&s, 13);
         release.send(()).unwrap();
@@ -430,7 +464,12 @@ mod tests {
             text.contains("dynaserve_scene_steps_total{model=\"test\"} 11"),
             "{text}"
         );
-        // The item that failed alone is counted as a failure, not as a step.
+        // The item that failed alone is counted as a failure, not as a step, and its objects
+        // are not counted as object-steps.
+        assert!(
+            text.contains("dynaserve_object_steps_total{model=\"test\"} 11"),
+            "{text}"
+        );
         assert!(
             text.contains("dynaserve_scene_step_failures_total{model=\"test\"} 1"),
             "{text}"
@@ -451,22 +490,13 @@ mod tests {
 
     #[test]
     fn a_job_that_breaks_its_pass_fails_alone_and_its_pass_mates_get_their_results() {
-        let (started_tx, started) = mpsc::channel();
-        let (release, hold) = mpsc::channel();
-        let family = Arc::new(Tags {
-            passes: Mutex::new(Vec::new()),
-            started: Mutex::new(Some(started_tx)),
-            hold: Mutex::new(Some(hold)),
-        });
-        let metrics = Metrics::new(&["test".to_string()]);
-        let config = SchedulerConfig {
-            max_batch_scenes: 64,
-            max_batch_objects: 1000,
-            max_queue_delay: Duration::from_millis(2),
-        };
-        let s = Scheduler::start(family.clone(), config, metrics.clone()).unwrap();
-        let first = submit(&s, 100);
-        started.recv().unwrap();
+        let Held {
+            family,
+            metrics,
+            s,
+            first,
+            release,
+        } = held();
         let (a, bad, b) = (submit(&s, 7), submit(&s, 666), submit(&s, 8));
         release.send(()).unwrap();
         assert_eq!(first.blocking_recv().unwrap().unwrap().output, 101);
