@@ -3,14 +3,16 @@
 
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
+use std::time::Instant;
 
 use dynaserve_api::build::check_steps;
-use dynaserve_api::spec::{PredictSpec, Prediction, Timing};
+use dynaserve_api::spec::{Frame, PredictSpec, Prediction, Timing};
 use futures::future::try_join_all;
+use tokio::sync::OwnedSemaphorePermit;
 use tracing::Instrument;
 
 use super::Engine;
-use super::registry::prepare_scenes;
+use super::registry::{ModelEntry, prepare_scenes};
 use super::request::{GaugeGuard, RequestCtx, RequestRecord, with_deadline};
 use super::stepper::{Stepper, StepperSpec};
 use crate::error::ApiError;
@@ -51,16 +53,42 @@ impl Engine {
         tracing::Span::current().record("model", entry.name.as_str());
         let dt_steps = check_steps(req.steps, req.dt_steps, &entry.limits)?;
         let n = req.variants.len();
-        if n == 0 || n > entry.limits.caps.max_variants {
-            return Err(ApiError::invalid(
-                "variants",
-                format!(
-                    "{n} variants given; 1..={} accepted",
-                    entry.limits.caps.max_variants
-                ),
-            ));
-        }
+        check_variant_count(&entry, n)?;
         let deadline = ctx.deadline_with(req.timeout_ms);
+        let _slots = self.variant_slots(&entry, n)?;
+        let variants = with_deadline(
+            deadline,
+            prepare_scenes(&entry, req.variants, dt_steps, "variants"),
+        )
+        .await?;
+        let steppers = variants
+            .into_iter()
+            .map(|(scene, state)| {
+                Stepper::new(
+                    entry.clone(),
+                    StepperSpec {
+                        scene,
+                        state,
+                        dt_steps,
+                        priority: Priority::Bulk,
+                        deadline,
+                        stream_id: self.next_stream.fetch_add(1, Ordering::Relaxed),
+                        request_id: ctx.request_id.clone(),
+                    },
+                )
+            })
+            .collect();
+        self.run_variants(&entry, steppers, req.steps, req.every, deadline, ctx)
+            .await
+    }
+
+    /// Takes `n` of the server's in-flight variant slots (RESOURCE_EXHAUSTED when they are
+    /// not free) and counts them in the model's active-Predict gauge until dropped.
+    pub(super) fn variant_slots(
+        &self,
+        entry: &ModelEntry,
+        n: usize,
+    ) -> Result<VariantSlots, ApiError> {
         let permit = u32::try_from(n)
             .ok()
             .and_then(|k| self.predict_slots.clone().try_acquire_many_owned(k).ok())
@@ -78,41 +106,37 @@ impl Engine {
             .active_predict
             .with_label_values(&[entry.name.as_str()]);
         gauge.add(n as i64);
-        let _gauge = GaugeGuard(gauge, n as i64);
-        let _permit = permit;
-        let variants = with_deadline(
-            deadline,
-            prepare_scenes(&entry, req.variants, dt_steps, "variants"),
-        )
-        .await?;
-        let (every, steps) = (req.every, req.steps);
-        let runs = variants.into_iter().map(|(scene, state)| {
-            let mut stepper = Stepper::new(
-                entry.clone(),
-                StepperSpec {
-                    scene,
-                    state,
-                    dt_steps,
-                    priority: Priority::Bulk,
-                    deadline,
-                    stream_id: self.next_stream.fetch_add(1, Ordering::Relaxed),
-                    request_id: ctx.request_id.clone(),
-                },
-            );
-            async move {
-                let mut frames = Vec::new();
-                let mut timing = Timing::default();
-                for step in 1..=steps {
-                    let mut frame = stepper.next(step < steps).await?;
-                    if let Some(t) = frame.timing.take() {
-                        timing.add_step(&t);
-                    }
-                    if step == steps || (every > 0 && step % every == 0) {
-                        frames.push(frame);
-                    }
+        Ok(VariantSlots {
+            _gauge: GaugeGuard(gauge, n as i64),
+            _permit: permit,
+        })
+    }
+
+    /// Steps every variant `steps` steps concurrently (bulk priority, mostly in the same
+    /// passes) and answers with the kept frames of each: every `every`-th step (0: none) and
+    /// the last. Ends with UNAVAILABLE when the drain deadline passes first.
+    pub(super) async fn run_variants<V: Variant>(
+        &self,
+        entry: &ModelEntry,
+        variants: Vec<V>,
+        steps: u32,
+        every: u32,
+        deadline: Option<Instant>,
+        ctx: &RequestCtx,
+    ) -> Result<Prediction, ApiError> {
+        let runs = variants.into_iter().map(|mut v| async move {
+            let mut frames = Vec::new();
+            let mut timing = Timing::default();
+            for step in 1..=steps {
+                let mut frame = v.step(step as usize - 1, step < steps).await?;
+                if let Some(t) = frame.timing.take() {
+                    timing.add_step(&t);
                 }
-                Ok::<_, ApiError>((frames, timing))
+                if step == steps || (every > 0 && step.is_multiple_of(every)) {
+                    frames.push(frame);
+                }
             }
+            Ok::<_, ApiError>((frames, timing))
         });
         let mut close = self.close_tx.subscribe();
         let all = tokio::select! {
@@ -138,5 +162,44 @@ impl Engine {
             trajectories,
             timing,
         })
+    }
+}
+
+/// INVALID_ARGUMENT naming `variants` unless `1..=max_variants` of the model are given.
+pub(super) fn check_variant_count(entry: &ModelEntry, n: usize) -> Result<(), ApiError> {
+    let max = entry.limits.caps.max_variants;
+    if n == 0 || n > max {
+        return Err(ApiError::invalid(
+            "variants",
+            format!("{n} variants given; 1..={max} accepted"),
+        ));
+    }
+    Ok(())
+}
+
+/// A Predict call's share of the in-flight variant slots and of the active-Predict gauge,
+/// both given back when dropped.
+pub(super) struct VariantSlots {
+    _gauge: GaugeGuard,
+    _permit: OwnedSemaphorePermit,
+}
+
+/// One variant of a Predict call: a stream of steps.
+pub(super) trait Variant: Send {
+    /// Runs step `i` (0-based) of the call; `more_steps` says another follows right after.
+    fn step(
+        &mut self,
+        i: usize,
+        more_steps: bool,
+    ) -> impl Future<Output = Result<Frame, ApiError>> + Send;
+}
+
+impl Variant for Stepper {
+    fn step(
+        &mut self,
+        _i: usize,
+        more_steps: bool,
+    ) -> impl Future<Output = Result<Frame, ApiError>> + Send {
+        self.next(more_steps)
     }
 }

@@ -6,14 +6,14 @@
 use std::sync::Arc;
 
 use dynaserve_api::build::check_steps;
-use dynaserve_api::session_input::{apply_states, check_actions};
+use dynaserve_api::session_input::{Targets, apply_states, check_actions};
 use dynaserve_api::spec::session::SessionPredictSpec;
-use dynaserve_api::spec::{Prediction, Timing};
-use futures::future::try_join_all;
+use dynaserve_api::spec::{Frame, Prediction};
 use tracing::Instrument;
 
 use super::super::Engine;
-use super::super::request::{GaugeGuard, RequestCtx, RequestRecord, with_deadline};
+use super::super::predict::{Variant, check_variant_count};
+use super::super::request::{RequestCtx, RequestRecord, with_deadline};
 use super::driven::Driven;
 use crate::error::ApiError;
 use crate::scheduler::Priority;
@@ -55,13 +55,7 @@ impl Engine {
         let entry = session.entry.clone();
         check_steps(req.steps, session.dt_steps, &entry.limits)?;
         let n = req.variants.len();
-        let max = entry.limits.caps.max_variants;
-        if n == 0 || n > max {
-            return Err(ApiError::invalid(
-                "variants",
-                format!("{n} variants given; 1..={max} accepted"),
-            ));
-        }
+        check_variant_count(&entry, n)?;
         let deadline = ctx.deadline_with(req.timeout_ms);
         // The session's state now; later calls on the session do not affect this one.
         let (base, base_step) = {
@@ -85,73 +79,40 @@ impl Engine {
             )?;
             starts.push((state, targets));
         }
-        let permit = u32::try_from(n)
-            .ok()
-            .and_then(|k| self.predict_slots.clone().try_acquire_many_owned(k).ok())
-            .ok_or_else(|| {
-                ApiError::exhausted(
-                    format!(
-                        "{n} variants would exceed the server's limit of {} in flight; retry later",
-                        self.config.max_predict_variants
-                    ),
-                    self.retry_after(),
-                )
-            })?;
-        let gauge = self
-            .metrics
-            .active_predict
-            .with_label_values(&[entry.name.as_str()]);
-        gauge.add(n as i64);
-        let _gauge = GaugeGuard(gauge, n as i64);
-        let _permit = permit;
-        let (every, steps) = (req.every, req.steps);
-        let runs = starts.into_iter().map(|(state, targets)| {
-            let mut driven = Driven::new(
-                self,
-                &session,
-                state,
-                base_step,
-                Priority::Bulk,
-                deadline,
-                ctx.request_id.clone(),
-            );
-            async move {
-                let mut frames = Vec::new();
-                let mut timing = Timing::default();
-                for (i, t) in targets.iter().enumerate() {
-                    let step = i as u32 + 1;
-                    let mut frame = driven.next(t, step < steps).await?;
-                    if let Some(t) = frame.timing.take() {
-                        timing.add_step(&t);
-                    }
-                    if step == steps || (every > 0 && step.is_multiple_of(every)) {
-                        frames.push(frame);
-                    }
-                }
-                Ok::<_, ApiError>((frames, timing))
-            }
-        });
-        let mut close = self.close_tx.subscribe();
-        let all = tokio::select! {
-            r = with_deadline(deadline, try_join_all(runs)) => r?,
-            _ = close.wait_for(|c| *c) => {
-                return Err(ApiError::unavailable(
-                    "server shutting down: the drain deadline passed before the call finished",
-                ));
-            }
-        };
-        let mut timing = Timing::default();
-        let mut trajectories = Vec::with_capacity(all.len());
-        for (frames, t) in all {
-            timing.queue = timing.queue.max(t.queue);
-            timing.forward = timing.forward.max(t.forward);
-            trajectories.push(frames);
-        }
-        timing.total = ctx.arrival.elapsed();
-        Ok(Prediction {
-            model: entry.name.clone(),
-            trajectories,
-            timing,
-        })
+        let _slots = self.variant_slots(&entry, n)?;
+        let variants = starts
+            .into_iter()
+            .map(|(state, targets)| DrivenVariant {
+                driven: Driven::new(
+                    self,
+                    &session,
+                    state,
+                    base_step,
+                    Priority::Bulk,
+                    deadline,
+                    ctx.request_id.clone(),
+                ),
+                targets,
+            })
+            .collect();
+        self.run_variants(&entry, variants, req.steps, req.every, deadline, ctx)
+            .await
+    }
+}
+
+/// A variant from a session: its kinematic objects follow its own actions.
+struct DrivenVariant {
+    driven: Driven,
+    /// Kinematic poses, one entry per step.
+    targets: Vec<Targets>,
+}
+
+impl Variant for DrivenVariant {
+    fn step(
+        &mut self,
+        i: usize,
+        more_steps: bool,
+    ) -> impl Future<Output = Result<Frame, ApiError>> + Send {
+        self.driven.next(&self.targets[i], more_steps)
     }
 }
