@@ -272,7 +272,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                 out.display()
             )));
         }
-        if let Some(init) = &cfg.model.init {
+        let m = if let Some(init) = &cfg.model.init {
             let m = load_rigidformer(init, &device, true)?.with_name("rigidformer");
             let manifest = reader.primary().manifest();
             if m.config().dt_frame != manifest.dt_frame || m.config().gravity != manifest.gravity {
@@ -286,14 +286,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                 )));
             }
             eprintln!("initialised from {}", init.display());
-            let m = init_contact_velocity(m, cfg, &reader)?;
-            let st = RunState {
-                step: 0,
-                elapsed_seconds: 0.0,
-                threads: cfg.run.threads,
-                config: cfg.clone(),
-            };
-            (m, st)
+            init_contact_velocity(m, cfg, &reader)?
         } else {
             let mut mc = cfg.model.model_config(Path::new("."))?;
             mc.dt_frame = reader.primary().manifest().dt_frame;
@@ -305,15 +298,15 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                     mc.normalization.mean, mc.normalization.std
                 );
             }
-            let m = RigidFormer::new(mc, cfg.model.seed, &device)?.with_name("rigidformer");
-            let st = RunState {
-                step: 0,
-                elapsed_seconds: 0.0,
-                threads: cfg.run.threads,
-                config: cfg.clone(),
-            };
-            (m, st)
-        }
+            RigidFormer::new(mc, cfg.model.seed, &device)?.with_name("rigidformer")
+        };
+        let st = RunState {
+            step: 0,
+            elapsed_seconds: 0.0,
+            threads: cfg.run.threads,
+            config: cfg.clone(),
+        };
+        (m, st)
     };
     state.config.run = cfg.run.clone();
     state.threads = cfg.run.threads;
