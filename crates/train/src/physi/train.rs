@@ -1,7 +1,9 @@
 //! The PhysiFormer training loop: AdamW with warm-up and cosine decay, gradient clipping and
 //! a weight average (EMA), `log.csv` and `loss.png`, checkpoints every few minutes (and at the
 //! end or on Ctrl-C / SIGTERM) that `--resume` continues from, and the EMA weights written as
-//! a model directory (`model/`) at every checkpoint.
+//! a model directory (`model/`) at every checkpoint. The checkpoint swap, the choice of the
+//! checkpoint to resume and the log truncation on resume are the RigidFormer trainer's
+//! ([`crate::train::trainer`]).
 
 use std::collections::HashMap;
 use std::io::Write;
@@ -21,6 +23,12 @@ use super::data::load_scenes;
 use crate::train::config::OptimConfig;
 use crate::train::optim::{AdamW, learning_rate};
 use crate::train::plot::{Series, line_chart};
+use crate::train::trainer::{
+    OPTIMIZER_FILE, STATE_FILE, replace_checkpoint, resumable, truncate_log, write_state,
+};
+
+/// Header of a PhysiFormer run's `log.csv`.
+const CSV_HEADER: &str = "step,lr,loss,grad_norm,seconds";
 
 /// A PhysiFormer training configuration (TOML).
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -86,11 +94,19 @@ pub fn run(
         "optim.batch_size must be positive"
     );
     let scenes = load_scenes(&cfg.train)?;
-    let ckpt = cfg.out_dir.join("checkpoint");
     let device = Device::Cpu;
+    let ckpt = resumable(&cfg.out_dir);
     let model = if resume {
-        PhysiFormer::load(&ckpt, &device, true).context("resume: no usable checkpoint")?
+        let ckpt = ckpt
+            .as_ref()
+            .with_context(|| format!("--resume: {} holds no checkpoint", cfg.out_dir.display()))?;
+        PhysiFormer::load(ckpt, &device, true).context("resume: no usable checkpoint")?
     } else {
+        anyhow::ensure!(
+            ckpt.is_none(),
+            "{} already holds a checkpoint: pass --resume to continue it or choose another out_dir",
+            cfg.out_dir.display()
+        );
         std::fs::create_dir_all(&cfg.out_dir)?;
         let mut mc = PhysiConfig::preset(&cfg.preset)?;
         mc.frames = scenes.iter().map(|s| s.frames).max().unwrap_or(mc.frames);
@@ -110,9 +126,9 @@ pub fn run(
         step: 0,
         rng_draws: 0,
     };
-    if resume {
-        opt.load(&ckpt.join("optimizer.safetensors"))?;
-        state = serde_json::from_str(&std::fs::read_to_string(ckpt.join("state.json"))?)?;
+    if let (true, Some(ckpt)) = (resume, &ckpt) {
+        opt.load(&ckpt.join(OPTIMIZER_FILE))?;
+        state = serde_json::from_str(&std::fs::read_to_string(ckpt.join(STATE_FILE))?)?;
     }
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x5eed);
     rng.set_word_pos(state.rng_draws as u128);
@@ -124,13 +140,12 @@ pub fn run(
         cfg.optim.iterations
     );
     let log_path = cfg.out_dir.join("log.csv");
-    let mut log = std::fs::OpenOptions::new()
-        .create(true)
-        .append(true)
-        .open(&log_path)?;
-    if log.metadata()?.len() == 0 {
-        writeln!(log, "step,lr,loss,grad_norm,seconds")?;
+    if resume {
+        truncate_log(&log_path, CSV_HEADER, state.step)?;
+    } else {
+        std::fs::write(&log_path, format!("{CSV_HEADER}\n"))?;
     }
+    let mut log = std::fs::OpenOptions::new().append(true).open(&log_path)?;
     let start = Instant::now();
     let mut last_ckpt = Instant::now();
     let (mut acc, mut acc_n, mut gn) = (0.0, 0u64, 0.0);
@@ -195,10 +210,11 @@ fn save(
     opt: &AdamW,
     state: &RunState,
 ) -> anyhow::Result<()> {
-    let ckpt = cfg.out_dir.join("checkpoint");
-    model.save(&ckpt)?;
-    opt.save(&ckpt.join("optimizer.safetensors"))?;
-    std::fs::write(ckpt.join("state.json"), serde_json::to_string(state)?)?;
+    let ckpt = replace_checkpoint(&cfg.out_dir, |tmp| {
+        model.save(tmp)?;
+        opt.save(&tmp.join(OPTIMIZER_FILE))?;
+        write_state(tmp, state)
+    })?;
     // The weight average as a servable model directory.
     let out = cfg.out_dir.join("model");
     let ema = PhysiFormer::load(&ckpt, &Device::Cpu, false)?;

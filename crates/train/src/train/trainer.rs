@@ -117,15 +117,34 @@ fn save_checkpoint(
     opt: &AdamW,
     state: &RunState,
 ) -> Result<PathBuf, TrainError> {
+    replace_checkpoint(out, |tmp| {
+        model.save(tmp)?;
+        opt.save(&tmp.join(OPTIMIZER_FILE))?;
+        write_state(tmp, state)
+    })
+}
+
+/// Writes `state` as `state.json` into the checkpoint directory `dir`.
+pub(crate) fn write_state(dir: &Path, state: &impl Serialize) -> Result<(), TrainError> {
+    let json = serde_json::to_string_pretty(state)
+        .map_err(|e| TrainError::Config(format!("state serialisation: {e}")))?;
+    let p = dir.join(STATE_FILE);
+    std::fs::write(&p, json).map_err(io(&p))
+}
+
+/// Replaces `out/checkpoint` atomically by what `write` puts into the empty directory
+/// `out/checkpoint.tmp` (swapped in by renames; [`resumable`] finds the old one if a swap is
+/// cut short). Returns the checkpoint directory.
+pub(crate) fn replace_checkpoint(
+    out: &Path,
+    write: impl FnOnce(&Path) -> Result<(), TrainError>,
+) -> Result<PathBuf, TrainError> {
     let tmp = out.join("checkpoint.tmp");
     if tmp.exists() {
         std::fs::remove_dir_all(&tmp).map_err(io(&tmp))?;
     }
-    model.save(&tmp)?;
-    opt.save(&tmp.join(OPTIMIZER_FILE))?;
-    let json = serde_json::to_string_pretty(state)
-        .map_err(|e| TrainError::Config(format!("state serialisation: {e}")))?;
-    std::fs::write(tmp.join(STATE_FILE), json).map_err(io(&tmp))?;
+    std::fs::create_dir_all(&tmp).map_err(io(&tmp))?;
+    write(&tmp)?;
     let dir = checkpoint_dir(out);
     let old = out.join("checkpoint.old");
     if old.exists() {
@@ -142,7 +161,7 @@ fn save_checkpoint(
 }
 
 /// The checkpoint to resume from: `checkpoint/`, or `checkpoint.old/` if a swap was cut short.
-fn resumable(out: &Path) -> Option<PathBuf> {
+pub(crate) fn resumable(out: &Path) -> Option<PathBuf> {
     [checkpoint_dir(out), out.join("checkpoint.old")]
         .into_iter()
         .find(|d| d.join(STATE_FILE).exists())
@@ -187,12 +206,12 @@ pub fn plot_loss(out: &Path) -> Result<(), TrainError> {
     )
 }
 
-/// Keeps the header and the rows up to `step` (so a resumed run's log has no duplicates).
-fn truncate_log(path: &Path, step: u64) -> Result<(), TrainError> {
+/// Keeps `header` and the rows up to `step` (so a resumed run's log has no duplicates).
+pub(crate) fn truncate_log(path: &Path, header: &str, step: u64) -> Result<(), TrainError> {
     let Ok(text) = std::fs::read_to_string(path) else {
-        return std::fs::write(path, format!("{CSV_HEADER}\n")).map_err(io(path));
+        return std::fs::write(path, format!("{header}\n")).map_err(io(path));
     };
-    let mut out = String::from(CSV_HEADER);
+    let mut out = String::from(header);
     out.push('\n');
     for l in text.lines().skip(1) {
         let s: Option<u64> = l.split(',').next().and_then(|x| x.parse().ok());
@@ -332,7 +351,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
     .map_err(io(&cfg_path))?;
     let log_path = out.join("log.csv");
     if opts.resume {
-        truncate_log(&log_path, state.step)?;
+        truncate_log(&log_path, CSV_HEADER, state.step)?;
     } else {
         std::fs::write(&log_path, format!("{CSV_HEADER}\n")).map_err(io(&log_path))?;
     }
