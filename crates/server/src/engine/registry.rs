@@ -71,11 +71,11 @@ impl ModelEntry {
 /// domain too, or the first step would fail; the error names the velocity that puts it there.
 fn check_previous(state: &SceneState, path: &str) -> Result<(), ApiError> {
     let limit = dynaserve_model::MAX_WORLD_EXTENT;
-    match state.previous.iter().position(|p| {
-        p.translation
-            .iter()
-            .any(|v| !v.is_finite() || v.abs() > limit)
-    }) {
+    match state
+        .previous
+        .iter()
+        .position(|p| !crate::scheduler::pose_in_domain(p))
+    {
         None => Ok(()),
         Some(j) => Err(ApiError::invalid(
             format!("{path}.objects[{j}].velocity.linear"),

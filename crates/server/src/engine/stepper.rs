@@ -11,7 +11,7 @@ use tokio::sync::oneshot;
 
 use super::registry::ModelEntry;
 use crate::error::ApiError;
-use crate::scheduler::{Done, Job, Priority, SceneStep, StepError};
+use crate::scheduler::{Done, Job, Priority, SceneStep, StepError, pose_in_domain};
 
 /// The reply of one submitted step.
 pub(crate) type StepReply = oneshot::Receiver<Result<Done<Vec<Pose>>, StepError>>;
@@ -133,15 +133,7 @@ impl Stepper {
 /// domain (a non-finite value, a translation beyond `MAX_WORLD_EXTENT` metres, a degenerate
 /// rotation).
 pub(crate) fn check_domain(poses: &[Pose], step: u32) -> Result<(), ApiError> {
-    let bad = poses.iter().position(|p| {
-        let t_ok = p
-            .translation
-            .iter()
-            .all(|v| v.is_finite() && v.abs() <= MAX_WORLD_EXTENT);
-        let n2: f32 = p.rotation.iter().map(|v| v * v).sum();
-        !(t_ok && n2.is_finite() && n2 > 1e-6)
-    });
-    match bad {
+    match poses.iter().position(|p| !pose_in_domain(p)) {
         None => Ok(()),
         Some(j) => {
             let field = format!("scene.objects[{j}]");

@@ -122,12 +122,7 @@ impl Family for RigidSteps {
 pub fn state_problem(state: &SceneState) -> Option<String> {
     for (which, poses) in [("previous", &state.previous), ("current", &state.current)] {
         for (j, p) in poses.iter().enumerate() {
-            let t_ok = p
-                .translation
-                .iter()
-                .all(|v| v.is_finite() && v.abs() <= MAX_WORLD_EXTENT);
-            let n2: f32 = p.rotation.iter().map(|v| v * v).sum();
-            if !(t_ok && n2.is_finite() && n2 > 1e-6) {
+            if !pose_in_domain(p) {
                 return Some(format!(
                     "objects[{j}]: {which} pose outside the model's domain (translation {:?} m, \
                      limit {MAX_WORLD_EXTENT} m)",
@@ -137,4 +132,15 @@ pub fn state_problem(state: &SceneState) -> Option<String> {
         }
     }
     None
+}
+
+/// True when the model accepts `p`: a finite translation within [`MAX_WORLD_EXTENT`] metres of
+/// the origin on every axis and a usable rotation (a finite quaternion of non-zero norm).
+pub fn pose_in_domain(p: &Pose) -> bool {
+    let t_ok = p
+        .translation
+        .iter()
+        .all(|v| v.is_finite() && v.abs() <= MAX_WORLD_EXTENT);
+    let n2: f32 = p.rotation.iter().map(|v| v * v).sum();
+    t_ok && n2.is_finite() && n2 > 1e-6
 }

@@ -31,7 +31,7 @@ use std::time::{Duration, Instant};
 
 use tokio::sync::oneshot;
 
-pub use family::{Family, RigidSteps, SceneStep};
+pub use family::{Family, RigidSteps, SceneStep, pose_in_domain};
 pub use queue::{Dropped, Queue, Queued, Ticket};
 
 use crate::metrics::Metrics;
