@@ -418,7 +418,7 @@ pub fn encode_shard(scenes: &[SceneRecord], frames: usize, points: usize) -> Res
         acc += s.objects.len() as i64;
         offsets.push(acc);
     }
-    let buffers: Vec<(&str, Dtype, Vec<usize>, Vec<u8>)> = vec![
+    let buffers: Vec<TensorBytes<'_>> = vec![
         (
             "scene_object_offsets",
             Dtype::I64,
@@ -490,6 +490,17 @@ pub fn encode_shard(scenes: &[SceneRecord], frames: usize, points: usize) -> Res
                 .collect(),
         ),
     ];
+    serialize_tensors(&buffers)
+}
+
+/// One tensor of a shard: name, dtype, shape and its values as little-endian bytes.
+pub(crate) type TensorBytes<'a> = (&'a str, Dtype, Vec<usize>, Vec<u8>);
+
+/// Serialises a shard's tensors into safetensors bytes whose header carries the one metadata
+/// entry `format: dynaserve-sim/<version>`. One entry, because safetensors writes its metadata
+/// map in hash order: with two entries the same shard would not be the same bytes on every
+/// thread and run.
+pub(crate) fn serialize_tensors(buffers: &[TensorBytes<'_>]) -> Result<Vec<u8>> {
     let views = buffers
         .iter()
         .map(|(name, dtype, shape, data)| {

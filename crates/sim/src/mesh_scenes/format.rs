@@ -17,14 +17,13 @@
 //! | `mass` | f32 | `[O]` | kilograms |
 //! | `friction`, `restitution` | f32 | `[O]` | coefficients |
 
-use std::collections::HashMap;
 use std::path::Path;
 
-use safetensors::tensor::{Dtype, SafeTensors, TensorView};
+use safetensors::tensor::{Dtype, SafeTensors};
 use serde::{Deserialize, Serialize};
 
 use super::record::{MeshMaterial, MeshObject, MeshScene};
-use crate::dataset::{FORMAT, FORMAT_VERSION, TensorDoc, Units};
+use crate::dataset::{FORMAT, FORMAT_VERSION, TensorBytes, TensorDoc, Units, serialize_tensors};
 use crate::{Result, SimError};
 
 /// The manifest's `content` value of a mesh dataset.
@@ -297,7 +296,7 @@ pub fn encode_mesh_shard(scenes: &[MeshScene], frames: usize) -> Result<Vec<u8>>
     let f32b = |x: &[f32]| le_bytes(x, f32::to_le_bytes);
     let i32b = |x: &[i32]| le_bytes(x, i32::to_le_bytes);
     let i64b = |x: &[i64]| le_bytes(x, i64::to_le_bytes);
-    let buffers: Vec<(&str, Dtype, Vec<usize>, Vec<u8>)> = vec![
+    let buffers: Vec<TensorBytes<'_>> = vec![
         (
             "scene_object_offsets",
             Dtype::I64,
@@ -331,20 +330,7 @@ pub fn encode_mesh_shard(scenes: &[MeshScene], frames: usize) -> Result<Vec<u8>>
         ("friction", Dtype::F32, vec![o], f32b(&friction)),
         ("restitution", Dtype::F32, vec![o], f32b(&restitution)),
     ];
-    let views = buffers
-        .iter()
-        .map(|(name, dtype, shape, data)| {
-            TensorView::new(*dtype, shape.clone(), data)
-                .map(|t| (name.to_string(), t))
-                .map_err(|e| SimError::Invalid(format!("tensor {name}: {e}")))
-        })
-        .collect::<Result<Vec<_>>>()?;
-    let meta = HashMap::from([
-        ("format".to_string(), format!("{FORMAT}/{FORMAT_VERSION}")),
-        ("content".to_string(), MESH_CONTENT.to_string()),
-    ]);
-    safetensors::serialize(views, Some(meta))
-        .map_err(|e| SimError::Invalid(format!("safetensors: {e}")))
+    serialize_tensors(&buffers)
 }
 
 struct Shard<'a> {
