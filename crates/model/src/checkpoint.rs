@@ -23,17 +23,23 @@ pub const CARD_FILE: &str = "card.md";
 
 /// Reads and validates `config.json` of a checkpoint directory.
 pub fn read_config(dir: &Path) -> Result<ModelConfig, ModelError> {
+    let config: ModelConfig = parse_config(dir, "configuration")?;
+    config.validate()?;
+    Ok(config)
+}
+
+/// Parses `config.json` of a checkpoint directory as `T`; errors name the file and call it a
+/// valid `what` (e.g. "configuration").
+pub(crate) fn parse_config<T: serde::de::DeserializeOwned>(
+    dir: &Path,
+    what: &str,
+) -> Result<T, ModelError> {
     let path = dir.join(CONFIG_FILE);
     let text = std::fs::read_to_string(&path)
         .map_err(|e| ModelError::Checkpoint(format!("cannot read {}: {e}", path.display())))?;
-    let config: ModelConfig = serde_json::from_str(&text).map_err(|e| {
-        ModelError::Checkpoint(format!(
-            "{} is not a valid configuration: {e}",
-            path.display()
-        ))
-    })?;
-    config.validate()?;
-    Ok(config)
+    serde_json::from_str(&text).map_err(|e| {
+        ModelError::Checkpoint(format!("{} is not a valid {what}: {e}", path.display()))
+    })
 }
 
 pub(crate) fn read_weights(
@@ -59,10 +65,11 @@ pub(crate) fn read_weights(
     }
 }
 
-fn dir_name(dir: &Path) -> String {
+/// The model name a checkpoint directory gives: its last component, or `fallback`.
+pub(crate) fn dir_name(dir: &Path, fallback: &str) -> String {
     dir.file_name()
         .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "rigidformer".into())
+        .unwrap_or_else(|| fallback.into())
 }
 
 /// Loads a RigidFormer checkpoint; `trainable` keeps gradient tracking on the weights.
@@ -74,7 +81,7 @@ pub fn load_rigidformer(
     let config = read_config(dir)?;
     let weights = read_weights(dir, device)?;
     let store = ParamStore::loaded(weights, device, trainable);
-    RigidFormer::from_store(dir_name(dir), config, store, device)
+    RigidFormer::from_store(dir_name(dir, "rigidformer"), config, store, device)
 }
 
 /// Loads the checkpoint in `dir` for inference on `device`.

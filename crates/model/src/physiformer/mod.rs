@@ -29,7 +29,7 @@ use self::block::{AttentionKind, Block, modulate};
 use self::config::PhysiConfig;
 use self::inputs::{DenoiseItem, PassInputs, build};
 use crate::ModelError;
-use crate::checkpoint::{CONFIG_FILE, WEIGHTS_FILE};
+use crate::checkpoint::{CONFIG_FILE, WEIGHTS_FILE, dir_name, parse_config};
 use crate::layers::{Init, Linear, Mlp, Mode, ParamStore, RmsNorm};
 
 /// The PhysiFormer network (see the module docs). Thread-safe.
@@ -82,11 +82,7 @@ impl PhysiFormer {
         let config = read_physi_config(dir)?;
         let weights = crate::checkpoint::read_weights(dir, device)?;
         let store = ParamStore::loaded(weights, device, trainable);
-        let name = dir
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "physiformer".into());
-        PhysiFormer::from_store(name, config, store, device)
+        PhysiFormer::from_store(dir_name(dir, "physiformer"), config, store, device)
     }
 
     fn from_store(
@@ -259,15 +255,7 @@ impl PhysiFormer {
 
 /// Reads and validates a PhysiFormer `config.json` from a checkpoint directory.
 pub fn read_physi_config(dir: &Path) -> Result<PhysiConfig, ModelError> {
-    let path = dir.join(CONFIG_FILE);
-    let text = std::fs::read_to_string(&path)
-        .map_err(|e| ModelError::Checkpoint(format!("cannot read {}: {e}", path.display())))?;
-    let config: PhysiConfig = serde_json::from_str(&text).map_err(|e| {
-        ModelError::Checkpoint(format!(
-            "{} is not a valid PhysiFormer configuration: {e}",
-            path.display()
-        ))
-    })?;
+    let config: PhysiConfig = parse_config(dir, "PhysiFormer configuration")?;
     config.validate()?;
     Ok(config)
 }
