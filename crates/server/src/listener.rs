@@ -145,6 +145,8 @@ pub async fn serve(
             continue;
         };
         let _ = stream.set_nodelay(true);
+        // One clock from accept: the TLS handshake and the first request's headers share it.
+        let first_request = first_request.map(|t| tokio::time::Instant::now() + t);
         let conn = Conn {
             name,
             builder: builder.clone(),
@@ -162,7 +164,7 @@ pub async fn serve(
                 Some(acceptor) => {
                     let handshake = acceptor.accept(stream);
                     let r = match first_request {
-                        Some(t) => tokio::time::timeout(t, handshake).await.ok(),
+                        Some(by) => tokio::time::timeout_at(by, handshake).await.ok(),
                         None => Some(handshake.await),
                     };
                     match r {
@@ -192,7 +194,8 @@ struct Conn {
     name: &'static str,
     builder: Arc<Builder<TokioExecutor>>,
     router: Router,
-    first_request: Option<Duration>,
+    /// When the first request's headers must have arrived; `None` for no limit.
+    first_request: Option<tokio::time::Instant>,
     closed: IntCounterVec,
     open: IntGauge,
 }
@@ -221,7 +224,7 @@ impl Conn {
         let finished = match self.first_request {
             Some(t) => tokio::select! {
                 _ = conn.as_mut() => true,
-                _ = tokio::time::sleep(t) => false,
+                _ = tokio::time::sleep_until(t) => false,
             },
             None => false,
         };
