@@ -30,7 +30,7 @@ use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use dynaserve_api::json;
-use dynaserve_api::spec::{Frame, PredictSpec, RolloutSpec, Timing};
+use dynaserve_api::spec::{Frame, PredictSpec, Prediction, RolloutSpec, Timing};
 use futures::Stream;
 use serde::de::DeserializeOwned;
 use utoipa::OpenApi;
@@ -102,6 +102,66 @@ fn error_response(e: ApiError, rid: &str) -> Response {
     let mut r = e.into_response();
     set_header(r.headers_mut(), "x-request-id", rid);
     r
+}
+
+/// A JSON answer with `status` carrying the request id.
+fn json_response<T: serde::Serialize>(status: StatusCode, body: T, rid: &str) -> Response {
+    let mut r = (status, axum::Json(body)).into_response();
+    set_header(r.headers_mut(), "x-request-id", rid);
+    r
+}
+
+/// Adds the model and timing headers of a call that stepped scenes.
+fn timed(mut r: Response, model: &str, timing: &json::RequestTiming) -> Response {
+    set_header(r.headers_mut(), "x-dynaserve-model", model);
+    timing_headers(r.headers_mut(), timing);
+    r
+}
+
+/// Reads a JSON request (see [`read_json`]) and converts it; a failure of either is counted
+/// as a rejected `method` call and becomes the error response.
+async fn parse<J: DeserializeOwned, T, E: Into<ApiError>>(
+    engine: &Engine,
+    ctx: &RequestCtx,
+    method: &'static str,
+    body: Body,
+    convert: impl FnOnce(J) -> Result<T, E>,
+) -> Result<T, Response> {
+    read_json(engine, body)
+        .await
+        .and_then(|j| convert(j).map_err(Into::into))
+        .map_err(|e| error_response(engine.reject(ctx, method, e), &ctx.request_id))
+}
+
+/// Receives every frame of a stepping call, with the summed step timings (total: since
+/// `arrival`); the first error ends it.
+async fn collect_frames(
+    mut rx: tokio::sync::mpsc::Receiver<Result<Frame, ApiError>>,
+    arrival: std::time::Instant,
+) -> Result<(Vec<json::StepFrame>, json::RequestTiming), ApiError> {
+    let mut frames = Vec::new();
+    let mut timing = Timing::default();
+    while let Some(item) = rx.recv().await {
+        let f = item?;
+        if let Some(t) = &f.timing {
+            timing.add_step(t);
+        }
+        frames.push(f.to_json());
+    }
+    timing.total = arrival.elapsed();
+    Ok((frames, timing.to_json()))
+}
+
+/// The answer of a Predict call (whole scenes or from a session).
+fn prediction_response(r: Result<Prediction, ApiError>, rid: &str) -> Response {
+    match r {
+        Ok(out) => {
+            let body = out.to_json();
+            let (timing, model) = (body.timing, body.model.clone());
+            timed(json_response(StatusCode::OK, body, rid), &model, &timing)
+        }
+        Err(e) => error_response(e, rid),
+    }
 }
 
 fn timing_headers(headers: &mut HeaderMap, t: &json::RequestTiming) {
@@ -191,14 +251,18 @@ async fn rollout(State(s): State<AppState>, headers: HeaderMap, body: Body) -> R
     let ctx = ctx_of(&headers);
     let rid = ctx.request_id.clone();
     let arrival = ctx.arrival;
-    let req: json::RolloutRequest = match read_json(&s.engine, body).await {
-        Ok(r) => r,
-        Err(e) => return error_response(s.engine.reject(&ctx, "rollout", e), &rid),
-    };
-    let sse = req.stream || wants_sse(&headers);
-    let spec = match RolloutSpec::from_json(&req) {
-        Ok(r) => r,
-        Err(e) => return error_response(s.engine.reject(&ctx, "rollout", e.into()), &rid),
+    let parsed = parse(
+        &s.engine,
+        &ctx,
+        "rollout",
+        body,
+        |req: json::RolloutRequest| {
+            RolloutSpec::from_json(&req).map(|spec| (spec, req.stream || wants_sse(&headers)))
+        },
+    );
+    let (spec, sse) = match parsed.await {
+        Ok(p) => p,
+        Err(r) => return r,
     };
     let handle = match s.engine.start_rollout(spec, ctx).await {
         Ok(h) => h,
@@ -213,33 +277,17 @@ async fn rollout(State(s): State<AppState>, headers: HeaderMap, body: Body) -> R
         set_header(resp.headers_mut(), "x-dynaserve-model", &model);
         return resp;
     }
-    let mut frames = Vec::new();
-    let mut rx = handle.frames;
-    let mut timing = Timing::default();
-    while let Some(item) = rx.recv().await {
-        match item {
-            Ok(f) => {
-                if let Some(t) = &f.timing {
-                    timing.add_step(t);
-                }
-                frames.push(f.to_json());
-            }
-            Err(e) => return error_response(e, &rid),
-        }
-    }
-    timing.total = arrival.elapsed();
-    let timing = timing.to_json();
+    let (frames, timing) = match collect_frames(handle.frames, arrival).await {
+        Ok(f) => f,
+        Err(e) => return error_response(e, &rid),
+    };
     let body = json::RolloutResponse {
         model: model.clone(),
         request_id: rid.to_string(),
         frames,
         timing,
     };
-    let mut resp = axum::Json(body).into_response();
-    set_header(resp.headers_mut(), "x-request-id", &rid);
-    set_header(resp.headers_mut(), "x-dynaserve-model", &model);
-    timing_headers(resp.headers_mut(), &timing);
-    resp
+    timed(json_response(StatusCode::OK, body, &rid), &model, &timing)
 }
 
 fn sse_events(
@@ -316,27 +364,18 @@ fn sse_events(
 async fn predict(State(s): State<AppState>, headers: HeaderMap, body: Body) -> Response {
     let ctx = ctx_of(&headers);
     let rid = ctx.request_id.clone();
-    let req: json::PredictRequest = match read_json(&s.engine, body).await {
+    let parsed = parse(
+        &s.engine,
+        &ctx,
+        "predict",
+        body,
+        |req: json::PredictRequest| PredictSpec::from_json(&req),
+    );
+    let spec = match parsed.await {
         Ok(r) => r,
-        Err(e) => return error_response(s.engine.reject(&ctx, "predict", e), &rid),
+        Err(r) => return r,
     };
-    let spec = match PredictSpec::from_json(&req) {
-        Ok(r) => r,
-        Err(e) => return error_response(s.engine.reject(&ctx, "predict", e.into()), &rid),
-    };
-    match s.engine.predict(spec, ctx).await {
-        Ok(out) => {
-            let body = out.to_json();
-            let timing = body.timing;
-            let model = body.model.clone();
-            let mut resp = axum::Json(body).into_response();
-            set_header(resp.headers_mut(), "x-request-id", &rid);
-            set_header(resp.headers_mut(), "x-dynaserve-model", &model);
-            timing_headers(resp.headers_mut(), &timing);
-            resp
-        }
-        Err(e) => error_response(e, &rid),
-    }
+    prediction_response(s.engine.predict(spec, ctx).await, &rid)
 }
 
 /// Resident models and the server's limits for each.

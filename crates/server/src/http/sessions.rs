@@ -20,11 +20,13 @@ use axum::http::{HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post, put};
 use dynaserve_api::json;
-use dynaserve_api::spec::Timing;
 use dynaserve_api::spec::session::{CreateSessionSpec, SessionPredictSpec, SetStateSpec, StepSpec};
 use utoipa::OpenApi;
 
-use super::{AppState, ctx_of, error_response, read_json, set_header, timing_headers};
+use super::{
+    AppState, collect_frames, ctx_of, error_response, json_response as ok, parse,
+    prediction_response, set_header, timed,
+};
 
 /// The OpenAPI description of the session routes (merged into the HTTP API's document).
 #[derive(OpenApi)]
@@ -57,12 +59,6 @@ pub(super) fn routes() -> Router<AppState> {
         .route("/v1/sessions/{id}/predict", post(predict))
 }
 
-fn ok<T: serde::Serialize>(status: StatusCode, body: T, rid: &str) -> Response {
-    let mut r = (status, axum::Json(body)).into_response();
-    set_header(r.headers_mut(), "x-request-id", rid);
-    r
-}
-
 /// Create a session: the scene is validated and prepared once and kept with its state.
 #[utoipa::path(
     post,
@@ -77,13 +73,16 @@ fn ok<T: serde::Serialize>(status: StatusCode, body: T, rid: &str) -> Response {
 async fn create(State(s): State<AppState>, headers: HeaderMap, body: Body) -> Response {
     let ctx = ctx_of(&headers);
     let rid = ctx.request_id.clone();
-    let req: json::CreateSessionRequest = match read_json(&s.engine, body).await {
+    let parsed = parse(
+        &s.engine,
+        &ctx,
+        "create_session",
+        body,
+        |r: json::CreateSessionRequest| CreateSessionSpec::from_json(&r),
+    );
+    let spec = match parsed.await {
         Ok(r) => r,
-        Err(e) => return error_response(s.engine.reject(&ctx, "create_session", e), &rid),
-    };
-    let spec = match CreateSessionSpec::from_json(&req) {
-        Ok(r) => r,
-        Err(e) => return error_response(s.engine.reject(&ctx, "create_session", e.into()), &rid),
+        Err(r) => return r,
     };
     match s.engine.create_session(spec, ctx).await {
         Ok(info) => ok(StatusCode::CREATED, info.to_json(), &rid),
@@ -134,13 +133,16 @@ async fn set_state(
 ) -> Response {
     let ctx = ctx_of(&headers);
     let rid = ctx.request_id.clone();
-    let req: json::SetStateRequest = match read_json(&s.engine, body).await {
+    let parsed = parse(
+        &s.engine,
+        &ctx,
+        "set_state",
+        body,
+        |r: json::SetStateRequest| SetStateSpec::from_json(&id, &r),
+    );
+    let spec = match parsed.await {
         Ok(r) => r,
-        Err(e) => return error_response(s.engine.reject(&ctx, "set_state", e), &rid),
-    };
-    let spec = match SetStateSpec::from_json(&id, &req) {
-        Ok(r) => r,
-        Err(e) => return error_response(s.engine.reject(&ctx, "set_state", e.into()), &rid),
+        Err(r) => return r,
     };
     match s.engine.set_session_state(spec, ctx).await {
         Ok(v) => ok(StatusCode::OK, v.to_json(), &rid),
@@ -170,42 +172,31 @@ async fn step(
     let ctx = ctx_of(&headers);
     let rid = ctx.request_id.clone();
     let arrival = ctx.arrival;
-    let req: json::StepRequest = match read_json(&s.engine, body).await {
+    let parsed = parse(
+        &s.engine,
+        &ctx,
+        "session_step",
+        body,
+        |r: json::StepRequest| Ok::<_, dynaserve_api::FieldError>(StepSpec::from_json(&id, &r)),
+    );
+    let spec = match parsed.await {
         Ok(r) => r,
-        Err(e) => return error_response(s.engine.reject(&ctx, "session_step", e), &rid),
+        Err(r) => return r,
     };
-    let spec = StepSpec::from_json(&id, &req);
-    let mut handle = match s.engine.session_step(spec, ctx).await {
+    let handle = match s.engine.session_step(spec, ctx).await {
         Ok(h) => h,
         Err(e) => return error_response(e, &rid),
     };
-    let mut frames = Vec::new();
-    let mut timing = Timing::default();
-    while let Some(item) = handle.frames.recv().await {
-        match item {
-            Ok(f) => {
-                if let Some(t) = &f.timing {
-                    timing.add_step(t);
-                }
-                frames.push(f.to_json());
-            }
-            Err(e) => return error_response(e, &rid),
-        }
-    }
-    timing.total = arrival.elapsed();
-    let timing = timing.to_json();
-    let mut r = ok(
-        StatusCode::OK,
-        json::StepResponse {
-            session_id: id,
-            frames,
-            timing,
-        },
-        &rid,
-    );
-    set_header(r.headers_mut(), "x-dynaserve-model", &handle.model);
-    timing_headers(r.headers_mut(), &timing);
-    r
+    let (frames, timing) = match collect_frames(handle.frames, arrival).await {
+        Ok(f) => f,
+        Err(e) => return error_response(e, &rid),
+    };
+    let body = json::StepResponse {
+        session_id: id,
+        frames,
+        timing,
+    };
+    timed(ok(StatusCode::OK, body, &rid), &handle.model, &timing)
 }
 
 /// Copy the session's state under a new id (the prepared scene is shared).
@@ -250,28 +241,18 @@ async fn predict(
 ) -> Response {
     let ctx = ctx_of(&headers);
     let rid = ctx.request_id.clone();
-    let req: json::SessionPredictRequest = match read_json(&s.engine, body).await {
+    let parsed = parse(
+        &s.engine,
+        &ctx,
+        "session_predict",
+        body,
+        |r: json::SessionPredictRequest| SessionPredictSpec::from_json(&id, &r),
+    );
+    let spec = match parsed.await {
         Ok(r) => r,
-        Err(e) => return error_response(s.engine.reject(&ctx, "session_predict", e), &rid),
+        Err(r) => return r,
     };
-    let spec = match SessionPredictSpec::from_json(&id, &req) {
-        Ok(r) => r,
-        Err(e) => {
-            return error_response(s.engine.reject(&ctx, "session_predict", e.into()), &rid);
-        }
-    };
-    match s.engine.session_predict(spec, ctx).await {
-        Ok(out) => {
-            let body = out.to_json();
-            let timing = body.timing;
-            let model = body.model.clone();
-            let mut r = ok(StatusCode::OK, body, &rid);
-            set_header(r.headers_mut(), "x-dynaserve-model", &model);
-            timing_headers(r.headers_mut(), &timing);
-            r
-        }
-        Err(e) => error_response(e, &rid),
-    }
+    prediction_response(s.engine.session_predict(spec, ctx).await, &rid)
 }
 
 /// Delete the session.
