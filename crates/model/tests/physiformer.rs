@@ -2,6 +2,7 @@
 //! does not depend on its batch-mates or their flow times), gradients reaching every
 //! parameter, the sampler's frame-0 clamp and determinism, clear input errors, and a tiny
 //! overfit.
+mod common;
 
 use candle_core::{Device, Tensor};
 use candle_nn::Optimizer;
@@ -202,23 +203,7 @@ fn every_parameter_receives_a_gradient() {
     let loss = model.train_loss(&[&a, &b], &mut rng).unwrap();
     let grads = loss.loss.backward().unwrap();
     let data = model.varmap().data().lock().unwrap();
-    let mut missing = vec![];
-    for (name, var) in data.iter() {
-        let g = grads.get(var.as_tensor());
-        let norm = g
-            .map(|g| {
-                g.sqr()
-                    .unwrap()
-                    .sum_all()
-                    .unwrap()
-                    .to_scalar::<f32>()
-                    .unwrap()
-            })
-            .unwrap_or(0.0);
-        if !(norm > 0.0 && norm.is_finite()) {
-            missing.push(name.clone());
-        }
-    }
+    let missing = common::params_without_gradient(&grads, &data);
     assert!(missing.is_empty(), "no gradient for {missing:?}");
 }
 

@@ -62,23 +62,7 @@ fn every_parameter_receives_a_gradient() {
     let grads = out.loss.backward().unwrap();
     let vars = model.varmap().data().lock().unwrap().clone();
     assert!(vars.len() > 40);
-    let mut missing = Vec::new();
-    for (name, var) in &vars {
-        let norm = grads
-            .get(var.as_tensor())
-            .map(|g| {
-                g.sqr()
-                    .unwrap()
-                    .sum_all()
-                    .unwrap()
-                    .to_scalar::<f32>()
-                    .unwrap()
-            })
-            .unwrap_or(0.0);
-        if !(norm > 0.0 && norm.is_finite()) {
-            missing.push(name.clone());
-        }
-    }
+    let missing = common::params_without_gradient(&grads, &vars);
     assert!(
         missing.is_empty(),
         "parameters without gradient: {missing:?}"

@@ -104,3 +104,28 @@ pub fn max_pose_diff(a: &[Pose], b: &[Pose]) -> f32 {
         })
         .fold(0.0, f32::max)
 }
+
+/// Names of the parameters in `vars` whose gradient in `grads` is missing, zero or not finite
+/// (squared norm), in the order `vars` iterates.
+pub fn params_without_gradient(
+    grads: &candle_core::backprop::GradStore,
+    vars: &std::collections::HashMap<String, candle_core::Var>,
+) -> Vec<String> {
+    vars.iter()
+        .filter(|(_, var)| {
+            let norm = grads
+                .get(var.as_tensor())
+                .map(|g| {
+                    g.sqr()
+                        .unwrap()
+                        .sum_all()
+                        .unwrap()
+                        .to_scalar::<f32>()
+                        .unwrap()
+                })
+                .unwrap_or(0.0);
+            !(norm > 0.0 && norm.is_finite())
+        })
+        .map(|(name, _)| name.clone())
+        .collect()
+}
