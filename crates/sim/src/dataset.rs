@@ -514,20 +514,32 @@ pub(crate) fn serialize_tensors(buffers: &[TensorBytes<'_>]) -> Result<Vec<u8>> 
         .map_err(|e| SimError::Invalid(format!("safetensors: {e}")))
 }
 
-struct ShardTensors<'a> {
+/// A shard's tensors with checked accessors; errors name the shard file.
+pub(crate) struct ShardTensors<'a> {
     st: SafeTensors<'a>,
     path: &'a Path,
 }
 
 impl<'a> ShardTensors<'a> {
-    fn bad(&self, message: String) -> SimError {
+    /// Parses the safetensors bytes of the shard at `path`.
+    pub(crate) fn deserialize(bytes: &'a [u8], path: &'a Path) -> Result<Self> {
+        let st = SafeTensors::deserialize(bytes).map_err(|e| SimError::Shard {
+            path: path.to_path_buf(),
+            message: format!("not a safetensors file: {e}"),
+        })?;
+        Ok(Self { st, path })
+    }
+
+    /// A [`SimError::Shard`] naming this shard.
+    pub(crate) fn bad(&self, message: String) -> SimError {
         SimError::Shard {
             path: self.path.to_path_buf(),
             message,
         }
     }
 
-    fn get(&self, name: &str, dtype: Dtype, shape: &[usize]) -> Result<&'a [u8]> {
+    /// The tensor's bytes after checking its dtype and shape.
+    pub(crate) fn get(&self, name: &str, dtype: Dtype, shape: &[usize]) -> Result<&'a [u8]> {
         let t = self
             .st
             .tensor(name)
@@ -547,7 +559,8 @@ impl<'a> ShardTensors<'a> {
         Ok(t.data())
     }
 
-    fn f32s(&self, name: &str, shape: &[usize]) -> Result<Vec<f32>> {
+    /// A float tensor of the given shape, refusing non-finite values.
+    pub(crate) fn f32s(&self, name: &str, shape: &[usize]) -> Result<Vec<f32>> {
         let data = self.get(name, Dtype::F32, shape)?;
         let values: Vec<f32> = data
             .chunks_exact(4)
@@ -559,12 +572,43 @@ impl<'a> ShardTensors<'a> {
         Ok(values)
     }
 
-    fn i32s(&self, name: &str, shape: &[usize]) -> Result<Vec<i32>> {
+    /// An int32 tensor of the given shape.
+    pub(crate) fn i32s(&self, name: &str, shape: &[usize]) -> Result<Vec<i32>> {
         Ok(self
             .get(name, Dtype::I32, shape)?
             .chunks_exact(4)
             .map(|c| i32::from_le_bytes([c[0], c[1], c[2], c[3]]))
             .collect())
+    }
+
+    /// An int64 offsets tensor `[len]` (any length when `None`) that starts at 0 and never
+    /// decreases.
+    pub(crate) fn offsets(&self, name: &str, len: Option<usize>) -> Result<Vec<usize>> {
+        let len = match len {
+            Some(n) => n,
+            None => match self
+                .st
+                .tensor(name)
+                .map_err(|e| self.bad(format!("tensor {name}: {e}")))?
+                .shape()
+            {
+                [n] => *n,
+                other => {
+                    return Err(self.bad(format!(
+                        "tensor {name} has shape {other:?}, expected one dimension"
+                    )));
+                }
+            },
+        };
+        let v: Vec<i64> = self
+            .get(name, Dtype::I64, &[len])?
+            .chunks_exact(8)
+            .map(|c| i64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
+            .collect();
+        if v.first() != Some(&0) || v.windows(2).any(|w| w[1] < w[0]) {
+            return Err(self.bad(format!("{name} must start at 0 and not decrease")));
+        }
+        Ok(v.into_iter().map(|x| x as usize).collect())
     }
 }
 
@@ -576,32 +620,9 @@ pub fn decode_shard(
     points: usize,
     dt_frame: f32,
 ) -> Result<Vec<SceneRecord>> {
-    let st = SafeTensors::deserialize(bytes).map_err(|e| SimError::Shard {
-        path: path.to_path_buf(),
-        message: format!("not a safetensors file: {e}"),
-    })?;
-    let sh = ShardTensors { st, path };
-    let offsets_info = sh
-        .st
-        .tensor("scene_object_offsets")
-        .map_err(|e| sh.bad(format!("tensor scene_object_offsets: {e}")))?;
-    let s1 = match offsets_info.shape() {
-        [n] if *n >= 1 => *n,
-        other => {
-            return Err(sh.bad(format!(
-                "scene_object_offsets has shape {other:?}, expected [S + 1]"
-            )));
-        }
-    };
-    let offsets: Vec<i64> = sh
-        .get("scene_object_offsets", Dtype::I64, &[s1])?
-        .chunks_exact(8)
-        .map(|c| i64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
-        .collect();
-    if offsets[0] != 0 || offsets.windows(2).any(|w| w[1] < w[0]) {
-        return Err(sh.bad("scene_object_offsets must start at 0 and not decrease".into()));
-    }
-    let n = offsets[s1 - 1] as usize;
+    let sh = ShardTensors::deserialize(bytes, path)?;
+    let offsets = sh.offsets("scene_object_offsets", None)?;
+    let n = *offsets.last().unwrap_or(&0);
     let positions = sh.f32s("positions", &[n, frames, 3])?;
     let rotations = sh.f32s("rotations", &[n, frames, 4])?;
     let reference = sh.f32s("reference_points", &[n, points, 3])?;
@@ -634,7 +655,7 @@ pub fn decode_shard(
     Ok(offsets
         .windows(2)
         .map(|w| SceneRecord {
-            objects: (w[0] as usize..w[1] as usize).map(object).collect(),
+            objects: (w[0]..w[1]).map(object).collect(),
             dt_frame,
         })
         .collect())

@@ -19,11 +19,13 @@
 
 use std::path::Path;
 
-use safetensors::tensor::{Dtype, SafeTensors};
+use safetensors::tensor::Dtype;
 use serde::{Deserialize, Serialize};
 
 use super::record::{MeshMaterial, MeshObject, MeshScene};
-use crate::dataset::{FORMAT, FORMAT_VERSION, TensorBytes, TensorDoc, Units, serialize_tensors};
+use crate::dataset::{
+    FORMAT, FORMAT_VERSION, ShardTensors, TensorBytes, TensorDoc, Units, serialize_tensors,
+};
 use crate::{Result, SimError};
 
 /// The manifest's `content` value of a mesh dataset.
@@ -333,91 +335,6 @@ pub fn encode_mesh_shard(scenes: &[MeshScene], frames: usize) -> Result<Vec<u8>>
     serialize_tensors(&buffers)
 }
 
-struct Shard<'a> {
-    st: SafeTensors<'a>,
-    path: &'a Path,
-}
-
-impl<'a> Shard<'a> {
-    fn bad(&self, message: String) -> SimError {
-        SimError::Shard {
-            path: self.path.to_path_buf(),
-            message,
-        }
-    }
-
-    /// The tensor's bytes after checking its dtype and, where given, its dimensions (`None`
-    /// accepts any size along that axis); returns the bytes and the shape.
-    fn get(
-        &self,
-        name: &str,
-        dtype: Dtype,
-        shape: &[Option<usize>],
-    ) -> Result<(&'a [u8], Vec<usize>)> {
-        let t = self
-            .st
-            .tensor(name)
-            .map_err(|e| self.bad(format!("tensor {name}: {e}")))?;
-        if t.dtype() != dtype {
-            return Err(self.bad(format!(
-                "tensor {name} has dtype {:?}, expected {dtype:?}",
-                t.dtype()
-            )));
-        }
-        let ok = t.shape().len() == shape.len()
-            && t.shape()
-                .iter()
-                .zip(shape)
-                .all(|(a, b)| b.is_none_or(|b| *a == b));
-        if !ok {
-            return Err(self.bad(format!(
-                "tensor {name} has shape {:?}, expected {shape:?}",
-                t.shape()
-            )));
-        }
-        Ok((t.data(), t.shape().to_vec()))
-    }
-
-    fn f32s(&self, name: &str, shape: &[Option<usize>]) -> Result<Vec<f32>> {
-        let values: Vec<f32> = self
-            .get(name, Dtype::F32, shape)?
-            .0
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect();
-        if values.iter().any(|v| !v.is_finite()) {
-            return Err(self.bad(format!("tensor {name} holds non-finite values")));
-        }
-        Ok(values)
-    }
-
-    fn i32s(&self, name: &str, shape: &[Option<usize>]) -> Result<Vec<i32>> {
-        Ok(self
-            .get(name, Dtype::I32, shape)?
-            .0
-            .chunks_exact(4)
-            .map(|c| i32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect())
-    }
-
-    /// Offsets that start at 0, never decrease and end at `end` (when given).
-    fn offsets(&self, name: &str, len: Option<usize>, end: Option<usize>) -> Result<Vec<usize>> {
-        let (data, _) = self.get(name, Dtype::I64, &[len])?;
-        let v: Vec<i64> = data
-            .chunks_exact(8)
-            .map(|c| i64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
-            .collect();
-        if v.first() != Some(&0) || v.windows(2).any(|w| w[1] < w[0]) {
-            return Err(self.bad(format!("{name} must start at 0 and not decrease")));
-        }
-        let last = *v.last().unwrap_or(&0) as usize;
-        if end.is_some_and(|e| e != last) {
-            return Err(self.bad(format!("{name} ends at {last}, expected {end:?}")));
-        }
-        Ok(v.into_iter().map(|x| x as usize).collect())
-    }
-}
-
 /// Decodes one mesh shard against the manifest's frame count and frame interval.
 pub fn decode_mesh_shard(
     bytes: &[u8],
@@ -425,26 +342,22 @@ pub fn decode_mesh_shard(
     frames: usize,
     dt_frame: f32,
 ) -> Result<Vec<MeshScene>> {
-    let st = SafeTensors::deserialize(bytes).map_err(|e| SimError::Shard {
-        path: path.to_path_buf(),
-        message: format!("not a safetensors file: {e}"),
-    })?;
-    let sh = Shard { st, path };
-    let scene_off = sh.offsets("scene_object_offsets", None, None)?;
+    let sh = ShardTensors::deserialize(bytes, path)?;
+    let scene_off = sh.offsets("scene_object_offsets", None)?;
     let o = *scene_off.last().unwrap_or(&0);
-    let vert_off = sh.offsets("vertex_offsets", Some(o + 1), None)?;
+    let vert_off = sh.offsets("vertex_offsets", Some(o + 1))?;
     let v = *vert_off.last().unwrap_or(&0);
-    let face_off = sh.offsets("face_offsets", Some(o + 1), None)?;
+    let face_off = sh.offsets("face_offsets", Some(o + 1))?;
     let f = *face_off.last().unwrap_or(&0);
-    let positions = sh.f32s("vertex_positions", &[Some(v), Some(frames), Some(3)])?;
-    let velocities = sh.f32s("initial_vertex_velocities", &[Some(v), Some(3)])?;
-    let faces = sh.i32s("faces", &[Some(f), Some(3)])?;
-    let material = sh.i32s("material", &[Some(o)])?;
-    let template = sh.i32s("template_id", &[Some(o)])?;
-    let scale = sh.f32s("scale", &[Some(o)])?;
-    let mass = sh.f32s("mass", &[Some(o)])?;
-    let friction = sh.f32s("friction", &[Some(o)])?;
-    let restitution = sh.f32s("restitution", &[Some(o)])?;
+    let positions = sh.f32s("vertex_positions", &[v, frames, 3])?;
+    let velocities = sh.f32s("initial_vertex_velocities", &[v, 3])?;
+    let faces = sh.i32s("faces", &[f, 3])?;
+    let material = sh.i32s("material", &[o])?;
+    let template = sh.i32s("template_id", &[o])?;
+    let scale = sh.f32s("scale", &[o])?;
+    let mass = sh.f32s("mass", &[o])?;
+    let friction = sh.f32s("friction", &[o])?;
+    let restitution = sh.f32s("restitution", &[o])?;
     let mut scenes = Vec::with_capacity(scene_off.len().saturating_sub(1));
     for w in scene_off.windows(2) {
         let (v0, v1) = (vert_off[w[0]], vert_off[w[1]]);
