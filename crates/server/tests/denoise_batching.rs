@@ -78,7 +78,7 @@ async fn requests_at_different_denoising_steps_share_passes_and_keep_their_resul
     // A starts; B starts once A has finished three denoising steps.
     let (started_tx, started_rx) = tokio::sync::oneshot::channel();
     let sa = scheduler.clone();
-    let (aa, ja) = (a.clone(), job(&a, 3, 11));
+    let ja = job(&a, 3, 11);
     let task_a = tokio::spawn(async move {
         let mut tx = Some(started_tx);
         let mut shared = 0;
@@ -94,7 +94,6 @@ async fn requests_at_different_denoising_steps_share_passes_and_keep_their_resul
         })
         .await
         .unwrap();
-        let _ = aa;
         (out, shared)
     });
     started_rx.await.unwrap();

@@ -18,6 +18,9 @@
 //!
 //! A scene's result does not depend on its pass-mates: the model computes every scene of a
 //! pass independently (tested end to end).
+//!
+//! [`denoise`] is the PhysiFormer family (one denoising evaluation per job) with the loop that
+//! drives a sample through it; no server route uses it yet.
 
 pub mod denoise;
 mod family;
