@@ -1,0 +1,90 @@
+//! The Python client (`clients/python`) against a real server on 127.0.0.1 with the real
+//! checkpoint: the test makes a virtual environment under `target/`, installs the package
+//! with pip (numpy comes with it), runs the package's own tests and the push planner example
+//! with a small budget.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::*;
+use tokio::process::Command;
+
+async fn run(cmd: &mut Command, what: &str) -> String {
+    let out = cmd.output().await.unwrap_or_else(|e| panic!("{what}: {e}"));
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(out.status.success(), "{what} failed:\n{text}");
+    text
+}
+
+/// A virtual environment with the client installed; its python.
+async fn venv(root: &Path) -> PathBuf {
+    let dir = root.join("target").join("python-client-venv");
+    let python = dir.join("bin").join("python");
+    if !python.is_file() {
+        run(
+            Command::new("python3")
+                .args(["-m", "venv", "--system-site-packages"])
+                .arg(&dir),
+            "python3 -m venv",
+        )
+        .await;
+    }
+    run(
+        Command::new(&python)
+            .args([
+                "-m",
+                "pip",
+                "install",
+                "--quiet",
+                "--disable-pip-version-check",
+            ])
+            .arg(root.join("clients").join("python")),
+        "pip install ./clients/python",
+    )
+    .await;
+    python
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn python_client_tests_and_push_planner_run_against_a_real_server() {
+    let m = test_model();
+    let server = start(&m.dir, |_| {}).await;
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let python = venv(root).await;
+    let url = format!("http://{}", server.http_addr);
+    let tests = run(
+        Command::new(&python)
+            .args(["-m", "unittest", "discover", "-v", "-s"])
+            .arg(root.join("clients/python/tests"))
+            .env("DYNASERVE_HTTP", &url),
+        "python client tests",
+    )
+    .await;
+    println!("{tests}");
+    assert!(tests.contains("OK"), "{tests}");
+    let planner = run(
+        Command::new(&python)
+            .arg(root.join("clients/python/examples/push_planner.py"))
+            .args([
+                "--server",
+                &url,
+                "--rounds",
+                "2",
+                "--samples",
+                "16",
+                "--iterations",
+                "1",
+            ]),
+        "push planner",
+    )
+    .await;
+    println!("{planner}");
+    assert!(planner.contains("final distance to the goal"), "{planner}");
+    server.shutdown();
+    server.wait().await.unwrap();
+}
