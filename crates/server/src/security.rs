@@ -258,9 +258,11 @@ impl Auth {
         let Some(given) = headers
             .get(header::AUTHORIZATION)
             .and_then(|v| v.to_str().ok())
+            // The scheme name is case-insensitive (RFC 7235).
             .and_then(|v| {
-                v.strip_prefix("Bearer ")
-                    .or_else(|| v.strip_prefix("bearer "))
+                v.split_once(' ')
+                    .filter(|(scheme, _)| scheme.eq_ignore_ascii_case("bearer"))
+                    .map(|(_, token)| token)
             })
             .map(str::trim)
         else {
@@ -399,6 +401,7 @@ mod tests {
         assert!(!a.accepts(&with("Bearer 0123456789abcde")));
         assert!(!a.accepts(&with("Bearer 0123456789abcdefg")));
         assert!(!a.accepts(&with("Basic 0123456789abcdef")));
+        assert!(a.accepts(&with("BEARER 0123456789abcdef")));
         assert!(!a.accepts(&HeaderMap::new()));
         assert!(a.is_open("/health") && !a.is_open("/metrics") && !a.is_open("/v1/rollout"));
         // The viewer's page and assets load without a token; its data calls still need one.
