@@ -23,6 +23,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use safetensors::tensor::{Dtype, SafeTensors, TensorView};
+use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
 use crate::generators::GenerateOptions;
@@ -331,11 +332,65 @@ impl Manifest {
     }
 }
 
-fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> SimError + '_ {
+pub(crate) fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> SimError + '_ {
     move |source| SimError::Io {
         path: path.to_path_buf(),
         source,
     }
+}
+
+/// Reads `dir/manifest.json` as JSON; returns its path and value.
+pub(crate) fn read_manifest_json(dir: &Path) -> Result<(PathBuf, serde_json::Value)> {
+    let path = dir.join("manifest.json");
+    let text = std::fs::read_to_string(&path).map_err(io_err(&path))?;
+    let value = serde_json::from_str(&text).map_err(|e| SimError::Manifest {
+        path: path.clone(),
+        message: e.to_string(),
+    })?;
+    Ok((path, value))
+}
+
+/// Parses a manifest read by [`read_manifest_json`] into its type; errors name `path`.
+pub(crate) fn parse_manifest<M: DeserializeOwned>(
+    path: &Path,
+    value: serde_json::Value,
+) -> Result<M> {
+    serde_json::from_value(value).map_err(|e| SimError::Manifest {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
+}
+
+/// Entry `k` of a manifest's shard list, or an error naming how many there are.
+pub(crate) fn shard_entry<S>(shards: &[S], k: usize) -> Result<&S> {
+    shards.get(k).ok_or_else(|| {
+        SimError::Invalid(format!(
+            "shard {k} out of range (the split has {})",
+            shards.len()
+        ))
+    })
+}
+
+/// Scene `i` of a split whose shards hold the scenes `first..first + count` given by `ranges`
+/// (in shard order): finds its shard, reads it with `read_shard` and takes the scene out.
+pub(crate) fn scene_in_shards<T>(
+    ranges: impl IntoIterator<Item = (usize, usize)>,
+    i: usize,
+    scenes: usize,
+    read_shard: impl FnOnce(usize) -> Result<Vec<T>>,
+) -> Result<T> {
+    let (k, first) = ranges
+        .into_iter()
+        .enumerate()
+        .find(|(_, (first, count))| i >= *first && i < first + count)
+        .map(|(k, (first, _))| (k, first))
+        .ok_or_else(|| {
+            SimError::Invalid(format!("scene {i} out of range (the split has {scenes})"))
+        })?;
+    read_shard(k)?
+        .into_iter()
+        .nth(i - first)
+        .ok_or_else(|| SimError::Invalid(format!("scene {i} missing from its shard")))
 }
 
 /// Creates `dir` if needed. A directory that already holds a manifest is refused unless
@@ -672,9 +727,8 @@ impl DatasetReader {
     /// Opens a split directory and validates its manifest (format, version, counts).
     pub fn open(dir: impl AsRef<Path>) -> Result<Self> {
         let dir = dir.as_ref().to_path_buf();
-        let path = dir.join("manifest.json");
-        let text = std::fs::read_to_string(&path).map_err(io_err(&path))?;
-        if crate::mesh_scenes::is_mesh_dataset(&dir)? {
+        let (path, value) = read_manifest_json(&dir)?;
+        if crate::mesh_scenes::reader::is_mesh_manifest(&value) {
             return Err(SimError::Manifest {
                 path,
                 message: "a mesh dataset (\"content\": \"mesh\"); read it with \
@@ -682,10 +736,7 @@ impl DatasetReader {
                     .into(),
             });
         }
-        let manifest: Manifest = serde_json::from_str(&text).map_err(|e| SimError::Manifest {
-            path: path.clone(),
-            message: e.to_string(),
-        })?;
+        let manifest: Manifest = parse_manifest(&path, value)?;
         manifest.validate(&path)?;
         Ok(Self { dir, manifest })
     }
@@ -712,12 +763,7 @@ impl DatasetReader {
 
     /// Reads and decodes shard `k`, checking it against the manifest.
     pub fn read_shard(&self, k: usize) -> Result<Vec<SceneRecord>> {
-        let info = self.manifest.shards.get(k).ok_or_else(|| {
-            SimError::Invalid(format!(
-                "shard {k} out of range (the split has {})",
-                self.manifest.shards.len()
-            ))
-        })?;
+        let info = shard_entry(&self.manifest.shards, k)?;
         let path = self.dir.join(&info.file);
         let bytes = std::fs::read(&path).map_err(io_err(&path))?;
         let m = &self.manifest;
@@ -740,45 +786,45 @@ impl DatasetReader {
     /// Streams all scenes in order, one shard in memory at a time. After an error the iterator
     /// ends.
     pub fn iter(&self) -> SceneIter<'_> {
-        SceneIter {
-            reader: self,
+        SceneIter::new(self.manifest.shards.len(), |k| self.read_shard(k))
+    }
+
+    /// Scene `i` (reads its whole shard).
+    pub fn get(&self, i: usize) -> Result<SceneRecord> {
+        let ranges = self
+            .manifest
+            .shards
+            .iter()
+            .map(|s| (s.first_scene, s.scenes));
+        scene_in_shards(ranges, i, self.len(), |k| self.read_shard(k))
+    }
+}
+
+/// Iterator over the scenes (of type `T`) of a split, one shard in memory at a time (see
+/// [`DatasetReader::iter`]); after an error it ends.
+pub struct SceneIter<'a, T = SceneRecord> {
+    read_shard: Box<dyn Fn(usize) -> Result<Vec<T>> + 'a>,
+    shards: usize,
+    next_shard: usize,
+    current: std::vec::IntoIter<T>,
+    failed: bool,
+}
+
+impl<'a, T> SceneIter<'a, T> {
+    /// Streams the scenes of `shards` shards, reading shard `k` with `read_shard(k)`.
+    pub(crate) fn new(shards: usize, read_shard: impl Fn(usize) -> Result<Vec<T>> + 'a) -> Self {
+        Self {
+            read_shard: Box::new(read_shard),
+            shards,
             next_shard: 0,
             current: Vec::new().into_iter(),
             failed: false,
         }
     }
-
-    /// Scene `i` (reads its whole shard).
-    pub fn get(&self, i: usize) -> Result<SceneRecord> {
-        let k = self
-            .manifest
-            .shards
-            .iter()
-            .position(|s| i >= s.first_scene && i < s.first_scene + s.scenes)
-            .ok_or_else(|| {
-                SimError::Invalid(format!(
-                    "scene {i} out of range (the split has {})",
-                    self.len()
-                ))
-            })?;
-        let first = self.manifest.shards[k].first_scene;
-        self.read_shard(k)?
-            .into_iter()
-            .nth(i - first)
-            .ok_or_else(|| SimError::Invalid(format!("scene {i} missing from its shard")))
-    }
 }
 
-/// Iterator over the scenes of a split (see [`DatasetReader::iter`]).
-pub struct SceneIter<'a> {
-    reader: &'a DatasetReader,
-    next_shard: usize,
-    current: std::vec::IntoIter<SceneRecord>,
-    failed: bool,
-}
-
-impl Iterator for SceneIter<'_> {
-    type Item = Result<SceneRecord>;
+impl<T> Iterator for SceneIter<'_, T> {
+    type Item = Result<T>;
 
     fn next(&mut self) -> Option<Self::Item> {
         if self.failed {
@@ -788,10 +834,10 @@ impl Iterator for SceneIter<'_> {
             if let Some(s) = self.current.next() {
                 return Some(Ok(s));
             }
-            if self.next_shard >= self.reader.manifest.shards.len() {
+            if self.next_shard >= self.shards {
                 return None;
             }
-            match self.reader.read_shard(self.next_shard) {
+            match (self.read_shard)(self.next_shard) {
                 Ok(scenes) => {
                     self.next_shard += 1;
                     self.current = scenes.into_iter();

@@ -5,25 +5,20 @@ use std::path::{Path, PathBuf};
 
 use super::format::{MESH_CONTENT, MeshManifest, decode_mesh_shard};
 use super::record::MeshScene;
+use crate::dataset::{
+    SceneIter, io_err, parse_manifest, read_manifest_json, scene_in_shards, shard_entry,
+};
 use crate::{Result, SimError};
-
-fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> SimError + '_ {
-    move |source| SimError::Io {
-        path: path.to_path_buf(),
-        source,
-    }
-}
 
 /// Whether the split directory `dir` holds a mesh dataset (its manifest's `content` is
 /// `mesh`). Errors when the manifest cannot be read or is not JSON.
 pub fn is_mesh_dataset(dir: impl AsRef<Path>) -> Result<bool> {
-    let path = dir.as_ref().join("manifest.json");
-    let text = std::fs::read_to_string(&path).map_err(io_err(&path))?;
-    let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| SimError::Manifest {
-        path: path.clone(),
-        message: e.to_string(),
-    })?;
-    Ok(v.get("content").and_then(|c| c.as_str()) == Some(MESH_CONTENT))
+    Ok(is_mesh_manifest(&read_manifest_json(dir.as_ref())?.1))
+}
+
+/// Whether a manifest (as JSON) is that of a mesh dataset: its `content` is `mesh`.
+pub(crate) fn is_mesh_manifest(manifest: &serde_json::Value) -> bool {
+    manifest.get("content").and_then(|c| c.as_str()) == Some(MESH_CONTENT)
 }
 
 /// Reads a mesh split directory: the manifest up front, shards on demand.
@@ -51,8 +46,8 @@ impl MeshDatasetReader {
     /// A rigid-pose dataset is refused with an error that says so.
     pub fn open(dir: impl AsRef<Path>) -> Result<Self> {
         let dir = dir.as_ref().to_path_buf();
-        let path = dir.join("manifest.json");
-        if !is_mesh_dataset(&dir)? {
+        let (path, value) = read_manifest_json(&dir)?;
+        if !is_mesh_manifest(&value) {
             return Err(SimError::Manifest {
                 path,
                 message: "not a mesh dataset (no \"content\": \"mesh\"); read rigid-pose \
@@ -60,12 +55,7 @@ impl MeshDatasetReader {
                     .into(),
             });
         }
-        let text = std::fs::read_to_string(&path).map_err(io_err(&path))?;
-        let manifest: MeshManifest =
-            serde_json::from_str(&text).map_err(|e| SimError::Manifest {
-                path: path.clone(),
-                message: e.to_string(),
-            })?;
+        let manifest: MeshManifest = parse_manifest(&path, value)?;
         manifest.validate(&path)?;
         Ok(Self { dir, manifest })
     }
@@ -92,12 +82,7 @@ impl MeshDatasetReader {
 
     /// Reads and decodes shard `k`, checking its counts against the manifest.
     pub fn read_shard(&self, k: usize) -> Result<Vec<MeshScene>> {
-        let info = self.manifest.shards.get(k).ok_or_else(|| {
-            SimError::Invalid(format!(
-                "shard {k} out of range (the split has {})",
-                self.manifest.shards.len()
-            ))
-        })?;
+        let info = shard_entry(&self.manifest.shards, k)?;
         let path = self.dir.join(&info.file);
         let bytes = std::fs::read(&path).map_err(io_err(&path))?;
         let m = &self.manifest;
@@ -122,22 +107,12 @@ impl MeshDatasetReader {
 
     /// Scene `i` (reads its whole shard).
     pub fn get(&self, i: usize) -> Result<MeshScene> {
-        let k = self
+        let ranges = self
             .manifest
             .shards
             .iter()
-            .position(|s| i >= s.first_scene && i < s.first_scene + s.scenes)
-            .ok_or_else(|| {
-                SimError::Invalid(format!(
-                    "scene {i} out of range (the split has {})",
-                    self.len()
-                ))
-            })?;
-        let first = self.manifest.shards[k].first_scene;
-        self.read_shard(k)?
-            .into_iter()
-            .nth(i - first)
-            .ok_or_else(|| SimError::Invalid(format!("scene {i} missing from its shard")))
+            .map(|s| (s.first_scene, s.scenes));
+        scene_in_shards(ranges, i, self.len(), |k| self.read_shard(k))
     }
 
     /// Every scene in order (all shards in memory).
@@ -151,20 +126,7 @@ impl MeshDatasetReader {
 
     /// Streams the scenes in order, one shard in memory at a time; after an error the iterator
     /// ends.
-    pub fn iter(&self) -> impl Iterator<Item = Result<MeshScene>> + '_ {
-        let mut failed = false;
-        (0..self.manifest.shards.len())
-            .map_while(move |k| {
-                if failed {
-                    return None;
-                }
-                let r = self.read_shard(k);
-                failed = r.is_err();
-                Some(r)
-            })
-            .flat_map(|r| match r {
-                Ok(scenes) => scenes.into_iter().map(Ok).collect::<Vec<_>>(),
-                Err(e) => vec![Err(e)],
-            })
+    pub fn iter(&self) -> SceneIter<'_, MeshScene> {
+        SceneIter::new(self.manifest.shards.len(), |k| self.read_shard(k))
     }
 }
