@@ -241,6 +241,38 @@ pub fn router(viewer: Viewer) -> Router {
 mod tests {
     use super::*;
 
+    /// Every file of the page directory is served (a new file missing from [`ASSETS`] would
+    /// be a silent 404), except the vendoring inputs, which the page never loads.
+    #[test]
+    fn every_page_file_is_embedded() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("viewer");
+        let not_served = [
+            "vendor/update.sh",
+            "vendor/three-entry.js",
+            "vendor/three.VERSION",
+        ];
+        let mut on_disk = Vec::new();
+        for dir in [root.clone(), root.join("vendor")] {
+            for e in std::fs::read_dir(&dir).unwrap() {
+                let path = e.unwrap().path();
+                if path.is_file() {
+                    let rel = path
+                        .strip_prefix(&root)
+                        .unwrap()
+                        .to_string_lossy()
+                        .into_owned();
+                    if !not_served.contains(&rel.as_str()) {
+                        on_disk.push(rel);
+                    }
+                }
+            }
+        }
+        on_disk.sort();
+        let mut served: Vec<String> = ASSETS.iter().map(|a| a.path.to_string()).collect();
+        served.sort();
+        assert_eq!(on_disk, served);
+    }
+
     #[test]
     fn every_embedded_example_is_offered_collision_first() {
         let v = Viewer::builtin();
