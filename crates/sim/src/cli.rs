@@ -188,6 +188,31 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
     }
 }
 
+/// The worker pool of `--threads` (all cores when not given); 0 threads is an error.
+pub(crate) fn worker_pool(threads: Option<usize>) -> anyhow::Result<rayon::ThreadPool> {
+    let mut pool = rayon::ThreadPoolBuilder::new();
+    if let Some(t) = threads {
+        if t == 0 {
+            bail!("--threads must be at least 1");
+        }
+        pool = pool.num_threads(t);
+    }
+    pool.build().context("starting worker threads")
+}
+
+/// A progress bar over the `scenes` scenes of a generation.
+pub(crate) fn scene_progress(scenes: usize) -> anyhow::Result<ProgressBar> {
+    let bar = ProgressBar::new(scenes as u64);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{spinner} {elapsed_precise} [{bar:40}] {pos}/{len} scenes ({per_sec}, eta {eta})",
+        )
+        .context("progress bar template")?
+        .progress_chars("=> "),
+    );
+    Ok(bar)
+}
+
 fn run_generate(generator: Generator, a: &GenerateArgs) -> anyhow::Result<()> {
     if a.scenes == 0 {
         bail!("--scenes must be at least 1");
@@ -203,22 +228,8 @@ fn run_generate(generator: Generator, a: &GenerateArgs) -> anyhow::Result<()> {
         }
         opts.scenes_per_shard = k;
     }
-    let mut pool = rayon::ThreadPoolBuilder::new();
-    if let Some(t) = a.threads {
-        if t == 0 {
-            bail!("--threads must be at least 1");
-        }
-        pool = pool.num_threads(t);
-    }
-    let pool = pool.build().context("starting worker threads")?;
-    let bar = ProgressBar::new(a.scenes as u64);
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{spinner} {elapsed_precise} [{bar:40}] {pos}/{len} scenes ({per_sec}, eta {eta})",
-        )
-        .context("progress bar template")?
-        .progress_chars("=> "),
-    );
+    let pool = worker_pool(a.threads)?;
+    let bar = scene_progress(a.scenes)?;
     let start = Instant::now();
     let summary = pool
         .install(|| generate_dataset(&opts, &a.out, a.overwrite, &|| bar.inc(1)))

@@ -5,14 +5,13 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
 
 use super::preview::write_mesh_preview;
 use super::reader::MeshDatasetReader;
 use super::sets::MeshSet;
 use super::stats::inspect_mesh;
 use super::writer::{MeshGenerateOptions, generate_mesh_dataset};
-use crate::cli::Split;
+use crate::cli::{Split, scene_progress, worker_pool};
 
 /// Options of the mesh set generators.
 #[derive(Args, Debug, Clone)]
@@ -50,22 +49,8 @@ pub fn run_generate(set: MeshSet, a: &MeshGenerateArgs) -> anyhow::Result<()> {
     }
     let mut opts = MeshGenerateOptions::new(set, a.seed, a.split.name(), a.scenes);
     opts.scenes_per_shard = a.scenes_per_shard;
-    let mut pool = rayon::ThreadPoolBuilder::new();
-    if let Some(t) = a.threads {
-        if t == 0 {
-            bail!("--threads must be at least 1");
-        }
-        pool = pool.num_threads(t);
-    }
-    let pool = pool.build().context("starting worker threads")?;
-    let bar = ProgressBar::new(a.scenes as u64);
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{spinner} {elapsed_precise} [{bar:40}] {pos}/{len} scenes ({per_sec}, eta {eta})",
-        )
-        .context("progress bar template")?
-        .progress_chars("=> "),
-    );
+    let pool = worker_pool(a.threads)?;
+    let bar = scene_progress(a.scenes)?;
     let start = Instant::now();
     let cpu0 = cpu_seconds();
     let summary = pool
