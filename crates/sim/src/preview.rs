@@ -5,6 +5,7 @@
 
 use std::path::Path;
 
+use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use crate::dataset::SceneRecord;
@@ -23,7 +24,42 @@ fn range(values: impl Iterator<Item = f32>, pad: f32) -> (f32, f32) {
     (lo - pad * span, hi + pad * span)
 }
 
-type DrawResult = std::result::Result<(), String>;
+/// Outcome of drawing a figure; the error is plotters' message.
+pub(crate) type DrawResult = std::result::Result<(), String>;
+
+/// A white canvas of `size` pixels drawing into the PNG `out`, with `title` on top when `text`.
+pub(crate) fn canvas<'a>(
+    out: &'a Path,
+    size: (u32, u32),
+    title: &str,
+    text: bool,
+) -> std::result::Result<DrawingArea<BitMapBackend<'a>, Shift>, String> {
+    let root = BitMapBackend::new(out, size).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| e.to_string())?;
+    if text {
+        root.titled(title, ("sans-serif", 22))
+            .map_err(|e| e.to_string())
+    } else {
+        Ok(root)
+    }
+}
+
+/// Runs `draw(true)` (with text) and, when that fails (no usable font), `draw(false)`; returns
+/// whether text was drawn, or an error giving both failures.
+pub(crate) fn draw_with_text_fallback(
+    out: &Path,
+    draw: impl Fn(bool) -> DrawResult,
+) -> Result<bool> {
+    match draw(true) {
+        Ok(()) => Ok(true),
+        Err(first) => draw(false).map(|_| false).map_err(|e| {
+            SimError::Invalid(format!(
+                "cannot draw {}: {e} (with text: {first})",
+                out.display()
+            ))
+        }),
+    }
+}
 
 /// Draws a panel's axes: labelled with a light mesh when `text`, bare otherwise (fonts
 /// unavailable).
@@ -50,14 +86,7 @@ fn draw_axes(
 }
 
 fn draw(scenes: &[(usize, SceneRecord)], title: &str, out: &Path, text: bool) -> DrawResult {
-    let root = BitMapBackend::new(out, (1400, 640)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| e.to_string())?;
-    let root = if text {
-        root.titled(title, ("sans-serif", 22))
-            .map_err(|e| e.to_string())?
-    } else {
-        root
-    };
+    let root = canvas(out, (1400, 640), title, text)?;
     let (left, right) = root.split_horizontally(640);
     let objects = || scenes.iter().flat_map(|(_, s)| s.objects.iter());
     let (x0, x1) = range(
@@ -149,13 +178,5 @@ pub fn write_preview(scenes: &[(usize, SceneRecord)], title: &str, out: &Path) -
     if scenes.is_empty() {
         return Err(SimError::Invalid("no scene to preview".into()));
     }
-    match draw(scenes, title, out, true) {
-        Ok(()) => Ok(true),
-        Err(first) => draw(scenes, title, out, false).map(|_| false).map_err(|e| {
-            SimError::Invalid(format!(
-                "cannot draw {}: {e} (with text: {first})",
-                out.display()
-            ))
-        }),
-    }
+    draw_with_text_fallback(out, |text| draw(scenes, title, out, text))
 }

@@ -1,7 +1,8 @@
 //! `dynaserve sim preview` on a mesh split: the scene seen from the side inside its box
 //! (vertex-mean paths, outlines at the first and last frame), and one object's wireframe at six
-//! frames (five evenly spaced and the most deformed one), each moved by its best rigid fit onto frame 0 and drawn over the frame-0 shape
-//! (grey), so that what differs is deformation; each panel gives the RMS distance left.
+//! frames (five evenly spaced and the most deformed one), each moved by its best rigid fit onto
+//! frame 0 and drawn over the frame-0 shape (grey), so that what differs is deformation; each
+//! panel gives the RMS distance left.
 //!
 //! The object drawn is the one whose edges stretch most (an elastic one when there is any).
 //! Text needs a system font; without one the figure is drawn without text.
@@ -13,10 +14,10 @@ use plotters::prelude::*;
 
 use super::record::MeshScene;
 use super::stats::{max_edge_strain, rigid_fit_to_first_frame, vertex_mean};
+use crate::preview::{DrawResult, canvas, draw_with_text_fallback};
 use crate::{Result, SimError};
 
 type Chart<'a> = ChartContext<'a, BitMapBackend<'a>, Cartesian2d<RangedCoordf32, RangedCoordf32>>;
-type DrawResult = std::result::Result<(), String>;
 
 /// Draws `object`'s edges (x, z) with its vertices at `xs` (indexed from the object's first
 /// vertex), shifted by `-shift`.
@@ -74,14 +75,7 @@ fn draw(
     out: &Path,
     text: bool,
 ) -> DrawResult {
-    let root = BitMapBackend::new(out, (1500, 760)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| e.to_string())?;
-    let root = if text {
-        root.titled(title, ("sans-serif", 22))
-            .map_err(|e| e.to_string())?
-    } else {
-        root
-    };
+    let root = canvas(out, (1500, 760), title, text)?;
     let (left, right) = root.split_horizontally(620);
     let last = scene.frames - 1;
     let mut side = ChartBuilder::on(&left);
@@ -180,15 +174,7 @@ pub fn write_mesh_preview(
         .map(|i| (i, max_edge_strain(scene, i)))
         .fold((0, -1.0), |best, x| if x.1 > best.1 { x } else { best })
         .0;
-    match draw(scene, object, bounds, title, out, true) {
-        Ok(()) => Ok((object, true)),
-        Err(first) => draw(scene, object, bounds, title, out, false)
-            .map(|_| (object, false))
-            .map_err(|e| {
-                SimError::Invalid(format!(
-                    "cannot draw {}: {e} (with text: {first})",
-                    out.display()
-                ))
-            }),
-    }
+    let with_text =
+        draw_with_text_fallback(out, |text| draw(scene, object, bounds, title, out, text))?;
+    Ok((object, with_text))
 }
