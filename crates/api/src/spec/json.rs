@@ -8,10 +8,32 @@ use super::{
 use crate::error::FieldError;
 use crate::json;
 
-fn pose(p: &json::Pose) -> Pose {
+/// The neutral form of a JSON pose.
+pub(super) fn pose(p: &json::Pose) -> Pose {
     Pose {
         translation: p.translation,
         rotation: p.rotation,
+    }
+}
+
+/// The motion of an object at path `field`: at most one of `previous_pose` and `velocity`
+/// (neither: at rest).
+pub(super) fn motion(
+    previous_pose: Option<&json::Pose>,
+    velocity: Option<&json::Velocity>,
+    field: &str,
+) -> Result<Motion, FieldError> {
+    match (previous_pose, velocity) {
+        (None, None) => Ok(Motion::Rest),
+        (Some(p), None) => Ok(Motion::PreviousPose(pose(p))),
+        (None, Some(v)) => Ok(Motion::Velocity {
+            linear: v.linear,
+            angular: v.angular,
+        }),
+        (Some(_), Some(_)) => Err(FieldError::new(
+            field,
+            "at most one of `previous_pose` and `velocity` may be given",
+        )),
     }
 }
 
@@ -34,24 +56,10 @@ impl ObjectSpec {
                 ));
             }
         };
-        let motion = match (&o.previous_pose, &o.velocity) {
-            (None, None) => Motion::Rest,
-            (Some(p), None) => Motion::PreviousPose(pose(p)),
-            (None, Some(v)) => Motion::Velocity {
-                linear: v.linear,
-                angular: v.angular,
-            },
-            (Some(_), Some(_)) => {
-                return Err(FieldError::new(
-                    field,
-                    "at most one of `previous_pose` and `velocity` may be given",
-                ));
-            }
-        };
         Ok(ObjectSpec {
             shape,
             pose: pose(&o.pose),
-            motion,
+            motion: motion(o.previous_pose.as_ref(), o.velocity.as_ref(), field)?,
             mass: o.mass,
             friction: o.friction,
             restitution: o.restitution,

@@ -5,12 +5,13 @@
 
 use dynaserve_model::SceneState;
 
+use super::json::{motion as json_motion, pose as json_pose};
+use super::v1::{pose_to_v1, required_pose};
 use super::{Motion, Pose, Scene};
 use crate::error::FieldError;
 use crate::json;
-use crate::json::IDENTITY_ROTATION;
 use crate::v1;
-use crate::wire::{vec3_from, vec3_to};
+use crate::wire::vec3_from;
 
 /// The state of one object of a session, by index.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -141,35 +142,12 @@ pub struct SessionStateView {
 
 // ---- gRPC in ----
 
-fn pose_v1(p: Option<&v1::Pose>, field: &str) -> Result<Pose, FieldError> {
-    let p = p.ok_or_else(|| FieldError::new(field, "required"))?;
-    let t = p
-        .translation
-        .as_ref()
-        .ok_or_else(|| FieldError::new(format!("{field}.translation"), "required"))?;
-    Ok(Pose {
-        translation: [t.x, t.y, t.z],
-        rotation: p
-            .rotation
-            .as_ref()
-            .map_or(IDENTITY_ROTATION, |q| [q.x, q.y, q.z, q.w]),
-    })
-}
-
-fn pose_to_v1(p: &Pose) -> v1::Pose {
-    let [x, y, z, w] = p.rotation;
-    v1::Pose {
-        translation: Some(vec3_to(p.translation)),
-        rotation: Some(v1::Quaternion { x, y, z, w }),
-    }
-}
-
 impl ObjectState {
     /// Reads a gRPC object state at path `field`.
     pub fn from_v1(o: &v1::ObjectState, field: &str) -> Result<ObjectState, FieldError> {
         let motion = match &o.motion {
             Some(v1::object_state::Motion::PreviousPose(p)) => {
-                Motion::PreviousPose(pose_v1(Some(p), &format!("{field}.previous_pose"))?)
+                Motion::PreviousPose(required_pose(Some(p), &format!("{field}.previous_pose"))?)
             }
             Some(v1::object_state::Motion::Velocity(v)) => Motion::Velocity {
                 linear: vec3_from(v.linear.as_ref()),
@@ -179,7 +157,7 @@ impl ObjectState {
         };
         Ok(ObjectState {
             object: o.object,
-            pose: pose_v1(o.pose.as_ref(), &format!("{field}.pose"))?,
+            pose: required_pose(o.pose.as_ref(), &format!("{field}.pose"))?,
             motion,
         })
     }
@@ -187,30 +165,10 @@ impl ObjectState {
     /// Reads a JSON object state at path `field` (at most one of `previous_pose` and
     /// `velocity`).
     pub fn from_json(o: &json::ObjectState, field: &str) -> Result<ObjectState, FieldError> {
-        let motion = match (&o.previous_pose, &o.velocity) {
-            (None, None) => Motion::Rest,
-            (Some(p), None) => Motion::PreviousPose(Pose {
-                translation: p.translation,
-                rotation: p.rotation,
-            }),
-            (None, Some(v)) => Motion::Velocity {
-                linear: v.linear,
-                angular: v.angular,
-            },
-            (Some(_), Some(_)) => {
-                return Err(FieldError::new(
-                    field,
-                    "at most one of `previous_pose` and `velocity` may be given",
-                ));
-            }
-        };
         Ok(ObjectState {
             object: o.object,
-            pose: Pose {
-                translation: o.pose.translation,
-                rotation: o.pose.rotation,
-            },
-            motion,
+            pose: json_pose(&o.pose),
+            motion: json_motion(o.previous_pose.as_ref(), o.velocity.as_ref(), field)?,
         })
     }
 }
@@ -239,7 +197,7 @@ impl Action {
             .map(|(i, k)| {
                 Ok((
                     k.object,
-                    pose_v1(k.pose.as_ref(), &format!("{field}.kinematic[{i}].pose"))?,
+                    required_pose(k.pose.as_ref(), &format!("{field}.kinematic[{i}].pose"))?,
                 ))
             })
             .collect::<Result<_, FieldError>>()?;
@@ -252,15 +210,7 @@ impl Action {
             kinematic: a
                 .kinematic
                 .iter()
-                .map(|k| {
-                    (
-                        k.object,
-                        Pose {
-                            translation: k.pose.translation,
-                            rotation: k.pose.rotation,
-                        },
-                    )
-                })
+                .map(|k| (k.object, json_pose(&k.pose)))
                 .collect(),
         }
     }

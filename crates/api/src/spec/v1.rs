@@ -22,7 +22,7 @@ fn triples<T: Copy>(flat: &[T], field: &str) -> Result<Vec<[T; 3]>, FieldError> 
 }
 
 /// A pose whose translation is required (a missing rotation is the identity).
-fn required_pose(p: Option<&v1::Pose>, field: &str) -> Result<Pose, FieldError> {
+pub(super) fn required_pose(p: Option<&v1::Pose>, field: &str) -> Result<Pose, FieldError> {
     let p = p.ok_or_else(|| FieldError::new(field, "required"))?;
     let t = p
         .translation
@@ -37,7 +37,8 @@ fn required_pose(p: Option<&v1::Pose>, field: &str) -> Result<Pose, FieldError> 
     })
 }
 
-fn pose_to_v1(p: &Pose) -> v1::Pose {
+/// The gRPC form of a pose.
+pub(super) fn pose_to_v1(p: &Pose) -> v1::Pose {
     let [x, y, z, w] = p.rotation;
     v1::Pose {
         translation: Some(vec3_to(p.translation)),
