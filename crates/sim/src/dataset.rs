@@ -431,8 +431,8 @@ pub fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
     std::fs::rename(&tmp, path).map_err(io_err(path))
 }
 
-/// Writes `manifest.json` (pretty JSON); returns its size in bytes.
-pub fn write_manifest(dir: &Path, manifest: &Manifest) -> Result<u64> {
+/// Writes a split's `manifest.json` (pretty JSON, pose or mesh manifest); returns its size in bytes.
+pub fn write_manifest(dir: &Path, manifest: &impl Serialize) -> Result<u64> {
     let path = dir.join("manifest.json");
     let mut text = serde_json::to_string_pretty(manifest).map_err(|e| SimError::Manifest {
         path: path.clone(),

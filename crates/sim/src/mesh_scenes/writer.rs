@@ -13,7 +13,7 @@ use super::record::MeshScene;
 use super::sets::MeshSet;
 use super::simulate::{MeshPhysics, simulate_mesh_scene};
 use super::templates::templates;
-use crate::dataset::{FORMAT, FORMAT_VERSION, Units, prepare_dir, write_file};
+use crate::dataset::{FORMAT, FORMAT_VERSION, Units, prepare_dir, write_file, write_manifest};
 use crate::generators::scene_rng;
 use crate::{Result, SimError};
 
@@ -166,14 +166,7 @@ pub fn generate_mesh_dataset(
         scene_starts: starts,
         tensors: tensor_docs(),
     };
-    let path = out.join("manifest.json");
-    let mut text = serde_json::to_string_pretty(&manifest).map_err(|e| SimError::Manifest {
-        path: path.clone(),
-        message: e.to_string(),
-    })?;
-    text.push('\n');
-    write_file(&path, text.as_bytes())?;
-    bytes += text.len() as u64;
+    bytes += write_manifest(out, &manifest)?;
     Ok(MeshGenerateSummary {
         dir: out.to_path_buf(),
         manifest,
