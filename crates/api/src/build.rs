@@ -73,7 +73,9 @@ pub fn unit_quaternion(q: [f32; 4], field: &str) -> Result<[f32; 4], FieldError>
     Ok(q.map(|c| c / n))
 }
 
-fn pose(p: &Pose, field: &str) -> Result<Pose, FieldError> {
+/// Checks a pose at path `field` (translation finite and within ±[`MAX_WORLD_EXTENT`] m, unit
+/// quaternion) and renormalises its rotation.
+pub fn check_pose(p: &Pose, field: &str) -> Result<Pose, FieldError> {
     within(
         &p.translation,
         MAX_WORLD_EXTENT,
@@ -84,6 +86,40 @@ fn pose(p: &Pose, field: &str) -> Result<Pose, FieldError> {
         translation: p.translation,
         rotation: unit_quaternion(p.rotation, &format!("{field}.rotation"))?,
     })
+}
+
+/// The checked pose one step (`dt_seconds`) before `now` of the object at path `field`, from
+/// its motion: the given previous pose, the pose its velocities (m/s, rad/s, within the
+/// limits) reach back from `now`, or `now` at rest.
+pub fn previous_pose(
+    now: Pose,
+    motion: &Motion,
+    dt_seconds: f32,
+    field: &str,
+) -> Result<Pose, FieldError> {
+    match motion {
+        Motion::PreviousPose(p) => check_pose(p, &format!("{field}.previous_pose")),
+        Motion::Velocity { linear, angular } => {
+            within(
+                linear,
+                MAX_SPEED,
+                &format!("{field}.velocity.linear"),
+                "m/s",
+            )?;
+            within(
+                angular,
+                MAX_ANGULAR_SPEED,
+                &format!("{field}.velocity.angular"),
+                "rad/s",
+            )?;
+            Ok(
+                SceneState::from_velocities(vec![now], &[*linear], &[*angular], dt_seconds)
+                    .map_err(|e| FieldError::new(format!("{field}.velocity"), e.to_string()))?
+                    .previous[0],
+            )
+        }
+        Motion::Rest => Ok(now),
+    }
 }
 
 fn shape(shape: &Shape, field: &str, limits: &Limits) -> Result<Vec<[f32; 3]>, FieldError> {
@@ -242,23 +278,8 @@ pub fn build_scene(
     for (i, o) in scene.objects.iter().enumerate() {
         let f = format!("{of}[{i}]");
         let reference = shape(&o.shape, &f, limits)?;
-        let now = pose(&o.pose, &format!("{f}.pose"))?;
-        let before = match &o.motion {
-            Motion::PreviousPose(p) => pose(p, &format!("{f}.previous_pose"))?,
-            Motion::Velocity { linear, angular } => {
-                within(linear, MAX_SPEED, &format!("{f}.velocity.linear"), "m/s")?;
-                within(
-                    angular,
-                    MAX_ANGULAR_SPEED,
-                    &format!("{f}.velocity.angular"),
-                    "rad/s",
-                )?;
-                SceneState::from_velocities(vec![now], &[*linear], &[*angular], dt_seconds)
-                    .map_err(|e| FieldError::new(format!("{f}.velocity"), e.to_string()))?
-                    .previous[0]
-            }
-            Motion::Rest => now,
-        };
+        let now = check_pose(&o.pose, &format!("{f}.pose"))?;
+        let before = previous_pose(now, &o.motion, dt_seconds, &f)?;
         let mass = parameter(
             o.mass,
             MIN_MASS,

@@ -9,41 +9,13 @@
 
 use dynaserve_model::{Pose, SceneState};
 
-use crate::build::unit_quaternion;
+use crate::build::{check_pose, previous_pose};
 use crate::error::FieldError;
-use crate::limits::{MAX_ANGULAR_SPEED, MAX_SPEED, MAX_WORLD_EXTENT};
-use crate::spec::Motion;
 use crate::spec::session::{Action, ObjectState};
 
 /// Kinematic poses of one step, validated: `(object index, normalised pose)`, each object at
 /// most once, every one kinematic.
 pub type Targets = Vec<(usize, Pose)>;
-
-fn within(v: &[f32], bound: f32, field: &str, unit: &str) -> Result<(), FieldError> {
-    if v.iter().all(|x| x.is_finite() && x.abs() <= bound) {
-        Ok(())
-    } else {
-        Err(FieldError::new(
-            field,
-            format!("components must be finite and within ±{bound} {unit}"),
-        ))
-    }
-}
-
-/// Checks a pose (translation within ±[`MAX_WORLD_EXTENT`] m, unit quaternion) and
-/// renormalises its rotation.
-pub fn check_pose(p: &Pose, field: &str) -> Result<Pose, FieldError> {
-    within(
-        &p.translation,
-        MAX_WORLD_EXTENT,
-        &format!("{field}.translation"),
-        "m",
-    )?;
-    Ok(Pose {
-        translation: p.translation,
-        rotation: unit_quaternion(p.rotation, &format!("{field}.rotation"))?,
-    })
-}
 
 fn index(object: u32, objects: usize, seen: &mut [bool], field: &str) -> Result<usize, FieldError> {
     let j = object as usize;
@@ -87,22 +59,7 @@ pub fn apply_states(
         let f = format!("{field}[{i}]");
         let j = index(o.object, n, &mut seen, &format!("{f}.object"))?;
         let now = check_pose(&o.pose, &format!("{f}.pose"))?;
-        let before = match &o.motion {
-            Motion::Rest => now,
-            Motion::PreviousPose(p) => check_pose(p, &format!("{f}.previous_pose"))?,
-            Motion::Velocity { linear, angular } => {
-                within(linear, MAX_SPEED, &format!("{f}.velocity.linear"), "m/s")?;
-                within(
-                    angular,
-                    MAX_ANGULAR_SPEED,
-                    &format!("{f}.velocity.angular"),
-                    "rad/s",
-                )?;
-                SceneState::from_velocities(vec![now], &[*linear], &[*angular], dt_seconds)
-                    .map_err(|e| FieldError::new(format!("{f}.velocity"), e.to_string()))?
-                    .previous[0]
-            }
-        };
+        let before = previous_pose(now, &o.motion, dt_seconds, &f)?;
         updates.push((j, before, now));
     }
     for (j, before, now) in updates {
@@ -188,6 +145,7 @@ pub fn drive(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::spec::Motion;
 
     fn at(x: f32) -> Pose {
         Pose {
