@@ -22,6 +22,7 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
+use rayon::prelude::*;
 use safetensors::tensor::{Dtype, SafeTensors, TensorView};
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
@@ -431,7 +432,50 @@ pub fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
     std::fs::rename(&tmp, path).map_err(io_err(path))
 }
 
-/// Writes a split's `manifest.json` (pretty JSON, pose or mesh manifest); returns its size in bytes.
+/// Generates scenes `0..scenes` shard by shard (`per_shard` scenes each, the last fewer): a
+/// shard's scenes in parallel on rayon's pool with `make(i)` (then `on_scene()`), then the shard,
+/// encoded by `encode`, written to `out/shard-00000.safetensors`, ... and reported to
+/// `on_shard(file, first_scene, scenes, bytes)`. Returns each scene's label `L`, in scene order.
+pub(crate) fn write_shards<S: Send, L: Send>(
+    out: &Path,
+    scenes: usize,
+    per_shard: usize,
+    make: impl Fn(u64) -> Result<(S, L)> + Sync,
+    on_scene: &(dyn Fn() + Sync),
+    encode: impl Fn(&[S]) -> Result<Vec<u8>>,
+    mut on_shard: impl FnMut(String, usize, &[S], u64),
+) -> Result<Vec<L>> {
+    if per_shard == 0 {
+        return Err(SimError::Invalid(
+            "scenes per shard must be at least 1".into(),
+        ));
+    }
+    let mut labels = Vec::with_capacity(scenes);
+    let (mut first, mut shard) = (0usize, 0usize);
+    while first < scenes {
+        let end = (first + per_shard).min(scenes);
+        let made = (first..end)
+            .into_par_iter()
+            .map(|i| {
+                let s = make(i as u64);
+                on_scene();
+                s
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let (made, shard_labels): (Vec<S>, Vec<L>) = made.into_iter().unzip();
+        labels.extend(shard_labels);
+        let file = format!("shard-{shard:05}.safetensors");
+        let encoded = encode(&made)?;
+        write_file(&out.join(&file), &encoded)?;
+        on_shard(file, first, &made, encoded.len() as u64);
+        shard += 1;
+        first = end;
+    }
+    Ok(labels)
+}
+
+/// Writes a split's `manifest.json` (pretty JSON, pose or mesh manifest); returns its size in
+/// bytes.
 pub fn write_manifest(dir: &Path, manifest: &impl Serialize) -> Result<u64> {
     let path = dir.join("manifest.json");
     let mut text = serde_json::to_string_pretty(manifest).map_err(|e| SimError::Manifest {

@@ -13,7 +13,6 @@ use rand_chacha::ChaCha8Rng;
 use rapier3d::math::Pose;
 use rapier3d::parry::query::intersection_test;
 use rapier3d::prelude::SharedShape;
-use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::dataset::{self, Manifest, ObjectRecord, SceneLabel, SceneRecord, ShapeInfo, ShardInfo};
@@ -632,37 +631,26 @@ pub fn generate_dataset(
             description: k.description().to_string(),
         })
         .collect();
-    let mut shards = Vec::new();
-    let mut bytes = 0u64;
-    let mut objects = 0usize;
-    let mut labels = Vec::new();
-    let mut start = 0usize;
-    while start < opts.scenes {
-        let end = (start + opts.scenes_per_shard).min(opts.scenes);
-        let scenes = (start..end)
-            .into_par_iter()
-            .map(|i| {
-                let s = generate_scene(opts, i as u64).map(|g| (g.record, g.label));
-                on_scene();
-                s
-            })
-            .collect::<Result<Vec<_>>>()?;
-        let (scenes, shard_labels): (Vec<_>, Vec<_>) = scenes.into_iter().unzip();
-        labels.extend(shard_labels);
-        let file = format!("shard-{:05}.safetensors", shards.len());
-        let encoded = dataset::encode_shard(&scenes, opts.sim.frames, opts.points)?;
-        dataset::write_file(&out.join(&file), &encoded)?;
-        bytes += encoded.len() as u64;
-        let n_obj: usize = scenes.iter().map(|s| s.objects.len()).sum();
-        objects += n_obj;
-        shards.push(ShardInfo {
-            file,
-            scenes: scenes.len(),
-            objects: n_obj,
-            first_scene: start,
-        });
-        start = end;
-    }
+    let (mut shards, mut bytes, mut objects) = (Vec::new(), 0u64, 0usize);
+    let labels = dataset::write_shards(
+        out,
+        opts.scenes,
+        opts.scenes_per_shard,
+        |i| generate_scene(opts, i).map(|g| (g.record, g.label)),
+        on_scene,
+        |scenes| dataset::encode_shard(scenes, opts.sim.frames, opts.points),
+        |file, first_scene, scenes, size| {
+            bytes += size;
+            let n_obj: usize = scenes.iter().map(|s| s.objects.len()).sum();
+            objects += n_obj;
+            shards.push(ShardInfo {
+                file,
+                scenes: scenes.len(),
+                objects: n_obj,
+                first_scene,
+            });
+        },
+    )?;
     let mut manifest = Manifest::new(opts, shapes, shards, objects);
     if matches!(opts.generator, Generator::Scenario(_)) {
         manifest.scenarios = labels.into_iter().collect();

@@ -3,8 +3,6 @@
 
 use std::path::{Path, PathBuf};
 
-use rayon::prelude::*;
-
 use super::format::{
     MESH_CONTENT, MeshManifest, MeshShardInfo, SceneStart, TemplateInfo, encode_mesh_shard,
     tensor_docs,
@@ -13,7 +11,7 @@ use super::record::MeshScene;
 use super::sets::MeshSet;
 use super::simulate::{MeshPhysics, simulate_mesh_scene};
 use super::templates::templates;
-use crate::dataset::{FORMAT, FORMAT_VERSION, Units, prepare_dir, write_file, write_manifest};
+use crate::dataset::{FORMAT, FORMAT_VERSION, Units, prepare_dir, write_manifest, write_shards};
 use crate::generators::scene_rng;
 use crate::{Result, SimError};
 
@@ -86,39 +84,31 @@ pub fn generate_mesh_dataset(
     }
     let lib = templates()?;
     prepare_dir(out, overwrite)?;
-    let (mut shards, mut starts) = (Vec::new(), Vec::new());
+    let mut shards = Vec::new();
     let (mut bytes, mut objects, mut vertices, mut faces) = (0u64, 0usize, 0usize, 0usize);
-    let mut first = 0usize;
-    while first < opts.scenes {
-        let end = (first + opts.scenes_per_shard).min(opts.scenes);
-        let scenes = (first..end)
-            .into_par_iter()
-            .map(|i| {
-                let s = generate_mesh_scene(opts, i as u64);
-                on_scene();
-                s
-            })
-            .collect::<Result<Vec<_>>>()?;
-        let (scenes, shard_starts): (Vec<_>, Vec<_>) = scenes.into_iter().unzip();
-        starts.extend(shard_starts);
-        let file = format!("shard-{:05}.safetensors", shards.len());
-        let encoded = encode_mesh_shard(&scenes, opts.physics.frames)?;
-        write_file(&out.join(&file), &encoded)?;
-        bytes += encoded.len() as u64;
-        let info = MeshShardInfo {
-            file,
-            scenes: scenes.len(),
-            objects: scenes.iter().map(|s| s.objects.len()).sum(),
-            vertices: scenes.iter().map(|s| s.num_vertices()).sum(),
-            faces: scenes.iter().map(|s| s.faces.len()).sum(),
-            first_scene: first,
-        };
-        objects += info.objects;
-        vertices += info.vertices;
-        faces += info.faces;
-        shards.push(info);
-        first = end;
-    }
+    let starts = write_shards(
+        out,
+        opts.scenes,
+        opts.scenes_per_shard,
+        |i| generate_mesh_scene(opts, i),
+        on_scene,
+        |scenes| encode_mesh_shard(scenes, opts.physics.frames),
+        |file, first_scene, scenes: &[MeshScene], size| {
+            bytes += size;
+            let info = MeshShardInfo {
+                file,
+                scenes: scenes.len(),
+                objects: scenes.iter().map(|s| s.objects.len()).sum(),
+                vertices: scenes.iter().map(|s| s.num_vertices()).sum(),
+                faces: scenes.iter().map(|s| s.faces.len()).sum(),
+                first_scene,
+            };
+            objects += info.objects;
+            vertices += info.vertices;
+            faces += info.faces;
+            shards.push(info);
+        },
+    )?;
     let p = &opts.physics;
     let manifest = MeshManifest {
         format: FORMAT.into(),
