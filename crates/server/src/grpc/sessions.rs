@@ -134,7 +134,7 @@ impl SessionsApi for SessionsService {
     ) -> Result<Response<v1::DeleteSessionResponse>, Status> {
         let ctx = ctx_of(request.metadata());
         let id = request.into_inner().session_id;
-        let r = self.engine.delete_session(&id, ctx.clone());
+        let r = self.engine.delete_session(&id, ctx.clone()).await;
         self.reply(&ctx, r.map(|()| v1::DeleteSessionResponse {}))
     }
 

@@ -268,7 +268,7 @@ async fn predict(
 async fn delete(State(s): State<AppState>, Path(id): Path<String>, headers: HeaderMap) -> Response {
     let ctx = ctx_of(&headers);
     let rid = ctx.request_id.clone();
-    match s.engine.delete_session(&id, ctx) {
+    match s.engine.delete_session(&id, ctx).await {
         Ok(()) => {
             let mut r = StatusCode::NO_CONTENT.into_response();
             set_header(r.headers_mut(), "x-request-id", &rid);

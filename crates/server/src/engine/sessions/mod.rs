@@ -27,6 +27,7 @@ use dynaserve_api::spec::session::{
     CreateSessionSpec, SessionInfo, SessionStateView, SetStateSpec,
 };
 use dynaserve_model::{PreparedScene, SceneState};
+use tracing::Instrument;
 
 pub use driven::StepHandle;
 pub use interact::InteractHandle;
@@ -382,15 +383,23 @@ impl SessionStore {
 }
 
 impl Engine {
-    fn session_call<T>(
+    /// Runs a session call that answers at once (no steps): admission, then `call`, counted
+    /// under `method` in the request metrics and logged in its span.
+    async fn session_call<T>(
         &self,
         ctx: &RequestCtx,
         method: &'static str,
-        f: impl FnOnce() -> Result<T, ApiError>,
+        call: impl Future<Output = Result<T, ApiError>>,
     ) -> Result<T, ApiError> {
         let mut rec = RequestRecord::new(&self.metrics, ctx, method);
         let span = tracing::info_span!("session", request_id = %ctx.request_id, method);
-        span.in_scope(|| match self.admit_check().and_then(|()| f()) {
+        let r = async {
+            self.admit_check()?;
+            call.await
+        }
+        .instrument(span.clone())
+        .await;
+        span.in_scope(|| match r {
             Ok(v) => {
                 rec.finish(None);
                 Ok(v)
@@ -410,21 +419,18 @@ impl Engine {
         req: CreateSessionSpec,
         ctx: RequestCtx,
     ) -> Result<SessionInfo, ApiError> {
-        let mut rec = RequestRecord::new(&self.metrics, &ctx, "create_session");
-        match self.create_session_inner(req).await {
-            Ok(s) => {
-                rec.finish(None);
-                Ok(self.sessions.info(&s))
-            }
-            Err(e) => Err(rec.fail(e)),
-        }
+        self.session_call(&ctx, "create_session", async {
+            let s = self.create_session_inner(req).await?;
+            Ok(self.sessions.info(&s))
+        })
+        .await
     }
 
+    /// Creates a session (the caller has checked admission and records the call).
     pub(crate) async fn create_session_inner(
         self: &Arc<Self>,
         req: CreateSessionSpec,
     ) -> Result<Arc<Session>, ApiError> {
-        self.admit_check()?;
         let entry = self.resolve(&req.model)?;
         let dt_steps = dynaserve_api::build::check_steps(1, req.dt_steps, &entry.limits)?;
         let kinematic: Arc<[bool]> =
@@ -462,9 +468,7 @@ impl Engine {
 
     /// Copies a session's state under a new id (the prepared scene is shared).
     pub async fn fork_session(&self, id: &str, ctx: RequestCtx) -> Result<SessionInfo, ApiError> {
-        let mut rec = RequestRecord::new(&self.metrics, &ctx, "fork_session");
-        let r = async {
-            self.admit_check()?;
+        self.session_call(&ctx, "fork_session", async {
             let s = self.sessions.get(id)?;
             let progress = s.progress.lock().await.clone();
             self.sessions
@@ -481,15 +485,8 @@ impl Engine {
                 .with_label_values(&[s.entry.name.as_str()])
                 .inc();
             Ok(self.sessions.info(&f))
-        }
-        .await;
-        match r {
-            Ok(v) => {
-                rec.finish(None);
-                Ok(v)
-            }
-            Err(e) => Err(rec.fail(e)),
-        }
+        })
+        .await
     }
 
     fn view(&self, s: &Session, p: &Progress) -> SessionStateView {
@@ -508,9 +505,12 @@ impl Engine {
         id: &str,
         ctx: RequestCtx,
     ) -> Result<SessionStateView, ApiError> {
-        let s = self.session_call(&ctx, "get_state", || self.sessions.get(id))?;
-        let p = s.progress.lock().await;
-        Ok(self.view(&s, &p))
+        self.session_call(&ctx, "get_state", async {
+            let s = self.sessions.get(id)?;
+            let p = s.progress.lock().await;
+            Ok(self.view(&s, &p))
+        })
+        .await
     }
 
     /// Overwrites some objects' states (waits for a running call on the session to finish).
@@ -519,33 +519,25 @@ impl Engine {
         req: SetStateSpec,
         ctx: RequestCtx,
     ) -> Result<SessionStateView, ApiError> {
-        let mut rec = RequestRecord::new(&self.metrics, &ctx, "set_state");
-        let r = async {
-            self.admit_check()?;
+        self.session_call(&ctx, "set_state", async {
             let s = self.sessions.get(&req.session_id)?;
             let mut p = s.progress.lock().await;
             apply_states(&mut p.state, &req.objects, s.dt_seconds(), "objects")?;
             Ok(self.view(&s, &p))
-        }
-        .await;
-        match r {
-            Ok(v) => {
-                rec.finish(None);
-                Ok(v)
-            }
-            Err(e) => Err(rec.fail(e)),
-        }
+        })
+        .await
     }
 
     /// Deletes a session (a call running on it finishes first, on its own copy).
-    pub fn delete_session(&self, id: &str, ctx: RequestCtx) -> Result<(), ApiError> {
-        self.session_call(&ctx, "delete_session", || {
+    pub async fn delete_session(&self, id: &str, ctx: RequestCtx) -> Result<(), ApiError> {
+        self.session_call(&ctx, "delete_session", async {
             if self.sessions.remove(id) {
                 Ok(())
             } else {
                 Err(not_found(id))
             }
         })
+        .await
     }
 }
 
