@@ -189,7 +189,8 @@ pub struct Manifest {
     pub scenarios: Option<Vec<SceneLabel>>,
 }
 
-fn doc(name: &str, dtype: &str, shape: &str, description: &str) -> TensorDoc {
+/// A [`TensorDoc`] from its four fields.
+pub(crate) fn doc(name: &str, dtype: &str, shape: &str, description: &str) -> TensorDoc {
     TensorDoc {
         name: name.into(),
         dtype: dtype.into(),

@@ -24,7 +24,7 @@ use serde::{Deserialize, Serialize};
 
 use super::record::{MeshMaterial, MeshObject, MeshScene};
 use crate::dataset::{
-    FORMAT, FORMAT_VERSION, ShardTensors, TensorBytes, TensorDoc, Units, serialize_tensors,
+    FORMAT, FORMAT_VERSION, ShardTensors, TensorBytes, TensorDoc, Units, doc, serialize_tensors,
 };
 use crate::{Result, SimError};
 
@@ -129,15 +129,6 @@ pub struct MeshManifest {
     pub scene_starts: Vec<SceneStart>,
     /// The tensors of every shard.
     pub tensors: Vec<TensorDoc>,
-}
-
-fn doc(name: &str, dtype: &str, shape: &str, description: &str) -> TensorDoc {
-    TensorDoc {
-        name: name.into(),
-        dtype: dtype.into(),
-        shape: shape.into(),
-        description: description.into(),
-    }
 }
 
 /// Descriptions of the tensors of a mesh shard, for the manifest.
