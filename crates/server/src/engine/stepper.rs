@@ -74,6 +74,11 @@ impl Stepper {
         }
     }
 
+    /// The current state (previous and current poses).
+    pub(crate) fn state(&self) -> &SceneState {
+        &self.state
+    }
+
     /// Queues the next step; `more_steps` says another will follow right after it.
     pub(crate) fn submit(&self, more_steps: bool) -> StepReply {
         let (reply, rx) = oneshot::channel();

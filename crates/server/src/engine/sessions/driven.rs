@@ -24,8 +24,6 @@ use crate::scheduler::Priority;
 /// times count from `base_step`.
 pub(crate) struct Driven {
     stepper: Stepper,
-    /// The stepper's state (it is advanced with the same poses).
-    state: SceneState,
     kinematic: Arc<[bool]>,
     base_step: u32,
     session: Arc<Session>,
@@ -46,7 +44,7 @@ impl Driven {
             session.entry.clone(),
             StepperSpec {
                 scene: session.scene().clone(),
-                state: state.clone(),
+                state,
                 dt_steps: session.dt_steps,
                 priority,
                 deadline,
@@ -56,7 +54,6 @@ impl Driven {
         );
         Driven {
             stepper,
-            state,
             kinematic: session.kinematic.clone(),
             base_step,
             session: session.clone(),
@@ -65,7 +62,7 @@ impl Driven {
 
     /// The current state.
     pub(crate) fn state(&self) -> &SceneState {
-        &self.state
+        self.stepper.state()
     }
 
     /// Steps taken since the session's start.
@@ -85,9 +82,13 @@ impl Driven {
             Ok(Err(e)) => return Err(step_error(e)),
             Err(_) => return Err(ApiError::unavailable("server shutting down")),
         };
-        drive(&mut done.output, &self.state, &self.kinematic, targets);
+        drive(
+            &mut done.output,
+            self.stepper.state(),
+            &self.kinematic,
+            targets,
+        );
         let mut frame = self.stepper.accept(done)?;
-        self.state.advance(frame.poses.clone());
         self.base_step += 1;
         frame.step = self.base_step;
         frame.time = self
