@@ -212,6 +212,11 @@ fn splits_are_deterministic_thread_independent_and_read_back_exactly() {
     assert_ne!(generate_mesh_scene(&other, 0).unwrap().0, all[0]);
     // A second run into the same directory is refused, and allowed with overwrite.
     assert!(generate_mesh_dataset(&opts, &a, false, &|| {}).is_err());
+    generate_mesh_dataset(&opts, &a, true, &|| {}).unwrap();
+    assert_eq!(
+        MeshDatasetReader::open(&a).unwrap().read_all().unwrap(),
+        all
+    );
     let _ = std::fs::remove_dir_all(&a);
     let _ = std::fs::remove_dir_all(&b);
 }
