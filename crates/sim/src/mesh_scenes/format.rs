@@ -24,12 +24,10 @@ use serde::{Deserialize, Serialize};
 
 use super::record::{MeshMaterial, MeshObject, MeshScene};
 use crate::dataset::{
-    FORMAT, FORMAT_VERSION, ShardTensors, TensorBytes, TensorDoc, Units, doc, serialize_tensors,
+    FORMAT, FORMAT_VERSION, MESH_CONTENT, ShardTensors, TensorBytes, TensorDoc, Units, doc,
+    serialize_tensors,
 };
 use crate::{Result, SimError};
-
-/// The manifest's `content` value of a mesh dataset.
-pub const MESH_CONTENT: &str = "mesh";
 
 /// One shard file of a mesh dataset.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

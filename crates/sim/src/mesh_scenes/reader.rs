@@ -3,10 +3,11 @@
 
 use std::path::{Path, PathBuf};
 
-use super::format::{MESH_CONTENT, MeshManifest, decode_mesh_shard};
+use super::format::{MeshManifest, decode_mesh_shard};
 use super::record::MeshScene;
 use crate::dataset::{
-    SceneIter, io_err, parse_manifest, read_manifest_json, scene_in_shards, shard_entry,
+    SceneIter, io_err, is_mesh_manifest, parse_manifest, read_manifest_json, scene_in_shards,
+    shard_entry,
 };
 use crate::{Result, SimError};
 
@@ -14,11 +15,6 @@ use crate::{Result, SimError};
 /// `mesh`). Errors when the manifest cannot be read or is not JSON.
 pub fn is_mesh_dataset(dir: impl AsRef<Path>) -> Result<bool> {
     Ok(is_mesh_manifest(&read_manifest_json(dir.as_ref())?.1))
-}
-
-/// Whether a manifest (as JSON) is that of a mesh dataset: its `content` is `mesh`.
-pub(crate) fn is_mesh_manifest(manifest: &serde_json::Value) -> bool {
-    manifest.get("content").and_then(|c| c.as_str()) == Some(MESH_CONTENT)
 }
 
 /// Reads a mesh split directory: the manifest up front, shards on demand.

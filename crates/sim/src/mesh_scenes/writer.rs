@@ -4,14 +4,15 @@
 use std::path::{Path, PathBuf};
 
 use super::format::{
-    MESH_CONTENT, MeshManifest, MeshShardInfo, SceneStart, TemplateInfo, encode_mesh_shard,
-    tensor_docs,
+    MeshManifest, MeshShardInfo, SceneStart, TemplateInfo, encode_mesh_shard, tensor_docs,
 };
 use super::record::MeshScene;
 use super::sets::MeshSet;
 use super::simulate::{MeshPhysics, simulate_mesh_scene};
 use super::templates::templates;
-use crate::dataset::{FORMAT, FORMAT_VERSION, Units, prepare_dir, write_manifest, write_shards};
+use crate::dataset::{
+    FORMAT, FORMAT_VERSION, MESH_CONTENT, Units, prepare_dir, write_manifest, write_shards,
+};
 use crate::generators::scene_rng;
 use crate::{Result, SimError};
 

@@ -1,0 +1,304 @@
+//! A split's `manifest.json`: the [`Manifest`] of pose datasets, the parts it shares with the
+//! mesh manifest (format name and version, units, tensor docs), and reading one from disk.
+
+use std::path::{Path, PathBuf};
+
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+
+use super::io_err;
+use super::records::SceneLabel;
+use crate::generators::GenerateOptions;
+use crate::{Result, SimError};
+
+/// Name written in every manifest's `format` field.
+pub const FORMAT: &str = "dynaserve-sim";
+/// Current format version.
+pub const FORMAT_VERSION: u32 = 1;
+/// The manifest's `content` value of a mesh dataset (pose datasets have no `content`).
+pub const MESH_CONTENT: &str = "mesh";
+/// Tensor names reserved for mesh trajectories.
+pub const RESERVED_TENSORS: [&str; 4] = [
+    "vertex_offsets",
+    "vertex_positions",
+    "faces",
+    "face_offsets",
+];
+
+/// Units of the stored quantities.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Units {
+    /// Length unit.
+    pub length: String,
+    /// Mass unit.
+    pub mass: String,
+    /// Time unit.
+    pub time: String,
+}
+
+/// One shard file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ShardInfo {
+    /// File name inside the split directory.
+    pub file: String,
+    /// Scenes in the shard.
+    pub scenes: usize,
+    /// Objects in the shard.
+    pub objects: usize,
+    /// Index (in the split) of the shard's first scene.
+    pub first_scene: usize,
+}
+
+/// One entry of the shape list.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ShapeInfo {
+    /// The `shape_id` of objects with this shape.
+    pub id: i32,
+    /// Short name.
+    pub name: String,
+    /// What the unit shape is and how it is built.
+    pub description: String,
+}
+
+/// Description of one stored tensor.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TensorDoc {
+    /// Tensor name.
+    pub name: String,
+    /// Data type (`F32`, `I32`, `I64`).
+    pub dtype: String,
+    /// Shape in symbols (`O` objects, `S` scenes, `T` frames, `P` points).
+    pub shape: String,
+    /// Meaning and unit.
+    pub description: String,
+}
+
+/// The `manifest.json` of a split directory.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    /// Always `dynaserve-sim`.
+    pub format: String,
+    /// Format version.
+    pub format_version: u32,
+    /// Generator name (`movi-a`, `movi-b`, `wrecking-ball`).
+    pub generator: String,
+    /// Generator parameters.
+    pub generator_parameters: serde_json::Value,
+    /// Dataset seed.
+    pub seed: u64,
+    /// Split name.
+    pub split: String,
+    /// Physics engine that produced the trajectories.
+    pub engine: String,
+    /// Units.
+    pub units: Units,
+    /// Up axis (`z`).
+    pub axis: String,
+    /// Quaternion component order (`xyzw`).
+    pub quaternion_order: String,
+    /// Gravity, metres per second squared.
+    pub gravity: [f32; 3],
+    /// Interval between frames, seconds.
+    pub dt_frame: f32,
+    /// Physics steps per second.
+    pub physics_hz: u32,
+    /// Physics steps per frame.
+    pub substeps_per_frame: u32,
+    /// rapier solver iterations per step.
+    pub solver_iterations: usize,
+    /// Frames per scene (`T`), including the initial state.
+    pub frames: usize,
+    /// Reference points per object (`P`).
+    pub reference_points: usize,
+    /// Scenes in the split.
+    pub scenes: usize,
+    /// Objects in the split.
+    pub objects: usize,
+    /// Shard files in order.
+    pub shards: Vec<ShardInfo>,
+    /// Shape list; `shape_id` indexes it.
+    pub shapes: Vec<ShapeInfo>,
+    /// Material list; `material` indexes it.
+    pub materials: Vec<String>,
+    /// The tensors of every shard.
+    pub tensors: Vec<TensorDoc>,
+    /// Tensor names reserved for mesh trajectories.
+    pub reserved_tensors: Vec<String>,
+    /// Scenario generators only: the label of every scene, in scene order (absent in other
+    /// datasets and in datasets written before scenarios existed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scenarios: Option<Vec<SceneLabel>>,
+}
+
+/// A [`TensorDoc`] from its four fields.
+pub(crate) fn doc(name: &str, dtype: &str, shape: &str, description: &str) -> TensorDoc {
+    TensorDoc {
+        name: name.into(),
+        dtype: dtype.into(),
+        shape: shape.into(),
+        description: description.into(),
+    }
+}
+
+impl Manifest {
+    /// The manifest of a generated split.
+    pub fn new(
+        opts: &GenerateOptions,
+        shapes: Vec<ShapeInfo>,
+        shards: Vec<ShardInfo>,
+        objects: usize,
+    ) -> Self {
+        Self {
+            format: FORMAT.into(),
+            format_version: FORMAT_VERSION,
+            generator: opts.generator.name().into(),
+            generator_parameters: opts.generator.parameters(),
+            seed: opts.seed,
+            split: opts.split.clone(),
+            engine: "rapier3d 0.36 (enhanced-determinism, sleeping disabled, Multiply combine \
+                     rules, contact recycling off, default soft contacts)"
+                .into(),
+            units: Units {
+                length: "m".into(),
+                mass: "kg".into(),
+                time: "s".into(),
+            },
+            axis: "z".into(),
+            quaternion_order: "xyzw".into(),
+            gravity: opts.generator.gravity(),
+            dt_frame: opts.sim.dt_frame(),
+            physics_hz: opts.sim.physics_hz,
+            substeps_per_frame: opts.sim.substeps,
+            solver_iterations: opts.sim.solver_iterations,
+            frames: opts.sim.frames,
+            reference_points: opts.points,
+            scenes: shards.iter().map(|s| s.scenes).sum(),
+            objects,
+            shards,
+            shapes,
+            materials: vec!["rigid".into(), "elastic".into()],
+            tensors: vec![
+                doc(
+                    "scene_object_offsets",
+                    "I64",
+                    "[S+1]",
+                    "objects of scene s are rows offsets[s]..offsets[s+1]",
+                ),
+                doc(
+                    "positions",
+                    "F32",
+                    "[O,T,3]",
+                    "centre of mass, world frame, m",
+                ),
+                doc(
+                    "rotations",
+                    "F32",
+                    "[O,T,4]",
+                    "unit quaternion [x,y,z,w], body to world, sign-continuous in time",
+                ),
+                doc(
+                    "reference_points",
+                    "F32",
+                    "[O,P,3]",
+                    "surface samples in the body frame (origin at the centre of mass), m",
+                ),
+                doc("mass", "F32", "[O]", "kg"),
+                doc("friction", "F32", "[O]", "friction coefficient"),
+                doc("restitution", "F32", "[O]", "restitution coefficient"),
+                doc("scale", "F32", "[O,3]", "scale of the unit shape per axis"),
+                doc("shape_id", "I32", "[O]", "index into shapes"),
+                doc(
+                    "material",
+                    "I32",
+                    "[O]",
+                    "index into materials (0 rigid, 1 elastic)",
+                ),
+            ],
+            reserved_tensors: RESERVED_TENSORS.iter().map(|s| s.to_string()).collect(),
+            scenarios: None,
+        }
+    }
+
+    /// Checks format, version, counts and shard names; errors name `path`.
+    pub(crate) fn validate(&self, path: &Path) -> Result<()> {
+        let bad = |message: String| SimError::Manifest {
+            path: path.to_path_buf(),
+            message,
+        };
+        if self.format != FORMAT {
+            return Err(bad(format!(
+                "format is {:?}, expected {FORMAT:?}",
+                self.format
+            )));
+        }
+        if self.format_version == 0 || self.format_version > FORMAT_VERSION {
+            return Err(bad(format!(
+                "format version {} is not supported (this reader knows 1..={FORMAT_VERSION})",
+                self.format_version
+            )));
+        }
+        if self.frames == 0 || self.reference_points == 0 {
+            return Err(bad("frames and reference_points must be positive".into()));
+        }
+        if !(self.dt_frame.is_finite() && self.dt_frame > 0.0) {
+            return Err(bad(format!("dt_frame {} is not positive", self.dt_frame)));
+        }
+        let total: usize = self.shards.iter().map(|s| s.scenes).sum();
+        if total != self.scenes {
+            return Err(bad(format!(
+                "shards hold {total} scenes but the manifest says {}",
+                self.scenes
+            )));
+        }
+        let mut next = 0;
+        for s in &self.shards {
+            if s.first_scene != next {
+                return Err(bad(format!(
+                    "shard {} starts at scene {} instead of {next}",
+                    s.file, s.first_scene
+                )));
+            }
+            if s.file.contains('/') || s.file.contains('\\') || s.file.starts_with('.') {
+                return Err(bad(format!("shard file name {:?} is not plain", s.file)));
+            }
+            next += s.scenes;
+        }
+        if let Some(labels) = &self.scenarios
+            && labels.len() != self.scenes
+        {
+            return Err(bad(format!(
+                "{} scenario labels for {} scenes",
+                labels.len(),
+                self.scenes
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// Reads `dir/manifest.json` as JSON; returns its path and value.
+pub(crate) fn read_manifest_json(dir: &Path) -> Result<(PathBuf, serde_json::Value)> {
+    let path = dir.join("manifest.json");
+    let text = std::fs::read_to_string(&path).map_err(io_err(&path))?;
+    let value = serde_json::from_str(&text).map_err(|e| SimError::Manifest {
+        path: path.clone(),
+        message: e.to_string(),
+    })?;
+    Ok((path, value))
+}
+
+/// Whether a manifest (as JSON) is that of a mesh dataset: its `content` is [`MESH_CONTENT`].
+pub(crate) fn is_mesh_manifest(manifest: &serde_json::Value) -> bool {
+    manifest.get("content").and_then(|c| c.as_str()) == Some(MESH_CONTENT)
+}
+
+/// Parses a manifest read by [`read_manifest_json`] into its type; errors name `path`.
+pub(crate) fn parse_manifest<M: DeserializeOwned>(
+    path: &Path,
+    value: serde_json::Value,
+) -> Result<M> {
+    serde_json::from_value(value).map_err(|e| SimError::Manifest {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
+}
