@@ -7,6 +7,7 @@
 //! dynaserve sim mesh-d1 --scenes 400 --out data/physi/d1/train --seed 0 --split train
 //! dynaserve sim inspect data/movi-b/train
 //! dynaserve sim preview data/movi-b/train --out preview.png
+//! dynaserve sim replay examples/scenes/collision.json --paths pusher.json
 //! ```
 
 use std::path::PathBuf;
@@ -21,6 +22,7 @@ use crate::generators::{GenerateOptions, Generator, generate_dataset};
 use crate::mesh_scenes::cli::{self as mesh_cli, MeshGenerateArgs};
 use crate::mesh_scenes::{MeshSet, is_mesh_dataset};
 use crate::preview::write_preview;
+use crate::replay::cli::{ReplayArgs, run_replay};
 use crate::scenarios::Scenario;
 use crate::stats::inspect;
 
@@ -74,6 +76,9 @@ pub enum SimCommand {
     Inspect(InspectArgs),
     /// Draw a few trajectories of a dataset split into a PNG.
     Preview(PreviewArgs),
+    /// Replay a scene file in rapier, kinematic objects driven along given paths; prints the
+    /// trajectory as JSON.
+    Replay(ReplayArgs),
 }
 
 /// Dataset split; part of every scene's seed, so splits never share a scene.
@@ -185,6 +190,7 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
         SimCommand::MeshD4(a) => mesh_cli::run_generate(MeshSet::D4, &a),
         SimCommand::Inspect(a) => run_inspect(&a),
         SimCommand::Preview(a) => run_preview(&a),
+        SimCommand::Replay(a) => run_replay(&a),
     }
 }
 

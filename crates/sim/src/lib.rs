@@ -14,6 +14,8 @@
 //! - [`dataset`]: shards, manifest, writer and streaming reader;
 //! - [`stats`], [`preview`]: what `dynaserve sim inspect` and `dynaserve sim preview` print and
 //!   draw;
+//! - [`replay`]: a scene file in the server's JSON format replayed in rapier, kinematic
+//!   objects driven along given paths (`dynaserve sim replay`);
 //! - [`mesh_scenes`]: rigid and elastic triangle meshes in a closed box, recorded per vertex
 //!   (sets `mesh-d1` to `mesh-d4`), with their own shard format and reader;
 //! - [`cli`]: the `dynaserve sim` subcommand.
@@ -23,6 +25,7 @@ pub mod dataset;
 pub mod generators;
 pub mod mesh_scenes;
 pub mod preview;
+pub mod replay;
 pub mod scenarios;
 pub mod scene;
 pub mod shapes;
@@ -31,7 +34,7 @@ pub mod stats;
 pub use dataset::{DatasetReader, Manifest, ObjectRecord, SceneLabel, SceneRecord};
 pub use generators::{GenerateOptions, Generator};
 pub use scenarios::{Scenario, ScenarioParameters};
-pub use scene::{ObjectSpec, SceneSpec, SimConfig};
+pub use scene::{KinematicPath, ObjectSpec, SceneSpec, SimConfig};
 pub use shapes::{Shape, ShapeKind};
 
 use std::path::PathBuf;

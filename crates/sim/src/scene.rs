@@ -5,11 +5,15 @@
 //! object, body origin at the centre of mass), steps it at `physics_hz` and records every
 //! `substeps`-th state: frame 0 is the initial state (after the optional settling steps), frame
 //! `t` the state `t * substeps` steps later.
+//!
+//! Kinematic objects ([`KinematicPath`], [`simulate_driven`]) are rapier kinematic
+//! position-based bodies: they follow the poses given for every frame (interpolated over the
+//! physics steps between frames), push the dynamic objects they touch and are not pushed back.
 
 use rapier3d::math::{Pose, Rotation, Vector};
 use rapier3d::prelude::{
     CoefficientCombineRule, ColliderBuilder, ColliderHandle, PhysicsWorld, RigidBodyBuilder,
-    RigidBodyHandle, SharedShape,
+    RigidBodyHandle, RigidBodyType, SharedShape,
 };
 use serde::Serialize;
 
@@ -152,6 +156,51 @@ pub struct Trajectories {
     pub masses: Vec<f32>,
 }
 
+/// The path of a kinematic object: the pose it has at every recorded frame after frame 0 (it
+/// starts from its object's initial pose). Between two frames it moves at constant speed:
+/// translation interpolated linearly and rotation spherically over the physics steps.
+#[derive(Clone, Debug, PartialEq)]
+pub struct KinematicPath {
+    /// Index of the object in the scene.
+    pub object: usize,
+    /// Centre of mass (metres) and unit quaternion `[x, y, z, w]` at frames `1, 2, ...`:
+    /// `[frames - 1]` entries (more are ignored).
+    pub poses: Vec<([f32; 3], [f32; 4])>,
+}
+
+impl KinematicPath {
+    fn check(&self, objects: usize, frames: usize, seen: &mut [bool]) -> Result<()> {
+        let o = self.object;
+        if o >= objects {
+            return Err(SimError::Invalid(format!(
+                "kinematic object {o} does not exist (the scene has {objects} objects)"
+            )));
+        }
+        if std::mem::replace(&mut seen[o], true) {
+            return Err(SimError::Invalid(format!(
+                "object {o} has two kinematic paths"
+            )));
+        }
+        if self.poses.len() + 1 < frames {
+            return Err(SimError::Invalid(format!(
+                "kinematic object {o} has {} poses; {} frames need {}",
+                self.poses.len(),
+                frames,
+                frames - 1
+            )));
+        }
+        for (i, (t, q)) in self.poses.iter().take(frames - 1).enumerate() {
+            let norm = q.iter().map(|c| c * c).sum::<f32>().sqrt();
+            if !(t.iter().all(|c| c.is_finite()) && norm.is_finite() && norm > 1e-6) {
+                return Err(SimError::Invalid(format!(
+                    "kinematic object {o}: pose {i} is not finite or its quaternion is zero"
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
 /// Rapier pose from a translation and an `[x, y, z, w]` quaternion (normalised).
 pub fn pose_from_arrays(t: [f32; 3], q: [f32; 4]) -> Pose {
     Pose::from_parts(
@@ -251,15 +300,41 @@ pub fn simulate(spec: &SceneSpec, cfg: &SimConfig) -> Result<Trajectories> {
     simulate_observed(spec, cfg, |_, _| {})
 }
 
+/// Simulates a scene whose objects named by `paths` are kinematic and follow their paths (each
+/// object at most once); the others are dynamic as in [`simulate`]. Recorded poses of a
+/// kinematic object are its path's poses.
+pub fn simulate_driven(
+    spec: &SceneSpec,
+    cfg: &SimConfig,
+    paths: &[KinematicPath],
+) -> Result<Trajectories> {
+    run(spec, cfg, paths, |_, _| {})
+}
+
 /// [`simulate`], calling `observe(frame, world)` at every recorded frame (after the state of
 /// that frame is reached), e.g. to check energy or contacts in tests.
 pub fn simulate_observed(
     spec: &SceneSpec,
     cfg: &SimConfig,
+    observe: impl FnMut(usize, &SimWorld),
+) -> Result<Trajectories> {
+    run(spec, cfg, &[], observe)
+}
+
+fn run(
+    spec: &SceneSpec,
+    cfg: &SimConfig,
+    paths: &[KinematicPath],
     mut observe: impl FnMut(usize, &SimWorld),
 ) -> Result<Trajectories> {
     let mut sim = SimWorld::new(spec, cfg)?;
     let n = spec.objects.len();
+    let mut seen = vec![false; n];
+    for p in paths {
+        p.check(n, cfg.frames, &mut seen)?;
+        sim.world.bodies[sim.bodies[p.object]]
+            .set_body_type(RigidBodyType::KinematicPositionBased, true);
+    }
     if spec.settle_steps > 0 {
         for _ in 0..spec.settle_steps {
             sim.world.step();
@@ -285,7 +360,24 @@ pub fn simulate_observed(
     let mut rotations: Vec<Vec<[f32; 4]>> = vec![Vec::with_capacity(cfg.frames); n];
     for frame in 0..cfg.frames {
         if frame > 0 {
-            for _ in 0..cfg.substeps {
+            for s in 0..cfg.substeps {
+                let f = (s + 1) as f32 / cfg.substeps as f32;
+                for p in paths {
+                    let from = match frame {
+                        1 => spec.objects[p.object].initial_pose(),
+                        _ => pose_from_arrays(p.poses[frame - 2].0, p.poses[frame - 2].1),
+                    };
+                    let to = pose_from_arrays(p.poses[frame - 1].0, p.poses[frame - 1].1);
+                    let at = if s + 1 == cfg.substeps {
+                        to
+                    } else {
+                        Pose::from_parts(
+                            from.translation.lerp(to.translation, f),
+                            from.rotation.slerp(to.rotation, f),
+                        )
+                    };
+                    sim.world.bodies[sim.bodies[p.object]].set_next_kinematic_position(at);
+                }
                 sim.world.step();
             }
         }

@@ -1,0 +1,271 @@
+//! Rapier replay of a scene file: the ground truth for a scene in the server's JSON scene
+//! format (a `POST /v1/rollout` body, a session's create body or a bare scene) with some objects
+//! driven along given paths, e.g. to check a planner's pusher path in rapier.
+//!
+//! Every object is simulated as the convex hull of its reference points (or of its mesh's
+//! vertices), with the scene's mass (uniform density over the hull), friction and restitution
+//! combined by multiplication, on the MOVi floor (friction 0.3, restitution 0.5, top at z = 0)
+//! under gravity (0, 0, -10) at 240 Hz: the conditions the bundled model was trained on. An
+//! object's initial motion is its `velocity`, or the finite difference from its
+//! `previous_pose` over one step. Kinematic objects follow their paths as in
+//! [`simulate_driven`]; poses are reported in the scene's body frames.
+
+pub mod cli;
+
+use dynaserve_api::json;
+use rapier3d::math::{Rotation, Vector};
+use serde::{Deserialize, Serialize};
+
+use crate::generators::MOVI_FLOOR;
+use crate::scene::{
+    FloorSpec, KinematicPath, Material, ObjectSpec, SceneSpec, SimConfig, simulate_driven,
+};
+use crate::shapes::{Part, Polytope, Shape, ShapeKind};
+use crate::{Result, SimError};
+
+/// How a scene is replayed: frame interval, physics rate, floor and gravity.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ReplayOptions {
+    /// Interval of one frame, seconds (the model's `dt_frame`; 1/24 s for the bundled model).
+    pub dt_frame: f32,
+    /// Frames per step.
+    pub dt_steps: u32,
+    /// Physics steps per second.
+    pub physics_hz: u32,
+    /// rapier solver iterations per physics step.
+    pub solver_iterations: usize,
+    /// The floor.
+    pub floor: FloorSpec,
+    /// Gravity, metres per second squared.
+    pub gravity: [f32; 3],
+}
+
+impl Default for ReplayOptions {
+    /// The MOVi conditions: 1/24 s frames of 10 physics steps at 240 Hz, 4 solver iterations,
+    /// one frame per step, the MOVi floor, gravity (0, 0, -10).
+    fn default() -> Self {
+        Self {
+            dt_frame: 1.0 / 24.0,
+            dt_steps: 1,
+            physics_hz: 240,
+            solver_iterations: 4,
+            floor: MOVI_FLOOR,
+            gravity: [0.0, 0.0, -10.0],
+        }
+    }
+}
+
+impl ReplayOptions {
+    fn sim_config(&self, steps: usize) -> Result<SimConfig> {
+        let per_frame = self.dt_frame * self.physics_hz as f32;
+        let substeps = per_frame.round();
+        if !(self.dt_frame > 0.0 && substeps >= 1.0 && (per_frame - substeps).abs() < 1e-3) {
+            return Err(SimError::Invalid(format!(
+                "a frame of {} s is not a whole number of physics steps at {} Hz",
+                self.dt_frame, self.physics_hz
+            )));
+        }
+        if self.dt_steps == 0 {
+            return Err(SimError::Invalid("dt_steps must be at least 1".into()));
+        }
+        Ok(SimConfig {
+            physics_hz: self.physics_hz,
+            substeps: substeps as u32 * self.dt_steps,
+            frames: steps + 1,
+            solver_iterations: self.solver_iterations,
+        })
+    }
+}
+
+/// The path of one kinematic object: its pose `[x, y, z, qx, qy, qz, qw]` (metres, unit
+/// quaternion scalar last) at the end of every step.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PathDoc {
+    /// Index of the object in the scene.
+    pub object: usize,
+    /// Poses `[steps, 7]`.
+    pub poses: Vec<[f32; 7]>,
+}
+
+/// The paths file of `dynaserve sim replay --paths`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PathsDoc {
+    /// One path per kinematic object, all of the same length.
+    pub paths: Vec<PathDoc>,
+}
+
+/// A replayed trajectory.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Replay {
+    /// Interval of one step, seconds (`dt_steps * dt_frame`).
+    pub dt_step: f32,
+    /// Steps replayed.
+    pub steps: usize,
+    /// Pose `[x, y, z, qx, qy, qz, qw]` of every object at every step: `[steps + 1, objects,
+    /// 7]`, entry 0 the initial state.
+    pub poses: Vec<Vec<[f32; 7]>>,
+    /// Mass of every object as simulated, kilograms.
+    pub masses: Vec<f32>,
+}
+
+/// A scene file as read by [`parse_scene`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneFile {
+    /// The scene.
+    pub scene: json::Scene,
+    /// The document's `steps`, if it has them (a rollout request).
+    pub steps: Option<usize>,
+    /// The document's `dt_steps`, if it has them and they are positive.
+    pub dt_steps: Option<u32>,
+}
+
+/// Reads a scene from a JSON document: a rollout request or session create body (its `scene`)
+/// or a bare scene (`{"objects": [...]}`).
+pub fn parse_scene(text: &str) -> Result<SceneFile> {
+    let doc: serde_json::Value = serde_json::from_str(text)
+        .map_err(|e| SimError::Invalid(format!("scene file is not JSON: {e}")))?;
+    let number = |key: &str| doc.get(key).and_then(|v| v.as_u64()).filter(|&v| v > 0);
+    let steps = number("steps").and_then(|v| usize::try_from(v).ok());
+    let dt_steps = number("dt_steps").and_then(|v| u32::try_from(v).ok());
+    let scene = doc.get("scene").cloned().unwrap_or(doc);
+    let scene =
+        serde_json::from_value(scene).map_err(|e| SimError::Invalid(format!("scene: {e}")))?;
+    Ok(SceneFile {
+        scene,
+        steps,
+        dt_steps,
+    })
+}
+
+fn object_spec(o: &json::ObjectSpec, i: usize, dt_step: f32) -> Result<ObjectSpec> {
+    let field = |m: &str| SimError::Invalid(format!("scene.objects[{i}]: {m}"));
+    let points: Vec<[f32; 3]> = match (&o.points, &o.mesh) {
+        (Some(p), None) => p.clone(),
+        (None, Some(m)) => m.vertices.clone(),
+        _ => return Err(field("needs exactly one of points and mesh")),
+    };
+    if points.iter().flatten().any(|c| !c.is_finite()) {
+        return Err(field("points must be finite"));
+    }
+    let hull = Polytope::hull(&points)
+        .map_err(|e| field(&format!("no convex hull of its points: {e}")))?;
+    let shape = Shape {
+        kind: ShapeKind::Hull,
+        parts: vec![Part::Polytope(hull)],
+    };
+    let (volume, _) = shape.volume_and_centroid()?;
+    if !(o.mass.is_finite() && o.mass > 0.0) {
+        return Err(field("mass must be positive"));
+    }
+    if !(volume.is_finite() && volume > 0.0) {
+        return Err(field("its points span no volume"));
+    }
+    for (name, v) in [("friction", o.friction), ("restitution", o.restitution)] {
+        if !(v.is_finite() && v >= 0.0) {
+            return Err(field(&format!("{name} must be finite and non-negative")));
+        }
+    }
+    let pose = o.pose;
+    let rotation = unit(pose.rotation).ok_or_else(|| field("pose.rotation is not a rotation"))?;
+    if pose.translation.iter().any(|c| !c.is_finite()) {
+        return Err(field("pose.translation must be finite"));
+    }
+    let (linvel, angvel) = match (&o.velocity, &o.previous_pose) {
+        (Some(v), None) => (v.linear, v.angular),
+        (None, Some(p)) => {
+            let before = unit(p.rotation)
+                .ok_or_else(|| field("previous_pose.rotation is not a rotation"))?;
+            let d = Rotation::from_xyzw(rotation[0], rotation[1], rotation[2], rotation[3])
+                * Rotation::from_xyzw(before[0], before[1], before[2], before[3]).inverse();
+            let w = d.to_scaled_axis() / dt_step;
+            let v = (Vector::from(pose.translation) - Vector::from(p.translation)) / dt_step;
+            (v.to_array(), w.to_array())
+        }
+        (None, None) => ([0.0; 3], [0.0; 3]),
+        (Some(_), Some(_)) => return Err(field("has both velocity and previous_pose")),
+    };
+    if linvel.iter().chain(&angvel).any(|c| !c.is_finite()) {
+        return Err(field("velocity must be finite"));
+    }
+    Ok(ObjectSpec {
+        shape,
+        shape_id: 0,
+        scale: 1.0,
+        material: Material {
+            friction: o.friction,
+            restitution: o.restitution,
+            density: o.mass / volume,
+        },
+        material_kind: 0,
+        position: pose.translation,
+        rotation,
+        linvel,
+        angvel,
+        held_until_settled: false,
+    })
+}
+
+fn unit(q: [f32; 4]) -> Option<[f32; 4]> {
+    let n = q.iter().map(|c| c * c).sum::<f32>().sqrt();
+    (n.is_finite() && n > 1e-6).then(|| q.map(|c| c / n))
+}
+
+/// Replays `scene` for `steps` steps with the objects of `paths` driven along them (every path
+/// must hold at least `steps` poses; with no path, `steps` is all that sets the length).
+pub fn replay(
+    scene: &json::Scene,
+    paths: &[PathDoc],
+    steps: usize,
+    opts: &ReplayOptions,
+) -> Result<Replay> {
+    if steps == 0 {
+        return Err(SimError::Invalid("replay needs at least one step".into()));
+    }
+    if scene.objects.is_empty() {
+        return Err(SimError::Invalid("scene.objects is empty".into()));
+    }
+    let cfg = opts.sim_config(steps)?;
+    let dt_step = opts.dt_frame * opts.dt_steps as f32;
+    let objects = scene
+        .objects
+        .iter()
+        .enumerate()
+        .map(|(i, o)| object_spec(o, i, dt_step))
+        .collect::<Result<Vec<_>>>()?;
+    let spec = SceneSpec {
+        objects,
+        floor: opts.floor,
+        gravity: opts.gravity,
+        settle_steps: 0,
+    };
+    let kinematic: Vec<KinematicPath> = paths
+        .iter()
+        .map(|p| KinematicPath {
+            object: p.object,
+            poses: p
+                .poses
+                .iter()
+                .map(|x| ([x[0], x[1], x[2]], [x[3], x[4], x[5], x[6]]))
+                .collect(),
+        })
+        .collect();
+    let traj = simulate_driven(&spec, &cfg, &kinematic)?;
+    let poses = (0..cfg.frames)
+        .map(|t| {
+            (0..spec.objects.len())
+                .map(|j| {
+                    let (p, q) = (traj.positions[j][t], traj.rotations[j][t]);
+                    [p[0], p[1], p[2], q[0], q[1], q[2], q[3]]
+                })
+                .collect()
+        })
+        .collect();
+    Ok(Replay {
+        dt_step,
+        steps,
+        poses,
+        masses: traj.masses,
+    })
+}
