@@ -181,7 +181,7 @@ mod tests {
         let mut opts = GenerateOptions::new(Generator::movi_b(), 5, "test", 2);
         opts.points = 64;
         opts.sim.frames = 13;
-        dynaserve_sim::generators::generate_dataset(&opts, &dir, true, &|| {}).unwrap();
+        dynaserve_sim::writer::generate_dataset(&opts, &dir, true, &|| {}).unwrap();
         let data = DatasetReader::open(&dir).unwrap();
         let scene = data.get(1).unwrap();
 

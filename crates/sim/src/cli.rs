@@ -18,7 +18,8 @@ use clap::{Args, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::dataset::DatasetReader;
-use crate::generators::{GenerateOptions, Generator, generate_dataset};
+use crate::generators::{GenerateOptions, Generator};
+use crate::writer::generate_dataset;
 use crate::mesh_scenes::cli::{self as mesh_cli, MeshGenerateArgs};
 use crate::mesh_scenes::{MeshSet, is_mesh_dataset};
 use crate::preview::write_preview;

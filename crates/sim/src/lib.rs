@@ -5,13 +5,20 @@
 //! plane `z = 0`. Poses are the centre of mass translation and a unit quaternion `[x, y, z, w]`
 //! mapping the body frame (origin at the centre of mass) to the world: `x = R x_body + p`.
 //!
+//! The layers point one way: shapes, scenes, materials, seeding and the dataset format at the
+//! bottom; the scene generators and scenarios above them; writing a split above those; the
+//! command line on top.
+//!
 //! - [`shapes`]: the procedural shape set (unions of convex parts) and surface sampling;
 //! - [`scene`]: scene descriptions and their simulation with rapier;
-//! - [`generators`]: `movi-a`, `movi-b` and `wrecking-ball` scene samplers, seeded per split
-//!   and scene;
+//! - [`materials`], [`random`]: Kubric's materials and floor; per-scene seeding and uniform
+//!   rotations;
+//! - [`dataset`]: records, manifest, shards, the shard-writing loop and the streaming reader;
+//! - [`generators`]: `movi-a`, `movi-b` and `wrecking-ball` scene samplers and the generation
+//!   of one scene (sampled, simulated, recorded);
 //! - [`scenarios`]: physics scenario scenes (`rest`, `drop`, `slide`, `collide`,
 //!   `stack-hit`, `physics-mix`), each isolating one behaviour;
-//! - [`dataset`]: shards, manifest, writer and streaming reader;
+//! - [`writer`]: a pose dataset split written to disk (`dynaserve sim generate`);
 //! - [`stats`], [`preview`]: what `dynaserve sim inspect` and `dynaserve sim preview` print and
 //!   draw;
 //! - [`replay`]: a scene file in the server's JSON format replayed in rapier, kinematic
@@ -23,13 +30,16 @@
 pub mod cli;
 pub mod dataset;
 pub mod generators;
+pub mod materials;
 pub mod mesh_scenes;
 pub mod preview;
+pub mod random;
 pub mod replay;
 pub mod scenarios;
 pub mod scene;
 pub mod shapes;
 pub mod stats;
+pub mod writer;
 
 pub use dataset::{DatasetReader, Manifest, ObjectRecord, SceneLabel, SceneRecord};
 pub use generators::{GenerateOptions, Generator};

@@ -14,7 +14,8 @@ use rapier3d::math::Rotation;
 use serde::{Deserialize, Serialize};
 
 use crate::dataset::SceneLabel;
-use crate::generators::{METAL, MOVI_FLOOR, RUBBER, random_rotation};
+use crate::materials::{METAL, MOVI_FLOOR, RUBBER};
+use crate::random::random_rotation;
 use crate::scene::{
     FloorSpec, Material, ObjectSpec, SceneSpec, SimConfig, SimWorld, pose_from_arrays,
 };

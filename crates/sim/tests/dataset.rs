@@ -4,7 +4,8 @@ use std::path::{Path, PathBuf};
 
 use dynaserve_sim::SimError;
 use dynaserve_sim::dataset::DatasetReader;
-use dynaserve_sim::generators::{GenerateOptions, Generator, generate_dataset, generate_scene};
+use dynaserve_sim::generators::{GenerateOptions, Generator, generate_scene};
+use dynaserve_sim::writer::generate_dataset;
 
 /// A fresh directory under the system temporary directory, removed on drop.
 struct TempDir(PathBuf);

@@ -125,7 +125,7 @@ fn rigid_sets_stay_rigid_and_inside_the_box() {
 fn sets_draw_what_they_promise() {
     let opts = |set| MeshGenerateOptions::new(set, 3, "train", 1);
     let rng_scene = |set: MeshSet, i: u64| {
-        let mut rng = dynaserve_sim::generators::scene_rng(3, "train", set.name(), i);
+        let mut rng = dynaserve_sim::random::scene_rng(3, "train", set.name(), i);
         set.sample(&mut rng, &opts(set).physics).unwrap()
     };
     let (mut many, mut spin, mut elastic, mut mixed, mut concave) = (0, 0, 0, 0, 0);

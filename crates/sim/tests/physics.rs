@@ -1,8 +1,8 @@
 //! Physics sanity of generated scenes, checked with real rapier worlds and parry queries.
 
-use dynaserve_sim::generators::{
-    GenerateOptions, Generator, METAL, MOVI_FLOOR, RUBBER, generate_scene, scene_rng,
-};
+use dynaserve_sim::generators::{GenerateOptions, Generator, generate_scene};
+use dynaserve_sim::materials::{METAL, MOVI_FLOOR, RUBBER};
+use dynaserve_sim::random::scene_rng;
 use dynaserve_sim::scene::{ObjectSpec, SceneSpec, SimConfig, SimWorld, simulate_observed};
 use dynaserve_sim::shapes::{Shape, ShapeKind};
 use dynaserve_sim::stats::{posed_cloud, rotate};

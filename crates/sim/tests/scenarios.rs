@@ -2,12 +2,11 @@
 //! the behaviour it is meant to isolate.
 
 use dynaserve_sim::dataset::DatasetReader;
-use dynaserve_sim::generators::{
-    GenerateOptions, GeneratedScene, generate_dataset, generate_scene,
-};
+use dynaserve_sim::generators::{GenerateOptions, GeneratedScene, generate_scene};
 use dynaserve_sim::scenarios::{RestVariant, Scenario, ScenarioParameters};
 use dynaserve_sim::shapes::ShapeKind;
 use dynaserve_sim::stats::posed_cloud;
+use dynaserve_sim::writer::generate_dataset;
 use dynaserve_sim::{Generator, ObjectRecord};
 
 fn options(generator: Generator, seed: u64, scenes: usize) -> GenerateOptions {

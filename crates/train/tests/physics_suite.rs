@@ -7,7 +7,7 @@ use std::path::Path;
 use std::sync::{Arc, OnceLock};
 
 use dynaserve_model::{Pose, SceneState};
-use dynaserve_sim::generators::generate_dataset;
+use dynaserve_sim::writer::generate_dataset;
 use dynaserve_sim::{GenerateOptions, Generator, SceneRecord};
 use dynaserve_train::eval::physics_report::{format_physics_markdown, format_physics_text};
 use dynaserve_train::eval::physics_suite::{

@@ -4,7 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
-use dynaserve_sim::generators::generate_dataset;
+use dynaserve_sim::writer::generate_dataset;
 use dynaserve_sim::{GenerateOptions, Generator};
 use dynaserve_train::train::{TrainConfig, TrainOptions, train};
 

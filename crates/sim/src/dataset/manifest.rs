@@ -8,7 +8,6 @@ use serde::{Deserialize, Serialize};
 
 use super::io_err;
 use super::records::SceneLabel;
-use crate::generators::GenerateOptions;
 use crate::{Result, SimError};
 
 /// Name written in every manifest's `format` field.
@@ -141,84 +140,6 @@ pub(crate) fn doc(name: &str, dtype: &str, shape: &str, description: &str) -> Te
 }
 
 impl Manifest {
-    /// The manifest of a generated split.
-    pub fn new(
-        opts: &GenerateOptions,
-        shapes: Vec<ShapeInfo>,
-        shards: Vec<ShardInfo>,
-        objects: usize,
-    ) -> Self {
-        Self {
-            format: FORMAT.into(),
-            format_version: FORMAT_VERSION,
-            generator: opts.generator.name().into(),
-            generator_parameters: opts.generator.parameters(),
-            seed: opts.seed,
-            split: opts.split.clone(),
-            engine: "rapier3d 0.36 (enhanced-determinism, sleeping disabled, Multiply combine \
-                     rules, contact recycling off, default soft contacts)"
-                .into(),
-            units: Units {
-                length: "m".into(),
-                mass: "kg".into(),
-                time: "s".into(),
-            },
-            axis: "z".into(),
-            quaternion_order: "xyzw".into(),
-            gravity: opts.generator.gravity(),
-            dt_frame: opts.sim.dt_frame(),
-            physics_hz: opts.sim.physics_hz,
-            substeps_per_frame: opts.sim.substeps,
-            solver_iterations: opts.sim.solver_iterations,
-            frames: opts.sim.frames,
-            reference_points: opts.points,
-            scenes: shards.iter().map(|s| s.scenes).sum(),
-            objects,
-            shards,
-            shapes,
-            materials: vec!["rigid".into(), "elastic".into()],
-            tensors: vec![
-                doc(
-                    "scene_object_offsets",
-                    "I64",
-                    "[S+1]",
-                    "objects of scene s are rows offsets[s]..offsets[s+1]",
-                ),
-                doc(
-                    "positions",
-                    "F32",
-                    "[O,T,3]",
-                    "centre of mass, world frame, m",
-                ),
-                doc(
-                    "rotations",
-                    "F32",
-                    "[O,T,4]",
-                    "unit quaternion [x,y,z,w], body to world, sign-continuous in time",
-                ),
-                doc(
-                    "reference_points",
-                    "F32",
-                    "[O,P,3]",
-                    "surface samples in the body frame (origin at the centre of mass), m",
-                ),
-                doc("mass", "F32", "[O]", "kg"),
-                doc("friction", "F32", "[O]", "friction coefficient"),
-                doc("restitution", "F32", "[O]", "restitution coefficient"),
-                doc("scale", "F32", "[O,3]", "scale of the unit shape per axis"),
-                doc("shape_id", "I32", "[O]", "index into shapes"),
-                doc(
-                    "material",
-                    "I32",
-                    "[O]",
-                    "index into materials (0 rigid, 1 elastic)",
-                ),
-            ],
-            reserved_tensors: RESERVED_TENSORS.iter().map(|s| s.to_string()).collect(),
-            scenarios: None,
-        }
-    }
-
     /// Checks format, version, counts and shard names; errors name `path`.
     pub(crate) fn validate(&self, path: &Path) -> Result<()> {
         let bad = |message: String| SimError::Manifest {

@@ -21,7 +21,7 @@ use super::format::SceneStart;
 use super::record::MeshMaterial;
 use super::simulate::{MeshObjectSpec, MeshPhysics, MeshSceneSpec};
 use super::templates::{CONVEX_TEMPLATES, MeshTemplate, templates};
-use crate::generators::random_rotation;
+use crate::random::random_rotation;
 use crate::{Result, SimError};
 
 /// A curriculum set of mesh scenes.

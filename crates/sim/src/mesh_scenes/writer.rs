@@ -13,7 +13,7 @@ use super::templates::templates;
 use crate::dataset::{
     FORMAT, FORMAT_VERSION, MESH_CONTENT, Units, prepare_dir, write_manifest, write_shards,
 };
-use crate::generators::scene_rng;
+use crate::random::scene_rng;
 use crate::{Result, SimError};
 
 /// What to generate.

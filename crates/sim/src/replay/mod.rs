@@ -16,7 +16,7 @@ use dynaserve_api::json;
 use rapier3d::math::{Rotation, Vector};
 use serde::{Deserialize, Serialize};
 
-use crate::generators::MOVI_FLOOR;
+use crate::materials::MOVI_FLOOR;
 use crate::scene::{
     FloorSpec, KinematicPath, Material, ObjectSpec, SceneSpec, SimConfig, simulate_driven,
 };

@@ -362,7 +362,8 @@ fn a_world_model_runs_through_the_same_path() {
 
 #[test]
 fn dataset_evaluation_on_real_simulated_scenes() {
-    use dynaserve_sim::generators::{GenerateOptions, Generator, generate_dataset};
+    use dynaserve_sim::writer::generate_dataset;
+    use dynaserve_sim::{GenerateOptions, Generator};
     let dir = std::env::temp_dir().join(format!("dynaserve-eval-test-{}", std::process::id()));
     let mut gen_opts = GenerateOptions::new(Generator::movi_a(), 11, "test", 3);
     gen_opts.points = 64;
