@@ -14,6 +14,20 @@ pub const RIGID_MATERIAL: [f32; 2] = [0.0, 0.01];
 /// Per-object material input `(softness, friction)` of an elastic object.
 pub const ELASTIC_MATERIAL: [f32; 2] = [1.0, 0.15];
 
+/// The trajectory the network's output is added to: the network predicts the clean trajectory
+/// as this prior plus a learned correction, so an untrained network already forecasts the prior.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TrajectoryPrior {
+    /// Every frame at the initial positions `X_0` (checkpoints written before the prior was
+    /// configurable have this one).
+    #[default]
+    Static,
+    /// Each vertex's ballistic path from its initial position and velocity under gravity,
+    /// `X_0 + V_0 s + g s^2 / 2` at `s = frame * dt_frame` seconds, clamped to the box.
+    Ballistic,
+}
+
 /// Every size and constant of a PhysiFormer network; nothing about its shape is hard-coded.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -69,6 +83,10 @@ pub struct PhysiConfig {
     pub t_eps: f32,
     /// Denoising steps a request gets when it does not ask for a number.
     pub default_steps: usize,
+    /// The trajectory the network's output corrects ([`TrajectoryPrior`]); absent in older
+    /// checkpoints, which are `static`.
+    #[serde(default)]
+    pub prior: TrajectoryPrior,
 }
 
 impl PhysiConfig {
@@ -96,6 +114,7 @@ impl PhysiConfig {
             t_sigma: 0.8,
             t_eps: 0.05,
             default_steps: 50,
+            prior: TrajectoryPrior::Ballistic,
         }
     }
 
@@ -225,5 +244,19 @@ impl PhysiConfig {
             return bad("t_eps must be below 1".into());
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_config_written_before_the_prior_option_reads_as_static() {
+        let mut json = serde_json::to_value(PhysiConfig::small()).unwrap();
+        json.as_object_mut().unwrap().remove("prior");
+        let old: PhysiConfig = serde_json::from_value(json).unwrap();
+        assert_eq!(old.prior, TrajectoryPrior::Static);
+        assert_eq!(PhysiConfig::small().prior, TrajectoryPrior::Ballistic);
     }
 }

@@ -8,7 +8,7 @@
 
 use candle_core::{Device, Tensor};
 
-use super::config::PhysiConfig;
+use super::config::{PhysiConfig, TrajectoryPrior};
 use super::scene::MeshScene;
 use crate::ModelError;
 
@@ -41,6 +41,9 @@ pub(crate) struct PassInputs {
     pub x0: Tensor,
     /// Frame-0 velocities `[B, 1, V, 3]`.
     pub v0: Tensor,
+    /// The trajectory the network output is added to (`TrajectoryPrior`): `[B, 1, V, 3]` for
+    /// the static prior (frame-0 positions), `[B, T, V, 3]` for the ballistic one, metres.
+    pub prior: Tensor,
     /// Material input of each vertex's object `[B, 1, V, 2]`.
     pub material: Tensor,
     /// Flow time per scene `[B]`.
@@ -74,6 +77,29 @@ fn coord_phases(p: [f32; 3], freqs: usize, out: &mut Vec<f32>) {
     for c in p {
         for k in 0..freqs {
             out.push(c * (1u32 << k) as f32);
+        }
+    }
+}
+
+/// Writes the ballistic prior of `scene` for its first `frames` frames into `out`
+/// (`[T, v, 3]` of the pass, `v` its padded vertex count; padded rows left at zero): each
+/// vertex moves from its initial position with its initial velocity under gravity, clamped to
+/// the box, metres.
+fn ballistic_prior(
+    config: &PhysiConfig,
+    scene: &MeshScene,
+    frames: usize,
+    v: usize,
+    out: &mut [f32],
+) {
+    let e = config.box_half_extent;
+    for fr in 0..frames {
+        let s = fr as f32 * config.dt_frame;
+        for (i, (p, u)) in scene.positions.iter().zip(&scene.velocities).enumerate() {
+            for c in 0..3 {
+                let x = p[c] + u[c] * s + 0.5 * config.gravity[c] * s * s;
+                out[(fr * v + i) * 3 + c] = x.clamp(-e, e);
+            }
         }
     }
 }
@@ -120,6 +146,12 @@ pub(crate) fn build(
     let mut z = vec![0f32; b * t * v * 3];
     let mut x0 = vec![0f32; b * v * 3];
     let mut v0 = vec![0f32; b * v * 3];
+    let ballistic = config.prior == TrajectoryPrior::Ballistic;
+    let mut prior = if ballistic {
+        vec![0f32; b * t * v * 3]
+    } else {
+        Vec::new()
+    };
     let mut material = vec![0f32; b * v * 2];
     let mut frame_mask = vec![0f32; b * t];
     let mut vertex_mask = vec![0f32; b * v];
@@ -147,6 +179,15 @@ pub(crate) fn build(
             let m = sc.materials[objects[i] as usize].features();
             material[(s * v + i) * 2..][..2].copy_from_slice(&m);
             vertex_mask[s * v + i] = 1.0;
+        }
+        if ballistic {
+            ballistic_prior(
+                config,
+                sc,
+                it.frames,
+                v,
+                &mut prior[s * t * v * 3..][..t * v * 3],
+            );
         }
         for fr in 0..it.frames {
             frame_mask[s * t + fr] = 1.0;
@@ -231,12 +272,18 @@ pub(crate) fn build(
     let scos: Vec<f32> = phases.iter().map(|p| p.cos()).collect();
     let ssin: Vec<f32> = phases.iter().map(|p| p.sin()).collect();
 
+    let x0 = tensor(x0, &[b, 1, v, 3], device)?;
     Ok(PassInputs {
         b,
         t,
         v,
         z: tensor(z, &[b, t, v, 3], device)?,
-        x0: tensor(x0, &[b, 1, v, 3], device)?,
+        prior: if ballistic {
+            tensor(prior, &[b, t, v, 3], device)?
+        } else {
+            x0.clone()
+        },
+        x0,
         v0: tensor(v0, &[b, 1, v, 3], device)?,
         material: tensor(material, &[b, 1, v, 2], device)?,
         time: tensor(times, &[b], device)?,
@@ -257,4 +304,73 @@ pub(crate) fn build(
             tensor(tsin, &[1, 1, lt, half], device)?,
         ),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::physiformer::scene::Material;
+
+    /// One scene of two single-vertex objects: one near the floor falling, one flying at a wall.
+    fn scene() -> MeshScene {
+        MeshScene {
+            positions: vec![[0.0, 0.0, -0.9], [0.8, 0.0, 0.0]],
+            velocities: vec![[0.0, 0.0, 0.0], [3.0, 0.0, 1.0]],
+            vertex_offsets: vec![0, 1, 2],
+            materials: vec![Material::Rigid, Material::Elastic],
+        }
+    }
+
+    fn prior_of(config: &PhysiConfig, frames: usize) -> Vec<f32> {
+        let sc = scene();
+        let z = vec![0f32; frames * 2 * 3];
+        let it = DenoiseItem {
+            scene: &sc,
+            z: &z,
+            frames,
+            t: 0.5,
+        };
+        let inp = build(config, &[it], &Device::Cpu).unwrap();
+        let (b, t, v) = (inp.b, inp.t, inp.v);
+        inp.prior
+            .broadcast_as((b, t, v, 3))
+            .unwrap()
+            .flatten_all()
+            .unwrap()
+            .to_vec1()
+            .unwrap()
+    }
+
+    #[test]
+    fn ballistic_prior_follows_gravity_and_stays_in_the_box() {
+        let cfg = PhysiConfig::tiny();
+        assert_eq!(cfg.prior, TrajectoryPrior::Ballistic);
+        let p = prior_of(&cfg, 5);
+        let s = 2.0 * cfg.dt_frame;
+        // Frame 2, vertex 0: free fall from rest.
+        let want = -0.9 + 0.5 * cfg.gravity[2] * s * s;
+        assert!(
+            (p[(2 * 2) * 3 + 2] - want).abs() < 1e-6,
+            "{}",
+            p[(2 * 2) * 3 + 2]
+        );
+        // Frame 0 is the initial state.
+        assert_eq!(&p[..6], &[0.0, 0.0, -0.9, 0.8, 0.0, 0.0]);
+        // Vertex 1 reaches the wall x = 1 and stays on it.
+        let last_x = p[(4 * 2 + 1) * 3];
+        assert_eq!(last_x, cfg.box_half_extent);
+        assert!(p.iter().all(|x| x.abs() <= cfg.box_half_extent));
+    }
+
+    #[test]
+    fn static_prior_is_the_initial_state_at_every_frame() {
+        let cfg = PhysiConfig {
+            prior: TrajectoryPrior::Static,
+            ..PhysiConfig::tiny()
+        };
+        let p = prior_of(&cfg, 4);
+        for fr in 0..4 {
+            assert_eq!(&p[fr * 6..fr * 6 + 6], &[0.0, 0.0, -0.9, 0.8, 0.0, 0.0]);
+        }
+    }
 }

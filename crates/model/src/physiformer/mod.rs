@@ -191,7 +191,7 @@ impl PhysiFormer {
         }
         let m = self.final_ada.forward(&c)?.chunk(2, D::Minus1)?;
         let y = modulate(&self.final_norm.forward(&x, mode)?, &m[0], &m[1])?;
-        self.head.forward(&y)?.broadcast_add(&inp.x0)
+        self.head.forward(&y)?.broadcast_add(&inp.prior)
     }
 
     /// One network evaluation of many scenes, each at its own flow time: the predicted clean

@@ -13,7 +13,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use anyhow::Context;
-use dynaserve_model::physiformer::config::PhysiConfig;
+use dynaserve_model::physiformer::config::{PhysiConfig, TrajectoryPrior};
 use dynaserve_model::{Device, PhysiFormer};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -36,8 +36,12 @@ const CSV_HEADER: &str = "step,lr,loss,grad_norm,seconds";
 pub struct PhysiTrainConfig {
     /// `"physiformer"` (what routes `dynaserve train` here).
     pub architecture: String,
-    /// Network preset (`small`, `b`) before `overrides`.
+    /// Network preset (`small`, `b`).
     pub preset: String,
+    /// The trajectory the network's output corrects, replacing the preset's (`static` or
+    /// `ballistic`; docs/physiformer.md). Only for a new run: a resumed run keeps its own.
+    #[serde(default)]
+    pub prior: Option<TrajectoryPrior>,
     /// Mesh dataset split directories trained on (scenes drawn uniformly from their union).
     pub train: Vec<PathBuf>,
     /// Optimiser and schedule (`[optim]`, as for RigidFormer).
@@ -110,6 +114,9 @@ pub fn run(
         std::fs::create_dir_all(&cfg.out_dir)?;
         let mut mc = PhysiConfig::preset(&cfg.preset)?;
         mc.frames = scenes.iter().map(|s| s.frames).max().unwrap_or(mc.frames);
+        if let Some(prior) = cfg.prior {
+            mc.prior = prior;
+        }
         PhysiFormer::new("physiformer", mc, cfg.seed, &device)?
     };
     for (i, s) in scenes.iter().enumerate() {
