@@ -11,7 +11,12 @@
 
 use serde::{Deserialize, Serialize};
 
+mod generate;
 mod session;
+pub use generate::{
+    GenerateDone, GenerateProgress, GenerateRequest, GenerateResponse, GeneratedSample, Material,
+    MeshFrame, MeshObject, MeshScene, ObjectFrame, Sampler,
+};
 pub use session::{
     Action, CreateSessionRequest, ObjectPose, ObjectState, SessionInfo, SessionPredictRequest,
     SessionState, SessionVariant, SetStateRequest, StepRequest, StepResponse,
@@ -276,6 +281,28 @@ pub struct ModelInfo {
     /// The checkpoint's `config.json`.
     #[cfg_attr(feature = "openapi", schema(value_type = Object))]
     pub config: serde_json::Value,
+    /// PhysiFormer models: most vertices per Generate scene (absent for other models).
+    #[serde(default, skip_serializing_if = "is_zero_u32")]
+    pub max_vertices: u32,
+    /// PhysiFormer models: most frames of a sampled trajectory, also the default.
+    #[serde(default, skip_serializing_if = "is_zero_u32")]
+    pub max_frames: u32,
+    /// PhysiFormer models: most denoising steps per request.
+    #[serde(default, skip_serializing_if = "is_zero_u32")]
+    pub max_denoise_steps: u32,
+    /// PhysiFormer models: denoising steps of a request that names none.
+    #[serde(default, skip_serializing_if = "is_zero_u32")]
+    pub default_denoise_steps: u32,
+    /// PhysiFormer models: most samples per request.
+    #[serde(default, skip_serializing_if = "is_zero_u32")]
+    pub max_samples: u32,
+    /// PhysiFormer models: half extent `e` of the closed box `[-e, e]^3`, metres.
+    #[serde(default, skip_serializing_if = "is_zero_f32")]
+    pub box_half_extent: f32,
+}
+
+fn is_zero_f32(v: &f32) -> bool {
+    *v == 0.0
 }
 
 /// Result of `GET /v1/models`.

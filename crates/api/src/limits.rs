@@ -4,6 +4,8 @@
 //! limit is reported by `ListModels` / `GET /v1/models`.
 
 use dynaserve_model::ModelConfig;
+use dynaserve_model::physiformer::config::PhysiConfig;
+use dynaserve_model::physiformer::flow::MAX_STEPS as MAX_DENOISE_STEPS;
 
 pub use dynaserve_model::{MAX_BODY_EXTENT, MAX_DT_STEPS, MAX_WORLD_EXTENT};
 
@@ -88,6 +90,68 @@ impl Limits {
         Limits {
             caps,
             default_points: model.points_per_object.min(caps.max_points_per_object),
+        }
+    }
+}
+
+/// Caps on Generate requests (PhysiFormer models), set by the server's flags.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct GenerateCaps {
+    /// Denoising steps per request.
+    pub max_denoise_steps: u32,
+    /// Samples per request.
+    pub max_samples: u32,
+}
+
+impl GenerateCaps {
+    /// The defaults of `dynaserve serve`.
+    pub const DEFAULT: GenerateCaps = GenerateCaps {
+        max_denoise_steps: 200,
+        max_samples: 16,
+    };
+}
+
+impl Default for GenerateCaps {
+    fn default() -> GenerateCaps {
+        GenerateCaps::DEFAULT
+    }
+}
+
+/// Generate limits of one PhysiFormer model: the server's caps lowered to the model's own.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GenerateLimits {
+    /// Objects per scene.
+    pub max_objects: usize,
+    /// Vertices per scene, summed over its objects.
+    pub max_vertices: usize,
+    /// Frames of a trajectory (frame 0 included); also the default.
+    pub max_frames: u32,
+    /// Denoising steps per request.
+    pub max_denoise_steps: u32,
+    /// Denoising steps of a request that names none.
+    pub default_denoise_steps: u32,
+    /// Samples per request.
+    pub max_samples: u32,
+    /// Half extent `e` of the model's box `[-e, e]^3`, metres; vertices must lie within `2e`.
+    pub box_half_extent: f32,
+    /// Interval between frames, seconds.
+    pub dt_frame: f64,
+}
+
+impl GenerateLimits {
+    /// Limits for a model with configuration `model` under the server's Generate caps and
+    /// its per-scene object cap `max_objects`.
+    pub fn new(caps: &GenerateCaps, max_objects: usize, model: &PhysiConfig) -> GenerateLimits {
+        let max_denoise_steps = caps.max_denoise_steps.min(MAX_DENOISE_STEPS as u32).max(1);
+        GenerateLimits {
+            max_objects: max_objects.min(model.max_objects),
+            max_vertices: model.max_vertices,
+            max_frames: model.frames as u32,
+            max_denoise_steps,
+            default_denoise_steps: (model.default_steps as u32).clamp(1, max_denoise_steps),
+            max_samples: caps.max_samples.max(1),
+            box_half_extent: model.box_half_extent,
+            dt_frame: f64::from(model.dt_frame),
         }
     }
 }

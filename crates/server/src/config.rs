@@ -9,7 +9,7 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 
-use dynaserve_api::limits::Caps;
+use dynaserve_api::limits::{Caps, GenerateCaps};
 
 /// Default gRPC listen address.
 pub const DEFAULT_GRPC_ADDR: &str = "127.0.0.1:50051";
@@ -28,7 +28,8 @@ pub enum LogFormat {
 /// Flags of `dynaserve serve`.
 #[derive(Clone, Debug, clap::Args)]
 pub struct ServeConfig {
-    /// Model checkpoint directories to serve (each with config.json and model.safetensors).
+    /// Model checkpoint directories to serve (each with config.json and model.safetensors),
+    /// RigidFormer or PhysiFormer: the family is read from config.json's `architecture`.
     /// Repeatable. When none is given, every such directory under --models-dir is served.
     #[arg(long = "model", env = "DYNASERVE_MODELS", value_delimiter = ',')]
     pub models: Vec<PathBuf>,
@@ -61,6 +62,16 @@ pub struct ServeConfig {
     /// past it gets RESOURCE_EXHAUSTED / HTTP 429.
     #[arg(long, env = "DYNASERVE_MAX_PREDICT_VARIANTS", default_value_t = 1024)]
     pub max_predict_variants: usize,
+    /// Most Generate samples in flight over all PhysiFormer models (a call counts one per
+    /// sample); a call that would go past it gets RESOURCE_EXHAUSTED / HTTP 429.
+    #[arg(long, env = "DYNASERVE_MAX_GENERATE_SAMPLES", default_value_t = 64)]
+    pub max_generate_samples: usize,
+    /// Most denoising steps per Generate call (also capped at 1000).
+    #[arg(long, env = "DYNASERVE_MAX_DENOISE_STEPS", default_value_t = GenerateCaps::DEFAULT.max_denoise_steps)]
+    pub max_denoise_steps: u32,
+    /// Most samples per Generate call.
+    #[arg(long, env = "DYNASERVE_MAX_SAMPLES", default_value_t = GenerateCaps::DEFAULT.max_samples)]
+    pub max_samples: u32,
     /// Retry hint sent with RESOURCE_EXHAUSTED / 429, milliseconds.
     #[arg(long, env = "DYNASERVE_RETRY_AFTER_MS", default_value_t = 1000)]
     pub retry_after_ms: u64,
@@ -165,6 +176,18 @@ impl ServeConfig {
         }
     }
 
+    /// The Generate caps set by the flags (each PhysiFormer model caps them again). A call
+    /// with more samples than the in-flight cap could never be admitted, so the per-call cap
+    /// is the smaller of the two.
+    pub fn generate_caps(&self) -> GenerateCaps {
+        GenerateCaps {
+            max_denoise_steps: self.max_denoise_steps,
+            max_samples: self
+                .max_samples
+                .min(u32::try_from(self.max_generate_samples).unwrap_or(u32::MAX)),
+        }
+    }
+
     /// `stream_stall_timeout_s` as a duration; `None` when 0 (disabled).
     pub fn stream_stall_timeout(&self) -> Option<Duration> {
         secs(self.stream_stall_timeout_s)
@@ -197,6 +220,9 @@ impl ServeConfig {
             ("--max-batch-objects", self.max_batch_objects),
             ("--max-active-rollouts", self.max_active_rollouts),
             ("--max-predict-variants", self.max_predict_variants),
+            ("--max-generate-samples", self.max_generate_samples),
+            ("--max-denoise-steps", self.max_denoise_steps as usize),
+            ("--max-samples", self.max_samples as usize),
             ("--stream-buffer", self.stream_buffer),
             ("--max-objects", self.max_objects),
             ("--max-points-per-object", self.max_points_per_object),

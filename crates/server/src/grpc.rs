@@ -10,6 +10,7 @@ use std::pin::Pin;
 use std::sync::Arc;
 use std::time::Duration;
 
+use dynaserve_api::spec::generate::GenerateSpec;
 use dynaserve_api::spec::{Frame, PredictSpec, RolloutSpec, millis};
 use dynaserve_api::v1;
 use dynaserve_api::v1::world_model_server::{WorldModel as WorldModelApi, WorldModelServer};
@@ -64,6 +65,7 @@ pub struct GrpcService {
 }
 
 type FrameStream = Pin<Box<dyn Stream<Item = Result<v1::StepFrame, Status>> + Send>>;
+type GenerateEventStream = Pin<Box<dyn Stream<Item = Result<v1::GenerateEvent, Status>> + Send>>;
 
 #[tonic::async_trait]
 impl WorldModelApi for GrpcService {
@@ -128,6 +130,32 @@ impl WorldModelApi for GrpcService {
             "x-dynaserve-total-ms",
             &format!("{:.3}", millis(t.total)),
         );
+        Ok(resp)
+    }
+
+    type GenerateStream = GenerateEventStream;
+
+    async fn generate(
+        &self,
+        request: Request<v1::GenerateRequest>,
+    ) -> Result<Response<Self::GenerateStream>, Status> {
+        let ctx = ctx_of(request.metadata());
+        let req = request.into_inner();
+        let parsed = self
+            .engine
+            .check_payload(req.encoded_len())
+            .and_then(|()| GenerateSpec::from_v1(&req).map_err(ApiError::from));
+        let rid = ctx.request_id.clone();
+        let handle = match parsed {
+            Ok(r) => self.engine.start_generate(r, ctx).await,
+            Err(e) => Err(self.engine.reject(&ctx, "generate", e)),
+        }
+        .map_err(|e| with_request_id(e.to_status(), &rid))?;
+        let stream = ReceiverStream::new(handle.events)
+            .map(|r| r.map(|e| e.to_v1()).map_err(|e| e.to_status()));
+        let mut resp = Response::new(Box::pin(stream) as GenerateEventStream);
+        insert(resp.metadata_mut(), "x-request-id", &handle.request_id);
+        insert(resp.metadata_mut(), "x-dynaserve-model", &handle.model);
         Ok(resp)
     }
 

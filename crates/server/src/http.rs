@@ -4,6 +4,7 @@
 //! |---|---|
 //! | `POST /v1/rollout` | whole trajectory as JSON, or Server-Sent Events frame by frame when the body has `"stream": true` or the request sends `Accept: text/event-stream` |
 //! | `POST /v1/predict` | many variants, final poses or every k-th frame |
+//! | `POST /v1/generate` | PhysiFormer: sampled mesh trajectories as JSON, or SSE progress and samples ([`generate`]) |
 //! | `GET /v1/models` | resident models and limits |
 //! | `GET /health` | liveness: 200 while the process serves HTTP |
 //! | `GET /ready` | readiness: 200 once models are loaded and warmed up, 503 while warming up or draining |
@@ -38,6 +39,7 @@ use utoipa::OpenApi;
 use crate::engine::{Engine, Protocol, RequestCtx};
 use crate::error::ApiError;
 
+pub mod generate;
 pub mod sessions;
 
 #[derive(Clone)]
@@ -50,10 +52,12 @@ struct AppState {
 #[openapi(
     info(
         title = "Dynaserve HTTP API",
-        description = "Learned physics world models (RigidFormer) stepping rigid multi-object \
-                       scenes forward. Units: metres, seconds, kilograms, radians; z up; ground \
-                       plane z = 0; quaternions [x, y, z, w]. The gRPC API (dynaserve.v1) has \
-                       the same semantics."
+        description = "Learned physics world models: RigidFormer stepping rigid multi-object \
+                       scenes forward (rollout, predict, sessions) and PhysiFormer sampling \
+                       whole trajectories of rigid and elastic mesh scenes (generate). Units: \
+                       metres, seconds, kilograms, radians; z up; ground plane z = 0; \
+                       quaternions [x, y, z, w]. The gRPC API (dynaserve.v1) has the same \
+                       semantics."
     ),
     paths(rollout, predict, list_models, health, ready, metrics),
     components(schemas(
@@ -80,6 +84,7 @@ pub fn router(engine: Arc<Engine>) -> Router {
         .route("/metrics", get(metrics))
         .route("/openapi.json", get(openapi))
         .merge(sessions::routes())
+        .merge(generate::routes())
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
         // Bodies are read with the configured limit in `read_json`, which names the field.
@@ -453,6 +458,7 @@ async fn openapi() -> Response {
     let mut doc = ApiDoc::openapi();
     doc.merge(crate::viewer::ViewerDoc::openapi());
     doc.merge(sessions::SessionsDoc::openapi());
+    doc.merge(generate::GenerateDoc::openapi());
     axum::Json(doc).into_response()
 }
 

@@ -32,5 +32,6 @@ pub mod viewer;
 
 pub use config::ServeConfig;
 pub use engine::Engine;
+pub use engine::Models;
 pub use error::ApiError;
-pub use server::{RunningServer, load_models, model_dirs, run, start};
+pub use server::{RunningServer, load_all, load_models, model_dirs, run, start};

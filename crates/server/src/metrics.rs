@@ -207,6 +207,26 @@ pub const METRICS: &[MetricSpec] = &[
          model error or panic); a failure in a shared pass reaches only its own scene.",
     ),
     spec(
+        "dynaserve_denoise_steps_total",
+        Counter,
+        &["model"],
+        "Denoising steps completed by Generate samples (one sample advanced by one step); \
+         denoising steps per second is its rate. Batch sizes of these passes are \
+         dynaserve_batch_scenes of the same model.",
+    ),
+    spec(
+        "dynaserve_generate_sample_seconds",
+        H,
+        &["model"],
+        "Wall time of one Generate sample, from admission to its finished trajectory, seconds.",
+    ),
+    spec(
+        "dynaserve_active_generate_samples",
+        G,
+        &["model"],
+        "Samples of admitted Generate calls not yet finished.",
+    ),
+    spec(
         "dynaserve_open_connections",
         G,
         &["listener"],
@@ -251,6 +271,7 @@ pub const METHODS: &[&str] = &[
     "delete_session",
     "session_predict",
     "interact",
+    "generate",
 ];
 /// Values of the `priority` label.
 pub const PRIORITIES: &[&str] = &["interactive", "bulk"];
@@ -349,6 +370,12 @@ pub struct Metrics {
     pub stalled_streams: IntCounterVec,
     /// `dynaserve_scene_step_failures_total`.
     pub scene_step_failures: IntCounterVec,
+    /// `dynaserve_denoise_steps_total`.
+    pub denoise_steps: IntCounterVec,
+    /// `dynaserve_generate_sample_seconds`.
+    pub generate_sample_seconds: HistogramVec,
+    /// `dynaserve_active_generate_samples`.
+    pub active_generate_samples: IntGaugeVec,
     /// `dynaserve_open_connections`.
     pub open_connections: IntGaugeVec,
     /// `dynaserve_closed_connections_total`.
@@ -399,6 +426,13 @@ impl Metrics {
             sessions_reaped: counter(&registry, "dynaserve_sessions_reaped_total"),
             stalled_streams: counter(&registry, "dynaserve_stalled_streams_total"),
             scene_step_failures: counter(&registry, "dynaserve_scene_step_failures_total"),
+            denoise_steps: counter(&registry, "dynaserve_denoise_steps_total"),
+            generate_sample_seconds: histogram(
+                &registry,
+                "dynaserve_generate_sample_seconds",
+                DURATION_BUCKETS,
+            ),
+            active_generate_samples: gauge(&registry, "dynaserve_active_generate_samples"),
             open_connections: gauge(&registry, "dynaserve_open_connections"),
             closed_connections: counter(&registry, "dynaserve_closed_connections_total"),
             registry,
@@ -442,6 +476,9 @@ impl Metrics {
             m.sessions_created.with_label_values(&[model]);
             m.session_forks.with_label_values(&[model]);
             m.sessions_reaped.with_label_values(&[model]);
+            m.denoise_steps.with_label_values(&[model]);
+            m.generate_sample_seconds.with_label_values(&[model]);
+            m.active_generate_samples.with_label_values(&[model]);
             for r in ["cancelled", "deadline_exceeded"] {
                 m.dropped.with_label_values(&[model, r]);
             }

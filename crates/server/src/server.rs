@@ -22,7 +22,7 @@ use tokio::sync::watch;
 use tokio::task::JoinHandle;
 
 use crate::config::{LogFormat, ServeConfig};
-use crate::engine::Engine;
+use crate::engine::{Engine, Models};
 use crate::grpc;
 use crate::http;
 use crate::listener;
@@ -99,7 +99,43 @@ pub fn model_dirs(config: &ServeConfig) -> anyhow::Result<Vec<PathBuf>> {
     Ok(dirs)
 }
 
-/// Loads every model directory on the CPU.
+/// Loads every model directory on the CPU, each in its family (config.json's
+/// `architecture`: `physiformer` or a RigidFormer).
+pub fn load_all(dirs: &[PathBuf]) -> anyhow::Result<Models> {
+    let mut models = Models::default();
+    for d in dirs {
+        if architecture_of(d)? == dynaserve_model::physiformer::config::PHYSIFORMER {
+            let start = Instant::now();
+            let m = dynaserve_model::PhysiFormer::load(d, &candle_core::Device::Cpu, false)
+                .with_context(|| format!("loading model {}", d.display()))?;
+            tracing::info!(
+                model = m.name(),
+                dir = %d.display(),
+                ms = start.elapsed().as_secs_f64() * 1e3,
+                "model loaded"
+            );
+            models.physi.push(Arc::new(m));
+        } else {
+            models.rigid.extend(load_models(std::slice::from_ref(d))?);
+        }
+    }
+    Ok(models)
+}
+
+/// The `architecture` field of a checkpoint directory's config.json.
+fn architecture_of(dir: &Path) -> anyhow::Result<String> {
+    let path = dir.join(dynaserve_model::checkpoint::CONFIG_FILE);
+    let text =
+        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let v: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
+    Ok(v.get("architecture")
+        .and_then(|a| a.as_str())
+        .unwrap_or_default()
+        .to_string())
+}
+
+/// Loads RigidFormer model directories on the CPU.
 pub fn load_models(dirs: &[PathBuf]) -> anyhow::Result<Vec<Arc<dyn WorldModel>>> {
     dirs.iter()
         .map(|d: &PathBuf| {
@@ -126,7 +162,7 @@ async fn stop_signal(mut rx: watch::Receiver<bool>) {
 /// (see [`RunningServer::wait_ready`]).
 pub async fn start(
     config: ServeConfig,
-    models: Vec<Arc<dyn WorldModel>>,
+    models: impl Into<Models>,
 ) -> anyhow::Result<RunningServer> {
     start_with_viewer(config, models, Viewer::builtin()).await
 }
@@ -134,7 +170,7 @@ pub async fn start(
 /// [`start`] with the scenes the browser viewer offers (`GET /v1/examples`).
 pub async fn start_with_viewer(
     config: ServeConfig,
-    models: Vec<Arc<dyn WorldModel>>,
+    models: impl Into<Models>,
     viewer: Viewer,
 ) -> anyhow::Result<RunningServer> {
     let engine = Arc::new(Engine::new(config.clone(), models)?);
@@ -316,14 +352,14 @@ pub fn run_with_viewer(config: ServeConfig, viewer: Viewer) -> anyhow::Result<()
     config.validate().map_err(anyhow::Error::msg)?;
     init_logging(config.log_format, &config.log)?;
     let dirs = model_dirs(&config)?;
-    let models = load_models(&dirs)?;
+    let models = load_all(&dirs)?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .thread_name("dynaserve-io")
         .build()
         .context("starting the async runtime")?;
     runtime.block_on(async move {
-        let names: Vec<String> = models.iter().map(|m| m.name().to_string()).collect();
+        let names = models.names();
         let server = start_with_viewer(config, models, viewer).await?;
         println!(
             "{}",

@@ -6,6 +6,7 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::Duration;
 
+use dynaserve_model::physiformer::flow::SamplerKind;
 use dynaserve_model::physiformer::scene::{Material, MeshScene};
 use dynaserve_model::{Device, PhysiFormer};
 use dynaserve_server::metrics::Metrics;
@@ -41,6 +42,7 @@ fn job(scene: &Arc<MeshScene>, stream_id: u64, seed: u64) -> GenerateJob {
         scene: scene.clone(),
         frames: 49,
         steps: 8,
+        sampler: SamplerKind::Heun,
         seed,
         priority: Priority::Interactive,
         deadline: None,

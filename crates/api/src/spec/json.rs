@@ -167,19 +167,25 @@ impl Prediction {
 impl ModelInfo {
     /// The `GET /v1/models` entry.
     pub fn to_json(&self) -> json::ModelInfo {
-        let l = &self.limits;
+        let v = self.to_v1();
         json::ModelInfo {
-            name: self.name.clone(),
-            architecture: self.config.architecture.clone(),
-            dt_frame: f64::from(self.config.dt_frame),
-            default_points: l.default_points as u32,
-            max_objects: l.caps.max_objects as u32,
-            max_points_per_object: l.caps.max_points_per_object as u32,
-            max_steps: l.caps.max_steps,
-            max_dt_steps: l.caps.max_dt_steps,
-            max_variants: l.caps.max_variants as u32,
-            gravity: self.config.gravity,
-            config: serde_json::to_value(&self.config).unwrap_or(serde_json::Value::Null),
+            name: v.name,
+            architecture: v.architecture,
+            dt_frame: v.dt_frame,
+            default_points: v.default_points,
+            max_objects: v.max_objects,
+            max_points_per_object: v.max_points_per_object,
+            max_steps: v.max_steps,
+            max_dt_steps: v.max_dt_steps,
+            max_variants: v.max_variants,
+            gravity: crate::wire::vec3_from(v.gravity.as_ref()),
+            config: self.config_json(),
+            max_vertices: v.max_vertices,
+            max_frames: v.max_frames,
+            max_denoise_steps: v.max_denoise_steps,
+            default_denoise_steps: v.default_denoise_steps,
+            max_samples: v.max_samples,
+            box_half_extent: v.box_half_extent,
         }
     }
 }

@@ -7,6 +7,7 @@
 //!
 //! Units: metres, seconds, kilograms, radians; z up; quaternions `[x, y, z, w]`.
 
+pub mod generate;
 pub mod json;
 pub mod session;
 pub mod v1;
@@ -15,8 +16,9 @@ use std::time::Duration;
 
 use dynaserve_model::ModelConfig;
 pub use dynaserve_model::Pose;
+use dynaserve_model::physiformer::config::PhysiConfig;
 
-use crate::limits::Limits;
+use crate::limits::{GenerateLimits, Limits};
 
 /// A triangle mesh in the body frame (origin at the centre of mass), metres, to be sampled.
 #[derive(Clone, Debug, PartialEq)]
@@ -171,10 +173,28 @@ pub struct Prediction {
 pub struct ModelInfo {
     /// Name used in requests.
     pub name: String,
-    /// Its configuration (architecture, data conventions).
-    pub config: ModelConfig,
-    /// Request limits.
-    pub limits: Limits,
+    /// Its family, configuration and limits.
+    pub kind: ModelKind,
+}
+
+/// The family of a resident model, with its configuration (architecture, data conventions)
+/// and request limits.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ModelKind {
+    /// A RigidFormer: Rollout, Predict and sessions.
+    Rigid {
+        /// Its configuration.
+        config: ModelConfig,
+        /// Request limits.
+        limits: Limits,
+    },
+    /// A PhysiFormer: Generate.
+    Physi {
+        /// Its configuration.
+        config: PhysiConfig,
+        /// Generate limits.
+        limits: GenerateLimits,
+    },
 }
 
 /// Milliseconds of a duration, as the wire forms carry them.

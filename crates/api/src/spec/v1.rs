@@ -3,15 +3,15 @@
 //! model descriptions out. No detour through the JSON form.
 
 use super::{
-    Frame, Mesh, ModelInfo, Motion, ObjectSpec, Pose, PredictSpec, Prediction, RolloutSpec, Scene,
-    Shape, millis,
+    Frame, Mesh, ModelInfo, ModelKind, Motion, ObjectSpec, Pose, PredictSpec, Prediction,
+    RolloutSpec, Scene, Shape, millis,
 };
 use crate::error::FieldError;
 use crate::json::IDENTITY_ROTATION;
 use crate::v1;
 use crate::wire::{vec3_from, vec3_to};
 
-fn triples<T: Copy>(flat: &[T], field: &str) -> Result<Vec<[T; 3]>, FieldError> {
+pub(super) fn triples<T: Copy>(flat: &[T], field: &str) -> Result<Vec<[T; 3]>, FieldError> {
     if !flat.len().is_multiple_of(3) {
         return Err(FieldError::new(
             field,
@@ -167,24 +167,51 @@ impl Prediction {
 }
 
 impl ModelInfo {
-    /// The gRPC `ListModels` entry (`config_json` holds the configuration as JSON text).
-    pub fn to_v1(&self) -> v1::ModelInfo {
-        let l = &self.limits;
-        v1::ModelInfo {
-            name: self.name.clone(),
-            architecture: self.config.architecture.clone(),
-            dt_frame: f64::from(self.config.dt_frame),
-            default_points: l.default_points as u32,
-            max_objects: l.caps.max_objects as u32,
-            max_points_per_object: l.caps.max_points_per_object as u32,
-            max_steps: l.caps.max_steps,
-            max_dt_steps: l.caps.max_dt_steps,
-            max_variants: l.caps.max_variants as u32,
-            gravity: Some(vec3_to(self.config.gravity)),
-            config_json: serde_json::to_value(&self.config)
-                .unwrap_or(serde_json::Value::Null)
-                .to_string(),
+    /// The checkpoint's configuration as JSON.
+    pub fn config_json(&self) -> serde_json::Value {
+        match &self.kind {
+            ModelKind::Rigid { config, .. } => serde_json::to_value(config),
+            ModelKind::Physi { config, .. } => serde_json::to_value(config),
         }
+        .unwrap_or(serde_json::Value::Null)
+    }
+
+    /// The gRPC `ListModels` entry (`config_json` holds the configuration as JSON text; the
+    /// fields of the other family are 0).
+    pub fn to_v1(&self) -> v1::ModelInfo {
+        let mut out = v1::ModelInfo {
+            name: self.name.clone(),
+            config_json: self.config_json().to_string(),
+            ..v1::ModelInfo::default()
+        };
+        match &self.kind {
+            ModelKind::Rigid { config, limits: l } => {
+                out.architecture = config.architecture.clone();
+                out.dt_frame = f64::from(config.dt_frame);
+                out.default_points = l.default_points as u32;
+                out.max_objects = l.caps.max_objects as u32;
+                out.max_points_per_object = l.caps.max_points_per_object as u32;
+                out.max_steps = l.caps.max_steps;
+                out.max_dt_steps = l.caps.max_dt_steps;
+                out.max_variants = l.caps.max_variants as u32;
+                out.gravity = Some(vec3_to(config.gravity));
+            }
+            ModelKind::Physi { config, limits: l } => {
+                out.architecture = config.architecture.clone();
+                out.dt_frame = f64::from(config.dt_frame);
+                out.max_objects = l.max_objects as u32;
+                out.gravity = Some(vec3_to(config.gravity));
+                [
+                    out.max_vertices,
+                    out.max_frames,
+                    out.max_denoise_steps,
+                    out.default_denoise_steps,
+                    out.max_samples,
+                ] = super::generate::generate_fields(l);
+                out.box_half_extent = l.box_half_extent;
+            }
+        }
+        out
     }
 }
 

@@ -1,5 +1,5 @@
 //! Flow matching in world coordinates: the training loss (x-prediction, v-loss, logit-normal
-//! flow time) and the Heun sampler with frame 0 clamped to the scene's initial positions.
+//! flow time) and the Heun (or Euler) sampler with frame 0 clamped to the scene's initial positions.
 //!
 //! `z_t = t x + (1 - t) e` with `e ~ N(0, noise_scale^2)`, `t = 0` noise and `t = 1` data;
 //! the network predicts `x_hat`, the velocity is `v_hat = (x_hat - z_t) / max(1 - t, t_eps)`
@@ -127,13 +127,25 @@ enum Stage {
     Correct { z_prev: Vec<f32>, v1: Vec<f32> },
 }
 
-/// The Heun sampler of one scene as a state machine, so that a scheduler can interleave the
-/// network evaluations of many scenes at different flow times: [`Sampler::query`] says what
-/// to evaluate next, [`Sampler::advance`] takes the network's prediction.
+/// The integrator of a [`Sampler`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum SamplerKind {
+    /// Heun (second order): two evaluations per interval, one in the last.
+    #[default]
+    Heun,
+    /// Euler (first order): one evaluation per interval.
+    Euler,
+}
+
+/// The Heun (or Euler) sampler of one scene as a state machine, so that a scheduler can
+/// interleave the network evaluations of many scenes at different flow times:
+/// [`Sampler::query`] says what to evaluate next, [`Sampler::advance`] takes the network's
+/// prediction.
 ///
-/// The time grid is `i / steps`; every interval but the last takes two evaluations (Heun),
-/// the last one (Euler), so a sample costs `2 steps - 1` evaluations. Frame 0 starts from its
-/// own noise, is reset to `t X_0 + (1 - t) n_0` after every step and to `X_0` at the end.
+/// The time grid is `i / steps`; with Heun every interval but the last takes two evaluations,
+/// the last one (Euler), so a sample costs `2 steps - 1` evaluations; with Euler every
+/// interval takes one. Frame 0 starts from its own noise, is reset to `t X_0 + (1 - t) n_0`
+/// after every step and to `X_0` at the end.
 #[derive(Clone, Debug)]
 pub struct Sampler {
     frames: usize,
@@ -146,6 +158,7 @@ pub struct Sampler {
     x0: Vec<f32>,
     noise_scale: f32,
     t_eps: f32,
+    kind: SamplerKind,
 }
 
 impl Sampler {
@@ -157,6 +170,19 @@ impl Sampler {
         frames: usize,
         steps: usize,
         seed: u64,
+    ) -> Result<Sampler, ModelError> {
+        Sampler::with_kind(config, scene, frames, steps, seed, SamplerKind::Heun)
+    }
+
+    /// [`Sampler::new`] with the integrator `kind`; the starting noise depends on `seed` only,
+    /// so Heun and Euler start from the same noise.
+    pub fn with_kind(
+        config: &PhysiConfig,
+        scene: &MeshScene,
+        frames: usize,
+        steps: usize,
+        seed: u64,
+        kind: SamplerKind,
     ) -> Result<Sampler, ModelError> {
         scene.validate(config)?;
         if frames < 2 || frames > config.frames {
@@ -188,6 +214,7 @@ impl Sampler {
             x0,
             noise_scale: config.noise_scale,
             t_eps: config.t_eps,
+            kind,
         })
     }
 
@@ -213,6 +240,19 @@ impl Sampler {
     /// The starting noise scale this sampler used, metres.
     pub fn noise_scale(&self) -> f32 {
         self.noise_scale
+    }
+
+    /// The integrator.
+    pub fn kind(&self) -> SamplerKind {
+        self.kind
+    }
+
+    /// Network evaluations a whole sample takes: `2 steps - 1` for Heun, `steps` for Euler.
+    pub fn evaluations(&self) -> usize {
+        match self.kind {
+            SamplerKind::Heun => 2 * self.steps - 1,
+            SamplerKind::Euler => self.steps,
+        }
     }
 
     /// True when every step is done and [`Sampler::trajectory`] is the sample.
@@ -246,7 +286,7 @@ impl Sampler {
         }
         let (t0, t1) = (self.time(self.step), self.time(self.step + 1));
         let dt = t1 - t0;
-        let last = self.step + 1 == self.steps;
+        let last = self.step + 1 == self.steps || self.kind == SamplerKind::Euler;
         let eps = self.t_eps;
         let velocity = |x: &[f32], z: &[f32], t: f32| -> Vec<f32> {
             let d = (1.0 - t).max(eps);

@@ -8,9 +8,11 @@
 //! - [`request`]: request context, ids and the metrics record of each request;
 //! - [`stepper`]: one scene stepping through the scheduler (the only code that submits steps);
 //! - [`rollout`], [`predict`], [`warmup`]: the three users of steppers;
+//! - [`generate`]: PhysiFormer models and Generate calls, one scheduler stream per sample;
 //! - [`sessions`]: scenes kept with their state between calls (planners), stepped through
 //!   steppers whose kinematic objects follow given poses.
 
+pub mod generate;
 mod predict;
 pub mod registry;
 pub mod request;
@@ -25,9 +27,10 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
 use dynaserve_api::spec::ModelInfo;
-use dynaserve_model::WorldModel;
+use dynaserve_model::{PhysiFormer, WorldModel};
 use tokio::sync::{Semaphore, watch};
 
+pub use generate::{GenerateHandle, GeneratorEntry};
 pub use registry::ModelEntry;
 pub use request::{Protocol, RequestCtx, new_request_id};
 pub use rollout::RolloutHandle;
@@ -39,10 +42,41 @@ use crate::metrics::Metrics;
 use crate::scheduler::SchedulerConfig;
 use request::RequestRecord;
 
+/// The models an engine serves, by family.
+#[derive(Clone, Default)]
+pub struct Models {
+    /// RigidFormer models (Rollout, Predict, sessions).
+    pub rigid: Vec<Arc<dyn WorldModel>>,
+    /// PhysiFormer models (Generate).
+    pub physi: Vec<Arc<PhysiFormer>>,
+}
+
+impl Models {
+    /// Names of every model, rigid first.
+    pub fn names(&self) -> Vec<String> {
+        self.rigid
+            .iter()
+            .map(|m| m.name().to_string())
+            .chain(self.physi.iter().map(|m| m.name().to_string()))
+            .collect()
+    }
+}
+
+impl From<Vec<Arc<dyn WorldModel>>> for Models {
+    fn from(rigid: Vec<Arc<dyn WorldModel>>) -> Models {
+        Models {
+            rigid,
+            physi: Vec::new(),
+        }
+    }
+}
+
 /// The server core shared by both front ends.
 pub struct Engine {
     config: ServeConfig,
     models: BTreeMap<String, Arc<ModelEntry>>,
+    generators: BTreeMap<String, Arc<GeneratorEntry>>,
+    generate_slots: Arc<Semaphore>,
     metrics: Metrics,
     rollout_slots: Arc<Semaphore>,
     predict_slots: Arc<Semaphore>,
@@ -54,10 +88,11 @@ pub struct Engine {
 }
 
 impl Engine {
-    /// Starts one scheduler per model. Model names must be unique.
-    pub fn new(config: ServeConfig, models: Vec<Arc<dyn WorldModel>>) -> anyhow::Result<Engine> {
+    /// Starts one scheduler per model. Model names must be unique across families.
+    pub fn new(config: ServeConfig, models: impl Into<Models>) -> anyhow::Result<Engine> {
         config.validate().map_err(anyhow::Error::msg)?;
-        let names: Vec<String> = models.iter().map(|m| m.name().to_string()).collect();
+        let models: Models = models.into();
+        let names = models.names();
         let metrics = Metrics::new(&names);
         let scheduling = SchedulerConfig {
             max_batch_scenes: config.max_batch_scenes,
@@ -66,14 +101,30 @@ impl Engine {
         };
         let caps = config.caps();
         let mut entries = BTreeMap::new();
-        for model in models {
+        for model in models.rigid {
             let entry = ModelEntry::start(model, &caps, scheduling, &metrics)?;
             let name = entry.name.clone();
             if entries.insert(name.clone(), Arc::new(entry)).is_some() {
                 anyhow::bail!("two models are named {name:?}; model names must be unique");
             }
         }
-        if entries.is_empty() {
+        let mut generators = BTreeMap::new();
+        for model in models.physi {
+            let entry = GeneratorEntry::start(
+                model,
+                &config.generate_caps(),
+                caps.max_objects,
+                scheduling,
+                &metrics,
+            )?;
+            let name = entry.name.clone();
+            if entries.contains_key(&name)
+                || generators.insert(name.clone(), Arc::new(entry)).is_some()
+            {
+                anyhow::bail!("two models are named {name:?}; model names must be unique");
+            }
+        }
+        if entries.is_empty() && generators.is_empty() {
             anyhow::bail!("no models to serve");
         }
         let (close_tx, _) = watch::channel(false);
@@ -85,8 +136,10 @@ impl Engine {
             sessions,
             rollout_slots: Arc::new(Semaphore::new(config.max_active_rollouts)),
             predict_slots: Arc::new(Semaphore::new(config.max_predict_variants)),
+            generate_slots: Arc::new(Semaphore::new(config.max_generate_samples)),
             config,
             models: entries,
+            generators,
             metrics,
             ready: AtomicBool::new(false),
             draining: AtomicBool::new(false),
@@ -105,9 +158,16 @@ impl Engine {
         &self.config
     }
 
-    /// Names of the resident models.
+    /// Names of the resident models, sorted.
     pub fn model_names(&self) -> Vec<String> {
-        self.models.keys().cloned().collect()
+        let mut names: Vec<String> = self
+            .models
+            .keys()
+            .chain(self.generators.keys())
+            .cloned()
+            .collect();
+        names.sort();
+        names
     }
 
     /// True once warmed up and not draining.
@@ -141,15 +201,19 @@ impl Engine {
         self.close_tx.send_replace(true);
     }
 
-    /// Number of rollouts and Predict variants still running.
+    /// Number of rollouts, Predict variants and Generate samples still running.
     pub fn running(&self) -> usize {
         (self.config.max_active_rollouts - self.rollout_slots.available_permits())
             + (self.config.max_predict_variants - self.predict_slots.available_permits())
+            + (self.config.max_generate_samples - self.generate_slots.available_permits())
     }
 
     /// Stops every scheduler thread (blocking until they exit).
     pub fn shutdown_schedulers(&self) {
         for e in self.models.values() {
+            e.scheduler.shutdown();
+        }
+        for e in self.generators.values() {
             e.scheduler.shutdown();
         }
     }
@@ -162,35 +226,51 @@ impl Engine {
         span.in_scope(|| rec.fail(e))
     }
 
-    /// Resident models and their limits, for ListModels.
+    /// Resident models (both families) and their limits, sorted by name, for ListModels.
     pub fn list_models(&self, ctx: &RequestCtx) -> Vec<ModelInfo> {
         let mut rec = RequestRecord::new(&self.metrics, ctx, "list_models");
         rec.finish(None);
-        self.models.values().map(|e| e.info.clone()).collect()
+        let mut out: Vec<ModelInfo> = self
+            .models
+            .values()
+            .map(|e| e.info.clone())
+            .chain(self.generators.values().map(|e| e.info.clone()))
+            .collect();
+        out.sort_by(|a, b| a.name.cmp(&b.name));
+        out
     }
 
     fn resolve(&self, name: &str) -> Result<Arc<ModelEntry>, ApiError> {
+        let rigid = || self.models.keys().cloned().collect::<Vec<_>>().join(", ");
         if name.is_empty() {
             if self.models.len() == 1
                 && let Some(e) = self.models.values().next()
             {
                 return Ok(e.clone());
             }
+            if self.models.is_empty() {
+                return Err(ApiError::invalid(
+                    "model",
+                    "no RigidFormer model is resident; this call needs one",
+                ));
+            }
             return Err(ApiError::invalid(
                 "model",
                 format!(
                     "required when several models are resident (one of: {})",
-                    self.model_names().join(", ")
+                    rigid()
                 ),
             ));
         }
         self.models.get(name).cloned().ok_or_else(|| {
+            let why = if self.generators.contains_key(name) {
+                "is a PhysiFormer model, which serves Generate only"
+            } else {
+                "is not resident"
+            };
             ApiError::invalid(
                 "model",
-                format!(
-                    "unknown model {name:?} (resident: {})",
-                    self.model_names().join(", ")
-                ),
+                format!("{name:?} {why} (RigidFormer models: {})", rigid()),
             )
         })
     }

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use dynaserve_api::build::{BuiltScene, build_scene};
 use dynaserve_api::limits::{Caps, Limits};
-use dynaserve_api::spec::{ModelInfo, Scene};
+use dynaserve_api::spec::{ModelInfo, ModelKind, Scene};
 use dynaserve_model::{PreparedScene, SceneState, WorldModel};
 
 use crate::error::ApiError;
@@ -46,8 +46,7 @@ impl ModelEntry {
         Ok(ModelEntry {
             info: ModelInfo {
                 name: name.clone(),
-                config,
-                limits,
+                kind: ModelKind::Rigid { config, limits },
             },
             name,
             scheduler,

@@ -1,13 +1,13 @@
 //! PhysiFormer work for the scheduler: one network evaluation of one scene at its own flow
 //! time ([`DenoiseStep`]), so the evaluations of requests at different denoising steps share
 //! a pass ([`DenoiseSteps`]), and [`generate`], which drives one sample through the scheduler
-//! evaluation by evaluation with the Heun sampler.
+//! evaluation by evaluation with the Heun (or Euler) sampler.
 
 use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use dynaserve_model::PhysiFormer;
-use dynaserve_model::physiformer::flow::Sampler;
+use dynaserve_model::physiformer::flow::{Sampler, SamplerKind};
 use dynaserve_model::physiformer::inputs::DenoiseItem;
 use dynaserve_model::physiformer::scene::MeshScene;
 use tokio::sync::oneshot;
@@ -82,6 +82,8 @@ pub struct GenerateJob {
     pub frames: usize,
     /// Denoising steps.
     pub steps: usize,
+    /// Integrator.
+    pub sampler: SamplerKind,
     /// Seed of the starting noise.
     pub seed: u64,
     /// Scheduling class.
@@ -105,6 +107,23 @@ pub struct StepProgress {
     pub t: f32,
     /// Largest number of scenes in the passes of this step's evaluations.
     pub batch_scenes: u32,
+    /// Time this step's evaluations waited in the queue, summed.
+    pub queue: Duration,
+    /// Forward passes of this step's evaluations, summed.
+    pub forward: Duration,
+}
+
+/// Tells the scheduler, when dropped (the sample finished, failed or was abandoned), not to
+/// wait for the stream's next evaluation.
+struct IdleOnDrop<'a> {
+    scheduler: &'a Scheduler<DenoiseSteps>,
+    stream_id: u64,
+}
+
+impl Drop for IdleOnDrop<'_> {
+    fn drop(&mut self) {
+        self.scheduler.idle(self.stream_id);
+    }
 }
 
 /// Why a generation failed.
@@ -121,17 +140,30 @@ pub enum GenerateError {
 /// Samples one trajectory `[frames, V, 3]` by submitting one evaluation at a time to
 /// `scheduler`, so it joins whatever passes other requests are running; `progress` is called
 /// after every denoising step. The result depends only on the model, the scene, `frames`,
-/// `steps` and `seed`, never on the pass-mates.
+/// `steps`, the sampler and `seed`, never on the pass-mates. Dropping the future abandons the
+/// sample: its queued evaluation is discarded and the scheduler stops waiting for it.
 pub async fn generate(
     scheduler: &Scheduler<DenoiseSteps>,
     job: GenerateJob,
     mut progress: impl FnMut(StepProgress),
 ) -> Result<Vec<f32>, GenerateError> {
     let config = scheduler.family().model().config().clone();
-    let mut sampler = Sampler::new(&config, &job.scene, job.frames, job.steps, job.seed)
-        .map_err(|e| GenerateError::Invalid(e.to_string()))?;
+    let mut sampler = Sampler::with_kind(
+        &config,
+        &job.scene,
+        job.frames,
+        job.steps,
+        job.seed,
+        job.sampler,
+    )
+    .map_err(|e| GenerateError::Invalid(e.to_string()))?;
+    let _idle = IdleOnDrop {
+        scheduler,
+        stream_id: job.stream_id,
+    };
     let mut widest = 0u32;
-    let result = async {
+    let (mut queue, mut forward) = (Duration::ZERO, Duration::ZERO);
+    async {
         while !sampler.done() {
             let (z, t) = sampler.query();
             let (tx, rx) = oneshot::channel();
@@ -151,6 +183,8 @@ pub async fn generate(
             });
             let done = rx.await.map_err(|_| StepError::Stopped)??;
             widest = widest.max(done.batch_scenes);
+            queue += done.queue_wait;
+            forward += done.forward;
             if sampler
                 .advance(&done.output)
                 .map_err(|e| StepError::Model(e.to_string()))?
@@ -160,14 +194,15 @@ pub async fn generate(
                     steps: sampler.steps(),
                     t: sampler.step() as f32 / sampler.steps() as f32,
                     batch_scenes: widest,
+                    queue,
+                    forward,
                 });
                 widest = 0;
+                (queue, forward) = (Duration::ZERO, Duration::ZERO);
             }
         }
         Ok::<(), GenerateError>(())
     }
-    .await;
-    scheduler.idle(job.stream_id);
-    result?;
+    .await?;
     Ok(sampler.trajectory().to_vec())
 }

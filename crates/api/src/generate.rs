@@ -1,0 +1,404 @@
+//! Generate requests (PhysiFormer): validation of a neutral request into the model's
+//! [`MeshScene`] and sampling parameters, with errors naming the field, and the sampled
+//! trajectory back into per-object frames with the rigid motion fitted to each rigid object.
+//!
+//! Rules (limits in [`GenerateLimits`], reported by `ListModels`):
+//! - 1..=`max_objects` objects, each with at least one vertex, `max_vertices` in all;
+//! - every vertex coordinate finite and within `±2e` metres (`e`: the box half extent);
+//! - faces index the object's own vertices;
+//! - velocities finite, and every vertex's initial speed (`linear + angular x (x - c)`) at
+//!   most [`MAX_SPEED`] m/s per component;
+//! - `frames` 0 (the maximum) or 2..=`max_frames`; `denoise_steps` 0 (the default) or
+//!   1..=`max_denoise_steps`; `samples` 0 (one) or 1..=`max_samples`.
+
+use dynaserve_model::Pose;
+use dynaserve_model::physiformer::scene::{MAX_SPEED, Material, MeshScene};
+
+use crate::error::FieldError;
+use crate::limits::GenerateLimits;
+use crate::spec::generate::{GenerateSpec, MeshFrame, MeshObjectSpec, ObjectFrame, RigidFit};
+
+/// The sampling parameters of a checked request, defaults applied.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct GenerateParams {
+    /// Frames to sample, frame 0 included.
+    pub frames: usize,
+    /// Denoising steps.
+    pub steps: usize,
+    /// Samples.
+    pub samples: u32,
+}
+
+/// Checks `frames`, `denoise_steps` and `samples` of `spec` and applies their defaults.
+pub fn check_generate(
+    spec: &GenerateSpec,
+    limits: &GenerateLimits,
+) -> Result<GenerateParams, FieldError> {
+    let frames = if spec.frames == 0 {
+        limits.max_frames
+    } else {
+        spec.frames
+    };
+    if frames < 2 || frames > limits.max_frames {
+        return Err(FieldError::new(
+            "frames",
+            format!(
+                "{} is outside 2..={} (frame 0 included; 0 means {})",
+                spec.frames, limits.max_frames, limits.max_frames
+            ),
+        ));
+    }
+    let steps = if spec.denoise_steps == 0 {
+        limits.default_denoise_steps
+    } else {
+        spec.denoise_steps
+    };
+    if steps > limits.max_denoise_steps {
+        return Err(FieldError::new(
+            "denoise_steps",
+            format!(
+                "{steps} is outside 1..={} (0 means {})",
+                limits.max_denoise_steps, limits.default_denoise_steps
+            ),
+        ));
+    }
+    let samples = spec.samples.max(1);
+    if samples > limits.max_samples {
+        return Err(FieldError::new(
+            "samples",
+            format!("{samples} is outside 1..={}", limits.max_samples),
+        ));
+    }
+    Ok(GenerateParams {
+        frames: frames as usize,
+        steps: steps as usize,
+        samples,
+    })
+}
+
+fn finite_triple(v: &[f32; 3], field: &str) -> Result<(), FieldError> {
+    if v.iter().all(|x| x.is_finite()) {
+        Ok(())
+    } else {
+        Err(FieldError::new(
+            field,
+            "must be finite (NaN or infinity given)",
+        ))
+    }
+}
+
+fn centroid(points: &[[f32; 3]]) -> [f32; 3] {
+    let mut c = [0f64; 3];
+    for p in points {
+        for k in 0..3 {
+            c[k] += f64::from(p[k]);
+        }
+    }
+    c.map(|v| (v / points.len().max(1) as f64) as f32)
+}
+
+fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+/// Validates the objects of a Generate request (see the module docs) and builds the model's
+/// scene: vertices in request order, each with its object's initial velocity field.
+pub fn build_mesh_scene(
+    objects: &[MeshObjectSpec],
+    limits: &GenerateLimits,
+) -> Result<MeshScene, FieldError> {
+    if objects.is_empty() || objects.len() > limits.max_objects {
+        return Err(FieldError::new(
+            "scene.objects",
+            format!(
+                "{} objects given; 1..={} accepted",
+                objects.len(),
+                limits.max_objects
+            ),
+        ));
+    }
+    let total: usize = objects.iter().map(|o| o.vertices.len()).sum();
+    if total > limits.max_vertices {
+        return Err(FieldError::new(
+            "scene.objects",
+            format!(
+                "{total} vertices in all exceed the model's limit of {}",
+                limits.max_vertices
+            ),
+        ));
+    }
+    let bound = 2.0 * limits.box_half_extent;
+    let mut scene = MeshScene {
+        positions: Vec::with_capacity(total),
+        velocities: Vec::with_capacity(total),
+        vertex_offsets: vec![0],
+        materials: Vec::with_capacity(objects.len()),
+    };
+    for (i, o) in objects.iter().enumerate() {
+        let field = format!("scene.objects[{i}]");
+        if o.vertices.is_empty() {
+            return Err(FieldError::new(
+                format!("{field}.vertices"),
+                "at least one vertex is required",
+            ));
+        }
+        for (k, v) in o.vertices.iter().enumerate() {
+            let vf = format!("{field}.vertices[{k}]");
+            finite_triple(v, &vf)?;
+            if v.iter().any(|c| c.abs() > bound) {
+                return Err(FieldError::new(
+                    vf,
+                    format!(
+                        "{v:?} lies outside [-{bound}, {bound}]^3 m (the model's box is \
+                         [-{e}, {e}]^3)",
+                        e = limits.box_half_extent
+                    ),
+                ));
+            }
+        }
+        let n = o.vertices.len() as u32;
+        if let Some(k) = o.faces.iter().position(|f| f.iter().any(|&x| x >= n)) {
+            return Err(FieldError::new(
+                format!("{field}.faces[{k}]"),
+                format!("{:?} indexes past the object's {n} vertices", o.faces[k]),
+            ));
+        }
+        finite_triple(&o.linear, &format!("{field}.velocity.linear"))?;
+        finite_triple(&o.angular, &format!("{field}.velocity.angular"))?;
+        let c = centroid(&o.vertices);
+        for v in &o.vertices {
+            let r = [v[0] - c[0], v[1] - c[1], v[2] - c[2]];
+            let w = cross(o.angular, r);
+            let u = [o.linear[0] + w[0], o.linear[1] + w[1], o.linear[2] + w[2]];
+            if u.iter().any(|x| !x.is_finite() || x.abs() > MAX_SPEED) {
+                return Err(FieldError::new(
+                    format!("{field}.velocity"),
+                    format!(
+                        "gives a vertex the initial velocity {u:?} m/s; the model accepts at \
+                         most {MAX_SPEED} m/s per component"
+                    ),
+                ));
+            }
+            scene.positions.push(*v);
+            scene.velocities.push(u);
+        }
+        scene.vertex_offsets.push(scene.positions.len());
+        scene.materials.push(o.material);
+    }
+    Ok(scene)
+}
+
+/// The rigid motion best fitting `target` from `reference` (Kabsch, uniform weights) as a pose
+/// of the body frame `reference - centroid`, with the RMS residual; `None` if the fit fails
+/// (non-finite points).
+pub fn fit_rigid(reference: &[[f32; 3]], target: &[[f32; 3]]) -> Option<RigidFit> {
+    let a: Vec<[f64; 3]> = reference.iter().map(|p| p.map(f64::from)).collect();
+    let b: Vec<[f64; 3]> = target.iter().map(|p| p.map(f64::from)).collect();
+    let sol = dynaserve_geometry::kabsch(&a, &b, None).ok()?;
+    let q = dynaserve_geometry::quat::from_rotation_matrix(&sol.rotation).ok()?;
+    let sq: f64 = a
+        .iter()
+        .zip(&b)
+        .map(|(x, y)| {
+            let m = sol.apply(*x);
+            (0..3).map(|k| (m[k] - y[k]).powi(2)).sum::<f64>()
+        })
+        .sum();
+    let c = sol.target_centroid;
+    Some(RigidFit {
+        pose: Pose {
+            translation: [c.x as f32, c.y as f32, c.z as f32],
+            rotation: q.map(|v| v as f32),
+        },
+        rms: (sq / a.len() as f64).sqrt() as f32,
+    })
+}
+
+/// Splits a sampled trajectory `[frames, V, 3]` (flattened, metres) of `scene` into frames of
+/// per-object vertices, `dt_frame` seconds apart, with the fitted rigid motion of every rigid
+/// object.
+pub fn mesh_frames(
+    scene: &MeshScene,
+    trajectory: &[f32],
+    frames: usize,
+    dt_frame: f64,
+) -> Vec<MeshFrame> {
+    let nv = scene.vertices();
+    (0..frames)
+        .map(|f| {
+            let at = &trajectory[f * nv * 3..(f + 1) * nv * 3];
+            let objects = (0..scene.objects())
+                .map(|o| {
+                    let (s, e) = (scene.vertex_offsets[o], scene.vertex_offsets[o + 1]);
+                    let vertices: Vec<[f32; 3]> = at[s * 3..e * 3]
+                        .chunks_exact(3)
+                        .map(|c| [c[0], c[1], c[2]])
+                        .collect();
+                    let fit = (scene.materials[o] == Material::Rigid)
+                        .then(|| fit_rigid(&scene.positions[s..e], &vertices))
+                        .flatten();
+                    ObjectFrame { vertices, fit }
+                })
+                .collect();
+            MeshFrame {
+                frame: f as u32,
+                time: f as f64 * dt_frame,
+                objects,
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dynaserve_model::physiformer::config::PhysiConfig;
+    use dynaserve_model::physiformer::flow::SamplerKind;
+
+    use crate::limits::GenerateCaps;
+
+    fn cube(c: [f32; 3], material: Material) -> MeshObjectSpec {
+        let mut vertices = Vec::new();
+        for i in 0..8 {
+            let s = |b: usize| if i >> b & 1 == 1 { 0.1 } else { -0.1 };
+            vertices.push([c[0] + s(0), c[1] + s(1), c[2] + s(2)]);
+        }
+        MeshObjectSpec {
+            vertices,
+            faces: vec![[0, 1, 3]],
+            material,
+            linear: [1.0, 0.0, 0.0],
+            angular: [0.0, 0.0, 2.0],
+        }
+    }
+
+    fn spec(objects: Vec<MeshObjectSpec>) -> GenerateSpec {
+        GenerateSpec {
+            model: String::new(),
+            objects,
+            frames: 0,
+            denoise_steps: 0,
+            sampler: SamplerKind::Heun,
+            samples: 0,
+            seed: 0,
+            timeout_ms: 0,
+        }
+    }
+
+    fn limits() -> GenerateLimits {
+        GenerateLimits::new(&GenerateCaps::DEFAULT, 256, &PhysiConfig::small())
+    }
+
+    #[test]
+    fn defaults_apply_and_limits_name_the_field() {
+        let l = limits();
+        let p = check_generate(&spec(vec![]), &l).unwrap();
+        assert_eq!((p.frames, p.steps, p.samples), (49, 50, 1));
+        let mut s = spec(vec![]);
+        s.frames = 1;
+        assert_eq!(check_generate(&s, &l).unwrap_err().field, "frames");
+        s.frames = 4;
+        s.denoise_steps = 100_000;
+        assert_eq!(check_generate(&s, &l).unwrap_err().field, "denoise_steps");
+        s.denoise_steps = 2;
+        s.samples = 1000;
+        assert_eq!(check_generate(&s, &l).unwrap_err().field, "samples");
+    }
+
+    #[test]
+    fn scene_builds_with_velocity_fields_and_bad_input_names_the_field() {
+        let l = limits();
+        let objects = vec![
+            cube([0.0, 0.0, -0.8], Material::Rigid),
+            cube([0.5, 0.0, 0.0], Material::Elastic),
+        ];
+        let scene = build_mesh_scene(&objects, &l).unwrap();
+        assert_eq!(scene.vertex_offsets, vec![0, 8, 16]);
+        assert_eq!(scene.materials, vec![Material::Rigid, Material::Elastic]);
+        // Vertex 0 sits at (-0.1, -0.1) from the centroid: w x r = (0.2, -0.2, 0).
+        let u = scene.velocities[0];
+        assert!(
+            (u[0] - 1.2).abs() < 1e-6 && (u[1] + 0.2).abs() < 1e-6,
+            "{u:?}"
+        );
+        assert!(scene.validate(&PhysiConfig::small()).is_ok());
+
+        let mut bad = objects.clone();
+        bad[1].vertices[3][2] = f32::NAN;
+        let e = build_mesh_scene(&bad, &l).unwrap_err();
+        assert_eq!(e.field, "scene.objects[1].vertices[3]");
+        let mut bad = objects.clone();
+        bad[0].vertices[0][0] = 5.0;
+        let e = build_mesh_scene(&bad, &l).unwrap_err();
+        assert_eq!(e.field, "scene.objects[0].vertices[0]");
+        let mut bad = objects.clone();
+        bad[1].faces = vec![[0, 1, 2], [0, 1, 8]];
+        assert_eq!(
+            build_mesh_scene(&bad, &l).unwrap_err().field,
+            "scene.objects[1].faces[1]"
+        );
+        let mut bad = objects.clone();
+        bad[0].linear = [100.0, 0.0, 0.0];
+        assert_eq!(
+            build_mesh_scene(&bad, &l).unwrap_err().field,
+            "scene.objects[0].velocity"
+        );
+        let mut bad = objects.clone();
+        bad[0].vertices.clear();
+        assert_eq!(
+            build_mesh_scene(&bad, &l).unwrap_err().field,
+            "scene.objects[0].vertices"
+        );
+        assert_eq!(
+            build_mesh_scene(&[], &l).unwrap_err().field,
+            "scene.objects"
+        );
+        let big: Vec<MeshObjectSpec> = (0..65)
+            .map(|i| cube([0.0, 0.0, -0.9 + 0.02 * i as f32], Material::Rigid))
+            .collect();
+        assert_eq!(
+            build_mesh_scene(&big, &l).unwrap_err().field,
+            "scene.objects"
+        );
+    }
+
+    #[test]
+    fn rigid_objects_get_their_exact_motion_back() {
+        let l = limits();
+        let objects = vec![
+            cube([0.0, 0.0, 0.0], Material::Rigid),
+            cube([0.5, 0.0, 0.0], Material::Elastic),
+        ];
+        let scene = build_mesh_scene(&objects, &l).unwrap();
+        // Frame 1: the rigid cube turned 90 degrees about z and moved by (0.1, 0.2, 0.3).
+        let mut traj: Vec<f32> = scene.positions.iter().flatten().copied().collect();
+        for p in &scene.positions[..8] {
+            traj.extend([-p[1] + 0.1, p[0] + 0.2, p[2] + 0.3]);
+        }
+        for p in &scene.positions[8..] {
+            traj.extend([p[0] * 1.1, p[1], p[2]]);
+        }
+        let frames = mesh_frames(&scene, &traj, 2, 0.5);
+        assert_eq!(frames[1].time, 0.5);
+        let fit0 = frames[0].objects[0].fit.unwrap();
+        assert!(fit0.rms < 1e-6 && (fit0.pose.rotation[3] - 1.0).abs() < 1e-6);
+        let fit = frames[1].objects[0].fit.unwrap();
+        assert!(fit.rms < 1e-5, "{}", fit.rms);
+        let t = fit.pose.translation;
+        assert!(
+            (t[0] - 0.1).abs() < 1e-5 && (t[1] - 0.2).abs() < 1e-5 && (t[2] - 0.3).abs() < 1e-5
+        );
+        let s = std::f32::consts::FRAC_1_SQRT_2;
+        let q = fit.pose.rotation;
+        assert!((q[2] - s).abs() < 1e-5 && (q[3] - s).abs() < 1e-5, "{q:?}");
+        assert!(frames[1].objects[1].fit.is_none());
+        assert_eq!(
+            frames[1].objects[1].vertices[0][0],
+            scene.positions[8][0] * 1.1
+        );
+    }
+}

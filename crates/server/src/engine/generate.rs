@@ -1,0 +1,373 @@
+//! Generate (PhysiFormer): a mesh scene sampled whole, `samples` times. Each sample is its own
+//! stream in its model's scheduler and submits one denoising evaluation at a time, so requests
+//! at different denoising steps share forward passes. Progress is reported once every sample
+//! has completed a step; the samples follow, in order, once all are done.
+
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::Instant;
+
+use dynaserve_api::generate::{GenerateParams, build_mesh_scene, check_generate, mesh_frames};
+use dynaserve_api::limits::{GenerateCaps, GenerateLimits};
+use dynaserve_api::spec::generate::{
+    GenerateEvent, GenerateProgress, GenerateSpec, GeneratedSample,
+};
+use dynaserve_api::spec::{ModelInfo, ModelKind, StepTiming};
+use dynaserve_model::PhysiFormer;
+use dynaserve_model::physiformer::scene::MeshScene;
+use futures::future::try_join_all;
+use tokio::sync::{OwnedSemaphorePermit, mpsc};
+use tracing::Instrument;
+
+use super::Engine;
+use super::request::{GaugeGuard, RequestCtx, RequestRecord, sleep_until};
+use super::stepper::step_error;
+use crate::error::ApiError;
+use crate::metrics::Metrics;
+use crate::scheduler::denoise::{DenoiseSteps, GenerateError, GenerateJob, StepProgress, generate};
+use crate::scheduler::{Priority, Scheduler, SchedulerConfig};
+
+/// A resident PhysiFormer model: its scheduler, Generate limits and description.
+pub struct GeneratorEntry {
+    /// Name used in requests.
+    pub name: String,
+    /// The scheduler that owns all forward passes of the model.
+    pub scheduler: Scheduler<DenoiseSteps>,
+    /// Generate limits.
+    pub limits: GenerateLimits,
+    /// Description returned by ListModels.
+    pub info: ModelInfo,
+}
+
+impl GeneratorEntry {
+    /// Starts the scheduler of `model` and derives its limits under the server's caps
+    /// (`max_objects`: the server's per-scene object cap).
+    pub fn start(
+        model: Arc<PhysiFormer>,
+        caps: &GenerateCaps,
+        max_objects: usize,
+        scheduling: SchedulerConfig,
+        metrics: &Metrics,
+    ) -> std::io::Result<GeneratorEntry> {
+        let name = model.name().to_string();
+        let config = model.config().clone();
+        let limits = GenerateLimits::new(caps, max_objects, &config);
+        let scheduler = Scheduler::start(
+            Arc::new(DenoiseSteps::new(model)),
+            scheduling,
+            metrics.clone(),
+        )?;
+        Ok(GeneratorEntry {
+            info: ModelInfo {
+                name: name.clone(),
+                kind: ModelKind::Physi { config, limits },
+            },
+            name,
+            scheduler,
+            limits,
+        })
+    }
+}
+
+/// A started Generate call: events (or one final error) arrive on `events`.
+pub struct GenerateHandle {
+    /// Model serving the call.
+    pub model: String,
+    /// Request id.
+    pub request_id: Arc<str>,
+    /// Denoising steps the call runs.
+    pub steps: u32,
+    /// Progress events, then one sample event per sample; an `Err` ends the stream.
+    pub events: mpsc::Receiver<Result<GenerateEvent, ApiError>>,
+}
+
+const CLOSE_MSG: &str =
+    "server shutting down: the drain deadline passed before the generation finished";
+
+fn generate_error(e: GenerateError) -> ApiError {
+    match e {
+        GenerateError::Invalid(m) => ApiError::invalid("scene", m),
+        GenerateError::Step(s) => step_error(s),
+    }
+}
+
+/// The progress of every sample; emits a step once all samples have completed it.
+struct Progress {
+    /// Per sample, the timing of each completed step.
+    done: Vec<Vec<StepProgress>>,
+    /// Steps already reported.
+    reported: usize,
+    steps: usize,
+}
+
+impl Progress {
+    fn record(&mut self, sample: usize, p: StepProgress) -> Vec<GenerateProgress> {
+        self.done[sample].push(p);
+        let all = self.done.iter().map(Vec::len).min().unwrap_or(0);
+        let mut out = Vec::new();
+        while self.reported < all {
+            let s = self.reported;
+            let slowest = self
+                .done
+                .iter()
+                .map(|d| d[s])
+                .max_by_key(|p| p.queue + p.forward);
+            let widest = self.done.iter().map(|d| d[s].batch_scenes).max();
+            if let (Some(p), Some(widest)) = (slowest, widest) {
+                out.push(GenerateProgress {
+                    step: (s + 1) as u32,
+                    steps: self.steps as u32,
+                    t: (s + 1) as f32 / self.steps as f32,
+                    timing: StepTiming {
+                        queue: p.queue,
+                        forward: p.forward,
+                        batch_scenes: widest,
+                    },
+                });
+            }
+            self.reported += 1;
+        }
+        out
+    }
+}
+
+impl Engine {
+    fn resolve_generator(&self, name: &str) -> Result<Arc<GeneratorEntry>, ApiError> {
+        let names = || {
+            let n: Vec<&str> = self.generators.keys().map(String::as_str).collect();
+            if n.is_empty() {
+                "none".to_string()
+            } else {
+                n.join(", ")
+            }
+        };
+        if name.is_empty() {
+            if self.generators.len() == 1
+                && let Some(e) = self.generators.values().next()
+            {
+                return Ok(e.clone());
+            }
+            return Err(ApiError::invalid(
+                "model",
+                format!(
+                    "required unless exactly one PhysiFormer model is resident (resident: {})",
+                    names()
+                ),
+            ));
+        }
+        self.generators.get(name).cloned().ok_or_else(|| {
+            let why = if self.models.contains_key(name) {
+                "is not a PhysiFormer model; Generate needs one"
+            } else {
+                "is not resident"
+            };
+            ApiError::invalid(
+                "model",
+                format!("{name:?} {why} (PhysiFormer models: {})", names()),
+            )
+        })
+    }
+
+    /// Validates and admits a Generate call, then runs its samples in a task. Events arrive
+    /// on the returned channel, which holds everything the call produces (at most one event
+    /// per step plus one per sample), so a slow reader never holds up the passes.
+    pub async fn start_generate(
+        self: &Arc<Self>,
+        req: GenerateSpec,
+        ctx: RequestCtx,
+    ) -> Result<GenerateHandle, ApiError> {
+        let mut rec = RequestRecord::new(&self.metrics, &ctx, "generate");
+        let span = tracing::info_span!(
+            "generate",
+            request_id = %ctx.request_id,
+            protocol = ctx.protocol.as_str(),
+            model = tracing::field::Empty
+        );
+        let admitted = span.in_scope(|| self.admit_generate(&req, &ctx));
+        let (entry, params, scene, permit) = match admitted {
+            Ok(a) => a,
+            Err(e) => return Err(span.in_scope(|| rec.fail(e))),
+        };
+        let deadline = ctx.deadline_with(req.timeout_ms);
+        let (tx, rx) = mpsc::channel(params.steps + params.samples as usize + 1);
+        let run = GenerateRun {
+            engine: self.clone(),
+            entry: entry.clone(),
+            params,
+            scene,
+            sampler: req.sampler,
+            seed: req.seed,
+            deadline,
+            request_id: ctx.request_id.clone(),
+        };
+        let gauge = self
+            .metrics
+            .active_generate_samples
+            .with_label_values(&[entry.name.as_str()]);
+        gauge.add(i64::from(params.samples));
+        tokio::spawn(
+            async move {
+                let _permit: OwnedSemaphorePermit = permit;
+                let _gauge = GaugeGuard(gauge, i64::from(params.samples));
+                let start = Instant::now();
+                let r = run.run(&tx).await;
+                match r {
+                    Ok(()) => {
+                        tracing::info!(
+                            steps = params.steps,
+                            samples = params.samples,
+                            ms = start.elapsed().as_secs_f64() * 1e3,
+                            "generation finished"
+                        );
+                        rec.finish(None);
+                    }
+                    Err(e) => {
+                        let _ = tx.try_send(Err(e.clone()));
+                        rec.fail(e);
+                    }
+                }
+            }
+            .instrument(span),
+        );
+        Ok(GenerateHandle {
+            model: entry.name.clone(),
+            request_id: ctx.request_id,
+            steps: params.steps as u32,
+            events: rx,
+        })
+    }
+
+    /// Admission: readiness, the model, the request's numbers and scene, then the sample slots.
+    #[allow(clippy::type_complexity)]
+    fn admit_generate(
+        &self,
+        req: &GenerateSpec,
+        ctx: &RequestCtx,
+    ) -> Result<
+        (
+            Arc<GeneratorEntry>,
+            GenerateParams,
+            Arc<MeshScene>,
+            OwnedSemaphorePermit,
+        ),
+        ApiError,
+    > {
+        self.admit_check()?;
+        let entry = self.resolve_generator(&req.model)?;
+        tracing::Span::current().record("model", entry.name.as_str());
+        let params = check_generate(req, &entry.limits)?;
+        let scene = build_mesh_scene(&req.objects, &entry.limits)?;
+        let config = entry.scheduler.family().model().config();
+        scene
+            .validate(config)
+            .map_err(|e| ApiError::invalid("scene", e))?;
+        let permit = self
+            .generate_slots
+            .clone()
+            .try_acquire_many_owned(params.samples)
+            .map_err(|_| {
+                ApiError::exhausted(
+                    format!(
+                        "{} Generate samples are in flight, the server's limit; retry later",
+                        self.config.max_generate_samples
+                    ),
+                    self.retry_after(),
+                )
+            })?;
+        tracing::debug!(request_id = %ctx.request_id, samples = params.samples, "admitted");
+        Ok((entry, params, Arc::new(scene), permit))
+    }
+}
+
+/// One admitted Generate call.
+struct GenerateRun {
+    engine: Arc<Engine>,
+    entry: Arc<GeneratorEntry>,
+    params: GenerateParams,
+    scene: Arc<MeshScene>,
+    sampler: dynaserve_api::spec::generate::SamplerKind,
+    seed: u64,
+    deadline: Option<Instant>,
+    request_id: Arc<str>,
+}
+
+impl GenerateRun {
+    /// Runs every sample to its end, a deadline, a drain close or the client's disappearance,
+    /// sending progress as it comes and the samples at the end.
+    async fn run(
+        &self,
+        tx: &mpsc::Sender<Result<GenerateEvent, ApiError>>,
+    ) -> Result<(), ApiError> {
+        let name = self.entry.name.as_str();
+        let steps_metric = self.engine.metrics.denoise_steps.with_label_values(&[name]);
+        let sample_seconds = self
+            .engine
+            .metrics
+            .generate_sample_seconds
+            .with_label_values(&[name]);
+        let progress = std::sync::Mutex::new(Progress {
+            done: vec![Vec::new(); self.params.samples as usize],
+            reported: 0,
+            steps: self.params.steps,
+        });
+        let start = Instant::now();
+        let samples = (0..self.params.samples).map(|i| {
+            let job = GenerateJob {
+                scene: self.scene.clone(),
+                frames: self.params.frames,
+                steps: self.params.steps,
+                sampler: self.sampler,
+                seed: self.seed.wrapping_add(u64::from(i)),
+                priority: Priority::Interactive,
+                deadline: self.deadline,
+                stream_id: self.engine.next_stream.fetch_add(1, Ordering::Relaxed),
+                request_id: self.request_id.clone(),
+            };
+            let (progress, steps_metric, sample_seconds) =
+                (&progress, steps_metric.clone(), sample_seconds.clone());
+            async move {
+                let out = generate(&self.entry.scheduler, job, |p| {
+                    steps_metric.inc();
+                    let events = match progress.lock() {
+                        Ok(mut g) => g.record(i as usize, p),
+                        Err(_) => Vec::new(),
+                    };
+                    for e in events {
+                        let _ = tx.try_send(Ok(GenerateEvent::Progress(e)));
+                    }
+                })
+                .await
+                .map_err(generate_error)?;
+                sample_seconds.observe(start.elapsed().as_secs_f64());
+                Ok::<_, ApiError>(out)
+            }
+        });
+        let mut close = self.engine.close_tx.subscribe();
+        let trajectories = tokio::select! {
+            r = try_join_all(samples) => r?,
+            _ = tx.closed() => return Err(ApiError::cancelled("client went away")),
+            _ = sleep_until(self.deadline) => return Err(ApiError::deadline("deadline exceeded")),
+            _ = close.wait_for(|c| *c) => return Err(ApiError::unavailable(CLOSE_MSG)),
+        };
+        let dt_frame = self.entry.limits.dt_frame;
+        for (i, traj) in trajectories.into_iter().enumerate() {
+            if let Some(k) = traj.iter().position(|v| !v.is_finite()) {
+                let nv = self.scene.vertices();
+                return Err(ApiError::internal(format!(
+                    "sample {i}: the model produced a non-finite position (frame {}, vertex {})",
+                    k / 3 / nv.max(1),
+                    k / 3 % nv.max(1)
+                )));
+            }
+            let sample = GeneratedSample {
+                sample: i as u32,
+                seed: self.seed.wrapping_add(i as u64),
+                frames: mesh_frames(&self.scene, &traj, self.params.frames, dt_frame),
+            };
+            if tx.send(Ok(GenerateEvent::Sample(sample))).await.is_err() {
+                return Err(ApiError::cancelled("client went away"));
+            }
+        }
+        Ok(())
+    }
+}

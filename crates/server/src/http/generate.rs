@@ -1,0 +1,195 @@
+//! `POST /v1/generate`: a mesh scene sampled whole by a PhysiFormer model, with the same
+//! semantics as the gRPC `Generate` call. Answers with every sample as JSON, or as
+//! Server-Sent Events (`progress` per denoising step, `sample` per sample, then `done`, or one
+//! `error`) when the body has `"stream": true` or the request sends
+//! `Accept: text/event-stream`.
+
+use std::convert::Infallible;
+use std::time::Instant;
+
+use axum::Router;
+use axum::body::Body;
+use axum::extract::State;
+use axum::http::{HeaderMap, StatusCode};
+use axum::response::IntoResponse;
+use axum::response::Response;
+use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::routing::post;
+use dynaserve_api::json;
+use dynaserve_api::spec::Timing;
+use dynaserve_api::spec::generate::{GenerateEvent, GenerateSpec};
+use futures::Stream;
+use tokio::sync::mpsc;
+use utoipa::OpenApi;
+
+use super::{AppState, ctx_of, error_response, json_response, parse, set_header, timed, wants_sse};
+use crate::error::ApiError;
+
+/// The OpenAPI description of `POST /v1/generate` (merged into the HTTP API's document).
+#[derive(OpenApi)]
+#[openapi(
+    paths(generate),
+    components(schemas(
+        json::GenerateRequest,
+        json::GenerateResponse,
+        json::GenerateProgress,
+        json::GeneratedSample,
+        json::GenerateDone,
+        json::MeshScene,
+        json::MeshObject,
+        json::MeshFrame,
+        json::ObjectFrame,
+        json::Material,
+        json::Sampler,
+    ))
+)]
+pub struct GenerateDoc;
+
+/// The Generate route.
+pub(super) fn routes() -> Router<AppState> {
+    Router::new().route("/v1/generate", post(generate))
+}
+
+type Events = mpsc::Receiver<Result<GenerateEvent, ApiError>>;
+
+/// Sample whole trajectories of a mesh scene (rigid and elastic objects) with a PhysiFormer
+/// model.
+///
+/// Returns every sample as JSON, or Server-Sent Events (`progress` events with a
+/// `GenerateProgress` per denoising step, `sample` events with a `GeneratedSample`, then one
+/// `done` event with a `GenerateDone`, or one `error` event with an `ErrorResponse`) when the
+/// body has `"stream": true` or the request sends `Accept: text/event-stream`.
+#[utoipa::path(
+    post,
+    path = "/v1/generate",
+    request_body = json::GenerateRequest,
+    responses(
+        (status = 200, description = "Sampled trajectories (or an SSE stream of progress and sample events)", body = json::GenerateResponse),
+        (status = 422, description = "Invalid input; `error.field` names the field", body = json::ErrorResponse),
+        (status = 429, description = "Server full; retry after the Retry-After header", body = json::ErrorResponse),
+        (status = 503, description = "Warming up or shutting down", body = json::ErrorResponse),
+        (status = 504, description = "Deadline (`timeout_ms`) exceeded", body = json::ErrorResponse),
+    )
+)]
+async fn generate(State(s): State<AppState>, headers: HeaderMap, body: Body) -> Response {
+    let ctx = ctx_of(&headers);
+    let rid = ctx.request_id.clone();
+    let arrival = ctx.arrival;
+    let parsed = parse(
+        &s.engine,
+        &ctx,
+        "generate",
+        body,
+        |req: json::GenerateRequest| {
+            GenerateSpec::from_json(&req).map(|spec| (spec, req.stream || wants_sse(&headers)))
+        },
+    );
+    let (spec, sse) = match parsed.await {
+        Ok(p) => p,
+        Err(r) => return r,
+    };
+    let handle = match s.engine.start_generate(spec, ctx).await {
+        Ok(h) => h,
+        Err(e) => return error_response(e, &rid),
+    };
+    let model = handle.model.clone();
+    if sse {
+        let mut resp = Sse::new(sse_events(handle.events, rid.to_string(), arrival))
+            .keep_alive(KeepAlive::default())
+            .into_response();
+        set_header(resp.headers_mut(), "x-request-id", &rid);
+        set_header(resp.headers_mut(), "x-dynaserve-model", &model);
+        return resp;
+    }
+    let (samples, timing) = match collect(handle.events, arrival).await {
+        Ok(c) => c,
+        Err(e) => return error_response(e, &rid),
+    };
+    let body = json::GenerateResponse {
+        model: model.clone(),
+        request_id: rid.to_string(),
+        denoise_steps: handle.steps,
+        samples,
+        timing,
+    };
+    timed(json_response(StatusCode::OK, body, &rid), &model, &timing)
+}
+
+/// Every sample of a call, with the summed step timings (total: since `arrival`); the first
+/// error ends it.
+async fn collect(
+    mut rx: Events,
+    arrival: Instant,
+) -> Result<(Vec<json::GeneratedSample>, json::RequestTiming), ApiError> {
+    let mut samples = Vec::new();
+    let mut timing = Timing::default();
+    while let Some(item) = rx.recv().await {
+        match item? {
+            GenerateEvent::Progress(p) => timing.add_step(&p.timing),
+            GenerateEvent::Sample(s) => samples.push(s.to_json()),
+        }
+    }
+    timing.total = arrival.elapsed();
+    Ok((samples, timing.to_json()))
+}
+
+fn sse_events(
+    rx: Events,
+    request_id: String,
+    arrival: Instant,
+) -> impl Stream<Item = Result<Event, Infallible>> {
+    struct St {
+        rx: Events,
+        timing: Timing,
+        samples: u32,
+        done: bool,
+        request_id: String,
+        arrival: Instant,
+    }
+    let st = St {
+        rx,
+        timing: Timing::default(),
+        samples: 0,
+        done: false,
+        request_id,
+        arrival,
+    };
+    futures::stream::unfold(st, |mut st| async move {
+        if st.done {
+            return None;
+        }
+        let event = match st.rx.recv().await {
+            Some(Ok(GenerateEvent::Progress(p))) => {
+                st.timing.add_step(&p.timing);
+                Event::default()
+                    .event("progress")
+                    .data(serde_json::to_string(&p.to_json()).unwrap_or_default())
+            }
+            Some(Ok(GenerateEvent::Sample(s))) => {
+                st.samples += 1;
+                Event::default()
+                    .event("sample")
+                    .data(serde_json::to_string(&s.to_json()).unwrap_or_default())
+            }
+            Some(Err(e)) => {
+                st.done = true;
+                Event::default()
+                    .event("error")
+                    .data(serde_json::to_string(&e.body()).unwrap_or_default())
+            }
+            None => {
+                st.done = true;
+                st.timing.total = st.arrival.elapsed();
+                let done = json::GenerateDone {
+                    request_id: st.request_id.clone(),
+                    samples: st.samples,
+                    timing: st.timing.to_json(),
+                };
+                Event::default()
+                    .event("done")
+                    .data(serde_json::to_string(&done).unwrap_or_default())
+            }
+        };
+        Some((Ok(event), st))
+    })
+}
