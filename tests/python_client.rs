@@ -1,7 +1,8 @@
 //! The Python client (`clients/python`) against a real server on 127.0.0.1 with the real
 //! checkpoint: the test makes a virtual environment under `target/`, installs the package
 //! with pip (numpy comes with it), runs the package's own tests and the push planner example
-//! with a small budget.
+//! with a small budget, whose plans are replayed in rapier by this build's `dynaserve sim
+//! replay`.
 
 mod common;
 
@@ -79,12 +80,25 @@ async fn python_client_tests_and_push_planner_run_against_a_real_server() {
                 "16",
                 "--iterations",
                 "1",
+                "--dynaserve",
+                env!("CARGO_BIN_EXE_dynaserve"),
             ]),
         "push planner",
     )
     .await;
     println!("{planner}");
     assert!(planner.contains("final distance to the goal"), "{planner}");
+    // Both executed pusher paths were replayed in rapier: two finite distances in metres.
+    let line = planner
+        .lines()
+        .find(|l| l.contains("(rapier replay)"))
+        .unwrap_or_else(|| panic!("no rapier replay in:\n{planner}"));
+    let metres: Vec<f64> = line
+        .split_whitespace()
+        .filter_map(|w| w.trim_end_matches(',').parse().ok())
+        .collect();
+    assert_eq!(metres.len(), 2, "{line}");
+    assert!(metres.iter().all(|d| d.is_finite() && *d >= 0.0), "{line}");
     server.shutdown();
     server.wait().await.unwrap();
 }

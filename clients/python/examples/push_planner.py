@@ -6,7 +6,10 @@ each candidate carries only its pusher path), executes the first steps of the be
 on the session, and plans again from the new state. A random pusher path of the same length,
 run from a fork of the same start, is the baseline.
 
-Distances are measured in the learned model's own rollout (the session's state).
+Distances are measured twice: in the learned model's own rollout (the session's state), and in
+the ground truth, where both executed pusher paths are replayed in rapier by
+``dynaserve sim replay`` (the binary given by ``--dynaserve``, else found in the repository's
+``target/release`` or ``target/debug``, else on ``PATH``).
 
     python examples/push_planner.py --server http://127.0.0.1:8080
 """
@@ -14,11 +17,18 @@ Distances are measured in the learned model's own rollout (the session's state).
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import shutil
+import subprocess
+import tempfile
 import time
+from typing import Optional
 
 import numpy as np
 
 from dynaserve import Body, Client, box_points
+from dynaserve.scene import scene_doc
 
 BOX, PUSHER = 0, 1
 HALF = 0.1  # box half extent, m
@@ -47,6 +57,38 @@ def path_from(start_xy: np.ndarray, velocities: np.ndarray, dt: float) -> np.nda
     return poses
 
 
+def find_dynaserve(given: Optional[str]) -> Optional[str]:
+    """The ``dynaserve`` binary: ``given``, else the repository's release or debug build, else
+    the one on ``PATH``; ``None`` when there is none."""
+    if given:
+        return given
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
+    for profile in ("release", "debug"):
+        path = os.path.join(root, "target", profile, "dynaserve")
+        if os.access(path, os.X_OK):
+            return path
+    return shutil.which("dynaserve")
+
+
+def replay(binary: str, bodies, path: np.ndarray, dt_frame: float) -> np.ndarray:
+    """The rapier trajectory ``[steps + 1, objects, 7]`` of ``bodies`` with the pusher driven
+    along ``path`` (``[steps, 7]``), from ``dynaserve sim replay``."""
+    with tempfile.TemporaryDirectory() as tmp:
+        scene_file = os.path.join(tmp, "scene.json")
+        paths_file = os.path.join(tmp, "paths.json")
+        with open(scene_file, "w") as f:
+            json.dump({"scene": scene_doc(bodies), "kinematic": [PUSHER]}, f)
+        with open(paths_file, "w") as f:
+            json.dump({"paths": [{"object": PUSHER, "poses": np.asarray(path).tolist()}]}, f)
+        out = subprocess.run(
+            [binary, "sim", "replay", scene_file, "--paths", paths_file, "--dt-frame", repr(dt_frame)],
+            check=True,
+            capture_output=True,
+            text=True,
+        )
+    return np.array(json.loads(out.stdout)["poses"])
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--server", default="http://127.0.0.1:8080")
@@ -58,12 +100,15 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=2, help="CEM iterations per round")
     ap.add_argument("--speed", type=float, default=0.8, help="largest pusher speed, m/s")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--dynaserve", help="dynaserve binary for the rapier replay (default: found)")
     args = ap.parse_args()
+    binary = find_dynaserve(args.dynaserve)
     rng = np.random.default_rng(args.seed)
     client = Client(args.server)
     dt_frame = client.list_models()[0]["dt_frame"]
     goal = np.array(args.goal)
-    session = client.create_session(scene(args.seed), kinematic=[PUSHER])
+    bodies = scene(args.seed)
+    session = client.create_session(bodies, kinematic=[PUSHER])
     baseline = session.fork()
     start = session.state()["poses"]
     d0 = float(np.linalg.norm(start[BOX, :2] - goal))
@@ -72,6 +117,7 @@ def main() -> None:
     calls, sent = 0, 0
     mean = np.zeros((args.horizon, 2))
     std = np.full((args.horizon, 2), args.speed / 2)
+    executed = []
     for _ in range(args.rounds):
         here = session.state()["poses"]
         for _ in range(args.iterations):
@@ -85,6 +131,7 @@ def main() -> None:
             mean, std = elite.mean(axis=0), elite.std(axis=0) + 0.05
         best = path_from(here[PUSHER, :2], mean, dt_frame)
         session.step(args.execute, kinematic={PUSHER: best[: args.execute]})
+        executed.append(best[: args.execute])
         # Warm start: shift the plan by the executed steps.
         mean = np.concatenate([mean[args.execute :], np.zeros((args.execute, 2))])
         std = np.full((args.horizon, 2), args.speed / 2)
@@ -92,7 +139,8 @@ def main() -> None:
 
     steps = args.rounds * args.execute
     v = rng.uniform(-args.speed, args.speed, size=(steps, 2))
-    baseline.step(steps, kinematic={PUSHER: path_from(start[PUSHER, :2], v, dt_frame)})
+    random_path = path_from(start[PUSHER, :2], v, dt_frame)
+    baseline.step(steps, kinematic={PUSHER: random_path})
     random_d = float(np.linalg.norm(baseline.state()["poses"][BOX, :2] - goal))
     session.delete()
     baseline.delete()
@@ -103,6 +151,14 @@ def main() -> None:
         f"({sent / max(calls, 1) / 1024:.1f} KiB each), {time.time() - t0:.1f} s"
     )
     print(f"final distance to the goal (learned model): planned {planned:.3f} m, random plan {random_d:.3f} m")
+    if binary is None:
+        print("rapier replay skipped: no dynaserve binary (build it or give --dynaserve)")
+        return
+    rapier = [
+        float(np.linalg.norm(replay(binary, bodies, p, dt_frame)[-1, BOX, :2] - goal))
+        for p in (np.concatenate(executed), random_path)
+    ]
+    print(f"final distance to the goal (rapier replay): planned {rapier[0]:.3f} m, random plan {rapier[1]:.3f} m")
 
 
 if __name__ == "__main__":
