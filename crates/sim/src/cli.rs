@@ -4,6 +4,7 @@
 //! dynaserve sim movi-b --scenes 1000 --out data/movi-b/train --seed 0 --split train
 //! dynaserve sim wrecking-ball --scenes 20 --out data/wb6 --seed 0 --size 6
 //! dynaserve sim physics-mix --scenes 500 --out data/physics-mix/train --seed 0 --split train
+//! dynaserve sim push --scenes 200 --out data/push/train --seed 0 --split train
 //! dynaserve sim mesh-d1 --scenes 400 --out data/physi/d1/train --seed 0 --split train
 //! dynaserve sim inspect data/movi-b/train
 //! dynaserve sim preview data/movi-b/train --out preview.png
@@ -19,13 +20,13 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::dataset::DatasetReader;
 use crate::generators::{GenerateOptions, Generator};
-use crate::writer::generate_dataset;
 use crate::mesh_scenes::cli::{self as mesh_cli, MeshGenerateArgs};
 use crate::mesh_scenes::{MeshSet, is_mesh_dataset};
 use crate::preview::write_preview;
 use crate::replay::cli::{ReplayArgs, run_replay};
 use crate::scenarios::Scenario;
 use crate::stats::inspect;
+use crate::writer::generate_dataset;
 
 /// Arguments of `dynaserve sim`.
 #[derive(Args, Debug)]
@@ -58,6 +59,9 @@ pub enum SimCommand {
     /// Physics scenario: a tower of 2-4 boxes hit by a thrown object.
     #[command(name = "stack-hit")]
     StackHit(GenerateArgs),
+    /// Physics scenario: 1-3 objects on the floor pushed by a kinematic pusher (the last
+    /// object, marked kinematic) following a random smooth path through them.
+    Push(GenerateArgs),
     /// Physics scenarios: each scene draws one of rest, drop, slide, collide, stack-hit.
     #[command(name = "physics-mix")]
     PhysicsMix(GenerateArgs),
@@ -184,6 +188,7 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
         SimCommand::Slide(a) => run_generate(Generator::scenario(Scenario::Slide), &a),
         SimCommand::Collide(a) => run_generate(Generator::scenario(Scenario::Collide), &a),
         SimCommand::StackHit(a) => run_generate(Generator::scenario(Scenario::StackHit), &a),
+        SimCommand::Push(a) => run_generate(Generator::scenario(Scenario::Push), &a),
         SimCommand::PhysicsMix(a) => run_generate(Generator::physics_mix(), &a),
         SimCommand::MeshD1(a) => mesh_cli::run_generate(MeshSet::D1, &a),
         SimCommand::MeshD2(a) => mesh_cli::run_generate(MeshSet::D2, &a),

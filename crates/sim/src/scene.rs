@@ -6,7 +6,7 @@
 //! `substeps`-th state: frame 0 is the initial state (after the optional settling steps), frame
 //! `t` the state `t * substeps` steps later.
 //!
-//! Kinematic objects ([`KinematicPath`], [`simulate_driven`]) are rapier kinematic
+//! Kinematic objects ([`KinematicPath`], [`SceneSpec::kinematic`]) are rapier kinematic
 //! position-based bodies: they follow the poses given for every frame (interpolated over the
 //! physics steps between frames), push the dynamic objects they touch and are not pushed back.
 
@@ -97,6 +97,9 @@ pub struct SceneSpec {
     /// Physics steps run before frame 0 so that stacked objects reach the equilibrium of
     /// rapier's soft contacts (objects `held_until_settled` wait outside); 0 for none.
     pub settle_steps: u32,
+    /// Objects that are kinematic and follow these paths (each object at most once; they hold
+    /// their initial pose while the scene settles); empty for none.
+    pub kinematic: Vec<KinematicPath>,
 }
 
 /// Stepping and recording parameters.
@@ -295,20 +298,10 @@ impl SimWorld {
     }
 }
 
-/// Simulates a scene and records its trajectories.
+/// Simulates a scene and records its trajectories; a kinematic object's recorded poses are its
+/// path's poses.
 pub fn simulate(spec: &SceneSpec, cfg: &SimConfig) -> Result<Trajectories> {
     simulate_observed(spec, cfg, |_, _| {})
-}
-
-/// Simulates a scene whose objects named by `paths` are kinematic and follow their paths (each
-/// object at most once); the others are dynamic as in [`simulate`]. Recorded poses of a
-/// kinematic object are its path's poses.
-pub fn simulate_driven(
-    spec: &SceneSpec,
-    cfg: &SimConfig,
-    paths: &[KinematicPath],
-) -> Result<Trajectories> {
-    run(spec, cfg, paths, |_, _| {})
 }
 
 /// [`simulate`], calling `observe(frame, world)` at every recorded frame (after the state of
@@ -316,17 +309,9 @@ pub fn simulate_driven(
 pub fn simulate_observed(
     spec: &SceneSpec,
     cfg: &SimConfig,
-    observe: impl FnMut(usize, &SimWorld),
-) -> Result<Trajectories> {
-    run(spec, cfg, &[], observe)
-}
-
-fn run(
-    spec: &SceneSpec,
-    cfg: &SimConfig,
-    paths: &[KinematicPath],
     mut observe: impl FnMut(usize, &SimWorld),
 ) -> Result<Trajectories> {
+    let paths = &spec.kinematic;
     let mut sim = SimWorld::new(spec, cfg)?;
     let n = spec.objects.len();
     let mut seen = vec![false; n];

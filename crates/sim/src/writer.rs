@@ -66,6 +66,14 @@ pub fn generate_dataset(
     if matches!(opts.generator, Generator::Scenario(_)) {
         manifest.scenarios = labels.into_iter().collect();
     }
+    if opts.generator.has_kinematic() {
+        manifest.tensors.push(doc(
+            "kinematic",
+            "I32",
+            "[O]",
+            "1 for an object whose poses were given (a pusher following a path), else 0",
+        ));
+    }
     bytes += dataset::write_manifest(out, &manifest)?;
     Ok(GenerateSummary {
         dir: out.to_path_buf(),

@@ -196,6 +196,7 @@ fn resting_objects_stay_at_rest() {
                 floor: MOVI_FLOOR,
                 gravity: [0.0, 0.0, -10.0],
                 settle_steps: 0,
+                kinematic: Vec::new(),
             };
             let traj = simulate_observed(&spec, &SimConfig::default(), |_, _| {}).unwrap();
             for (t, (p, q)) in traj.positions[0].iter().zip(&traj.rotations[0]).enumerate() {

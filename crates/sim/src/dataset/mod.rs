@@ -14,6 +14,7 @@
 //! | `scale` | f32 | `[O, 3]` | scale of the unit shape per axis |
 //! | `shape_id` | i32 | `[O]` | index into the manifest's `shapes` |
 //! | `material` | i32 | `[O]` | 0 rigid, 1 elastic |
+//! | `kinematic` | i32 | `[O]` | 1 for an object whose poses were given (a pusher), else 0; written only when some object of the shard is kinematic |
 //!
 //! Reserved for mesh trajectories (not written by the rigid generators): `vertex_offsets` i64
 //! `[O + 1]`, `vertex_positions` f32 `[V, T, 3]`, `faces` i32 `[F, 3]`, `face_offsets` i64

@@ -24,6 +24,10 @@ pub struct ObjectRecord {
     pub shape_id: i32,
     /// 0 rigid, 1 elastic.
     pub material: i32,
+    /// Kinematic: its poses were given (a pusher following a path), not simulated; the other
+    /// objects react to it and it is not pushed back. Stored as the `kinematic` tensor, absent
+    /// (all false) when no object of a shard is kinematic.
+    pub kinematic: bool,
 }
 
 /// One scene: its objects and the interval between frames.
@@ -38,9 +42,9 @@ pub struct SceneRecord {
 /// What a scenario scene isolates, recorded per scene in the manifest's `scenarios`.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct SceneLabel {
-    /// Scenario name: `rest`, `drop`, `slide`, `collide` or `stack-hit`.
+    /// Scenario name: `rest`, `drop`, `slide`, `collide`, `stack-hit` or `push`.
     pub scenario: String,
     /// Arrangement within the scenario: `single`, `tower` or `pile` (rest), `drop`, `floor`
-    /// (slide), `air` or `floor` (collide), `tower` (stack-hit).
+    /// (slide), `air` or `floor` (collide), `tower` (stack-hit), `single` or `group` (push).
     pub variant: String,
 }

@@ -40,7 +40,7 @@ pub fn encode_shard(scenes: &[SceneRecord], frames: usize, points: usize) -> Res
         acc += s.objects.len() as i64;
         offsets.push(acc);
     }
-    let buffers: Vec<TensorBytes<'_>> = vec![
+    let mut buffers: Vec<TensorBytes<'_>> = vec![
         (
             "scene_object_offsets",
             Dtype::I64,
@@ -112,6 +112,18 @@ pub fn encode_shard(scenes: &[SceneRecord], frames: usize, points: usize) -> Res
                 .collect(),
         ),
     ];
+    // Written only when some object is kinematic, so shards without one keep their bytes.
+    if objects.iter().any(|o| o.kinematic) {
+        buffers.push((
+            "kinematic",
+            Dtype::I32,
+            vec![n],
+            objects
+                .iter()
+                .flat_map(|o| i32::from(o.kinematic).to_le_bytes())
+                .collect(),
+        ));
+    }
     serialize_tensors(&buffers)
 }
 
@@ -158,6 +170,11 @@ impl<'a> ShardTensors<'a> {
             path: self.path.to_path_buf(),
             message,
         }
+    }
+
+    /// Whether the shard holds a tensor of this name.
+    pub(crate) fn has(&self, name: &str) -> bool {
+        self.st.tensor(name).is_ok()
     }
 
     /// The tensor's bytes after checking its dtype and shape.
@@ -254,6 +271,13 @@ pub fn decode_shard(
     let scale = sh.f32s("scale", &[n, 3])?;
     let shape_id = sh.i32s("shape_id", &[n])?;
     let material = sh.i32s("material", &[n])?;
+    let kinematic = match sh.has("kinematic") {
+        true => sh.i32s("kinematic", &[n])?,
+        false => vec![0; n],
+    };
+    if let Some(i) = kinematic.iter().position(|&k| k != 0 && k != 1) {
+        return Err(sh.bad(format!("kinematic[{i}] is {}, not 0 or 1", kinematic[i])));
+    }
     let object = |i: usize| ObjectRecord {
         positions: positions[i * frames * 3..(i + 1) * frames * 3]
             .chunks_exact(3)
@@ -273,6 +297,7 @@ pub fn decode_shard(
         scale: [scale[3 * i], scale[3 * i + 1], scale[3 * i + 2]],
         shape_id: shape_id[i],
         material: material[i],
+        kinematic: kinematic[i] == 1,
     };
     Ok(offsets
         .windows(2)
@@ -281,4 +306,51 @@ pub fn decode_shard(
             dt_frame,
         })
         .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn object(kinematic: bool) -> ObjectRecord {
+        ObjectRecord {
+            positions: vec![[0.0, 0.0, 0.5], [0.1, 0.0, 0.5]],
+            rotations: vec![[0.0, 0.0, 0.0, 1.0]; 2],
+            reference_points: vec![[0.5, 0.0, 0.0]],
+            mass: 1.0,
+            friction: 0.5,
+            restitution: 0.3,
+            scale: [1.0; 3],
+            shape_id: 0,
+            material: 0,
+            kinematic,
+        }
+    }
+
+    fn round_trip(objects: Vec<ObjectRecord>) -> (Vec<SceneRecord>, bool) {
+        let scene = SceneRecord {
+            objects,
+            dt_frame: 0.5,
+        };
+        let bytes = encode_shard(std::slice::from_ref(&scene), 2, 1).unwrap();
+        let stored = SafeTensors::deserialize(&bytes)
+            .unwrap()
+            .tensor("kinematic")
+            .is_ok();
+        let back = decode_shard(&bytes, Path::new("s"), 2, 1, 0.5).unwrap();
+        assert_eq!(back, vec![scene]);
+        (back, stored)
+    }
+
+    #[test]
+    fn kinematic_objects_are_stored_and_read_back() {
+        let (back, stored) = round_trip(vec![object(false), object(true)]);
+        assert!(stored);
+        let flags: Vec<bool> = back[0].objects.iter().map(|o| o.kinematic).collect();
+        assert_eq!(flags, [false, true]);
+        // Without a kinematic object the tensor is not written and reads back as all false.
+        let (back, stored) = round_trip(vec![object(false)]);
+        assert!(!stored);
+        assert!(!back[0].objects[0].kinematic);
+    }
 }

@@ -75,6 +75,12 @@ impl Generator {
         }
     }
 
+    /// Whether its scenes can hold kinematic objects (the `push` scenario's pusher), whose
+    /// shards then carry the `kinematic` tensor.
+    pub fn has_kinematic(&self) -> bool {
+        matches!(self, Generator::Scenario(p) if p.scenarios.contains(&Scenario::Push))
+    }
+
     /// The shapes objects can have; `shape_id` indexes this list.
     pub fn shapes(&self) -> Vec<ShapeKind> {
         match self {
@@ -216,6 +222,7 @@ pub fn generate_scene(opts: &GenerateOptions, index: u64) -> Result<GeneratedSce
             scale: [o.scale; 3],
             shape_id: o.shape_id,
             material: o.material_kind,
+            kinematic: spec.kinematic.iter().any(|k| k.object == i),
         })
         .collect();
     Ok(GeneratedScene {

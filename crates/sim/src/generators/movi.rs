@@ -179,5 +179,6 @@ pub(super) fn sample_movi<R: Rng + ?Sized>(p: &MoviParameters, rng: &mut R) -> R
         floor: p.floor,
         gravity: p.gravity,
         settle_steps: 0,
+        kinematic: Vec::new(),
     })
 }

@@ -139,5 +139,6 @@ pub(super) fn sample_wrecking_ball<R: Rng + ?Sized>(
         floor: p.floor,
         gravity: p.gravity,
         settle_steps: p.settle_steps,
+        kinematic: Vec::new(),
     })
 }

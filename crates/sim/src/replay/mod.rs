@@ -7,8 +7,8 @@
 //! combined by multiplication, on the MOVi floor (friction 0.3, restitution 0.5, top at z = 0)
 //! under gravity (0, 0, -10) at 240 Hz: the conditions the bundled model was trained on. An
 //! object's initial motion is its `velocity`, or the finite difference from its
-//! `previous_pose` over one step. Kinematic objects follow their paths as in
-//! [`simulate_driven`]; poses are reported in the scene's body frames.
+//! `previous_pose` over one step. Kinematic objects follow their paths
+//! ([`SceneSpec::kinematic`]); poses are reported in the scene's body frames.
 
 pub mod cli;
 
@@ -18,7 +18,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::materials::MOVI_FLOOR;
 use crate::scene::{
-    FloorSpec, KinematicPath, Material, ObjectSpec, SceneSpec, SimConfig, simulate_driven,
+    FloorSpec, KinematicPath, Material, ObjectSpec, SceneSpec, SimConfig, simulate,
 };
 use crate::shapes::{Part, Polytope, Shape, ShapeKind};
 use crate::{Result, SimError};
@@ -234,12 +234,6 @@ pub fn replay(
         .enumerate()
         .map(|(i, o)| object_spec(o, i, dt_step))
         .collect::<Result<Vec<_>>>()?;
-    let spec = SceneSpec {
-        objects,
-        floor: opts.floor,
-        gravity: opts.gravity,
-        settle_steps: 0,
-    };
     let kinematic: Vec<KinematicPath> = paths
         .iter()
         .map(|p| KinematicPath {
@@ -251,7 +245,14 @@ pub fn replay(
                 .collect(),
         })
         .collect();
-    let traj = simulate_driven(&spec, &cfg, &kinematic)?;
+    let spec = SceneSpec {
+        objects,
+        floor: opts.floor,
+        gravity: opts.gravity,
+        settle_steps: 0,
+        kinematic,
+    };
+    let traj = simulate(&spec, &cfg)?;
     let poses = (0..cfg.frames)
         .map(|t| {
             (0..spec.objects.len())

@@ -9,10 +9,12 @@
 //!
 //! - `parameters`: the scenarios, `rest` arrangements and the ranges scenes are drawn from;
 //! - `placement`: drawing objects and settling their starting poses;
-//! - `sample`: one sampler per scenario and [`sample_scenario`].
+//! - `sample`: one sampler per scenario and [`sample_scenario`];
+//! - `push`: the `push` scenario's objects and its pusher's random smooth path.
 
 mod parameters;
 mod placement;
+mod push;
 mod sample;
 
 pub use parameters::{RestVariant, Scenario, ScenarioParameters};

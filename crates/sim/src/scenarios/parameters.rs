@@ -22,10 +22,14 @@ pub enum Scenario {
     Collide,
     /// A small box tower hit by a thrown object (the last object of the scene).
     StackHit,
+    /// Objects resting on the floor pushed by a kinematic pusher (the last object of the
+    /// scene) following a random smooth path through them.
+    Push,
 }
 
 impl Scenario {
-    /// All scenarios, in the order `physics-mix` draws from.
+    /// The scenarios `physics-mix` draws from, in its order: all but `push`, whose kinematic
+    /// pusher is an input the mix's models are not trained to take.
     pub const ALL: [Scenario; 5] = [
         Scenario::Rest,
         Scenario::Drop,
@@ -42,12 +46,16 @@ impl Scenario {
             Scenario::Slide => "slide",
             Scenario::Collide => "collide",
             Scenario::StackHit => "stack-hit",
+            Scenario::Push => "push",
         }
     }
 
     /// The scenario of a name written by [`Scenario::name`].
     pub fn from_name(name: &str) -> Option<Self> {
-        Self::ALL.into_iter().find(|s| s.name() == name)
+        Self::ALL
+            .into_iter()
+            .chain([Scenario::Push])
+            .find(|s| s.name() == name)
     }
 }
 
@@ -155,6 +163,29 @@ pub struct ScenarioParameters {
     pub projectile_distance: f32,
     /// Aim height as a fraction of the tower height.
     pub projectile_aim: [f32; 2],
+    /// Objects of a `push` scene (on the floor, in a chain the pusher's path runs through).
+    pub push_objects: [usize; 2],
+    /// Gap between the bounding circles of consecutive pushed objects, metres.
+    pub push_gap: [f32; 2],
+    /// Largest turn of the chain's direction at each pushed object, radians.
+    pub push_turn: f32,
+    /// Largest sideways offset of the path from a pushed object's centre, as a fraction of its
+    /// bounding radius.
+    pub push_lateral: f32,
+    /// Edge of the pusher cube, metres.
+    pub pusher_scale: [f32; 2],
+    /// Gap between the pusher's bottom face and the floor, metres.
+    pub push_clearance: f32,
+    /// Gap between the bounding circles of the pusher and the first object at the start,
+    /// metres.
+    pub push_approach: [f32; 2],
+    /// Cruise speed of the pusher along its path, m/s.
+    pub push_speed: [f32; 2],
+    /// Time over which the pusher's speed ramps up linearly from rest, seconds.
+    pub push_ramp: f32,
+    /// Length of the path beyond the last object's bounding circle, metres (longer than the
+    /// pusher travels in a scene, so it never stops).
+    pub push_tail: f32,
 }
 
 impl ScenarioParameters {
@@ -206,6 +237,16 @@ impl ScenarioParameters {
             projectile_speed: [5.0, 9.0],
             projectile_distance: 3.0,
             projectile_aim: [0.2, 0.8],
+            push_objects: [1, 3],
+            push_gap: [0.1, 0.6],
+            push_turn: 0.5,
+            push_lateral: 0.3,
+            pusher_scale: [0.3, 0.5],
+            push_clearance: 0.01,
+            push_approach: [0.1, 0.5],
+            push_speed: [0.5, 1.5],
+            push_ramp: 0.5,
+            push_tail: 8.0,
         }
     }
 
@@ -248,6 +289,7 @@ impl ScenarioParameters {
             self.pile_objects,
             self.slide_objects,
             self.stack_boxes,
+            self.push_objects,
         ];
         if ranges.iter().any(|r| r[0] == 0 || r[0] > r[1]) {
             return bad("an object-count range is empty or starts at 0");
@@ -264,6 +306,10 @@ impl ScenarioParameters {
             self.projectile_scale,
             self.projectile_speed,
             self.projectile_aim,
+            self.push_gap,
+            self.pusher_scale,
+            self.push_approach,
+            self.push_speed,
         ];
         if spans
             .iter()

@@ -102,6 +102,7 @@ pub(super) fn presettle(
         floor: p.floor,
         gravity: p.gravity,
         settle_steps: 0,
+        kinematic: Vec::new(),
     };
     let cfg = SimConfig::default();
     let mut sim = SimWorld::new(&spec, &cfg)?;

@@ -11,6 +11,7 @@ use super::placement::{
     SETTLE_ATTEMPTS, bounding_radius, count, draw_object, extents, presettle, quat,
     random_direction, rest_on_floor, tower, uniform, upright_start,
 };
+use super::push::sample_push;
 use crate::dataset::SceneLabel;
 use crate::random::random_rotation;
 use crate::scene::{ObjectSpec, SceneSpec};
@@ -226,13 +227,14 @@ fn sample_stack_hit<R: Rng + ?Sized>(
 
 /// Draws one scenario scene and its label. `rest` and `stack-hit` scenes settle for
 /// `settle_steps` before frame 0 (the thrown object held out); the others start at once from
-/// pre-settled poses.
+/// pre-settled poses. A `push` scene's pusher is kinematic ([`SceneSpec::kinematic`]).
 pub fn sample_scenario<R: Rng + ?Sized>(
     p: &ScenarioParameters,
     rng: &mut R,
 ) -> Result<(SceneSpec, SceneLabel)> {
     p.validate()?;
     let scenario = p.scenarios[rng.random_range(0..p.scenarios.len())];
+    let mut kinematic = Vec::new();
     let (objects, variant, settle) = match scenario {
         Scenario::Rest => {
             let (o, v) = sample_rest(p, rng)?;
@@ -245,6 +247,11 @@ pub fn sample_scenario<R: Rng + ?Sized>(
             (o, v, 0)
         }
         Scenario::StackHit => (sample_stack_hit(p, rng)?, "tower", p.settle_steps),
+        Scenario::Push => {
+            let (o, path, v) = sample_push(p, rng)?;
+            kinematic.push(path);
+            (o, v, 0)
+        }
     };
     Ok((
         SceneSpec {
@@ -252,6 +259,7 @@ pub fn sample_scenario<R: Rng + ?Sized>(
             floor: p.floor,
             gravity: p.gravity,
             settle_steps: settle,
+            kinematic,
         },
         SceneLabel {
             scenario: scenario.name().to_string(),

@@ -41,6 +41,7 @@ fn scene(objects: usize, frames: usize, pose: impl Fn(usize, f64) -> Pose) -> Sc
                     scale: [1.0; 3],
                     shape_id: 0,
                     material: 0,
+                    kinematic: false,
                 }
             })
             .collect(),
