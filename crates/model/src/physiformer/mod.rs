@@ -17,6 +17,7 @@ pub mod block;
 pub mod config;
 pub mod flow;
 pub mod inputs;
+pub mod rigid;
 pub mod scene;
 
 use std::collections::HashMap;
@@ -29,7 +30,7 @@ use self::block::{AttentionKind, Block, modulate};
 use self::config::PhysiConfig;
 use self::inputs::{DenoiseItem, PassInputs, build};
 use crate::ModelError;
-use crate::checkpoint::{CONFIG_FILE, WEIGHTS_FILE, dir_name, parse_config};
+use crate::checkpoint::{dir_name, parse_config, write_checkpoint};
 use crate::layers::{Init, Linear, Mlp, Mode, ParamStore, RmsNorm};
 
 /// The PhysiFormer network (see the module docs). Thread-safe.
@@ -228,12 +229,7 @@ impl PhysiFormer {
 
     /// Writes `config.json` and `model.safetensors` (f32) into `dir`, creating it.
     pub fn save(&self, dir: &Path) -> Result<(), ModelError> {
-        std::fs::create_dir_all(dir)?;
-        let json = serde_json::to_string_pretty(&self.config)
-            .map_err(|e| ModelError::Internal(format!("config serialisation: {e}")))?;
-        std::fs::write(dir.join(CONFIG_FILE), json + "\n")?;
-        self.varmap.save(dir.join(WEIGHTS_FILE))?;
-        Ok(())
+        write_checkpoint(dir, &self.config, &self.varmap, DType::F32)
     }
 
     /// Replaces every weight by the tensor of the same name in `weights` (e.g. EMA weights).
