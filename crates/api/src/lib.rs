@@ -5,6 +5,7 @@
 //!   `dynaserve.v1`: the `WorldModel` and `Sessions` services), plus
 //!   [`v1::FILE_DESCRIPTOR_SET`] for server reflection;
 //! - [`json`]: the same messages as JSON documents (HTTP bodies and scene files);
+//! - [`json_body`]: an HTTP body read into a JSON document, errors naming the field;
 //! - [`wire`]: JSON form <-> gRPC, what a client sends and receives;
 //! - [`listening`]: the start-up line a server prints, and its parser;
 //! - [`FieldError`]: a malformed or out-of-range field, named by its path; [`code_name`]: the
@@ -29,6 +30,7 @@ mod error;
 #[cfg(feature = "model")]
 pub mod generate;
 pub mod json;
+pub mod json_body;
 #[cfg(feature = "model")]
 pub mod limits;
 pub mod listening;

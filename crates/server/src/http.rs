@@ -209,23 +209,7 @@ async fn read_json<T: DeserializeOwned>(engine: &Engine, body: Body) -> Result<T
         )
     })?;
     engine.check_payload(bytes.len())?;
-    // Serde would read a JSON array as a struct's fields in order; only objects are requests.
-    if bytes.iter().find(|b| !b.is_ascii_whitespace()) != Some(&b'{') {
-        return Err(ApiError::invalid(
-            "request",
-            "the body must be a JSON object",
-        ));
-    }
-    let de = &mut serde_json::Deserializer::from_slice(&bytes);
-    serde_path_to_error::deserialize(de).map_err(|e| {
-        let path = e.path().to_string();
-        let field = if path.is_empty() || path == "." {
-            "request".to_string()
-        } else {
-            path
-        };
-        ApiError::invalid(field, e.into_inner())
-    })
+    Ok(dynaserve_api::json_body::decode(&bytes)?)
 }
 
 fn wants_sse(headers: &HeaderMap) -> bool {
