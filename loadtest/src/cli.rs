@@ -7,7 +7,7 @@ use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
 
 use crate::report::{RunReport, to_html};
-use crate::run::{Load, Mode, Progress, Stop, Target, Transport, run_target};
+use crate::run::{Load, Mode, Progress, SoakPlan, Stop, Target, Transport, run_target};
 use crate::scenes::SceneSource;
 use crate::spawn::SpawnedServer;
 
@@ -33,6 +33,56 @@ pub enum ModeCmd {
     Poisson(PoissonArgs),
     /// Concurrency 1, 2, 4, ... until the p99 step latency crosses a bound.
     Ramp(RampArgs),
+    /// Many streams for a long time, clients dropping and reconnecting at random; every frame
+    /// is checked for its stream and order, the server's memory sampled. Exit code 1 when a
+    /// frame was lost, misrouted or out of order, or a kept rollout failed.
+    Soak(SoakArgs),
+}
+
+/// Flags of `soak`.
+#[derive(Args, Debug)]
+pub struct SoakArgs {
+    /// Concurrent streams, each on its own connection.
+    #[arg(long, default_value_t = 64)]
+    pub streams: usize,
+    /// How long new rollouts are started: seconds, or with a unit (`90s`, `10m`, `1h`).
+    /// Streams then finish the rollout they are in.
+    #[arg(long, default_value = "10m")]
+    pub duration: String,
+    /// Chance that a client drops a rollout at a random frame and reconnects on a new
+    /// connection.
+    #[arg(long, default_value_t = 0.3)]
+    pub drop_probability: f64,
+    /// Process id of the server, to read its resident memory from /proc (a spawned server's
+    /// is known; otherwise the server's /metrics is tried).
+    #[arg(long)]
+    pub pid: Option<u32>,
+    /// Seconds between two readings of the server's resident memory.
+    #[arg(long, default_value_t = 10.0)]
+    pub rss_interval_s: f64,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub common: Common,
+}
+
+/// Parses a duration: a number of seconds, or a number followed by `ms`, `s`, `m` or `h`.
+pub fn parse_duration(text: &str) -> anyhow::Result<Duration> {
+    let t = text.trim();
+    let split = t
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .unwrap_or(t.len());
+    let (number, unit) = t.split_at(split);
+    let value: f64 = number
+        .parse()
+        .map_err(|_| anyhow::anyhow!("{text:?} is not a duration (e.g. 600, 90s, 10m, 1h)"))?;
+    let scale = match unit.trim() {
+        "" | "s" => 1.0,
+        "ms" => 1e-3,
+        "m" | "min" => 60.0,
+        "h" => 3600.0,
+        u => anyhow::bail!("{text:?}: unknown unit {u:?} (use ms, s, m or h)"),
+    };
+    seconds("--duration", value * scale)
 }
 
 /// Flags of `streams`.
@@ -290,6 +340,7 @@ pub fn plan_sides(c: &Common) -> anyhow::Result<Vec<SidePlan>> {
                 max_batch_scenes: c.max_batch_scenes,
                 max_batch_objects: c.max_batch_objects,
                 spawned: None,
+                pid: None,
             },
             spawn,
         });
@@ -372,7 +423,39 @@ pub fn build_load(cli: &Cli) -> anyhow::Result<(Load, Common)> {
                 a.common.clone(),
             )
         }
+        ModeCmd::Soak(a) => {
+            anyhow::ensure!(a.streams >= 1, "--streams must be at least 1");
+            anyhow::ensure!(
+                (0.0..=1.0).contains(&a.drop_probability),
+                "--drop-probability must be in [0, 1]"
+            );
+            let rss_interval = seconds("--rss-interval-s", a.rss_interval_s)?;
+            anyhow::ensure!(
+                rss_interval >= Duration::from_millis(100),
+                "--rss-interval-s must be at least 0.1"
+            );
+            (
+                Mode::Soak(SoakPlan {
+                    streams: a.streams,
+                    duration: parse_duration(&a.duration)?,
+                    drop_probability: a.drop_probability,
+                    rss_interval,
+                    seed: a.common.seed,
+                }),
+                a.common.clone(),
+            )
+        }
     };
+    if let Mode::Soak(_) = mode {
+        anyhow::ensure!(
+            !common.compare,
+            "soak runs against one server: --compare does not apply"
+        );
+        anyhow::ensure!(
+            !common.transport.contains(&Transport::Inprocess),
+            "the soak checks a server's streams: use --transport grpc or http"
+        );
+    }
     let scenes = if common.scene.is_empty() {
         anyhow::ensure!(
             common.objects >= 1 && common.points >= 1,
@@ -408,7 +491,12 @@ pub fn build_load(cli: &Cli) -> anyhow::Result<(Load, Common)> {
 pub fn main() -> anyhow::Result<i32> {
     let cli = Cli::parse();
     let (load, common) = build_load(&cli)?;
-    let sides = plan_sides(&common)?;
+    let mut sides = plan_sides(&common)?;
+    if let ModeCmd::Soak(a) = &cli.mode {
+        for side in &mut sides {
+            side.target.pid = a.pid;
+        }
+    }
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
@@ -457,6 +545,7 @@ pub fn main() -> anyhow::Result<i32> {
                         target.metrics_url = Some(format!("{}/metrics", s.http_url));
                     }
                     target.spawned = Some(s.command.clone());
+                    target.pid = s.pid();
                     Some(s)
                 }
                 None => None,
@@ -480,7 +569,19 @@ pub fn main() -> anyhow::Result<i32> {
                 .with_context(|| format!("writing {}", path.display()))?;
             eprintln!("HTML chart: {}", path.display());
         }
-        Ok(if stop.is_set() { 130 } else { 0 })
+        let soak_failed = run
+            .sides
+            .iter()
+            .flat_map(|s| &s.levels)
+            .filter_map(|l| l.soak.as_ref())
+            .any(|s| !s.passed());
+        Ok(if stop.is_set() {
+            130
+        } else if soak_failed {
+            1
+        } else {
+            0
+        })
     })
 }
 
@@ -536,6 +637,25 @@ mod tests {
     }
 
     #[test]
+    fn soak_flags_and_durations() {
+        let (load, sides) = parse(&["soak", "--duration", "90s", "--steps", "120"]).unwrap();
+        let Mode::Soak(p) = &load.mode else {
+            panic!("{:?}", load.mode)
+        };
+        assert_eq!(p.streams, 64);
+        assert_eq!(p.duration, Duration::from_secs(90));
+        assert_eq!(p.drop_probability, 0.3);
+        assert_eq!(load.steps, 120);
+        assert_eq!(sides.len(), 1);
+        assert_eq!(parse_duration("10m").unwrap(), Duration::from_secs(600));
+        assert_eq!(parse_duration("600").unwrap(), Duration::from_secs(600));
+        assert_eq!(parse_duration("1.5h").unwrap(), Duration::from_secs(5400));
+        assert_eq!(parse_duration("250ms").unwrap(), Duration::from_millis(250));
+        assert!(parse_duration("m").is_err());
+        assert!(parse_duration("-5s").is_err());
+    }
+
+    #[test]
     fn bad_flag_combinations_are_errors() {
         assert!(
             parse(&[
@@ -553,5 +673,19 @@ mod tests {
         assert!(parse(&["ramp", "--start", "8", "--max-concurrency", "4"]).is_err());
         assert!(parse(&["streams", "--scene", "does-not-exist.json"]).is_err());
         assert!(parse(&["streams", "--warmup-s", "-2"]).is_err());
+        assert!(parse(&["soak", "--drop-probability", "1.5"]).is_err());
+        assert!(parse(&["soak", "--duration", "10 parsecs"]).is_err());
+        assert!(parse(&["soak", "--transport", "inprocess"]).is_err());
+        assert!(
+            parse(&[
+                "soak",
+                "--compare",
+                "--target",
+                "http://a:1",
+                "--target",
+                "http://b:1"
+            ])
+            .is_err()
+        );
     }
 }

@@ -7,8 +7,9 @@
 //! status code, and the server's batch-size and queue-wait distributions taken from the
 //! difference of two `/metrics` scrapes.
 //!
-//! - [`run`]: load modes ([`run::Mode`]: streams, predict, poisson, ramp) and the driver
+//! - [`run`]: load modes ([`run::Mode`]: streams, predict, poisson, ramp, soak) and the driver
 //!   [`run::run_target`];
+//! - [`rss`]: the server's resident memory during a soak;
 //! - [`report`]: report types, text tables, A/B ratios, the HTML chart;
 //! - [`scenes`]: scene files and the client crate's seeded random scenes;
 //! - [`transport`]: gRPC and HTTP callers; [`inprocess`]: the no-server baseline;
@@ -20,6 +21,7 @@ pub mod cli;
 pub mod inprocess;
 pub mod recorder;
 pub mod report;
+pub mod rss;
 pub mod run;
 pub mod scenes;
 pub mod spawn;

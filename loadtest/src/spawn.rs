@@ -134,6 +134,11 @@ impl SpawnedServer {
         }
     }
 
+    /// Process id of the server (the shell `exec`s it, so it is the server's own).
+    pub fn pid(&self) -> Option<u32> {
+        self.child.id()
+    }
+
     /// Stops the server: SIGTERM, then a kill after 20 s.
     pub async fn stop(mut self) {
         if let Some(pid) = self.child.id() {

@@ -52,6 +52,7 @@ fn target(server: &RunningServer, transport: Transport) -> Target {
         max_batch_scenes: 64,
         max_batch_objects: 2048,
         spawned: None,
+        pid: None,
     }
 }
 
@@ -236,6 +237,7 @@ async fn in_process_baseline_and_timed_streams() {
         max_batch_scenes: 2,
         max_batch_objects: 2048,
         spawned: None,
+        pid: None,
     };
     let l = load(
         Mode::Streams {

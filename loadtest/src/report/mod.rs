@@ -215,6 +215,8 @@ pub struct Report {
     pub server: Option<ServerStats>,
     /// Why the server metrics are missing, when they are.
     pub server_metrics_error: Option<String>,
+    /// The soak's checks and memory record (`soak` mode only).
+    pub soak: Option<crate::run::SoakReport>,
 }
 
 /// All levels run against one side (server or in-process model).

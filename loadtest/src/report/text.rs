@@ -146,6 +146,9 @@ pub fn level_detail(r: &Report) -> String {
         }
         (None, None) => {}
     }
+    if let Some(soak) = &r.soak {
+        o.push_str(&soak.to_text());
+    }
     o
 }
 

@@ -3,10 +3,15 @@
 //! that keep a level busy (streams, planner calls, Poisson arrivals) are in [`workers`].
 
 mod remote;
+mod soak;
 mod workers;
 
 pub use remote::http_get;
 use remote::{Remote, connect};
+pub use soak::{
+    DRAIN_LIMIT, REGION_SPACING_M, RolloutCheck, SoakCounts, SoakPlan, SoakReport, StreamIdentity,
+    soak_scene,
+};
 use workers::{poisson, predict_worker, stream_worker};
 
 use std::io::IsTerminal;
@@ -22,6 +27,7 @@ use tokio::sync::watch;
 use crate::inprocess::InProcess;
 use crate::recorder::Recorder;
 use crate::report::{Report, ServerStats, SideReport};
+use crate::rss::RssSource;
 use crate::scenes::SceneSource;
 use crate::transport::CallError;
 
@@ -95,6 +101,9 @@ pub enum Mode {
         /// Length of each level.
         level_duration: Duration,
     },
+    /// Many streams for a long time, clients dropping rollouts at random and reconnecting,
+    /// every frame checked for its stream and its order, the server's memory sampled.
+    Soak(SoakPlan),
 }
 
 impl Mode {
@@ -105,6 +114,7 @@ impl Mode {
             Mode::Predict { .. } => "predict",
             Mode::Poisson { .. } => "poisson",
             Mode::Ramp { .. } => "ramp",
+            Mode::Soak(_) => "soak",
         }
     }
 }
@@ -169,6 +179,13 @@ impl Load {
                 self.steps,
                 level_duration.as_secs_f64()
             ),
+            Mode::Soak(p) => format!(
+                "soak {} streams x {} steps for {:.0} s, drop probability {}",
+                p.streams,
+                self.steps,
+                p.duration.as_secs_f64(),
+                p.drop_probability
+            ),
         };
         format!(
             "{m}, dt_steps {}, {}{}",
@@ -215,6 +232,9 @@ pub struct Target {
     pub max_batch_objects: usize,
     /// The command that launched the server, if this run launched it.
     pub spawned: Option<String>,
+    /// Process id of the server when it runs on this machine (spawned, or `--pid`): its
+    /// resident memory is read from `/proc` during a soak.
+    pub pid: Option<u32>,
 }
 
 /// Cloneable "stop now" signal (Ctrl-C).
@@ -298,8 +318,8 @@ fn end_progress(h: Option<tokio::task::JoinHandle<()>>) {
     }
 }
 
-fn lock(rec: &Mutex<Recorder>) -> std::sync::MutexGuard<'_, Recorder> {
-    rec.lock().unwrap_or_else(|p| p.into_inner())
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
 /// Runs every level of `load` against `target` and returns the side's report. Errors of
@@ -329,6 +349,10 @@ pub async fn run_target(
                 "the poisson mode needs a server (open-loop arrivals are scheduled by it); \
                  use streams, predict or ramp in-process"
             );
+            anyhow::ensure!(
+                !matches!(load.mode, Mode::Soak(_)),
+                "the soak checks a server's streams: it needs --transport grpc or http"
+            );
             let dir = target.model_dir.clone();
             let (s, o) = (target.max_batch_scenes, target.max_batch_objects);
             let ip = tokio::task::spawn_blocking(move || InProcess::load(&dir, s, o))
@@ -347,6 +371,7 @@ pub async fn run_target(
         Mode::Streams { levels, duration } => levels.iter().map(|&l| (l, *duration)).collect(),
         Mode::Predict { concurrency, .. } => vec![(*concurrency, None)],
         Mode::Poisson { rate, .. } => vec![(rate.round().max(1.0) as usize, None)],
+        Mode::Soak(p) => vec![(p.streams, None)],
         Mode::Ramp {
             start,
             factor,
@@ -374,7 +399,12 @@ pub async fn run_target(
             Some(u) if !matches!(exec, Exec::InProcess(_)) => Some(http_get(u).await),
             _ => None,
         };
-        let mut report = run_level(&load, &exec, concurrency, duration, stop, progress).await;
+        let rss = match (target.pid, &target.metrics_url) {
+            (Some(pid), _) => Some(RssSource::Proc(pid)),
+            (None, Some(url)) => Some(RssSource::Metrics(url.clone())),
+            (None, None) => None,
+        };
+        let mut report = run_level(&load, &exec, concurrency, duration, rss, stop, progress).await;
         match before {
             Some(Ok(b)) => {
                 let url = target.metrics_url.as_deref().unwrap_or_default();
@@ -440,6 +470,7 @@ async fn run_level(
     exec: &Exec,
     concurrency: usize,
     duration: Option<Duration>,
+    rss: Option<RssSource>,
     stop: &Stop,
     progress: Progress,
 ) -> Report {
@@ -449,7 +480,7 @@ async fn run_level(
     let what = format!("{} {concurrency}", load.mode.name());
     let bar = progress_task(rec.clone(), what, progress);
     let deadline = duration.map(|d| measure_from + d);
-    let (mut expected, mut offered) = (None, None);
+    let (mut expected, mut offered, mut soaked) = (None, None, None);
     match (exec, &load.mode) {
         (Exec::InProcess(ip), mode) => {
             let flag = Arc::new(AtomicBool::new(false));
@@ -544,6 +575,9 @@ async fn run_level(
             )
             .await;
         }
+        (Exec::Remote(remote), Mode::Soak(plan)) => {
+            soaked = Some(soak::run_soak(load, remote, plan, rss, &rec, stop).await);
+        }
         (Exec::Remote(remote), _) => {
             if duration.is_none() {
                 expected = Some(concurrency as u64 * u64::from(load.steps));
@@ -567,5 +601,6 @@ async fn run_level(
     let mut report = r.report(concurrency, end.max(measure_from), interrupted);
     report.expected_frames = expected;
     report.offered_rate = offered;
+    report.soak = soaked;
     report
 }

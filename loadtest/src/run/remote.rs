@@ -9,7 +9,7 @@ use dynaserve_client::Client;
 use dynaserve_client::http::{HttpBase, HttpConn};
 
 use super::{Load, Target, Transport};
-use crate::transport::Conn;
+use crate::transport::{CallError, Conn};
 
 /// GET a URL over HTTP and return the body when the status is 200.
 pub async fn http_get(url: &str) -> Result<String, String> {
@@ -31,6 +31,7 @@ pub async fn http_get(url: &str) -> Result<String, String> {
 pub(super) struct Remote {
     grpc: Vec<Client>,
     http: Option<HttpBase>,
+    url: String,
     /// The model the load targets.
     pub(super) model: String,
 }
@@ -41,6 +42,14 @@ impl Remote {
         match &self.http {
             Some(b) => Conn::Http(HttpConn::new(b.clone())),
             None => Conn::Grpc(self.grpc[i % self.grpc.len()].clone()),
+        }
+    }
+
+    /// A connection of its own (a new HTTP/2 connection for gRPC, a new socket for HTTP).
+    pub(super) async fn fresh_conn(&self) -> Result<Conn, CallError> {
+        match &self.http {
+            Some(b) => Ok(Conn::Http(HttpConn::new(b.clone()))),
+            None => Ok(Conn::Grpc(Client::connect(&self.url).await?)),
         }
     }
 }
@@ -91,6 +100,7 @@ pub(super) async fn connect(target: &Target, load: &Load) -> anyhow::Result<Remo
             Ok(Remote {
                 grpc,
                 http: None,
+                url: target.url.clone(),
                 model,
             })
         }
@@ -113,6 +123,7 @@ pub(super) async fn connect(target: &Target, load: &Load) -> anyhow::Result<Remo
             Ok(Remote {
                 grpc: Vec::new(),
                 http: Some(base),
+                url: target.url.clone(),
                 model,
             })
         }
