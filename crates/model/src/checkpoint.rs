@@ -9,6 +9,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use candle_core::{DType, Device, Tensor};
+use candle_nn::VarMap;
 
 use crate::layers::ParamStore;
 use crate::rigidformer::RigidFormer;
@@ -99,6 +100,35 @@ pub fn load_model(dir: &Path, device: &Device) -> Result<Arc<dyn WorldModel>, Mo
     Ok(Arc::new(load_rigidformer(dir, device, false)?))
 }
 
+/// Writes the checkpoint files every model family shares into `dir` (created if needed):
+/// `config` as pretty JSON in `config.json` and the parameters of `varmap` in
+/// `model.safetensors`, stored as `dtype` on the CPU.
+pub(crate) fn write_checkpoint(
+    dir: &Path,
+    config: &impl serde::Serialize,
+    varmap: &VarMap,
+    dtype: DType,
+) -> Result<(), ModelError> {
+    std::fs::create_dir_all(dir)?;
+    let json = serde_json::to_string_pretty(config)
+        .map_err(|e| ModelError::Internal(format!("config serialisation: {e}")))?;
+    std::fs::write(dir.join(CONFIG_FILE), json + "\n")?;
+    let data = varmap
+        .data()
+        .lock()
+        .map_err(|_| ModelError::Internal("parameter map lock poisoned".into()))?
+        .iter()
+        .map(|(k, v)| {
+            Ok((
+                k.clone(),
+                v.as_tensor().to_dtype(dtype)?.to_device(&Device::Cpu)?,
+            ))
+        })
+        .collect::<Result<HashMap<String, Tensor>, ModelError>>()?;
+    candle_core::safetensors::save(&data, dir.join(WEIGHTS_FILE))?;
+    Ok(())
+}
+
 impl RigidFormer {
     /// Writes the checkpoint (f32 weights) to `dir`, creating it if needed.
     pub fn save(&self, dir: &Path) -> Result<(), ModelError> {
@@ -113,24 +143,7 @@ impl RigidFormer {
                 "cannot store weights as {dtype:?}"
             )));
         }
-        std::fs::create_dir_all(dir)?;
-        let json = serde_json::to_string_pretty(self.config())
-            .map_err(|e| ModelError::Internal(format!("config serialisation: {e}")))?;
-        std::fs::write(dir.join(CONFIG_FILE), json + "\n")?;
-        let data = self
-            .varmap()
-            .data()
-            .lock()
-            .map_err(|_| ModelError::Internal("parameter map lock poisoned".into()))?
-            .iter()
-            .map(|(k, v)| {
-                Ok((
-                    k.clone(),
-                    v.as_tensor().to_dtype(dtype)?.to_device(&Device::Cpu)?,
-                ))
-            })
-            .collect::<Result<HashMap<String, Tensor>, ModelError>>()?;
-        candle_core::safetensors::save(&data, dir.join(WEIGHTS_FILE))?;
+        write_checkpoint(dir, self.config(), self.varmap(), dtype)?;
         let card = dir.join(CARD_FILE);
         if !card.exists() {
             std::fs::write(card, self.default_card(dtype))?;
