@@ -137,8 +137,14 @@ pub fn comparison(
 pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     let mut serve = args.serve;
     let dirs = dynaserve_server::model_dirs(&serve)?;
-    let config = dynaserve_model::checkpoint::read_config(&dirs[0])
-        .with_context(|| format!("reading {}", dirs[0].display()))?;
+    // The comparison is a rigid rollout: the first RigidFormer directory sets its frame
+    // interval and point count (PhysiFormer directories are served beside it).
+    let rigid = dirs
+        .iter()
+        .find(|d| dynaserve_model::checkpoint::read_config(d).is_ok())
+        .unwrap_or(&dirs[0]);
+    let config = dynaserve_model::checkpoint::read_config(rigid)
+        .with_context(|| format!("reading {}", rigid.display()))?;
     let data = DatasetReader::open(&args.data)
         .with_context(|| format!("opening the dataset {}", args.data.display()))?;
     let data_dt = data.manifest().dt_frame;

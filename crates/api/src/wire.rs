@@ -166,3 +166,89 @@ mod tests {
         assert_eq!(j.timing.unwrap().batch_scenes, 4);
     }
 }
+
+impl crate::json::GenerateRequest {
+    /// Converts to the gRPC form (`stream` is HTTP only and has no gRPC field).
+    pub fn to_proto(&self) -> v1::GenerateRequest {
+        use crate::json::{Material, Sampler};
+        let objects = self
+            .scene
+            .objects
+            .iter()
+            .map(|o| v1::MeshObject {
+                vertices: o.vertices.iter().flatten().copied().collect(),
+                faces: o.faces.iter().flatten().copied().collect(),
+                material: match o.material {
+                    Material::Rigid => v1::Material::Rigid,
+                    Material::Elastic => v1::Material::Elastic,
+                } as i32,
+                velocity: o.velocity.map(|v| v1::Velocity {
+                    linear: Some(vec3_to(v.linear)),
+                    angular: Some(vec3_to(v.angular)),
+                }),
+            })
+            .collect();
+        v1::GenerateRequest {
+            model: self.model.clone(),
+            scene: Some(v1::MeshScene { objects }),
+            frames: self.frames,
+            denoise_steps: self.denoise_steps,
+            sampler: match self.sampler {
+                Sampler::Heun => v1::Sampler::Heun,
+                Sampler::Euler => v1::Sampler::Euler,
+            } as i32,
+            samples: self.samples,
+            seed: self.seed,
+            timeout_ms: self.timeout_ms,
+        }
+    }
+}
+
+impl crate::json::GeneratedSample {
+    /// Converts a received gRPC sample to the JSON form (a rigid object's pose and fit come
+    /// together; an elastic object has neither).
+    pub fn from_proto(s: &v1::GeneratedSample) -> crate::json::GeneratedSample {
+        crate::json::GeneratedSample {
+            sample: s.sample,
+            seed: s.seed,
+            frames: s
+                .frames
+                .iter()
+                .map(|f| crate::json::MeshFrame {
+                    frame: f.frame,
+                    time: f.time,
+                    objects: f
+                        .objects
+                        .iter()
+                        .map(|o| crate::json::ObjectFrame {
+                            vertices: o
+                                .vertices
+                                .chunks_exact(3)
+                                .map(|c| [c[0], c[1], c[2]])
+                                .collect(),
+                            pose: o.pose.as_ref().map(Pose::from_proto),
+                            fit_rms: o.pose.as_ref().map(|_| o.fit_rms),
+                        })
+                        .collect(),
+                })
+                .collect(),
+        }
+    }
+}
+
+impl crate::json::GenerateProgress {
+    /// Converts a received gRPC progress event to the JSON form.
+    pub fn from_proto(p: &v1::GenerateProgress) -> crate::json::GenerateProgress {
+        let t = p.timing.unwrap_or_default();
+        crate::json::GenerateProgress {
+            step: p.step,
+            steps: p.steps,
+            t: p.t,
+            timing: StepTiming {
+                queue_ms: t.queue_ms,
+                forward_ms: t.forward_ms,
+                batch_scenes: t.batch_scenes,
+            },
+        }
+    }
+}

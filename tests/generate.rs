@@ -1,0 +1,461 @@
+//! Generate end to end through a real server on loopback, serving the shipped RigidFormer and
+//! PhysiFormer checkpoints together: both protocols answer the same samples, the same seed
+//! gives the same trajectories, calls started at different times share denoising passes and
+//! each still returns exactly what it returns alone, and bad input gets a clear error. Scenes
+//! are small (two cubes), with few frames and few denoising steps.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use common::{http, metrics, parse_sse, post_json, sample};
+use dynaserve_api::json;
+use dynaserve_api::v1;
+use dynaserve_api::v1::world_model_client::WorldModelClient;
+use dynaserve_server::{RunningServer, ServeConfig};
+use tonic::transport::Channel;
+
+const PHYSI: &str = "physiformer-small";
+const RIGID: &str = "rigidformer-small";
+
+fn model_dir(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("models")
+        .join(name)
+}
+
+/// A server on free loopback ports with both shipped models, after `tweak`.
+async fn start(tweak: impl FnOnce(&mut ServeConfig)) -> RunningServer {
+    let mut config = ServeConfig::local(vec![model_dir(RIGID), model_dir(PHYSI)]);
+    tweak(&mut config);
+    let models = dynaserve_server::load_all(&config.models).unwrap();
+    let server = dynaserve_server::start(config, models).await.unwrap();
+    server.wait_ready(Duration::from_secs(60)).await.unwrap();
+    server
+}
+
+async fn grpc(server: &RunningServer) -> WorldModelClient<Channel> {
+    WorldModelClient::connect(format!("http://{}", server.grpc_addr))
+        .await
+        .unwrap()
+}
+
+fn cube(c: [f32; 3], h: f32) -> Vec<[f32; 3]> {
+    let mut v = Vec::new();
+    for x in [-h, h] {
+        for y in [-h, h] {
+            for z in [-h, h] {
+                v.push([c[0] + x, c[1] + y, c[2] + z]);
+            }
+        }
+    }
+    v
+}
+
+/// A rigid cube on the floor and an elastic cube falling onto it.
+fn request(frames: u32, steps: u32, samples: u32, seed: u64) -> json::GenerateRequest {
+    json::GenerateRequest {
+        model: String::new(),
+        scene: json::MeshScene {
+            objects: vec![
+                json::MeshObject {
+                    vertices: cube([0.0, 0.0, -0.85], 0.15),
+                    faces: vec![[0, 1, 3], [0, 3, 2]],
+                    material: json::Material::Rigid,
+                    velocity: None,
+                },
+                json::MeshObject {
+                    vertices: cube([0.05, 0.0, 0.1], 0.15),
+                    faces: vec![],
+                    material: json::Material::Elastic,
+                    velocity: Some(json::Velocity {
+                        linear: [0.5, 0.0, -1.0],
+                        angular: [0.0, 0.0, 1.0],
+                    }),
+                },
+            ],
+        },
+        frames,
+        denoise_steps: steps,
+        sampler: json::Sampler::Heun,
+        samples,
+        seed,
+        timeout_ms: 0,
+        stream: false,
+    }
+}
+
+/// A Generate call over gRPC: its progress events and samples (JSON form).
+async fn generate_grpc(
+    c: &mut WorldModelClient<Channel>,
+    req: &json::GenerateRequest,
+) -> Result<(Vec<json::GenerateProgress>, Vec<json::GeneratedSample>), tonic::Status> {
+    let mut stream = c.generate(req.to_proto()).await?.into_inner();
+    let (mut progress, mut samples) = (vec![], vec![]);
+    while let Some(ev) = stream.message().await? {
+        match ev.event.unwrap() {
+            v1::generate_event::Event::Progress(p) => {
+                progress.push(json::GenerateProgress::from_proto(&p))
+            }
+            v1::generate_event::Event::Sample(s) => {
+                samples.push(json::GeneratedSample::from_proto(&s))
+            }
+        }
+    }
+    Ok((progress, samples))
+}
+
+fn max_vertex_diff(a: &[json::GeneratedSample], b: &[json::GeneratedSample]) -> f32 {
+    assert_eq!(a.len(), b.len(), "sample count");
+    let mut worst = 0f32;
+    for (x, y) in a.iter().zip(b) {
+        assert_eq!(x.frames.len(), y.frames.len(), "frame count");
+        for (f, g) in x.frames.iter().zip(&y.frames) {
+            for (o, p) in f.objects.iter().zip(&g.objects) {
+                for (u, v) in o.vertices.iter().zip(&p.vertices) {
+                    for k in 0..3 {
+                        worst = worst.max((u[k] - v[k]).abs());
+                    }
+                }
+            }
+        }
+    }
+    worst
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn generate_over_grpc_and_http_with_both_models_resident() {
+    let server = start(|_| {}).await;
+    let mut c = grpc(&server).await;
+
+    // ListModels shows both families with their limits.
+    let models = c
+        .list_models(v1::ListModelsRequest {})
+        .await
+        .unwrap()
+        .into_inner()
+        .models;
+    let physi = models.iter().find(|m| m.name == PHYSI).unwrap();
+    let rigid = models.iter().find(|m| m.name == RIGID).unwrap();
+    assert_eq!(physi.architecture, "physiformer");
+    assert_eq!(rigid.architecture, "rigidformer");
+    assert_eq!((physi.max_vertices, physi.max_frames), (512, 49));
+    assert_eq!(physi.default_denoise_steps, 50);
+    assert!(physi.max_denoise_steps >= 50 && physi.max_samples >= 1);
+    assert_eq!(rigid.max_vertices, 0);
+
+    let req = request(5, 3, 2, 5);
+    let (progress, samples) = generate_grpc(&mut c, &req).await.unwrap();
+    let steps: Vec<u32> = progress.iter().map(|p| p.step).collect();
+    assert_eq!(steps, vec![1, 2, 3]);
+    assert!(
+        progress
+            .iter()
+            .all(|p| p.steps == 3 && p.timing.batch_scenes >= 1)
+    );
+    assert_eq!(progress[2].t, 1.0);
+    assert_eq!(samples.len(), 2);
+    assert_eq!((samples[0].seed, samples[1].seed), (5, 6));
+    for s in &samples {
+        assert_eq!(s.frames.len(), 5);
+        // Frame 0 is the given state; the rigid cube's fitted pose there is the identity
+        // about its centroid.
+        assert_eq!(
+            s.frames[0].objects[0].vertices,
+            req.scene.objects[0].vertices
+        );
+        assert_eq!(
+            s.frames[0].objects[1].vertices,
+            req.scene.objects[1].vertices
+        );
+        let p0 = s.frames[0].objects[0].pose.unwrap();
+        assert!((p0.translation[2] + 0.85).abs() < 1e-5 && (p0.rotation[3] - 1.0).abs() < 1e-5);
+        for f in &s.frames {
+            assert!(f.objects[0].pose.is_some() && f.objects[0].fit_rms.is_some());
+            assert!(f.objects[1].pose.is_none(), "elastic objects have no pose");
+            assert_eq!(f.objects[1].vertices.len(), 8);
+        }
+        assert!((s.frames[4].time - 4.0 * 5.0 / 240.0).abs() < 1e-6);
+    }
+    // The samples start from different noise, so they differ.
+    assert!(max_vertex_diff(&samples[..1], &samples[1..]) > 1e-4);
+
+    // Same request, same seed: the same trajectories (to float rounding: the two samples may
+    // share a pass or not, and a pass's layout reorders a few sums); another seed: others.
+    let (_, again) = generate_grpc(&mut c, &req).await.unwrap();
+    let d = max_vertex_diff(&again, &samples);
+    assert!(d <= 1e-5, "same seed, trajectories {d} m apart");
+    let mut other = req.clone();
+    other.seed = 99;
+    let (_, other) = generate_grpc(&mut c, &other).await.unwrap();
+    assert!(max_vertex_diff(&other, &samples) > 1e-4);
+
+    // HTTP JSON answers the same samples.
+    let r = post_json(server.http_addr, "/v1/generate", &req).await;
+    assert_eq!(r.status, 200, "{}", r.text());
+    assert_eq!(r.header("x-dynaserve-model"), Some(PHYSI));
+    let body: json::GenerateResponse = r.json();
+    assert_eq!((body.model.as_str(), body.denoise_steps), (PHYSI, 3));
+    assert!(max_vertex_diff(&body.samples, &samples) <= 1e-5);
+    assert_eq!(body.samples[1].frames[4].frame, 4);
+    assert!(body.timing.forward_ms > 0.0);
+
+    // HTTP SSE: progress per step, a sample event per sample, then done.
+    let b = serde_json::to_vec(&req).unwrap();
+    let r = http(
+        server.http_addr,
+        "POST",
+        "/v1/generate",
+        &[("accept", "text/event-stream")],
+        Some(&b),
+    )
+    .await;
+    assert_eq!(r.status, 200);
+    let events = parse_sse(&r.text());
+    let names: Vec<&str> = events.iter().map(|(e, _)| e.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "progress", "progress", "progress", "sample", "sample", "done"
+        ]
+    );
+    let sse: Vec<json::GeneratedSample> = events[3..5]
+        .iter()
+        .map(|(_, d)| serde_json::from_str(d).unwrap())
+        .collect();
+    assert!(max_vertex_diff(&sse, &samples) <= 1e-5);
+    let done: json::GenerateDone = serde_json::from_str(&events[5].1).unwrap();
+    assert_eq!(done.samples, 2);
+
+    // The Euler sampler takes one evaluation per step: a different, valid trajectory.
+    let mut euler = req.clone();
+    euler.sampler = json::Sampler::Euler;
+    let (p, e) = generate_grpc(&mut c, &euler).await.unwrap();
+    assert_eq!(p.len(), 3);
+    assert!(max_vertex_diff(&e, &samples) > 0.0);
+
+    // Rollouts still run on the rigid model without naming it.
+    let rollout = common::rollout_request("", common::scene(3, 2, 32), 2);
+    let r = post_json(server.http_addr, "/v1/rollout", &rollout).await;
+    assert_eq!(r.status, 200, "{}", r.text());
+
+    // The metrics count denoising steps and sample times of the PhysiFormer model.
+    let text = metrics(&server).await;
+    let steps = sample(
+        &text,
+        &format!("dynaserve_denoise_steps_total{{model=\"{PHYSI}\"}}"),
+    );
+    // 6 calls of 2 samples x 3 steps (the warm-up is not counted).
+    assert_eq!(steps, Some(36.0), "{steps:?}");
+    let timed = sample(
+        &text,
+        &format!("dynaserve_generate_sample_seconds_count{{model=\"{PHYSI}\"}}"),
+    );
+    assert_eq!(timed, Some(12.0));
+    server.shutdown();
+    server.wait().await.unwrap();
+}
+
+/// Passes of `model` so far and how many held more than one scene.
+fn passes(text: &str, model: &str) -> (f64, f64) {
+    let total = sample(
+        text,
+        &format!("dynaserve_batch_scenes_count{{model=\"{model}\"}}"),
+    );
+    let single = sample(
+        text,
+        &format!("dynaserve_batch_scenes_bucket{{model=\"{model}\",le=\"1\"}}"),
+    );
+    let (total, single) = (total.unwrap(), single.unwrap());
+    (total, total - single)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn calls_started_at_different_steps_share_passes_and_return_what_they_return_alone() {
+    // A longer wait for expected pass-mates than the default, so that the two calls meet on a
+    // busy machine too; it changes when passes start, never what they compute.
+    let server = start(|c| c.max_queue_delay_ms = 20.0).await;
+    let mut c = grpc(&server).await;
+    let a = request(6, 8, 1, 11);
+    let mut b = request(6, 8, 1, 22);
+    b.scene.objects.remove(0);
+    b.scene.objects[0].velocity = None;
+
+    let (_, alone_a) = generate_grpc(&mut c, &a).await.unwrap();
+    let (_, alone_b) = generate_grpc(&mut c, &b).await.unwrap();
+    let (_, shared_before) = passes(&metrics(&server).await, PHYSI);
+
+    // A starts; B starts once A has completed three denoising steps.
+    let mut stream_a = c.generate(a.to_proto()).await.unwrap().into_inner();
+    let mut progress_a = vec![];
+    while progress_a.len() < 3 {
+        match stream_a.message().await.unwrap().unwrap().event.unwrap() {
+            v1::generate_event::Event::Progress(p) => progress_a.push(p),
+            v1::generate_event::Event::Sample(_) => panic!("A finished before B started"),
+        }
+    }
+    let rest_a = tokio::spawn(async move {
+        let (mut progress, mut samples) = (vec![], vec![]);
+        while let Some(ev) = stream_a.message().await.unwrap() {
+            match ev.event.unwrap() {
+                v1::generate_event::Event::Progress(p) => progress.push(p),
+                v1::generate_event::Event::Sample(s) => {
+                    samples.push(json::GeneratedSample::from_proto(&s))
+                }
+            }
+        }
+        (progress, samples)
+    });
+    let mut cb = grpc(&server).await;
+    let (progress_b, together_b) = generate_grpc(&mut cb, &b).await.unwrap();
+    let (later_a, together_a) = rest_a.await.unwrap();
+    progress_a.extend(later_a);
+    assert_eq!(progress_a.len(), 8);
+    assert_eq!(progress_b.len(), 8);
+
+    // Both saw passes with the other in them, and the batch metric counts them.
+    let shared_a = progress_a
+        .iter()
+        .filter(|p| p.timing.unwrap().batch_scenes > 1)
+        .count();
+    let shared_b = progress_b
+        .iter()
+        .filter(|p| p.timing.batch_scenes > 1)
+        .count();
+    assert!(
+        shared_a > 0 && shared_b > 0,
+        "no shared pass: A {shared_a} steps, B {shared_b} steps"
+    );
+    let (_, shared_after) = passes(&metrics(&server).await, PHYSI);
+    assert!(
+        shared_after > shared_before,
+        "{shared_before} -> {shared_after}"
+    );
+
+    // Each returns what it returns alone. A pass pads its scenes to the largest one, which
+    // reorders a few float sums: equal to rounding, not necessarily bitwise.
+    let (da, db) = (
+        max_vertex_diff(&together_a, &alone_a),
+        max_vertex_diff(&together_b, &alone_b),
+    );
+    assert!(
+        da <= 1e-5 && db <= 1e-5,
+        "sharing passes changed A by {da} m, B by {db} m"
+    );
+    server.shutdown();
+    server.wait().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_generate_input_gets_a_clear_error_and_slots_are_freed() {
+    let server = start(|c| c.max_generate_samples = 2).await;
+    let mut c = grpc(&server).await;
+    let good = request(4, 2, 1, 0);
+
+    // gRPC: INVALID_ARGUMENT whose message starts with the field path.
+    let mut p = good.to_proto();
+    p.scene.as_mut().unwrap().objects[1].material = 0;
+    let e = c.generate(p).await.unwrap_err();
+    assert_eq!(e.code(), tonic::Code::InvalidArgument);
+    assert!(
+        e.message().starts_with("scene.objects[1].material"),
+        "{}",
+        e.message()
+    );
+    let mut far = good.clone();
+    far.scene.objects[0].vertices[2] = [0.0, 0.0, 3.0];
+    let e = c.generate(far.to_proto()).await.unwrap_err();
+    assert!(
+        e.message().starts_with("scene.objects[0].vertices[2]"),
+        "{}",
+        e.message()
+    );
+    let mut p = good.to_proto();
+    p.scene.as_mut().unwrap().objects[0].vertices.pop();
+    let e = c.generate(p).await.unwrap_err();
+    assert!(
+        e.message().starts_with("scene.objects[0].vertices"),
+        "{}",
+        e.message()
+    );
+
+    // HTTP: 422 naming the field.
+    type Edit = Box<dyn Fn(&mut json::GenerateRequest)>;
+    let cases: Vec<(Edit, &str)> = vec![
+        (Box::new(|r| r.frames = 1), "frames"),
+        (Box::new(|r| r.frames = 50), "frames"),
+        (Box::new(|r| r.denoise_steps = 100_000), "denoise_steps"),
+        (Box::new(|r| r.samples = 3), "samples"),
+        (Box::new(|r| r.scene.objects.clear()), "scene.objects"),
+        (
+            Box::new(|r| r.scene.objects[0].faces = vec![[0, 1, 2], [0, 1, 8]]),
+            "scene.objects[0].faces[1]",
+        ),
+        (
+            Box::new(|r| {
+                r.scene.objects[1].velocity = Some(json::Velocity {
+                    linear: [80.0, 0.0, 0.0],
+                    angular: [0.0; 3],
+                })
+            }),
+            "scene.objects[1].velocity",
+        ),
+        (Box::new(|r| r.model = "nope".into()), "model"),
+        (Box::new(|r| r.model = RIGID.into()), "model"),
+    ];
+    for (edit, field) in cases {
+        let mut r = good.clone();
+        edit(&mut r);
+        let resp = post_json(server.http_addr, "/v1/generate", &r).await;
+        assert_eq!(resp.status, 422, "{field}: {}", resp.text());
+        let err: json::ErrorResponse = resp.json();
+        assert_eq!(err.error.field.as_deref(), Some(field), "{}", resp.text());
+        assert_eq!(err.error.code, "INVALID_ARGUMENT");
+    }
+    // A material that is not one: serde names the path.
+    let raw = br#"{"scene":{"objects":[{"vertices":[[0,0,0]],"material":"rubber"}]}}"#;
+    let resp = http(server.http_addr, "POST", "/v1/generate", &[], Some(raw)).await;
+    assert_eq!(resp.status, 422, "{}", resp.text());
+    let err: json::ErrorResponse = resp.json();
+    assert!(
+        err.error
+            .field
+            .as_deref()
+            .unwrap_or_default()
+            .starts_with("scene.objects[0]"),
+        "{}",
+        resp.text()
+    );
+    // A rollout naming the PhysiFormer model is told why.
+    let rollout = common::rollout_request(PHYSI, common::scene(3, 2, 32), 2);
+    let resp = post_json(server.http_addr, "/v1/rollout", &rollout).await;
+    assert_eq!(resp.status, 422);
+    assert!(resp.text().contains("Generate"), "{}", resp.text());
+
+    // A deadline that passes mid-way answers DEADLINE_EXCEEDED.
+    let mut slow = request(49, 200, 1, 0);
+    slow.timeout_ms = 50;
+    let e = generate_grpc(&mut c, &slow).await.unwrap_err();
+    assert_eq!(e.code(), tonic::Code::DeadlineExceeded, "{e:?}");
+
+    // Admission counts samples: two in flight fill the server; a third waits for a cancel.
+    let busy = request(49, 200, 2, 0);
+    let stream = c.generate(busy.to_proto()).await.unwrap().into_inner();
+    let resp = post_json(server.http_addr, "/v1/generate", &good).await;
+    assert_eq!(resp.status, 429, "{}", resp.text());
+    drop(stream);
+    let mut admitted = false;
+    for _ in 0..100 {
+        let resp = post_json(server.http_addr, "/v1/generate", &good).await;
+        if resp.status == 200 {
+            admitted = true;
+            break;
+        }
+        assert_eq!(resp.status, 429, "{}", resp.text());
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    assert!(admitted, "the cancelled call's slots were not freed");
+    server.shutdown();
+    server.wait().await.unwrap();
+}
