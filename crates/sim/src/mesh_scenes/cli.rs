@@ -1,6 +1,6 @@
 //! `dynaserve sim mesh-d1` ... `mesh-d4`, and `sim inspect` / `sim preview` on mesh datasets.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
 
 use anyhow::{Context, bail};
@@ -11,51 +11,35 @@ use super::reader::MeshDatasetReader;
 use super::sets::MeshSet;
 use super::stats::inspect_mesh;
 use super::writer::{MeshGenerateOptions, generate_mesh_dataset};
-use crate::cli::{Split, scene_progress, worker_pool};
+use crate::cli::split_args::{SplitArgs, scene_progress, worker_pool};
 
 /// Options of the mesh set generators.
 #[derive(Args, Debug, Clone)]
 pub struct MeshGenerateArgs {
-    /// Number of scenes.
-    #[arg(long)]
-    pub scenes: usize,
-    /// Output directory (the split directory: manifest.json and shards go here).
-    #[arg(long)]
-    pub out: PathBuf,
-    /// Dataset seed.
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
-    /// Split name.
-    #[arg(long, value_enum, default_value_t = Split::Train)]
-    pub split: Split,
+    /// What every split generator takes.
+    #[command(flatten)]
+    pub split_args: SplitArgs,
     /// Scenes per shard file.
     #[arg(long, default_value_t = 200)]
     pub scenes_per_shard: usize,
-    /// Worker threads (default: all cores).
-    #[arg(long)]
-    pub threads: Option<usize>,
-    /// Replace a dataset already in the output directory.
-    #[arg(long)]
-    pub overwrite: bool,
 }
 
 /// Generates a mesh split and prints what it wrote and how long it took.
 pub fn run_generate(set: MeshSet, a: &MeshGenerateArgs) -> anyhow::Result<()> {
-    if a.scenes == 0 {
-        bail!("--scenes must be at least 1");
-    }
+    let t = &a.split_args;
+    t.check()?;
     if a.scenes_per_shard == 0 {
         bail!("--scenes-per-shard must be at least 1");
     }
-    let mut opts = MeshGenerateOptions::new(set, a.seed, a.split.name(), a.scenes);
+    let mut opts = MeshGenerateOptions::new(set, t.seed, t.split.name(), t.scenes);
     opts.scenes_per_shard = a.scenes_per_shard;
-    let pool = worker_pool(a.threads)?;
-    let bar = scene_progress(a.scenes)?;
+    let pool = worker_pool(t.threads)?;
+    let bar = scene_progress(t.scenes)?;
     let start = Instant::now();
     let cpu0 = cpu_seconds();
     let summary = pool
-        .install(|| generate_mesh_dataset(&opts, &a.out, a.overwrite, &|| bar.inc(1)))
-        .with_context(|| format!("generating {} into {}", set.name(), a.out.display()))?;
+        .install(|| generate_mesh_dataset(&opts, &t.out, t.overwrite, &|| bar.inc(1)))
+        .with_context(|| format!("generating {} into {}", set.name(), t.out.display()))?;
     bar.finish_and_clear();
     let secs = start.elapsed().as_secs_f64();
     let m = &summary.manifest;

@@ -11,12 +11,15 @@
 //! dynaserve sim replay examples/scenes/collision.json --paths pusher.json
 //! ```
 
+pub mod split_args;
+
+pub use split_args::{Split, SplitArgs};
+
 use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, bail};
-use clap::{Args, Subcommand, ValueEnum};
-use indicatif::{ProgressBar, ProgressStyle};
+use clap::{Args, Subcommand};
 
 use crate::dataset::DatasetReader;
 use crate::generators::{GenerateOptions, Generator};
@@ -27,6 +30,7 @@ use crate::replay::cli::{ReplayArgs, run_replay};
 use crate::scenarios::Scenario;
 use crate::stats::inspect;
 use crate::writer::generate_dataset;
+use split_args::{scene_progress, worker_pool};
 
 /// Arguments of `dynaserve sim`.
 #[derive(Args, Debug)]
@@ -86,55 +90,18 @@ pub enum SimCommand {
     Replay(ReplayArgs),
 }
 
-/// Dataset split; part of every scene's seed, so splits never share a scene.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-pub enum Split {
-    /// Training split.
-    Train,
-    /// Validation split.
-    Val,
-    /// Test split.
-    Test,
-}
-
-impl Split {
-    /// Lower-case name.
-    pub fn name(self) -> &'static str {
-        match self {
-            Split::Train => "train",
-            Split::Val => "val",
-            Split::Test => "test",
-        }
-    }
-}
-
-/// Options shared by the generators.
+/// Options of the pose generators.
 #[derive(Args, Debug, Clone)]
 pub struct GenerateArgs {
-    /// Number of scenes.
-    #[arg(long)]
-    pub scenes: usize,
-    /// Output directory (the split directory: manifest.json and shards go here).
-    #[arg(long)]
-    pub out: PathBuf,
-    /// Dataset seed.
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
-    /// Split name.
-    #[arg(long, value_enum, default_value_t = Split::Train)]
-    pub split: Split,
+    /// What every split generator takes.
+    #[command(flatten)]
+    pub split_args: SplitArgs,
     /// Reference surface points per object.
     #[arg(long, default_value_t = 1024)]
     pub points: usize,
     /// Scenes per shard file (default: 100, or 4 for wrecking-ball).
     #[arg(long)]
     pub scenes_per_shard: Option<usize>,
-    /// Worker threads (default: all cores).
-    #[arg(long)]
-    pub threads: Option<usize>,
-    /// Replace a dataset already in the output directory.
-    #[arg(long)]
-    pub overwrite: bool,
 }
 
 /// Options of `dynaserve sim wrecking-ball`.
@@ -200,56 +167,34 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
     }
 }
 
-/// The worker pool of `--threads` (all cores when not given); 0 threads is an error.
-pub(crate) fn worker_pool(threads: Option<usize>) -> anyhow::Result<rayon::ThreadPool> {
-    let mut pool = rayon::ThreadPoolBuilder::new();
-    if let Some(t) = threads {
-        if t == 0 {
-            bail!("--threads must be at least 1");
-        }
-        pool = pool.num_threads(t);
-    }
-    pool.build().context("starting worker threads")
-}
-
-/// A progress bar over the `scenes` scenes of a generation.
-pub(crate) fn scene_progress(scenes: usize) -> anyhow::Result<ProgressBar> {
-    let bar = ProgressBar::new(scenes as u64);
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{spinner} {elapsed_precise} [{bar:40}] {pos}/{len} scenes ({per_sec}, eta {eta})",
-        )
-        .context("progress bar template")?
-        .progress_chars("=> "),
-    );
-    Ok(bar)
-}
-
 fn run_generate(generator: Generator, a: &GenerateArgs) -> anyhow::Result<()> {
-    if a.scenes == 0 {
-        bail!("--scenes must be at least 1");
-    }
-    if a.points == 0 {
+    let GenerateArgs {
+        split_args: t,
+        points,
+        scenes_per_shard,
+    } = a;
+    t.check()?;
+    if *points == 0 {
         bail!("--points must be at least 1");
     }
-    let mut opts = GenerateOptions::new(generator, a.seed, a.split.name(), a.scenes);
-    opts.points = a.points;
-    if let Some(k) = a.scenes_per_shard {
+    let mut opts = GenerateOptions::new(generator, t.seed, t.split.name(), t.scenes);
+    opts.points = *points;
+    if let Some(k) = *scenes_per_shard {
         if k == 0 {
             bail!("--scenes-per-shard must be at least 1");
         }
         opts.scenes_per_shard = k;
     }
-    let pool = worker_pool(a.threads)?;
-    let bar = scene_progress(a.scenes)?;
+    let pool = worker_pool(t.threads)?;
+    let bar = scene_progress(t.scenes)?;
     let start = Instant::now();
     let summary = pool
-        .install(|| generate_dataset(&opts, &a.out, a.overwrite, &|| bar.inc(1)))
+        .install(|| generate_dataset(&opts, &t.out, t.overwrite, &|| bar.inc(1)))
         .with_context(|| {
             format!(
                 "generating {} into {}",
                 opts.generator.name(),
-                a.out.display()
+                t.out.display()
             )
         })?;
     bar.finish_and_clear();
@@ -372,11 +317,12 @@ mod tests {
         .unwrap()
         {
             SimCommand::MoviB(a) => {
+                let t = &a.split_args;
                 assert_eq!(
-                    (a.scenes, a.seed, a.split, a.points),
+                    (t.scenes, t.seed, t.split, a.points),
                     (200, 2, Split::Test, 1024)
                 );
-                assert_eq!(a.out, PathBuf::from("d"));
+                assert_eq!(t.out, PathBuf::from("d"));
             }
             other => panic!("parsed {other:?}"),
         }
@@ -392,7 +338,7 @@ mod tests {
         .unwrap()
         {
             SimCommand::WreckingBall(a) => {
-                assert_eq!((a.size, a.common.split), (6, Split::Train))
+                assert_eq!((a.size, a.common.split_args.split), (6, Split::Train))
             }
             other => panic!("parsed {other:?}"),
         }
