@@ -38,6 +38,7 @@
 //! scenario figures ([`scenario_figures`]) and one-step errors by contact regime ([`regimes`]).
 
 pub mod baselines;
+pub mod driven;
 mod error;
 mod evaluator;
 mod frames;

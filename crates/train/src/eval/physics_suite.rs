@@ -1,6 +1,9 @@
 //! The physics scenario suite: scenes that isolate one behaviour each (rest, drop, slide,
 //! collide, stack-hit; see `dynaserve_sim::scenarios`), generated deterministically in memory
-//! or read from labelled dataset directories, and scored for any set of predictors:
+//! or read from labelled dataset directories (also `push` data), and scored for any set of
+//! predictors. Scenes with kinematic objects (a pusher) are rolled out with those objects
+//! driven along their recorded poses ([`super::driven`]), and kinematic objects enter no
+//! error:
 //! - each scenario's own figures on a `k = 1` rollout from the start frame to the last frame,
 //!   next to rapier's ([`super::scenario_figures`]);
 //! - the one-step error of every window `t - k, t -> t + k` split by the ground truth's contact
@@ -15,6 +18,7 @@ use dynaserve_sim::{DatasetReader, Generator, SceneLabel, SceneRecord};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use super::driven::{driven_rollout_batch, has_kinematic};
 use super::regimes::{
     CONTACT_DISTANCE_M, ContactFlags, RESTING_ANGULAR_DEG_S, RESTING_SPEED_M_S, Regime,
     RegimeErrors, contact_flags, regime, windows,
@@ -331,7 +335,11 @@ fn run_predictor(
                 })
             })
             .collect::<Result<Vec<_>, EvalError>>()?;
-        let rollouts = predictor.rollout_batch(&requests)?;
+        let rollouts = if chunk.iter().any(|&i| has_kinematic(&scenes[i].scene)) {
+            driven_rollout_batch(predictor, &requests, &vec![s; requests.len()])?
+        } else {
+            predictor.rollout_batch(&requests)?
+        };
         for (&i, rollout) in chunk.iter().zip(&rollouts) {
             let sc = &scenes[i];
             if let Some(label) = &sc.label {
@@ -375,6 +383,9 @@ fn run_predictor(
                 })?;
                 let target = t + k as usize;
                 for (j, (pose, o)) in poses.iter().zip(&sc.scene.objects).enumerate() {
+                    if o.kinematic {
+                        continue;
+                    }
                     let p = o.positions[target];
                     let dt = (0..3)
                         .map(|c| (f64::from(pose.translation[c]) - f64::from(p[c])).powi(2))

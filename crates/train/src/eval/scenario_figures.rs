@@ -16,7 +16,12 @@
 //!   ([`ContactFlags::impact_distance_m`]; no sample unless `s < c` and `c + 3` is a frame);
 //! - `stack-hit`: the mean over the tower's boxes (every object but the last) of their centre
 //!   displacement from frame `s` to the last frame, m, and (predictor only) the mean distance
-//!   of the boxes' final centres from rapier's, m.
+//!   of the boxes' final centres from rapier's, m;
+//! - `push` (the pusher driven along its recorded path): per pushed object (every
+//!   non-kinematic one), the distance of its centre from frame `s` to the last frame, m, and
+//!   (predictor only) the distance of its final centre from rapier's and the mean over frames
+//!   `s + 1..T` of the distance from rapier's centre, m. The static baseline's errors are those
+//!   of "the pushed objects stay still".
 
 use dynaserve_model::Pose;
 use dynaserve_sim::stats::rotate;
@@ -309,6 +314,22 @@ pub fn scene_samples(
                 .sum::<f64>()
                 / boxes as f64;
             out.push(sample("final box position error", "m", err, None, None));
+        }
+        "push" => {
+            for j in (0..n).filter(|&j| !scene.objects[j].kinematic) {
+                let moved = |t: &Track<'_>| distance(t.position(j, last), t.position(j, start));
+                out.push(sample(
+                    "pushed displacement",
+                    "m",
+                    moved(&pred),
+                    Some(moved(&truth)),
+                    None,
+                ));
+                let error = |f: usize| distance(pred.position(j, f), truth.position(j, f));
+                out.push(sample("pushed final error", "m", error(last), None, None));
+                let mean = (start + 1..frames).map(error).sum::<f64>() / (last - start) as f64;
+                out.push(sample("pushed mean error", "m", mean, None, None));
+            }
         }
         _ => {}
     }

@@ -8,7 +8,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use super::physics_report::{format_physics_markdown, format_physics_text};
 use super::physics_suite::{SuiteOptions, generate_suite, load_suite, run_suite};
-use super::{Ballistic, ModelPredictor, PointSelection, Predictor, Static};
+use super::{Ballistic, ModelPredictor, PointSelection, Predictor, Static, driven};
 use crate::cli::{BaselineKind, EvalArgs};
 
 /// Reference points per object of generated suite scenes (as in the datasets).
@@ -56,6 +56,10 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             predictors.push(("model".into(), Box::new(model)));
             if !args.no_baselines {
                 predictors.push(("ballistic".into(), Box::new(ballistic)));
+                // With a pusher, the baseline of its push figures: pushed objects stay still.
+                if scenes.iter().any(|s| driven::has_kinematic(&s.scene)) {
+                    predictors.push(("static".into(), Box::new(Static)));
+                }
             }
         }
         _ => anyhow::bail!("give exactly one of --baseline and --model"),

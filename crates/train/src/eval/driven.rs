@@ -1,0 +1,78 @@
+//! Rollouts of scenes with kinematic objects (a pusher following a path): the predictor steps
+//! every scene one step at a time, and after each step the kinematic objects' predicted poses
+//! are replaced by their recorded poses at that frame, so the next step's inputs hold the given
+//! poses, as a session's `Step` with actions does on the server.
+
+use dynaserve_model::{Pose, SceneState};
+use dynaserve_sim::SceneRecord;
+
+use super::{EvalError, Predictor, RolloutRequest, poses_at};
+
+/// Whether any object of the scene is kinematic.
+pub fn has_kinematic(scene: &SceneRecord) -> bool {
+    scene.objects.iter().any(|o| o.kinematic)
+}
+
+/// Rolls every request forward from frame `starts[i]` (the frame of its `observed.current`),
+/// one step of `dt_steps` frames at a time, the kinematic objects driven along their recorded
+/// poses. Entry `i` of the result answers `requests[i]` as [`Predictor::rollout_batch`] does:
+/// `[steps][objects]`. A request without kinematic objects is stepped the same way, nothing
+/// replaced.
+pub fn driven_rollout_batch(
+    predictor: &dyn Predictor,
+    requests: &[RolloutRequest<'_>],
+    starts: &[usize],
+) -> Result<Vec<Vec<Vec<Pose>>>, EvalError> {
+    if starts.len() != requests.len() {
+        return Err(EvalError::Invalid(format!(
+            "{} start frames for {} requests",
+            starts.len(),
+            requests.len()
+        )));
+    }
+    let mut states: Vec<SceneState> = requests.iter().map(|r| r.observed.clone()).collect();
+    let mut out: Vec<Vec<Vec<Pose>>> = requests
+        .iter()
+        .map(|r| Vec::with_capacity(r.steps))
+        .collect();
+    let most = requests.iter().map(|r| r.steps).max().unwrap_or(0);
+    for step in 0..most {
+        let live: Vec<usize> = (0..requests.len())
+            .filter(|&i| step < requests[i].steps)
+            .collect();
+        let batch: Vec<RolloutRequest<'_>> = live
+            .iter()
+            .map(|&i| RolloutRequest {
+                scene: requests[i].scene,
+                observed: states[i].clone(),
+                dt_steps: requests[i].dt_steps,
+                steps: 1,
+            })
+            .collect();
+        let next = predictor.rollout_batch(&batch)?;
+        for (&i, rollout) in live.iter().zip(next) {
+            let r = &requests[i];
+            let mut poses = rollout
+                .into_iter()
+                .next()
+                .ok_or_else(|| EvalError::Predictor {
+                    predictor: predictor.name(),
+                    scene: i,
+                    message: "returned no step".into(),
+                })?;
+            let frame = starts[i] + (step + 1) * r.dt_steps as usize;
+            if has_kinematic(r.scene) {
+                let given = poses_at(r.scene, frame)?;
+                for ((p, g), o) in poses.iter_mut().zip(given).zip(&r.scene.objects) {
+                    if o.kinematic {
+                        *p = g;
+                    }
+                }
+            }
+            let s = &mut states[i];
+            s.previous = std::mem::replace(&mut s.current, poses.clone());
+            out[i].push(poses);
+        }
+    }
+    Ok(out)
+}
