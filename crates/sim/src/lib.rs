@@ -17,7 +17,8 @@
 //! - [`generators`]: `movi-a`, `movi-b` and `wrecking-ball` scene samplers and the generation
 //!   of one scene (sampled, simulated, recorded);
 //! - [`scenarios`]: physics scenario scenes (`rest`, `drop`, `slide`, `collide`,
-//!   `stack-hit`, `physics-mix`), each isolating one behaviour;
+//!   `stack-hit`, `physics-mix`, and `push` with a kinematic pusher), each isolating one
+//!   behaviour;
 //! - [`writer`]: a pose dataset split written to disk (`dynaserve sim generate`);
 //! - [`stats`], [`preview`]: what `dynaserve sim inspect` and `dynaserve sim preview` print and
 //!   draw;
