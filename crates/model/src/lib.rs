@@ -29,7 +29,7 @@ pub use error::ModelError;
 pub use kernels::kabsch::{self as kabsch_op, KabschOp};
 pub use layers::Mode;
 pub use physiformer::PhysiFormer;
-pub use prepare::{MAX_BODY_EXTENT, MAX_DT_STEPS, MAX_WORLD_EXTENT, PreparedScene};
+pub use prepare::{MAX_BODY_EXTENT, MAX_DT_STEPS, MAX_WORLD_EXTENT, PreparedScene, normalise_pose};
 pub use rigidformer::features::{
     FeatureFrame, contact_velocity, object_params, raw_point_features,
 };

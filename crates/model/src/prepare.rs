@@ -331,8 +331,10 @@ pub(crate) fn validate_state(
     ))
 }
 
-/// Checks a pose for finite values and a usable quaternion; returns it with a unit quaternion.
-pub(crate) fn normalise_pose(p: &Pose) -> Result<Pose, String> {
+/// The model's domain check of one pose: a finite translation within [`MAX_WORLD_EXTENT`]
+/// metres of the origin on every axis and a finite quaternion with squared norm at least
+/// `1e-6`. Returns the pose with its quaternion normalised, or why it is outside the domain.
+pub fn normalise_pose(p: &Pose) -> Result<Pose, String> {
     if !finite3(&p.translation) || p.translation.iter().any(|v| v.abs() > MAX_WORLD_EXTENT) {
         return Err(format!(
             "translation {:?} is not finite or beyond {MAX_WORLD_EXTENT} m",

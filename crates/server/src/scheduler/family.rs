@@ -134,13 +134,9 @@ pub fn state_problem(state: &SceneState) -> Option<String> {
     None
 }
 
-/// True when the model accepts `p`: a finite translation within [`MAX_WORLD_EXTENT`] metres of
-/// the origin on every axis and a usable rotation (a finite quaternion of non-zero norm).
+/// True when the model accepts `p` (its own check, [`dynaserve_model::normalise_pose`]): a
+/// finite translation within [`MAX_WORLD_EXTENT`] metres of the origin on every axis and a
+/// usable rotation.
 pub fn pose_in_domain(p: &Pose) -> bool {
-    let t_ok = p
-        .translation
-        .iter()
-        .all(|v| v.is_finite() && v.abs() <= MAX_WORLD_EXTENT);
-    let n2: f32 = p.rotation.iter().map(|v| v * v).sum();
-    t_ok && n2.is_finite() && n2 > 1e-6
+    dynaserve_model::normalise_pose(p).is_ok()
 }
