@@ -37,6 +37,9 @@ pub enum ModeCmd {
     /// is checked for its stream and order, the server's memory sampled. Exit code 1 when a
     /// frame was lost, misrouted or out of order, or a kept rollout failed.
     Soak(SoakArgs),
+    /// Closed-loop Generate calls (PhysiFormer) at each concurrency level: samples and
+    /// denoising steps per second, gain over the first level, latency.
+    Generate(crate::generate::GenerateArgs),
 }
 
 /// Flags of `soak`.
@@ -361,6 +364,7 @@ pub fn plan_sides(c: &Common) -> anyhow::Result<Vec<SidePlan>> {
 /// Builds the load description from the parsed command line.
 pub fn build_load(cli: &Cli) -> anyhow::Result<(Load, Common)> {
     let (mode, common) = match &cli.mode {
+        ModeCmd::Generate(_) => anyhow::bail!("generate runs on its own (generate::run)"),
         ModeCmd::Streams(a) => {
             anyhow::ensure!(
                 !a.streams.is_empty() && a.streams.iter().all(|&s| s >= 1),
@@ -490,6 +494,9 @@ pub fn build_load(cli: &Cli) -> anyhow::Result<(Load, Common)> {
 /// Runs the load tester; returns the process exit code (0, or 130 after Ctrl-C).
 pub fn main() -> anyhow::Result<i32> {
     let cli = Cli::parse();
+    if let ModeCmd::Generate(a) = &cli.mode {
+        return crate::generate::run(a);
+    }
     let (load, common) = build_load(&cli)?;
     let mut sides = plan_sides(&common)?;
     if let ModeCmd::Soak(a) = &cli.mode {

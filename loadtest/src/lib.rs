@@ -18,6 +18,7 @@
 //! - [`spawn`]: launching a server as a child process; [`cli`]: the command line.
 
 pub mod cli;
+pub mod generate;
 pub mod inprocess;
 pub mod recorder;
 pub mod report;
