@@ -965,10 +965,12 @@ fn record(tally: &RefCell<Tally>, outcome: Result<(), FieldError>) -> Result<(),
                 "the rejection names no field: {e:?}"
             );
             prop_assert!(!e.message.trim().is_empty(), "an empty message: {e:?}");
+            let text = e.to_string();
             prop_assert!(
-                e.to_string().len() < 1024,
-                "a message of {} bytes",
-                e.to_string().len()
+                text.len() < 1024,
+                "a message of {} bytes: {}...",
+                text.len(),
+                text.chars().take(400).collect::<String>()
             );
             format!("rejected {}", field_shape(&e.field))
         }
