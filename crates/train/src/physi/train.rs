@@ -23,7 +23,7 @@ use super::data::load_scenes;
 use crate::train::config::OptimConfig;
 use crate::train::optim::{AdamW, learning_rate};
 use crate::train::plot::{Series, line_chart};
-use crate::train::trainer::{
+use crate::train::run_dir::{
     OPTIMIZER_FILE, STATE_FILE, replace_checkpoint, resumable, truncate_log, write_state,
 };
 

@@ -5,13 +5,18 @@
 //! - [`data`]: the streaming loader (worker thread, windows, augmentation) and the fit of the
 //!   feature normalisation;
 //! - [`optim`]: learning-rate schedule, gradient clipping, AdamW with per-parameter decay;
-//! - [`trainer`]: the loop, checkpoints, resume, CSV log, loss curve;
+//! - [`trainer`]: the loop, its checkpoints, resume, CSV log and loss curve;
+//! - [`run_dir`]: a run directory's checkpoint swap, resume point and log truncation, shared
+//!   with PhysiFormer runs;
+//! - [`export`]: a checkpoint written as a model directory;
 //! - [`plot`]: PNG line charts.
 
 pub mod config;
 pub mod data;
+pub mod export;
 pub mod optim;
 pub mod plot;
+pub mod run_dir;
 pub mod trainer;
 
 use std::path::PathBuf;
@@ -19,7 +24,8 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 pub use config::TrainConfig;
-pub use trainer::{ExportOptions, TrainOptions, TrainSummary, export, train};
+pub use export::{ExportOptions, export};
+pub use trainer::{TrainOptions, TrainSummary, train};
 
 /// Errors of training and export; each names the file or setting at fault.
 #[derive(Debug, thiserror::Error)]

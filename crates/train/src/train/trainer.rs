@@ -10,18 +10,15 @@
 //! - `loss.png`: the loss curve, redrawn at every checkpoint;
 //! - `train-config.json`: the configuration of the run.
 
-use std::collections::HashMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use candle_core::{DType, Device, Tensor};
-use dynaserve_model::checkpoint::{CONFIG_FILE, WEIGHTS_FILE};
+use candle_core::Device;
 use dynaserve_model::{
-    BASE_POINT_FEATURES, FeatureNormalization, RigidFormer, TrainItem, WorldModel, load_model,
-    load_rigidformer,
+    BASE_POINT_FEATURES, FeatureNormalization, RigidFormer, TrainItem, WorldModel, load_rigidformer,
 };
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
@@ -31,11 +28,11 @@ use super::config::TrainConfig;
 use super::data::{Loader, Sources, fit_normalization};
 use super::optim::{AdamW, learning_rate};
 use super::plot::{Series, line_chart};
+use super::run_dir::{
+    OPTIMIZER_FILE, STATE_FILE, checkpoint_dir, io, replace_checkpoint, resumable, truncate_log,
+    write_state,
+};
 
-/// File holding the optimizer state inside a checkpoint directory.
-pub const OPTIMIZER_FILE: &str = "optimizer.safetensors";
-/// File holding the training position inside a checkpoint directory.
-pub const STATE_FILE: &str = "state.json";
 /// Header of `log.csv`.
 pub const CSV_HEADER: &str =
     "step,lr,loss,pos_pre,acc_pre,pos_post,acc_post,grad_norm,clipped_fraction,it_per_s,elapsed_s";
@@ -92,22 +89,11 @@ pub struct RunState {
     pub config: TrainConfig,
 }
 
-fn io(path: &Path) -> impl FnOnce(std::io::Error) -> TrainError + '_ {
-    move |e| TrainError::Io {
-        path: path.to_path_buf(),
-        source: e,
-    }
-}
-
 /// Reads `state.json` of a checkpoint directory.
 pub fn read_state(ckpt: &Path) -> Result<RunState, TrainError> {
     let p = ckpt.join(STATE_FILE);
     let text = std::fs::read_to_string(&p).map_err(io(&p))?;
     serde_json::from_str(&text).map_err(|e| TrainError::Config(format!("{}: {e}", p.display())))
-}
-
-fn checkpoint_dir(out: &Path) -> PathBuf {
-    out.join("checkpoint")
 }
 
 /// Writes a checkpoint atomically: into `checkpoint.tmp`, then swapped in by renames.
@@ -122,49 +108,6 @@ fn save_checkpoint(
         opt.save(&tmp.join(OPTIMIZER_FILE))?;
         write_state(tmp, state)
     })
-}
-
-/// Writes `state` as `state.json` into the checkpoint directory `dir`.
-pub(crate) fn write_state(dir: &Path, state: &impl Serialize) -> Result<(), TrainError> {
-    let json = serde_json::to_string_pretty(state)
-        .map_err(|e| TrainError::Config(format!("state serialisation: {e}")))?;
-    let p = dir.join(STATE_FILE);
-    std::fs::write(&p, json).map_err(io(&p))
-}
-
-/// Replaces `out/checkpoint` atomically by what `write` puts into the empty directory
-/// `out/checkpoint.tmp` (swapped in by renames; [`resumable`] finds the old one if a swap is
-/// cut short). Returns the checkpoint directory.
-pub(crate) fn replace_checkpoint(
-    out: &Path,
-    write: impl FnOnce(&Path) -> Result<(), TrainError>,
-) -> Result<PathBuf, TrainError> {
-    let tmp = out.join("checkpoint.tmp");
-    if tmp.exists() {
-        std::fs::remove_dir_all(&tmp).map_err(io(&tmp))?;
-    }
-    std::fs::create_dir_all(&tmp).map_err(io(&tmp))?;
-    write(&tmp)?;
-    let dir = checkpoint_dir(out);
-    let old = out.join("checkpoint.old");
-    if old.exists() {
-        std::fs::remove_dir_all(&old).map_err(io(&old))?;
-    }
-    if dir.exists() {
-        std::fs::rename(&dir, &old).map_err(io(&dir))?;
-    }
-    std::fs::rename(&tmp, &dir).map_err(io(&tmp))?;
-    if old.exists() {
-        std::fs::remove_dir_all(&old).map_err(io(&old))?;
-    }
-    Ok(dir)
-}
-
-/// The checkpoint to resume from: `checkpoint/`, or `checkpoint.old/` if a swap was cut short.
-pub(crate) fn resumable(out: &Path) -> Option<PathBuf> {
-    [checkpoint_dir(out), out.join("checkpoint.old")]
-        .into_iter()
-        .find(|d| d.join(STATE_FILE).exists())
 }
 
 /// Rows of `log.csv` as `(step, loss, pos_post)`.
@@ -204,23 +147,6 @@ pub fn plot_loss(out: &Path) -> Result<(), TrainError> {
         ],
         true,
     )
-}
-
-/// Keeps `header` and the rows up to `step` (so a resumed run's log has no duplicates).
-pub(crate) fn truncate_log(path: &Path, header: &str, step: u64) -> Result<(), TrainError> {
-    let Ok(text) = std::fs::read_to_string(path) else {
-        return std::fs::write(path, format!("{header}\n")).map_err(io(path));
-    };
-    let mut out = String::from(header);
-    out.push('\n');
-    for l in text.lines().skip(1) {
-        let s: Option<u64> = l.split(',').next().and_then(|x| x.parse().ok());
-        if s.is_some_and(|s| s <= step) {
-            out.push_str(l);
-            out.push('\n');
-        }
-    }
-    std::fs::write(path, out).map_err(io(path))
 }
 
 /// Applies `model.contact_velocity` to a model loaded from `model.init`: widens a model without
@@ -533,71 +459,4 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
         checkpoint: ckpt_path,
         elapsed_seconds: state.elapsed_seconds,
     })
-}
-
-/// What [`export`] writes.
-#[derive(Clone, Debug)]
-pub struct ExportOptions {
-    /// Run directory (holds `checkpoint/`), or a checkpoint directory itself.
-    pub run: PathBuf,
-    /// Output model directory (`config.json`, `model.safetensors`; an existing `card.md` is
-    /// kept).
-    pub out: PathBuf,
-    /// Export the weight average instead of the raw weights.
-    pub ema: bool,
-    /// Stored weight type (F32, F16 or BF16).
-    pub dtype: DType,
-}
-
-/// Writes a run's checkpoint as a model directory and checks that it loads.
-pub fn export(o: &ExportOptions) -> Result<(), TrainError> {
-    let ckpt = if o.run.join(STATE_FILE).exists() {
-        o.run.clone()
-    } else {
-        resumable(&o.run)
-            .ok_or_else(|| TrainError::Config(format!("{} holds no checkpoint", o.run.display())))?
-    };
-    if !matches!(o.dtype, DType::F32 | DType::F16 | DType::BF16) {
-        return Err(TrainError::Config(format!(
-            "cannot store weights as {:?}",
-            o.dtype
-        )));
-    }
-    let model = load_rigidformer(&ckpt, &Device::Cpu, false)?;
-    let weights: HashMap<String, Tensor> = if o.ema {
-        let map = candle_core::safetensors::load(ckpt.join(OPTIMIZER_FILE), &Device::Cpu)?;
-        let names: Vec<String> = model
-            .varmap()
-            .data()
-            .lock()
-            .map_err(|_| TrainError::Config("parameter map lock poisoned".into()))?
-            .keys()
-            .cloned()
-            .collect();
-        let mut w = HashMap::new();
-        for n in names {
-            let t = map.get(&format!("ema.{n}")).ok_or_else(|| {
-                TrainError::Config(format!(
-                    "{}: no weight average for {n} (was ema_decay 0?)",
-                    ckpt.display()
-                ))
-            })?;
-            w.insert(n, t.clone());
-        }
-        w
-    } else {
-        candle_core::safetensors::load(ckpt.join(WEIGHTS_FILE), &Device::Cpu)?
-    };
-    let weights = weights
-        .into_iter()
-        .map(|(k, v)| Ok((k, v.to_dtype(o.dtype)?)))
-        .collect::<Result<HashMap<_, _>, TrainError>>()?;
-    std::fs::create_dir_all(&o.out).map_err(io(&o.out))?;
-    let cfg_src = ckpt.join(CONFIG_FILE);
-    let cfg_dst = o.out.join(CONFIG_FILE);
-    std::fs::copy(&cfg_src, &cfg_dst).map_err(io(&cfg_src))?;
-    candle_core::safetensors::save(&weights, o.out.join(WEIGHTS_FILE))?;
-    // The directory must load as a model.
-    load_model(&o.out, &Device::Cpu)?;
-    Ok(())
 }

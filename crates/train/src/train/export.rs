@@ -1,0 +1,79 @@
+//! `dynaserve train export`: a run's checkpoint written as a model directory (raw weights or
+//! their average, in the chosen weight type), checked by loading it.
+
+use std::collections::HashMap;
+use std::path::PathBuf;
+
+use candle_core::{DType, Device, Tensor};
+use dynaserve_model::checkpoint::{CONFIG_FILE, WEIGHTS_FILE};
+use dynaserve_model::{load_model, load_rigidformer};
+
+use super::TrainError;
+use super::run_dir::{OPTIMIZER_FILE, STATE_FILE, io, resumable};
+
+/// What [`export`] writes.
+#[derive(Clone, Debug)]
+pub struct ExportOptions {
+    /// Run directory (holds `checkpoint/`), or a checkpoint directory itself.
+    pub run: PathBuf,
+    /// Output model directory (`config.json`, `model.safetensors`; an existing `card.md` is
+    /// kept).
+    pub out: PathBuf,
+    /// Export the weight average instead of the raw weights.
+    pub ema: bool,
+    /// Stored weight type (F32, F16 or BF16).
+    pub dtype: DType,
+}
+
+/// Writes a run's checkpoint as a model directory and checks that it loads.
+pub fn export(o: &ExportOptions) -> Result<(), TrainError> {
+    let ckpt = if o.run.join(STATE_FILE).exists() {
+        o.run.clone()
+    } else {
+        resumable(&o.run)
+            .ok_or_else(|| TrainError::Config(format!("{} holds no checkpoint", o.run.display())))?
+    };
+    if !matches!(o.dtype, DType::F32 | DType::F16 | DType::BF16) {
+        return Err(TrainError::Config(format!(
+            "cannot store weights as {:?}",
+            o.dtype
+        )));
+    }
+    let model = load_rigidformer(&ckpt, &Device::Cpu, false)?;
+    let weights: HashMap<String, Tensor> = if o.ema {
+        let map = candle_core::safetensors::load(ckpt.join(OPTIMIZER_FILE), &Device::Cpu)?;
+        let names: Vec<String> = model
+            .varmap()
+            .data()
+            .lock()
+            .map_err(|_| TrainError::Config("parameter map lock poisoned".into()))?
+            .keys()
+            .cloned()
+            .collect();
+        let mut w = HashMap::new();
+        for n in names {
+            let t = map.get(&format!("ema.{n}")).ok_or_else(|| {
+                TrainError::Config(format!(
+                    "{}: no weight average for {n} (was ema_decay 0?)",
+                    ckpt.display()
+                ))
+            })?;
+            w.insert(n, t.clone());
+        }
+        w
+    } else {
+        candle_core::safetensors::load(ckpt.join(WEIGHTS_FILE), &Device::Cpu)?
+    };
+    let weights = weights
+        .into_iter()
+        .map(|(k, v)| Ok((k, v.to_dtype(o.dtype)?)))
+        .collect::<Result<HashMap<_, _>, TrainError>>()?;
+    std::fs::create_dir_all(&o.out).map_err(io(&o.out))?;
+    let cfg_src = ckpt.join(CONFIG_FILE);
+    let cfg_dst = o.out.join(CONFIG_FILE);
+    std::fs::copy(&cfg_src, &cfg_dst).map_err(io(&cfg_src))?;
+    candle_core::safetensors::save(&weights, o.out.join(WEIGHTS_FILE))?;
+    // The directory must load as a model.
+    load_model(&o.out, &Device::Cpu)?;
+    Ok(())
+}
