@@ -1,0 +1,65 @@
+//! The suite reports, printed and plotted.
+
+use super::*;
+
+#[test]
+fn suite_reports_print_and_plot() {
+    let s = scene(2, 101, |j, t| {
+        pose(
+            Vector3::new(j as f64 * 2.0, t, 0.5 + (1.0 - t).max(0.0)),
+            UnitQuaternion::identity(),
+        )
+    });
+    let opts = EvalOptions::default();
+    let ballistic = Ballistic {
+        gravity: [0.0, 0.0, -10.0],
+        floor_z: Some(0.0),
+    };
+    let suite = SuiteReport {
+        entries: vec![
+            SuiteEntry {
+                label: "static".into(),
+                input: None,
+                report: evaluate_scenes(&Static, std::slice::from_ref(&s), &opts).unwrap(),
+            },
+            SuiteEntry {
+                label: "ballistic".into(),
+                input: None,
+                report: evaluate_scenes(&ballistic, std::slice::from_ref(&s), &opts).unwrap(),
+            },
+        ],
+        elapsed_s: 0.0,
+    };
+    let text = format_suite(&suite);
+    for want in [
+        "translation RMSE (m)",
+        "orientation RMSE (deg)",
+        "stability: k = 1, 100 steps",
+        "resting drift over frames 76..100",
+        "ground truth",
+        "0.5 s (12 fr)",
+    ] {
+        assert!(text.contains(want), "{want:?} missing from\n{text}");
+    }
+    let md = format_markdown(&suite);
+    assert!(md.contains("| horizon | k | static | ballistic |"), "{md}");
+    assert!(md.contains("| 4 s (96 fr) | 4 |"), "{md}");
+    assert!(md.contains("**Resting drift**"), "{md}");
+    let json = serde_json::to_string(&suite).unwrap();
+    let back: SuiteReport = serde_json::from_str(&json).unwrap();
+    assert_eq!(back.entries.len(), 2);
+    let png = std::env::temp_dir().join(format!("dynaserve-eval-plot-{}.png", std::process::id()));
+    plot_errors(
+        &png,
+        "test",
+        &[
+            ("static", &suite.entries[0].report, PlotStyle::EveryStepSize),
+            ("ballistic", &suite.entries[1].report, PlotStyle::Baseline),
+        ],
+    )
+    .unwrap();
+    let bytes = std::fs::read(&png).unwrap();
+    std::fs::remove_file(&png).ok();
+    assert_eq!(&bytes[1..4], b"PNG");
+    assert!(bytes.len() > 5000);
+}
