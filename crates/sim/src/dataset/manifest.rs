@@ -152,12 +152,7 @@ impl Manifest {
                 self.format
             )));
         }
-        if self.format_version == 0 || self.format_version > FORMAT_VERSION {
-            return Err(bad(format!(
-                "format version {} is not supported (this reader knows 1..={FORMAT_VERSION})",
-                self.format_version
-            )));
-        }
+        check_format_version(self.format_version).map_err(bad)?;
         if self.frames == 0 || self.reference_points == 0 {
             return Err(bad("frames and reference_points must be positive".into()));
         }
@@ -171,19 +166,12 @@ impl Manifest {
                 self.scenes
             )));
         }
-        let mut next = 0;
-        for s in &self.shards {
-            if s.first_scene != next {
-                return Err(bad(format!(
-                    "shard {} starts at scene {} instead of {next}",
-                    s.file, s.first_scene
-                )));
-            }
-            if s.file.contains('/') || s.file.contains('\\') || s.file.starts_with('.') {
-                return Err(bad(format!("shard file name {:?} is not plain", s.file)));
-            }
-            next += s.scenes;
-        }
+        check_shard_layout(
+            self.shards
+                .iter()
+                .map(|s| (s.file.as_str(), s.first_scene, s.scenes)),
+        )
+        .map_err(bad)?;
         if let Some(labels) = &self.scenarios
             && labels.len() != self.scenes
         {
@@ -195,6 +183,38 @@ impl Manifest {
         }
         Ok(())
     }
+}
+
+/// Checks a manifest's `format_version` against the versions this reader knows; the error is
+/// the message for the manifest's error.
+pub(crate) fn check_format_version(version: u32) -> Result<(), String> {
+    if version == 0 || version > FORMAT_VERSION {
+        return Err(format!(
+            "format version {version} is not supported (this reader knows 1..={FORMAT_VERSION})"
+        ));
+    }
+    Ok(())
+}
+
+/// Checks a manifest's shard list, given as `(file, first_scene, scenes)` in order: the shards
+/// follow each other from scene 0 and their file names are plain (no directory, not hidden).
+/// The error is the message for the manifest's error.
+pub(crate) fn check_shard_layout<'a>(
+    shards: impl IntoIterator<Item = (&'a str, usize, usize)>,
+) -> Result<(), String> {
+    let mut next = 0;
+    for (file, first_scene, scenes) in shards {
+        if first_scene != next {
+            return Err(format!(
+                "shard {file} starts at scene {first_scene} instead of {next}"
+            ));
+        }
+        if file.contains('/') || file.contains('\\') || file.starts_with('.') {
+            return Err(format!("shard file name {file:?} is not plain"));
+        }
+        next += scenes;
+    }
+    Ok(())
 }
 
 /// Reads `dir/manifest.json` as JSON; returns its path and value.

@@ -30,7 +30,10 @@ pub use manifest::{
     FORMAT, FORMAT_VERSION, MESH_CONTENT, Manifest, RESERVED_TENSORS, ShapeInfo, ShardInfo,
     TensorDoc, Units,
 };
-pub(crate) use manifest::{doc, is_mesh_manifest, parse_manifest, read_manifest_json};
+pub(crate) use manifest::{
+    check_format_version, check_shard_layout, doc, is_mesh_manifest, parse_manifest,
+    read_manifest_json,
+};
 pub use reader::{DatasetReader, SceneIter};
 pub(crate) use reader::{scene_in_shards, shard_entry};
 pub use records::{ObjectRecord, SceneLabel, SceneRecord};

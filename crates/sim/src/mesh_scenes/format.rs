@@ -24,8 +24,8 @@ use serde::{Deserialize, Serialize};
 
 use super::record::{MeshMaterial, MeshObject, MeshScene};
 use crate::dataset::{
-    FORMAT, FORMAT_VERSION, MESH_CONTENT, ShardTensors, TensorBytes, TensorDoc, Units, doc,
-    serialize_tensors,
+    FORMAT, MESH_CONTENT, ShardTensors, TensorBytes, TensorDoc, Units, check_format_version,
+    check_shard_layout, doc, serialize_tensors,
 };
 use crate::{Result, SimError};
 
@@ -190,12 +190,7 @@ impl MeshManifest {
                 self.format, self.content, MESH_CONTENT
             )));
         }
-        if self.format_version == 0 || self.format_version > FORMAT_VERSION {
-            return Err(bad(format!(
-                "format version {} is not supported (this reader knows 1..={FORMAT_VERSION})",
-                self.format_version
-            )));
-        }
+        check_format_version(self.format_version).map_err(bad)?;
         if self.frames == 0 || !(self.dt_frame.is_finite() && self.dt_frame > 0.0) {
             return Err(bad("frames and dt_frame must be positive".into()));
         }
@@ -207,19 +202,12 @@ impl MeshManifest {
                 self.scenes
             )));
         }
-        let mut next = 0;
-        for s in &self.shards {
-            if s.first_scene != next {
-                return Err(bad(format!(
-                    "shard {} starts at scene {} instead of {next}",
-                    s.file, s.first_scene
-                )));
-            }
-            if s.file.contains('/') || s.file.contains('\\') || s.file.starts_with('.') {
-                return Err(bad(format!("shard file name {:?} is not plain", s.file)));
-            }
-            next += s.scenes;
-        }
+        check_shard_layout(
+            self.shards
+                .iter()
+                .map(|s| (s.file.as_str(), s.first_scene, s.scenes)),
+        )
+        .map_err(bad)?;
         Ok(())
     }
 }
