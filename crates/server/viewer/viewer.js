@@ -357,7 +357,8 @@ function charts() {
 
 async function loadLists() {
   const [models, examples] = await Promise.all([getJson('v1/models'), getJson('v1/examples')]);
-  st.models = models.models;
+  // Only models that roll scenes out; PhysiFormer models answer Generate, not rollouts.
+  st.models = models.models.filter((m) => m.architecture !== 'physiformer');
   st.examples = examples.examples;
   $('model').replaceChildren(
     ...st.models.map((m) => {
