@@ -233,8 +233,27 @@ pub(crate) fn is_mesh_manifest(manifest: &serde_json::Value) -> bool {
     manifest.get("content").and_then(|c| c.as_str()) == Some(MESH_CONTENT)
 }
 
+/// Reads `dir/manifest.json` as the manifest type `M` of a mesh dataset (`mesh`) or a pose
+/// dataset (not `mesh`); a manifest of the other kind is refused with `other_kind` as the
+/// message. Returns the manifest's path and the parsed manifest (not yet validated).
+pub(crate) fn read_manifest_of_kind<M: DeserializeOwned>(
+    dir: &Path,
+    mesh: bool,
+    other_kind: &str,
+) -> Result<(PathBuf, M)> {
+    let (path, value) = read_manifest_json(dir)?;
+    if is_mesh_manifest(&value) != mesh {
+        return Err(SimError::Manifest {
+            path,
+            message: other_kind.into(),
+        });
+    }
+    let manifest = parse_manifest(&path, value)?;
+    Ok((path, manifest))
+}
+
 /// Parses a manifest read by [`read_manifest_json`] into its type; errors name `path`.
-pub(crate) fn parse_manifest<M: DeserializeOwned>(
+fn parse_manifest<M: DeserializeOwned>(
     path: &Path,
     value: serde_json::Value,
 ) -> Result<M> {

@@ -31,8 +31,8 @@ pub use manifest::{
     TensorDoc, Units,
 };
 pub(crate) use manifest::{
-    check_format_version, check_shard_layout, doc, is_mesh_manifest, parse_manifest,
-    read_manifest_json,
+    check_format_version, check_shard_layout, doc, is_mesh_manifest, read_manifest_json,
+    read_manifest_of_kind,
 };
 pub use reader::{DatasetReader, SceneIter};
 pub(crate) use reader::{scene_in_shards, shard_entry};

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use super::io_err;
-use super::manifest::{Manifest, is_mesh_manifest, parse_manifest, read_manifest_json};
+use super::manifest::{Manifest, read_manifest_of_kind};
 use super::records::SceneRecord;
 use super::shard::decode_shard;
 use crate::{Result, SimError};
@@ -52,16 +52,12 @@ impl DatasetReader {
     /// Opens a split directory and validates its manifest (format, version, counts).
     pub fn open(dir: impl AsRef<Path>) -> Result<Self> {
         let dir = dir.as_ref().to_path_buf();
-        let (path, value) = read_manifest_json(&dir)?;
-        if is_mesh_manifest(&value) {
-            return Err(SimError::Manifest {
-                path,
-                message: "a mesh dataset (\"content\": \"mesh\"); read it with \
-                          mesh_scenes::MeshDatasetReader"
-                    .into(),
-            });
-        }
-        let manifest: Manifest = parse_manifest(&path, value)?;
+        let (path, manifest): (_, Manifest) = read_manifest_of_kind(
+            &dir,
+            false,
+            "a mesh dataset (\"content\": \"mesh\"); read it with \
+             mesh_scenes::MeshDatasetReader",
+        )?;
         manifest.validate(&path)?;
         Ok(Self { dir, manifest })
     }

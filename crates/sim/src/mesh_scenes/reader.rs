@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 use super::format::{MeshManifest, decode_mesh_shard};
 use super::record::MeshScene;
 use crate::dataset::{
-    SceneIter, io_err, is_mesh_manifest, parse_manifest, read_manifest_json, scene_in_shards,
-    shard_entry,
+    SceneIter, io_err, is_mesh_manifest, read_manifest_json, read_manifest_of_kind,
+    scene_in_shards, shard_entry,
 };
 use crate::{Result, SimError};
 
@@ -42,16 +42,12 @@ impl MeshDatasetReader {
     /// A rigid-pose dataset is refused with an error that says so.
     pub fn open(dir: impl AsRef<Path>) -> Result<Self> {
         let dir = dir.as_ref().to_path_buf();
-        let (path, value) = read_manifest_json(&dir)?;
-        if !is_mesh_manifest(&value) {
-            return Err(SimError::Manifest {
-                path,
-                message: "not a mesh dataset (no \"content\": \"mesh\"); read rigid-pose \
-                          datasets with DatasetReader"
-                    .into(),
-            });
-        }
-        let manifest: MeshManifest = parse_manifest(&path, value)?;
+        let (path, manifest): (_, MeshManifest) = read_manifest_of_kind(
+            &dir,
+            true,
+            "not a mesh dataset (no \"content\": \"mesh\"); read rigid-pose datasets with \
+             DatasetReader",
+        )?;
         manifest.validate(&path)?;
         Ok(Self { dir, manifest })
     }
