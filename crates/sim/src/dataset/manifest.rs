@@ -253,10 +253,7 @@ pub(crate) fn read_manifest_of_kind<M: DeserializeOwned>(
 }
 
 /// Parses a manifest read by [`read_manifest_json`] into its type; errors name `path`.
-fn parse_manifest<M: DeserializeOwned>(
-    path: &Path,
-    value: serde_json::Value,
-) -> Result<M> {
+fn parse_manifest<M: DeserializeOwned>(path: &Path, value: serde_json::Value) -> Result<M> {
     serde_json::from_value(value).map_err(|e| SimError::Manifest {
         path: path.to_path_buf(),
         message: e.to_string(),
