@@ -131,42 +131,6 @@ impl StepFrame {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn json_defaults_and_unknown_fields() {
-        let doc = r#"{"scene":{"objects":[{"points":[[0,0,0]],"pose":{"translation":[0,0,1]},"mass":1}]},"steps":3}"#;
-        let r: RolloutRequest = serde_json::from_str(doc).unwrap();
-        assert_eq!(r.scene.objects[0].pose.rotation, IDENTITY_ROTATION);
-        assert_eq!(r.dt_steps, 0);
-        let bad = r#"{"scene":{"objects":[]},"steps":3,"stepz":4}"#;
-        assert!(serde_json::from_str::<RolloutRequest>(bad).is_err());
-    }
-
-    #[test]
-    fn frames_come_back_from_the_grpc_form() {
-        let f = v1::StepFrame {
-            step: 3,
-            time: 0.125,
-            poses: vec![v1::Pose {
-                translation: Some(vec3_to([1.0, 2.0, 3.0])),
-                rotation: None,
-            }],
-            timing: Some(v1::StepTiming {
-                queue_ms: 1.0,
-                forward_ms: 2.0,
-                batch_scenes: 4,
-            }),
-        };
-        let j = StepFrame::from_proto(&f);
-        assert_eq!(j.poses[0].translation, [1.0, 2.0, 3.0]);
-        assert_eq!(j.poses[0].rotation, IDENTITY_ROTATION);
-        assert_eq!(j.timing.unwrap().batch_scenes, 4);
-    }
-}
-
 impl crate::json::GenerateRequest {
     /// Converts to the gRPC form (`stream` is HTTP only and has no gRPC field).
     pub fn to_proto(&self) -> v1::GenerateRequest {
@@ -250,5 +214,41 @@ impl crate::json::GenerateProgress {
                 batch_scenes: t.batch_scenes,
             },
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn json_defaults_and_unknown_fields() {
+        let doc = r#"{"scene":{"objects":[{"points":[[0,0,0]],"pose":{"translation":[0,0,1]},"mass":1}]},"steps":3}"#;
+        let r: RolloutRequest = serde_json::from_str(doc).unwrap();
+        assert_eq!(r.scene.objects[0].pose.rotation, IDENTITY_ROTATION);
+        assert_eq!(r.dt_steps, 0);
+        let bad = r#"{"scene":{"objects":[]},"steps":3,"stepz":4}"#;
+        assert!(serde_json::from_str::<RolloutRequest>(bad).is_err());
+    }
+
+    #[test]
+    fn frames_come_back_from_the_grpc_form() {
+        let f = v1::StepFrame {
+            step: 3,
+            time: 0.125,
+            poses: vec![v1::Pose {
+                translation: Some(vec3_to([1.0, 2.0, 3.0])),
+                rotation: None,
+            }],
+            timing: Some(v1::StepTiming {
+                queue_ms: 1.0,
+                forward_ms: 2.0,
+                batch_scenes: 4,
+            }),
+        };
+        let j = StepFrame::from_proto(&f);
+        assert_eq!(j.poses[0].translation, [1.0, 2.0, 3.0]);
+        assert_eq!(j.poses[0].rotation, IDENTITY_ROTATION);
+        assert_eq!(j.timing.unwrap().batch_scenes, 4);
     }
 }
