@@ -1,5 +1,5 @@
-//! The contact velocity inputs: a 12-feature model (the shipped checkpoint, or a random one)
-//! widened to 15 features computes the same steps, the new weight columns receive gradients,
+//! The contact velocity inputs: a 12-feature model (read from disk, or a random one) widened
+//! to 15 features computes the same steps, the new weight columns receive gradients,
 //! and a widened model saves and loads as a 15-feature checkpoint.
 mod common;
 
@@ -38,12 +38,24 @@ fn step(model: &dyn WorldModel, seed: u64, dt_steps: u32) -> Vec<dynaserve_model
         .remove(0)
 }
 
-/// The shipped checkpoint predates the contact velocity: it reads as a 12-feature model and
-/// its widened copy steps the same scenes to within float rounding.
+/// A 12-feature checkpoint on disk (written as models were before the contact velocity, with
+/// fitted normalisation constants) reads as a 12-feature model, and its widened copy steps the
+/// same scenes to within float rounding and keeps the 12 old constants.
 #[test]
-fn shipped_checkpoint_reads_as_twelve_features_and_widens_without_change() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/rigidformer-small");
+fn twelve_feature_checkpoint_reads_as_such_and_widens_without_change() {
+    let mut cfg = ModelConfig::small();
+    cfg.dynamics.contact_velocity = false;
+    cfg.normalization = FeatureNormalization {
+        mean: (0..12).map(|i| 0.01 * i as f32).collect(),
+        std: (0..12).map(|i| 0.5 + 0.1 * i as f32).collect(),
+    };
+    let dir = std::env::temp_dir().join(format!("dynaserve-cv-twelve-{}", std::process::id()));
+    RigidFormer::new(cfg, 21, &Device::Cpu)
+        .unwrap()
+        .save(&dir)
+        .unwrap();
     let old = load_rigidformer(&dir, &Device::Cpu, false).unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
     assert!(!old.config().dynamics.contact_velocity);
     assert_eq!(old.config().point_features(), 12);
     assert_eq!(first_layer_dims(&old)[1], 12);
@@ -62,6 +74,20 @@ fn shipped_checkpoint_reads_as_twelve_features_and_widens_without_change() {
             "seed {seed}, k {k}: widened model differs by {diff}"
         );
     }
+}
+
+/// The shipped checkpoint was trained with the contact velocity: it reads as 15 features with
+/// 15 normalisation constants, and widening it again is refused.
+#[test]
+fn shipped_checkpoint_takes_the_contact_velocity() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/rigidformer-small");
+    let shipped = load_rigidformer(&dir, &Device::Cpu, false).unwrap();
+    assert!(shipped.config().dynamics.contact_velocity);
+    assert_eq!(shipped.config().point_features(), 15);
+    assert_eq!(first_layer_dims(&shipped)[1], 15);
+    assert_eq!(shipped.config().normalization.mean.len(), 15);
+    let again = shipped.widened_with_contact_velocity(&extra(), false);
+    assert!(again.err().unwrap().to_string().contains("already"));
 }
 
 /// A random 12-feature model widened for training: same outputs, every parameter (the new
