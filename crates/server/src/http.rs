@@ -116,6 +116,20 @@ fn json_response<T: serde::Serialize>(status: StatusCode, body: T, rid: &str) ->
     r
 }
 
+/// A server-sent-event stream of `events` with keep-alive comments, carrying the request id and
+/// the model that answers.
+fn sse_response<S>(events: S, rid: &str, model: &str) -> Response
+where
+    S: Stream<Item = Result<Event, Infallible>> + Send + 'static,
+{
+    let mut r = Sse::new(events)
+        .keep_alive(KeepAlive::default())
+        .into_response();
+    set_header(r.headers_mut(), "x-request-id", rid);
+    set_header(r.headers_mut(), "x-dynaserve-model", model);
+    r
+}
+
 /// Adds the model and timing headers of a call that stepped scenes.
 fn timed(mut r: Response, model: &str, timing: &json::RequestTiming) -> Response {
     set_header(r.headers_mut(), "x-dynaserve-model", model);
@@ -259,12 +273,11 @@ async fn rollout(State(s): State<AppState>, headers: HeaderMap, body: Body) -> R
     };
     let model = handle.model.clone();
     if sse {
-        let mut resp = Sse::new(sse_events(handle.frames, rid.to_string(), arrival))
-            .keep_alive(KeepAlive::default())
-            .into_response();
-        set_header(resp.headers_mut(), "x-request-id", &rid);
-        set_header(resp.headers_mut(), "x-dynaserve-model", &model);
-        return resp;
+        return sse_response(
+            sse_events(handle.frames, rid.to_string(), arrival),
+            &rid,
+            &model,
+        );
     }
     let (frames, timing) = match collect_frames(handle.frames, arrival).await {
         Ok(f) => f,

@@ -11,9 +11,8 @@ use axum::Router;
 use axum::body::Body;
 use axum::extract::State;
 use axum::http::{HeaderMap, StatusCode};
-use axum::response::IntoResponse;
 use axum::response::Response;
-use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::response::sse::Event;
 use axum::routing::post;
 use dynaserve_api::json;
 use dynaserve_api::spec::Timing;
@@ -22,7 +21,9 @@ use futures::Stream;
 use tokio::sync::mpsc;
 use utoipa::OpenApi;
 
-use super::{AppState, ctx_of, error_response, json_response, parse, set_header, timed, wants_sse};
+use super::{
+    AppState, ctx_of, error_response, json_response, parse, sse_response, timed, wants_sse,
+};
 use crate::error::ApiError;
 
 /// The OpenAPI description of `POST /v1/generate` (merged into the HTTP API's document).
@@ -94,12 +95,11 @@ async fn generate(State(s): State<AppState>, headers: HeaderMap, body: Body) -> 
     };
     let model = handle.model.clone();
     if sse {
-        let mut resp = Sse::new(sse_events(handle.events, rid.to_string(), arrival))
-            .keep_alive(KeepAlive::default())
-            .into_response();
-        set_header(resp.headers_mut(), "x-request-id", &rid);
-        set_header(resp.headers_mut(), "x-dynaserve-model", &model);
-        return resp;
+        return sse_response(
+            sse_events(handle.events, rid.to_string(), arrival),
+            &rid,
+            &model,
+        );
     }
     let (samples, timing) = match collect(handle.events, arrival).await {
         Ok(c) => c,
