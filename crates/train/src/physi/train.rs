@@ -39,7 +39,8 @@ pub struct PhysiTrainConfig {
     /// Network preset (`small`, `b`).
     pub preset: String,
     /// The trajectory the network's output corrects, replacing the preset's (`static` or
-    /// `ballistic`; docs/physiformer.md). Only for a new run: a resumed run keeps its own.
+    /// `ballistic`; docs/physiformer.md). A new run takes it; `--resume` refuses a value
+    /// other than the checkpoint's.
     #[serde(default)]
     pub prior: Option<TrajectoryPrior>,
     /// Mesh dataset split directories trained on (scenes drawn uniformly from their union).
@@ -104,7 +105,15 @@ pub fn run(
         let ckpt = ckpt
             .as_ref()
             .with_context(|| format!("--resume: {} holds no checkpoint", cfg.out_dir.display()))?;
-        PhysiFormer::load(ckpt, &device, true).context("resume: no usable checkpoint")?
+        let m = PhysiFormer::load(ckpt, &device, true).context("resume: no usable checkpoint")?;
+        if let Some(prior) = cfg.prior {
+            anyhow::ensure!(
+                prior == m.config().prior,
+                "--resume: the configuration asks for the {prior:?} prior but the run's checkpoint has {:?}",
+                m.config().prior
+            );
+        }
+        m
     } else {
         anyhow::ensure!(
             ckpt.is_none(),
