@@ -123,6 +123,7 @@ fn widened_model_trains_its_new_columns_and_saves_as_fifteen_features() {
             state: &state,
             target: &target,
             dt_steps: 2,
+            kinematic: &[],
         }])
         .unwrap();
     let grads = out.loss.backward().unwrap();

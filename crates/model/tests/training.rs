@@ -46,12 +46,14 @@ fn every_parameter_receives_a_gradient() {
                 state: &s1,
                 target: &t1,
                 dt_steps: 2,
+                kinematic: &[],
             },
             TrainItem {
                 scene: &sc2,
                 state: &s2,
                 target: &t2,
                 dt_steps: 4,
+                kinematic: &[],
             },
         ])
         .unwrap();
@@ -83,6 +85,7 @@ fn projection_is_exact_for_rigid_targets_and_loss_terms_agree() {
             state: &st,
             target: &tg,
             dt_steps: 1,
+            kinematic: &[],
         }])
         .unwrap();
     let d = (&out.accel_post - &out.accel_pre).unwrap();
@@ -228,6 +231,7 @@ fn a_few_adamw_steps_reduce_the_loss() {
         state: &st,
         target: &tg,
         dt_steps: 1,
+        kinematic: &[],
     }];
     let mut opt = candle_nn::AdamW::new(
         model.varmap().all_vars(),
@@ -310,6 +314,7 @@ fn free_fall_is_the_zero_output_with_a_gravity_residual() {
                     state: &state,
                     target: &target,
                     dt_steps: k,
+                    kinematic: &[],
                 }])
                 .unwrap();
             let acc: Vec<f32> = out.target_accel.flatten_all().unwrap().to_vec1().unwrap();

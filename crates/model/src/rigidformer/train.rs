@@ -24,6 +24,9 @@ pub struct TrainItem<'a> {
     pub target: &'a [Pose],
     /// Step size in frames, `>= 1`.
     pub dt_steps: u32,
+    /// Kinematic objects `[objects]` (driven along a given path, e.g. a pusher): they enter the
+    /// inputs like any object but add nothing to the loss. Empty means none is kinematic.
+    pub kinematic: &'a [bool],
 }
 
 /// Result of [`RigidFormer::train_forward`]. Every tensor is `[O, K, 3]` (objects of all
@@ -69,6 +72,13 @@ impl RigidFormer {
                 return Err(ModelError::InvalidInput(format!(
                     "{what}: {} target poses for {} objects",
                     it.target.len(),
+                    it.scene.len()
+                )));
+            }
+            if !it.kinematic.is_empty() && it.kinematic.len() != it.scene.len() {
+                return Err(ModelError::InvalidInput(format!(
+                    "{what}: {} kinematic flags for {} objects",
+                    it.kinematic.len(),
                     it.scene.len()
                 )));
             }
@@ -127,11 +137,21 @@ impl RigidFormer {
         let accel_post = (&positions_post - &base)?;
         let lc = &self.config.loss;
         // Errors in loss units: divided by `scale`, and by k^2 with per-frame units so that
-        // every step size weighs the same.
+        // every step size weighs the same; kinematic objects' errors are multiplied by zero.
+        let learned = items.iter().flat_map(|it| {
+            (0..it.scene.len()).map(|j| !it.kinematic.get(j).copied().unwrap_or(false))
+        });
         let inv: Vec<f32> = inp
             .object_dt
             .iter()
-            .map(|&dt| 1.0 / (lc.scale * self.config.dynamics.output_factor(dt)))
+            .zip(learned)
+            .map(|(&dt, learn)| {
+                if learn {
+                    1.0 / (lc.scale * self.config.dynamics.output_factor(dt))
+                } else {
+                    0.0
+                }
+            })
             .collect();
         let inv = host_tensor(&self.device, &inv, &[o, 1, 1])?;
         let scaled = |a: &Tensor, b: &Tensor| -> candle_core::Result<Tensor> {

@@ -305,6 +305,7 @@ impl Predictor for ModelPredictor {
                     state: &w.state,
                     target: &w.next,
                     dt_steps: w.dt_steps,
+                    kinematic: &[],
                 })
                 .collect();
             let forward = rf.train_forward(&items)?;

@@ -43,6 +43,8 @@ pub struct Window {
     pub target: Vec<Pose>,
     /// Step size in frames.
     pub dt_steps: u32,
+    /// Kinematic objects `[objects]` (in `objects` order): inputs only, not learned.
+    pub kinematic: Vec<bool>,
 }
 
 /// One prepared training sample.
@@ -55,6 +57,8 @@ pub struct Sample {
     pub target: Vec<Pose>,
     /// Step size in frames.
     pub dt_steps: u32,
+    /// Kinematic objects `[objects]`: inputs only, not learned.
+    pub kinematic: Vec<bool>,
 }
 
 /// A batch of samples for iteration `step`.
@@ -147,6 +151,7 @@ pub fn sample_window(
     let mut previous = Vec::with_capacity(order.len());
     let mut current = Vec::with_capacity(order.len());
     let mut target = Vec::with_capacity(order.len());
+    let kinematic = order.iter().map(|&j| scene.objects[j].kinematic).collect();
     for &j in &order {
         let o = &scene.objects[j];
         if o.positions.len() != frames || o.rotations.len() != frames {
@@ -210,6 +215,7 @@ pub fn sample_window(
         state: SceneState { previous, current },
         target,
         dt_steps: k,
+        kinematic,
     })
 }
 
@@ -419,6 +425,7 @@ fn worker(
                     state: w.state,
                     target: w.target,
                     dt_steps: w.dt_steps,
+                    kinematic: w.kinematic,
                 });
             }
             Ok(Batch { step, samples })

@@ -347,6 +347,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                     state: &s.state,
                     target: &s.target,
                     dt_steps: s.dt_steps,
+                    kinematic: &s.kinematic,
                 })
                 .collect();
             let outp = model.train_forward(&items)?;
