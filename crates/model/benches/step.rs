@@ -549,6 +549,7 @@ fn bench_training(c: &mut Criterion) {
                     state,
                     target,
                     dt_steps: [1, 2, 4][i % 3],
+                    kinematic: &[],
                 })
                 .collect();
             bench.iter(|| {
