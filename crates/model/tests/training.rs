@@ -333,3 +333,39 @@ fn free_fall_is_the_zero_output_with_a_gravity_residual() {
         }
     }
 }
+
+/// A kinematic object's target does not reach the loss: moving it changes nothing when the
+/// object is flagged kinematic and raises the loss when it is not; a flag list of the wrong
+/// length is refused.
+#[test]
+fn kinematic_objects_add_nothing_to_the_loss() {
+    let model = RigidFormer::new(ModelConfig::tiny(), 6, &Device::Cpu).unwrap();
+    let (objs, st) = random_scene(9, 3, 40);
+    let sc = model.prepare(objs).unwrap();
+    let target = next_poses(&st);
+    let mut moved = target.clone();
+    let p = moved[2].translation;
+    moved[2] = Pose::from_parts(
+        Vector3::new(p[0] + 0.5, p[1], p[2] - 0.3),
+        moved[2].unit_quaternion(),
+    );
+    let loss = |target: &[Pose], kinematic: &[bool]| {
+        model
+            .train_forward(&[TrainItem {
+                scene: &sc,
+                state: &st,
+                target,
+                dt_steps: 2,
+                kinematic,
+            }])
+            .map(|o| o.loss.to_scalar::<f32>().unwrap())
+    };
+    let flags = [false, false, true];
+    let (kept, shifted) = (loss(&target, &flags).unwrap(), loss(&moved, &flags).unwrap());
+    assert!(kept > 0.0);
+    assert_eq!(kept, shifted, "a kinematic target moved the loss");
+    let learned = loss(&moved, &[]).unwrap();
+    assert!(learned > 1.5 * loss(&target, &[]).unwrap(), "{learned}");
+    let err = loss(&target, &[true]).unwrap_err().to_string();
+    assert!(err.contains("kinematic flags"), "{err}");
+}
