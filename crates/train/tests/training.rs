@@ -205,3 +205,71 @@ fn init_widens_a_model_for_the_contact_velocity() {
     assert!(err.to_string().contains("cannot be removed"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Pushforward (`data.pushforward`) draws its choice after everything else, so a window's
+/// inputs and target are those it has without it, and its extra poses are the recorded ones
+/// at `t - 2k` and `t - k`; a run that trains on the model's own predictions still resumes
+/// bit for bit.
+#[test]
+fn pushforward_keeps_the_window_stream_and_resumes_exactly() {
+    use dynaserve_train::train::data::sample_window;
+    use rand::SeedableRng;
+
+    let dir = scratch("pushforward");
+    let data = tiny_dataset(&dir);
+    let scenes = dynaserve_sim::DatasetReader::open(&data)
+        .unwrap()
+        .read_shard(0)
+        .unwrap();
+    let mut plain = tiny_config(&data, &dir.join("unused"), 1).data;
+    plain.step_sizes = vec![1, 2, 4];
+    let pushed = dynaserve_train::train::config::DataConfig {
+        pushforward: 1.0,
+        ..plain.clone()
+    };
+    let mut with_poses = 0;
+    for seed in 0..24 {
+        let window = |c| {
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+            sample_window(&scenes[seed as usize % scenes.len()], c, &mut rng, true).unwrap()
+        };
+        let (a, b) = (window(&plain), window(&pushed));
+        assert!(a.pushforward.is_none());
+        assert_eq!(
+            (&a.state, &a.target, a.dt_steps),
+            (&b.state, &b.target, b.dt_steps)
+        );
+        if let Some((before, previous)) = &b.pushforward {
+            with_poses += 1;
+            assert_eq!(before.len(), a.target.len());
+            // No input noise in this configuration: t - k is the window's previous pose.
+            assert_eq!(previous, &a.state.previous);
+            assert_ne!(before, previous);
+        }
+    }
+    assert!(with_poses > 0, "no window qualified for pushforward");
+
+    let config = |name: &str| {
+        let mut c = tiny_config(&data, &dir.join(name), 4);
+        c.data.pushforward = 0.5;
+        c
+    };
+    train(&config("straight"), &TrainOptions::default()).unwrap();
+    let split = config("split");
+    let stop = TrainOptions {
+        stop_after: Some(2),
+        ..TrainOptions::default()
+    };
+    assert_eq!(train(&split, &stop).unwrap().step, 2);
+    let resume = TrainOptions {
+        resume: true,
+        ..TrainOptions::default()
+    };
+    assert_eq!(train(&split, &resume).unwrap().step, 4);
+    for f in ["model.safetensors", "optimizer.safetensors"] {
+        let a = std::fs::read(dir.join("straight/checkpoint").join(f)).unwrap();
+        let b = std::fs::read(dir.join("split/checkpoint").join(f)).unwrap();
+        assert!(a == b, "{f} differs between a straight and a resumed run");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -57,6 +57,12 @@ pub struct DataConfig {
     /// Standard deviation of the random rotation (angle, radians, random axis) applied to the
     /// input poses, independently per frame. 0 disables.
     pub noise_rotation: f32,
+    /// Probability that a sample's current pose is the model's own prediction instead of the
+    /// recorded one ("pushforward"): the trainer steps the model (inference, no gradient) from
+    /// the recorded poses at `t - 2k` and `t - k` and trains the step from there to the
+    /// recorded pose at `t + k`, so the model learns to correct the errors it makes itself in
+    /// a rollout. Only samples with `t >= 2k` qualify. 0 disables.
+    pub pushforward: f32,
     /// Batches the loader thread prepares ahead of the trainer.
     pub prefetch: usize,
     /// Scenes read to fit the feature normalisation before training.
@@ -79,6 +85,7 @@ impl Default for DataConfig {
             shuffle_objects: true,
             noise_position: 0.0,
             noise_rotation: 0.0,
+            pushforward: 0.0,
             prefetch: 8,
             norm_scenes: 200,
             norm_windows: 4,
@@ -284,6 +291,9 @@ impl TrainConfig {
         }
         if !(d.noise_position >= 0.0 && d.noise_rotation >= 0.0) {
             return bad("data.noise_position and noise_rotation must be >= 0");
+        }
+        if !(0.0..=1.0).contains(&d.pushforward) {
+            return bad("data.pushforward must be a probability in [0, 1]");
         }
         if d.prefetch == 0 {
             return bad("data.prefetch must be >= 1");

@@ -45,6 +45,10 @@ pub struct Window {
     pub dt_steps: u32,
     /// Kinematic objects `[objects]` (in `objects` order): inputs only, not learned.
     pub kinematic: Vec<bool>,
+    /// For a pushforward sample (`DataConfig::pushforward`), the recorded poses at
+    /// `t - 2 dt_steps`, `[objects]`: the trainer replaces `state.current` by the model's step
+    /// from these and the recorded (not noised) poses at `t - dt_steps`.
+    pub pushforward: Option<(Vec<Pose>, Vec<Pose>)>,
 }
 
 /// One prepared training sample.
@@ -59,6 +63,8 @@ pub struct Sample {
     pub dt_steps: u32,
     /// Kinematic objects `[objects]`: inputs only, not learned.
     pub kinematic: Vec<bool>,
+    /// Recorded poses at `t - 2 dt_steps` and `t - dt_steps` of a pushforward sample.
+    pub pushforward: Option<(Vec<Pose>, Vec<Pose>)>,
 }
 
 /// A batch of samples for iteration `step`.
@@ -100,7 +106,8 @@ fn quat(q: [f32; 4]) -> UnitQuaternion<f32> {
     UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[3], q[0], q[1], q[2]))
 }
 
-/// Draws one window from `scene` with the augmentation of `c` (noise only if `noise`).
+/// Draws one window from `scene` with the augmentation of `c` (input noise and pushforward
+/// poses only if `noise`, i.e. for training batches).
 pub fn sample_window(
     scene: &SceneRecord,
     c: &DataConfig,
@@ -210,12 +217,26 @@ pub fn sample_window(
         current.push(cur);
         target.push(pose_at(o, t + ku));
     }
+    // Drawn last and only when enabled, so configurations without it keep their streams.
+    let pushforward =
+        (noise && c.pushforward > 0.0 && t >= 2 * ku && rng.random::<f32>() < c.pushforward).then(
+            || {
+                let at = |f: usize| {
+                    order
+                        .iter()
+                        .map(|&j| pose_at(&scene.objects[j], f))
+                        .collect()
+                };
+                (at(t - 2 * ku), at(t - ku))
+            },
+        );
     Ok(Window {
         objects,
         state: SceneState { previous, current },
         target,
         dt_steps: k,
         kinematic,
+        pushforward,
     })
 }
 
@@ -426,6 +447,7 @@ fn worker(
                     target: w.target,
                     dt_steps: w.dt_steps,
                     kinematic: w.kinematic,
+                    pushforward: w.pushforward,
                 });
             }
             Ok(Batch { step, samples })

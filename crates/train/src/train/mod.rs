@@ -16,6 +16,7 @@ pub mod data;
 pub mod export;
 pub mod optim;
 pub mod plot;
+pub mod pushforward;
 pub mod run_dir;
 pub mod trainer;
 

@@ -332,13 +332,14 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
             && !opts.stop.load(Ordering::SeqCst)
             && budget_end.is_none_or(|e| state.step < e)
         {
-            let batch = loader.next()?;
+            let mut batch = loader.next()?;
             if batch.step != state.step {
                 return Err(TrainError::Data(format!(
                     "loader produced batch {} for iteration {}",
                     batch.step, state.step
                 )));
             }
+            super::pushforward::apply(&model, &mut batch.samples)?;
             let items: Vec<TrainItem<'_>> = batch
                 .samples
                 .iter()
