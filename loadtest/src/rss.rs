@@ -35,7 +35,7 @@ impl RssSource {
                 vm_rss_bytes(&text).ok_or_else(|| format!("{path}: no VmRSS line"))
             }
             RssSource::Metrics(url) => {
-                let text = crate::run::http_get(url).await?;
+                let text = crate::transport::http_get(url).await?;
                 metrics_rss_bytes(&text)
                     .ok_or_else(|| format!("{url}: no process_resident_memory_bytes"))
             }

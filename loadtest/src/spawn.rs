@@ -119,7 +119,7 @@ impl SpawnedServer {
         let mut server = server;
         let ready = format!("{}/ready", server.http_url);
         loop {
-            if crate::run::http_get(&ready).await.is_ok() {
+            if crate::transport::http_get(&ready).await.is_ok() {
                 return Ok(server);
             }
             if let Ok(Some(status)) = server.child.try_wait() {

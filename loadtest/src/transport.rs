@@ -1,11 +1,12 @@
 //! The two wire protocols, both through `dynaserve-client`: gRPC ([`Client`]) and the HTTP
 //! JSON / Server-Sent Events API ([`HttpConn`], one keep-alive connection per caller), behind
-//! one [`Conn`], with their failures as one [`CallError`] counted by code.
+//! one [`Conn`], with their failures as one [`CallError`] counted by code; and [`http_get`],
+//! the one-shot GET of `/metrics`, readiness and model lists.
 
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use dynaserve_api::{code_name, json};
-use dynaserve_client::http::{HttpConn, HttpError};
+use dynaserve_client::http::{HttpBase, HttpConn, HttpError};
 use dynaserve_client::{Client, ClientError};
 use futures::StreamExt;
 
@@ -109,4 +110,20 @@ impl Conn {
             Conn::Http(h) => Ok(h.predict(request).await?),
         }
     }
+}
+
+/// GET a URL over HTTP and return the body when the status is 200.
+pub async fn http_get(url: &str) -> Result<String, String> {
+    let base = HttpBase::parse(url)?;
+    let uri: hyper::Uri = url.parse().map_err(|e| format!("{url}: {e}"))?;
+    let path = uri.path_and_query().map_or("/", |p| p.as_str()).to_string();
+    let mut c = HttpConn::new(base);
+    let (status, text) = tokio::time::timeout(Duration::from_secs(10), c.get_text(&path))
+        .await
+        .map_err(|_| format!("{url}: no answer within 10 s"))?
+        .map_err(|e| format!("{url}: {e}"))?;
+    if status != 200 {
+        return Err(format!("{url}: HTTP {status}"));
+    }
+    Ok(text)
 }

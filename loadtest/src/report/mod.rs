@@ -1,10 +1,12 @@
 //! Report types (serialised with `--json`) and the A/B comparison; the human-readable tables
-//! are in [`text`], the self-contained HTML chart in [`html`].
+//! are in [`text`], the self-contained HTML chart in [`html`], the soak's section in [`soak`].
 
 mod html;
+mod soak;
 mod text;
 
 pub use html::to_html;
+pub use soak::{SoakCounts, SoakReport};
 pub use text::{level_detail, level_table};
 
 use std::collections::BTreeMap;
@@ -216,7 +218,7 @@ pub struct Report {
     /// Why the server metrics are missing, when they are.
     pub server_metrics_error: Option<String>,
     /// The soak's checks and memory record (`soak` mode only).
-    pub soak: Option<crate::run::SoakReport>,
+    pub soak: Option<SoakReport>,
 }
 
 /// All levels run against one side (server or in-process model).

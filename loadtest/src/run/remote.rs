@@ -1,31 +1,13 @@
 //! Connections to a remote side (gRPC clients or an HTTP base), made and checked once before
 //! the load starts, and the model the load targets.
 
-use std::time::Duration;
-
 use anyhow::Context;
 use dynaserve_api::json;
 use dynaserve_client::Client;
 use dynaserve_client::http::{HttpBase, HttpConn};
 
 use super::{Load, Target, Transport};
-use crate::transport::{CallError, Conn};
-
-/// GET a URL over HTTP and return the body when the status is 200.
-pub async fn http_get(url: &str) -> Result<String, String> {
-    let base = HttpBase::parse(url)?;
-    let uri: hyper::Uri = url.parse().map_err(|e| format!("{url}: {e}"))?;
-    let path = uri.path_and_query().map_or("/", |p| p.as_str()).to_string();
-    let mut c = HttpConn::new(base);
-    let (status, text) = tokio::time::timeout(Duration::from_secs(10), c.get_text(&path))
-        .await
-        .map_err(|_| format!("{url}: no answer within 10 s"))?
-        .map_err(|e| format!("{url}: {e}"))?;
-    if status != 200 {
-        return Err(format!("{url}: HTTP {status}"));
-    }
-    Ok(text)
-}
+use crate::transport::{CallError, Conn, http_get};
 
 /// Connections of one remote side, made once and checked before the load starts.
 pub(super) struct Remote {
