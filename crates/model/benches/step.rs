@@ -1,8 +1,9 @@
 //! One model step for batches of MOVi-like scenes (10 objects x 512 points) split into phases,
 //! one step of a 216-cube wrecking-ball scene (both for the `small` and `paper` configs), padded
 //! vs block-diagonal decoder batching, the fused CPU kernels against the plain composition
-//! (`fused_ab`, interleaved in one process), the machine's matmul peak (`matmul_peak`) and a
-//! training iteration (forward + backward + AdamW) for the `small` and `paper` configs.
+//! (`fused_ab`, interleaved in one process), the machine's matmul peak (`matmul_peak`), a
+//! training iteration (forward + backward + AdamW) for the `small` and `paper` configs, and
+//! training iterations with and without the fused kernels interleaved (`train_ab`).
 //!
 //! `cargo bench -p dynaserve-model --bench step` (release). Phase medians are printed to
 //! stdout; criterion reports the totals.
@@ -541,17 +542,7 @@ fn bench_training(c: &mut Criterion) {
                 .expect("optimiser");
                 (model, data, opt)
             });
-            let batch: Vec<TrainItem<'_>> = data
-                .iter()
-                .enumerate()
-                .map(|(i, (scene, state, target))| TrainItem {
-                    scene,
-                    state,
-                    target,
-                    dt_steps: [1, 2, 4][i % 3],
-                    kinematic: &[],
-                })
-                .collect();
+            let batch = train_items(data);
             bench.iter(|| {
                 let out = model.train_forward(&batch).expect("forward");
                 opt.backward_step(&out.loss).expect("step");
@@ -561,6 +552,82 @@ fn bench_training(c: &mut Criterion) {
     group.finish();
 }
 
+/// Training iterations with the fused kernels against the plain composition, interleaved in
+/// one process (A B A B ..., 9 iterations each, both models from the same seed with their own
+/// AdamW): prints the medians of the forward pass, the backward pass, the AdamW update and
+/// the whole iteration for both, and the ratio.
+fn bench_train_ab(c: &mut Criterion) {
+    let mut group = c.benchmark_group("train_ab");
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(3));
+    let mut cache = None;
+    group.bench_function("small", |bench| {
+        let (model, data, opt) = cache.get_or_insert_with(|| {
+            let fused = RigidFormer::new(ModelConfig::small(), 2, &Device::Cpu).expect("model");
+            let plain = RigidFormer::new(ModelConfig::small(), 2, &Device::Cpu)
+                .expect("model")
+                .with_fused_kernels(false);
+            let data = train_batch(&fused, 5);
+            let batch = train_items(&data);
+            let adamw = |m: &RigidFormer| {
+                candle_nn::AdamW::new(
+                    m.varmap().all_vars(),
+                    candle_nn::ParamsAdamW {
+                        lr: 1e-4,
+                        ..Default::default()
+                    },
+                )
+                .expect("optimiser")
+            };
+            let mut sides = [(&fused, adamw(&fused), [(); 4].map(|_| Vec::new())), (&plain, adamw(&plain), [(); 4].map(|_| Vec::new()))];
+            for _ in 0..9 {
+                for (model, opt, times) in sides.iter_mut() {
+                    let t0 = Instant::now();
+                    let out = model.train_forward(&batch).expect("forward");
+                    let t1 = Instant::now();
+                    let grads = out.loss.backward().expect("backward");
+                    let t2 = Instant::now();
+                    opt.step(&grads).expect("step");
+                    let t3 = Instant::now();
+                    for (v, d) in times.iter_mut().zip([t1 - t0, t2 - t1, t3 - t2, t3 - t0]) {
+                        v.push(d);
+                    }
+                }
+            }
+            let [a, b] = sides.map(|(_, _, t)| t.map(|v| ms(median(v))));
+            println!(
+                "train_ab small: fused forward {:.1} ms, backward {:.1} ms, adamw {:.1} ms, iteration {:.1} ms | composition {:.1}, {:.1}, {:.1}, {:.1} ms | composition / fused {:.2}x",
+                a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3], b[3] / a[3]
+            );
+            let opt = adamw(&fused);
+            drop(plain);
+            (fused, data, opt)
+        });
+        let batch = train_items(data);
+        bench.iter(|| {
+            let out = model.train_forward(&batch).expect("forward");
+            opt.backward_step(&out.loss).expect("step");
+        })
+    });
+    group.finish();
+}
+
+/// The training items of [`train_batch`]'s windows (step sizes 1, 2, 4 in turn).
+fn train_items(data: &[(PreparedScene, SceneState, Vec<Pose>)]) -> Vec<TrainItem<'_>> {
+    data.iter()
+        .enumerate()
+        .map(|(i, (scene, state, target))| TrainItem {
+            scene,
+            state,
+            target,
+            dt_steps: [1, 2, 4][i % 3],
+            kinematic: &[],
+        })
+        .collect()
+}
+
 criterion_group!(
     benches,
     bench_packing,
@@ -568,7 +635,8 @@ criterion_group!(
     bench_wrecking_ball,
     bench_fused_ab,
     bench_matmul_peak,
-    bench_training
+    bench_training,
+    bench_train_ab
 );
 fn main() {
     // SAFETY: first statement of main; criterion has not started any thread yet.

@@ -1,10 +1,11 @@
 //! Fused activations: `silu(y + b)` after a biased linear layer, the SwiGLU product
 //! `silu(a) * b`, and `exp`, each one pass with the vectorised maps of [`super::simd`]. The
-//! first two carry their gradient (written with candle ops, so training can use them); `exp` is
-//! for inference only. On devices other than the CPU the callers keep the plain composition.
+//! first two carry their gradient (one-pass kernels of [`super::activation_grad`] on the CPU,
+//! candle ops elsewhere); `exp` is for inference only. On devices other than the CPU the callers keep the plain composition.
 
 use candle_core::{CpuStorage, CustomOp1, CustomOp2, D, Layout, Shape, Tensor};
 
+use super::activation_grad::{bias_silu_grad, swiglu_grad};
 use super::simd::{exp_slice, par_map, sigmoid_slice, silu_slice};
 
 /// The contiguous f32 data of a CPU tensor argument.
@@ -66,6 +67,10 @@ impl CustomOp2 for BiasSilu {
         _res: &Tensor,
         grad: &Tensor,
     ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
+        if y.device().is_cpu() {
+            let (gy, gb) = bias_silu_grad(y, b, grad)?;
+            return Ok((Some(gy), Some(gb)));
+        }
         let z = y.broadcast_add(b)?;
         let gz = grad.mul(&silu_grad(&z)?)?;
         let rows = gz.elem_count() / b.elem_count();
@@ -116,6 +121,9 @@ impl CustomOp1 for SwiGluProduct {
     }
 
     fn bwd(&self, u: &Tensor, _res: &Tensor, grad: &Tensor) -> candle_core::Result<Option<Tensor>> {
+        if u.device().is_cpu() {
+            return Ok(Some(swiglu_grad(u, grad)?));
+        }
         let h = u.dim(D::Minus1)? / 2;
         let a = u.narrow(D::Minus1, 0, h)?;
         let b = u.narrow(D::Minus1, h, h)?;
@@ -231,29 +239,42 @@ mod tests {
 
     #[test]
     fn bias_silu_matches_the_composition_with_gradients() {
-        let args = [random(&[3, 7, 33], 1), random(&[33], 2)];
-        let (a, ga) = value_and_grads(&args, |t| bias_silu(&t[0], &t[1]));
-        let (b, gb) = value_and_grads(&args, |t| t[0].broadcast_add(&t[1])?.silu());
-        assert!(max_diff(&a, &b) < 1e-5);
-        for (x, y) in ga.iter().zip(&gb) {
-            assert_eq!(x.dims(), y.dims());
-            assert!(
-                max_diff(x, y) < 1e-4,
-                "gradient differs by {}",
-                max_diff(x, y)
-            );
+        // A small case, and one large enough to split the kernels over the thread pool.
+        for (rows, n) in [(vec![3, 7], 33), (vec![600], 130)] {
+            let shape = [rows, vec![n]].concat();
+            let args = [random(&shape, 1), random(&[n], 2)];
+            let (a, ga) = value_and_grads(&args, |t| bias_silu(&t[0], &t[1]));
+            let (b, gb) = value_and_grads(&args, |t| t[0].broadcast_add(&t[1])?.silu());
+            assert!(max_diff(&a, &b) < 1e-5);
+            for (x, y) in ga.iter().zip(&gb) {
+                assert_eq!(x.dims(), y.dims());
+                // The bias gradient sums up to 600 rows of values up to ~10.
+                let tol = 1e-4 * (1.0 + y.dim(0).unwrap() as f32).sqrt();
+                assert!(
+                    max_diff(x, y) < tol,
+                    "gradient differs by {}",
+                    max_diff(x, y)
+                );
+            }
         }
     }
 
     #[test]
     fn swiglu_matches_the_composition_with_gradients() {
-        let args = [random(&[5, 4, 2 * 24], 3)];
-        let (a, ga) = value_and_grads(&args, |t| swiglu_product(&t[0]));
-        let (b, gb) = value_and_grads(&args, |t| {
-            t[0].narrow(D::Minus1, 0, 24)?.silu()? * t[0].narrow(D::Minus1, 24, 24)?
-        });
-        assert!(max_diff(&a, &b) < 1e-4);
-        assert!(max_diff(&ga[0], &gb[0]) < 1e-4);
+        for (shape, h) in [(vec![5, 4], 24), (vec![300], 160)] {
+            let args = [random(&[shape, vec![2 * h]].concat(), 3)];
+            let (a, ga) = value_and_grads(&args, |t| swiglu_product(&t[0]));
+            let (b, gb) = value_and_grads(&args, |t| {
+                t[0].narrow(D::Minus1, 0, h)?.silu()? * t[0].narrow(D::Minus1, h, h)?
+            });
+            assert!(max_diff(&a, &b) < 1e-4);
+            assert_eq!(ga[0].dims(), gb[0].dims());
+            assert!(
+                max_diff(&ga[0], &gb[0]) < 1e-4,
+                "{}",
+                max_diff(&ga[0], &gb[0])
+            );
+        }
     }
 
     #[test]

@@ -3,6 +3,9 @@
 //! Other devices keep the plain composition.
 
 pub mod activation;
+pub mod activation_grad;
 pub mod attention;
 pub mod kabsch;
+pub mod norm;
+pub mod pool;
 pub mod simd;

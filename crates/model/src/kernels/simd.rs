@@ -97,6 +97,39 @@ pub fn par_map(x: &mut [f32], f: fn(&mut [f32])) {
     }
 }
 
+/// Element count above which [`row_blocks`] splits its rows over rayon's pool.
+const ROWS_PARALLEL_MIN: usize = 1 << 15;
+
+/// Runs `f(first_row, block)` over consecutive blocks of whole rows of `out` (rows of `n`
+/// values), in parallel when `out` is large, and returns the sum of the `[n]` column partials
+/// the blocks return (a reduction over rows, such as a bias gradient).
+pub fn row_blocks(
+    out: &mut [f32],
+    n: usize,
+    f: impl Fn(usize, &mut [f32]) -> Vec<f32> + Sync,
+) -> Vec<f32> {
+    use rayon::prelude::*;
+    let block_rows = (ROWS_PARALLEL_MIN / n.max(1)).max(1);
+    let step = block_rows * n.max(1);
+    let partials: Vec<Vec<f32>> =
+        if out.len() < 2 * ROWS_PARALLEL_MIN || rayon::current_num_threads() < 2 {
+            out.chunks_mut(step)
+                .enumerate()
+                .map(|(i, b)| f(i * block_rows, b))
+                .collect()
+        } else {
+            out.par_chunks_mut(step)
+                .enumerate()
+                .map(|(i, b)| f(i * block_rows, b))
+                .collect()
+        };
+    let mut sum = vec![0f32; n];
+    for p in &partials {
+        axpy(&mut sum, 1.0, p);
+    }
+    sum
+}
+
 /// `y[j] += a * x[j]` over two equal-length slices (the compiler vectorises the loop for the
 /// target features of the calling kernel).
 #[inline(always)]

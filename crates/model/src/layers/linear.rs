@@ -6,6 +6,7 @@ use candle_core::{D, Tensor};
 use super::ParamStore;
 use crate::ModelError;
 use crate::kernels::activation::{bias_silu, swiglu_product};
+use crate::kernels::pool::bias_group_max;
 
 /// `y = x W^T + b` over the last dimension of any-rank input.
 #[derive(Clone, Debug)]
@@ -16,6 +17,14 @@ pub(crate) struct Linear {
 
 impl Linear {
     pub fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        if x.rank() == 2 {
+            // No reshapes: each would be one more node with a full-size gradient copy.
+            let y = x.matmul(&self.w.t()?)?;
+            return match &self.b {
+                Some(b) => y.broadcast_add(b),
+                None => Ok(y),
+            };
+        }
         let dims = x.dims().to_vec();
         let last = dims[dims.len() - 1];
         let rows = x.elem_count() / last.max(1);
@@ -69,6 +78,35 @@ impl Mlp {
     /// `[.., in]` -> `[.., out]`; `fused` as in [`Linear::forward_silu`].
     pub fn forward(&self, x: &Tensor, fused: bool) -> candle_core::Result<Tensor> {
         self.b.forward(&self.a.forward_silu(x, fused)?)
+    }
+
+    /// `[rows, in]` -> `[rows / g, out]`: the MLP, then the maximum over each group of `g`
+    /// consecutive rows; with `fused`, the output bias and the pooling are one kernel (same
+    /// gradient).
+    pub fn forward_max_pool(
+        &self,
+        x: &Tensor,
+        g: usize,
+        fused: bool,
+    ) -> candle_core::Result<Tensor> {
+        let h = self.a.forward_silu(x, fused)?;
+        match (&self.b.b, fused) {
+            (Some(bias), true) => {
+                let no_bias = Linear {
+                    w: self.b.w.clone(),
+                    b: None,
+                };
+                bias_group_max(&no_bias.forward(&h)?, bias, g)
+            }
+            _ => {
+                let y = self.b.forward(&h)?;
+                let (rows, n) = y.dims2()?;
+                if g == 0 || !rows.is_multiple_of(g) {
+                    candle_core::bail!("max-pool: {rows} rows do not split into groups of {g}");
+                }
+                y.reshape((rows / g, g, n))?.max(1)
+            }
+        }
     }
 }
 

@@ -2,7 +2,8 @@
 
 use candle_core::Tensor;
 
-use super::Mode;
+use super::{Exec, Mode};
+use crate::kernels::norm::rms_norm;
 
 /// Root-mean-square normalisation with a learned scale.
 #[derive(Clone, Debug)]
@@ -16,6 +17,16 @@ impl RmsNorm {
         match mode {
             Mode::Inference => candle_nn::ops::rms_norm(&x.contiguous()?, &self.alpha, self.eps),
             Mode::Training => candle_nn::ops::rms_norm_slow(x, &self.alpha, self.eps),
+        }
+    }
+
+    /// As [`RmsNorm::forward`]; in training with fused kernels allowed, the one-pass kernel
+    /// with its one-pass gradient ([`crate::kernels::norm`]).
+    pub fn forward_exec(&self, x: &Tensor, exec: Exec) -> candle_core::Result<Tensor> {
+        if exec.fused && exec.mode == Mode::Training {
+            rms_norm(x, &self.alpha, self.eps)
+        } else {
+            self.forward(x, exec.mode)
         }
     }
 }

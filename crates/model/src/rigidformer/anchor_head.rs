@@ -145,7 +145,7 @@ impl AnchorHead {
             .index_select(&host_index(device, &rows)?, 0)?;
         let own_tok = self
             .own_token
-            .forward(&self.own_norm.forward(&own_tok, exec.mode)?)?;
+            .forward(&self.own_norm.forward_exec(&own_tok, exec)?)?;
         Ok(query.broadcast_add(&own_tok.unsqueeze(1)?)?)
     }
 
@@ -155,7 +155,7 @@ impl AnchorHead {
         let mut kv_in = Vec::with_capacity(dec.taps.len());
         for (i, x) in dec.taps.iter().enumerate() {
             let e = self.depth_embedding.narrow(0, i, 1)?.unsqueeze(0)?;
-            kv_in.push(self.tap_norms[i].forward(x, exec.mode)?.broadcast_add(&e)?);
+            kv_in.push(self.tap_norms[i].forward_exec(x, exec)?.broadcast_add(&e)?);
         }
         Ok(self.kv.forward(&Tensor::cat(&kv_in, 1)?)?)
     }
@@ -209,12 +209,12 @@ impl AnchorHead {
             k_rope: Arc::new(k_rope),
         };
         let query = query.reshape((o * k, d))?;
-        let qx = self.q.forward(&self.q_norm.forward(&query, exec.mode)?)?;
+        let qx = self.q.forward(&self.q_norm.forward_exec(&query, exec)?)?;
         let att = cross_attention(op, &qx, kv)?;
         let y = (query + self.out.forward(&att)?)?;
         Ok(self
             .head
-            .forward(&self.head_norm.forward(&y, exec.mode)?, exec.fused)?)
+            .forward(&self.head_norm.forward_exec(&y, exec)?, exec.fused)?)
     }
 
     /// Cross-attention and acceleration MLP as a composition of candle ops: queries laid out
@@ -265,7 +265,7 @@ impl AnchorHead {
         let ksin = Tensor::cat(&vec![dec.rope.1.clone(); nt], 2)?;
         let kx = kv.narrow(2, 0, d)?;
         let vx = kv.narrow(2, d, d)?;
-        let qx = self.q.forward(&self.q_norm.forward(&query, mode)?)?;
+        let qx = self.q.forward(&self.q_norm.forward_exec(&query, exec)?)?;
         let att = multi_head(
             &qx,
             &kx,
@@ -281,7 +281,7 @@ impl AnchorHead {
         // The acceleration MLP (D -> D -> 3, SiLU).
         let acc = self
             .head
-            .forward(&self.head_norm.forward(&y, mode)?, exec.fused)?; // [B, M*K, 3]
+            .forward(&self.head_norm.forward_exec(&y, exec)?, exec.fused)?; // [B, M*K, 3]
         Ok(acc
             .reshape((b * m * k, 3))?
             .index_select(&host_index(device, &back)?, 0)?)

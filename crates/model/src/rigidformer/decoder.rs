@@ -72,8 +72,8 @@ impl Block {
 
     /// `[B, T, D]` -> `[B, T, D]`.
     fn forward(&self, x: &Tensor, ctx: &PassContext, exec: Exec) -> candle_core::Result<Tensor> {
-        let (mode, d) = (exec.mode, x.dim(2)?);
-        let xn = self.norm1.forward(x, mode)?;
+        let d = x.dim(2)?;
+        let xn = self.norm1.forward_exec(x, exec)?;
         let qkv = self.qkv.forward(&xn)?;
         let o = if exec.fused_inference() {
             let op = SelfAttention {
@@ -95,7 +95,7 @@ impl Block {
         let x = x.broadcast_mul(&gamma)?.broadcast_add(&beta)?;
         &x + self
             .ffn
-            .forward(&self.norm2.forward(&x, mode)?, exec.fused)?
+            .forward(&self.norm2.forward_exec(&x, exec)?, exec.fused)?
     }
 
     /// The attention composition: `xn [B, T, D]` (normalised input), `qkv [B, T, 3D]` ->

@@ -22,8 +22,6 @@ pub(crate) struct Encoder {
     token: Linear,
     sa_centres: usize,
     sa_neighbours: usize,
-    sa_dim: usize,
-    width: usize,
     features: usize,
 }
 
@@ -38,8 +36,6 @@ impl Encoder {
             token: p.linear("encoder.token", d, d, true)?,
             sa_centres: c.sa_centres,
             sa_neighbours: c.sa_neighbours,
-            sa_dim: c2,
-            width: d,
             features: c.point_features(),
         })
     }
@@ -58,18 +54,10 @@ impl Encoder {
         let grouped = h.index_select(&host_index(device, &inp.group_idx)?, 0)?; // [O*S*G, C1]
         let rel = host_tensor(device, &inp.group_rel, &[o * s * g, 3])?;
         let x = Tensor::cat(&[rel, grouped], 1)?;
-        let x = self
-            .sa1
-            .forward(&x, fused)?
-            .reshape((o * s, g, self.sa_dim))?
-            .max(1)?; // [O*S, C2]
+        let x = self.sa1.forward_max_pool(&x, g, fused)?; // [O*S, C2]
         let crel = host_tensor(device, &inp.centre_rel, &[o * s, 3])?;
         let x = Tensor::cat(&[crel, x], 1)?;
-        let x = self
-            .sa2
-            .forward(&x, fused)?
-            .reshape((o, s, self.width))?
-            .max(1)?; // [O, D]
+        let x = self.sa2.forward_max_pool(&x, s, fused)?; // [O, D]
         let x = if exec.fused_inference() {
             silu_inference(&x)?
         } else {
