@@ -1,6 +1,7 @@
-//! Fused multi-head attention for short sequences (a few dozen to a few hundred keys), for
-//! inference on the CPU: per query row and head, the rotary code, the scores against every
-//! key of its scene, the masked softmax, the weighted values and (self-attention) the
+//! Fused multi-head attention for short sequences (a few dozen to a few hundred keys) on the
+//! CPU; self-attention also for training, with the backward pass of
+//! [`super::attention_grad`]. Per query row and head, the rotary code, the scores against
+//! every key of its scene, the masked softmax, the weighted values and (self-attention) the
 //! per-head sigmoid gate run in one pass, with no `[B, H, Tq, Tk]` tensor, no head transposes
 //! and no padded query slots. Keys of a scene are rotated and transposed once (`[H, dh, Tk]`).
 //! Query rows are split over rayon's pool in chunks when the pass is large.
@@ -14,6 +15,7 @@ use candle_core::{CpuStorage, CustomOp2, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
 use super::activation::f32_slice;
+use super::attention_grad::self_attention_grad;
 use super::simd::{axpy, exp_slice};
 
 /// Rows of rotary cosines and sines, each `[rows, P]`.
@@ -28,7 +30,8 @@ pub struct RotaryRows {
 }
 
 impl RotaryRows {
-    fn row(&self, r: usize) -> (&[f32], &[f32]) {
+    /// Cosines and sines of row `r`, `[P]` each.
+    pub(crate) fn row(&self, r: usize) -> (&[f32], &[f32]) {
         let p = self.pairs;
         (&self.cos[r * p..(r + 1) * p], &self.sin[r * p..(r + 1) * p])
     }
@@ -79,7 +82,8 @@ struct KeySource<'a> {
     tk: usize,
 }
 
-fn rotate(x: &mut [f32], cos: &[f32], sin: &[f32]) {
+/// Rotates the channel pairs `(2i, 2i + 1)`, `i < P`, of `x` by `(cos_i, sin_i)`.
+pub(crate) fn rotate(x: &mut [f32], cos: &[f32], sin: &[f32]) {
     for (i, (c, s)) in cos.iter().zip(sin).enumerate() {
         let (e, o) = (x[2 * i], x[2 * i + 1]);
         x[2 * i] = e * c - o * s;
@@ -301,6 +305,17 @@ impl CustomOp2 for SelfAttention {
         });
         Ok((CpuStorage::F32(out), Shape::from((b, t, d))))
     }
+
+    fn bwd(
+        &self,
+        qkv: &Tensor,
+        gate: &Tensor,
+        _res: &Tensor,
+        grad: &Tensor,
+    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
+        let (dqkv, dgate) = self_attention_grad(self, qkv, gate, grad)?;
+        Ok((Some(dqkv), Some(dgate)))
+    }
 }
 
 impl CustomOp2 for CrossAttention {
@@ -373,6 +388,17 @@ pub fn self_attention(
     gate: &Tensor,
 ) -> candle_core::Result<Tensor> {
     qkv.contiguous()?.apply_op2_no_bwd(&gate.contiguous()?, &op)
+}
+
+/// Applies [`SelfAttention`] with its gradient (CPU tensors only, for training): as
+/// [`self_attention`], differentiable in `qkv` and `gate` by the one-pass backward of
+/// [`super::attention_grad`].
+pub fn self_attention_train(
+    op: SelfAttention,
+    qkv: &Tensor,
+    gate: &Tensor,
+) -> candle_core::Result<Tensor> {
+    qkv.contiguous()?.apply_op2(&gate.contiguous()?, op)
 }
 
 /// Applies [`CrossAttention`] (CPU tensors only): `q [Nq, D]`, `kv [B, Tk, 2D]` -> `[Nq, D]`.
@@ -463,6 +489,59 @@ mod tests {
                 .unwrap();
             let diff = max_diff(&fused, &reference);
             assert!(diff < 2e-5, "b{b} t{t} h{heads}: {diff}");
+        }
+    }
+
+    #[test]
+    fn self_attention_gradients_match_the_composition() {
+        use candle_core::Var;
+        for (b, t, heads, dh, pairs) in [(3, 18, 4, 32, 12), (2, 5, 1, 8, 0)] {
+            let d = heads * dh;
+            let qkv =
+                Var::from_tensor(&tensor(&random(b * t * 3 * d, 11, 2.0), &[b, t, 3 * d])).unwrap();
+            let gate =
+                Var::from_tensor(&tensor(&random(b * t * heads, 12, 4.0), &[b, t, heads])).unwrap();
+            let r = tensor(&random(b * t * d, 13, 2.0), &[b, t, d]);
+            let rope = rotary(b * t, pairs, 14);
+            let key_bias = bias(b, t, &[2, 0, 3][..b]);
+            let (qt, gt) = (qkv.as_tensor(), gate.as_tensor());
+            let op = SelfAttention {
+                heads,
+                key_bias: Arc::new(key_bias.clone()),
+                rope: Arc::new(rope.clone()),
+            };
+            let fused = self_attention_train(op, qt, gt).unwrap();
+            let cos = tensor(&rope.cos, &[b, 1, t, pairs]);
+            let sin = tensor(&rope.sin, &[b, 1, t, pairs]);
+            let mask = tensor(&key_bias, &[b, 1, 1, t]);
+            let (q, k, v) = (
+                qt.narrow(2, 0, d).unwrap(),
+                qt.narrow(2, d, d).unwrap(),
+                qt.narrow(2, 2 * d, d).unwrap(),
+            );
+            let rot = (pairs > 0).then_some((&cos, &sin));
+            let o = multi_head(&q, &k, &v, &mask, rot, rot, heads, Mode::Training).unwrap();
+            let g = candle_nn::ops::sigmoid(gt).unwrap();
+            let g = g.transpose(1, 2).unwrap().unsqueeze(3).unwrap();
+            let reference = o
+                .broadcast_mul(&g)
+                .unwrap()
+                .transpose(1, 2)
+                .unwrap()
+                .reshape((b, t, d))
+                .unwrap();
+            assert!(max_diff(&fused, &reference) < 2e-5);
+            let grads = |y: &Tensor| {
+                let g = (y * &r).unwrap().sum_all().unwrap().backward().unwrap();
+                (g.get(qt).unwrap().clone(), g.get(gt).unwrap().clone())
+            };
+            let (dq1, dg1) = grads(&fused);
+            let (dq2, dg2) = grads(&reference);
+            let (e1, e2) = (max_diff(&dq1, &dq2), max_diff(&dg1, &dg2));
+            assert!(
+                e1 < 1e-4 && e2 < 1e-4,
+                "b{b} t{t} h{heads}: dqkv {e1}, dgate {e2}"
+            );
         }
     }
 

@@ -5,6 +5,7 @@
 pub mod activation;
 pub mod activation_grad;
 pub mod attention;
+pub mod attention_grad;
 pub mod kabsch;
 pub mod norm;
 pub mod pool;

@@ -9,8 +9,8 @@ use candle_core::{DType, Device, Tensor};
 use super::attention::multi_head;
 use super::host_tensor;
 use super::inputs::BatchInputs;
-use crate::kernels::attention::{RotaryRows, SelfAttention, self_attention};
-use crate::layers::{Exec, Init, Linear, ParamStore, RmsNorm, SwiGlu};
+use crate::kernels::attention::{RotaryRows, SelfAttention, self_attention, self_attention_train};
+use crate::layers::{Exec, Init, Linear, Mode, ParamStore, RmsNorm, SwiGlu};
 use crate::{ModelConfig, ModelError};
 
 /// Additive attention bias of a padded key.
@@ -75,13 +75,17 @@ impl Block {
         let d = x.dim(2)?;
         let xn = self.norm1.forward_exec(x, exec)?;
         let qkv = self.qkv.forward(&xn)?;
-        let o = if exec.fused_inference() {
+        let o = if exec.fused {
             let op = SelfAttention {
                 heads: self.heads,
                 key_bias: ctx.key_bias.clone(),
                 rope: ctx.rope_rows.clone(),
             };
-            self_attention(op, &qkv, &self.gate.forward(&xn)?)?
+            let gate = self.gate.forward(&xn)?;
+            match exec.mode {
+                Mode::Inference => self_attention(op, &qkv, &gate)?,
+                Mode::Training => self_attention_train(op, &qkv, &gate)?,
+            }
         } else {
             self.gated_attention(&xn, &qkv, ctx, exec)?
         };
