@@ -138,3 +138,67 @@ fn fused_training_kernels_give_the_composition_gradients() {
         }
     }
 }
+
+/// Twenty AdamW steps on one batch from the same initial weights: the fused kernels and the
+/// composition lower the loss along the same curve.
+#[test]
+fn fused_and_composed_training_follow_the_same_loss_curve() {
+    use candle_nn::Optimizer;
+    let scenes: Vec<_> = [(4, 64), (7, 48)]
+        .iter()
+        .enumerate()
+        .map(|(i, &(m, n))| random_scene(80 + i as u64, m, n))
+        .collect();
+    let curve = |fused: bool| -> Vec<f32> {
+        let model = RigidFormer::new(ModelConfig::small(), 9, &Device::Cpu)
+            .unwrap()
+            .with_fused_kernels(fused);
+        let data: Vec<_> = scenes
+            .iter()
+            .map(|(objects, state)| {
+                let target: Vec<Pose> = state
+                    .previous
+                    .iter()
+                    .zip(&state.current)
+                    .map(|(p, c)| Pose {
+                        translation: std::array::from_fn(|d| {
+                            2.0 * c.translation[d] - p.translation[d] - 0.02
+                        }),
+                        rotation: c.rotation,
+                    })
+                    .collect();
+                (model.prepare(objects.clone()).unwrap(), state, target)
+            })
+            .collect();
+        let items: Vec<TrainItem<'_>> = data
+            .iter()
+            .map(|(scene, state, target)| TrainItem {
+                scene,
+                state,
+                target,
+                dt_steps: 2,
+                kinematic: &[],
+            })
+            .collect();
+        let mut opt = candle_nn::AdamW::new(
+            model.varmap().all_vars(),
+            candle_nn::ParamsAdamW {
+                lr: 1e-3,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        (0..20)
+            .map(|_| {
+                let out = model.train_forward(&items).unwrap();
+                opt.backward_step(&out.loss).unwrap();
+                out.loss.to_scalar::<f32>().unwrap()
+            })
+            .collect()
+    };
+    let (a, b) = (curve(true), curve(false));
+    assert!(a[19] < 0.7 * a[0], "the loss did not fall: {a:?}");
+    for (i, (x, y)) in a.iter().zip(&b).enumerate() {
+        assert!((x - y).abs() <= 2e-3 * y.abs(), "step {i}: {x} vs {y}");
+    }
+}
