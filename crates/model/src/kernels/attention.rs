@@ -1,6 +1,5 @@
 //! Fused multi-head attention for short sequences (a few dozen to a few hundred keys) on the
-//! CPU; self-attention also for training, with the backward pass of
-//! [`super::attention_grad`]. Per query row and head, the rotary code, the scores against
+//! CPU, also for training, with the backward passes of [`super::attention_grad`]. Per query row and head, the rotary code, the scores against
 //! every key of its scene, the masked softmax, the weighted values and (self-attention) the
 //! per-head sigmoid gate run in one pass, with no `[B, H, Tq, Tk]` tensor, no head transposes
 //! and no padded query slots. Keys of a scene are rotated and transposed once (`[H, dh, Tk]`).
@@ -15,7 +14,7 @@ use candle_core::{CpuStorage, CustomOp2, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
 use super::activation::f32_slice;
-use super::attention_grad::self_attention_grad;
+use super::attention_grad::{cross_attention_grad, self_attention_grad};
 use super::simd::{axpy, exp_slice};
 
 /// Rows of rotary cosines and sines, each `[rows, P]`.
@@ -378,6 +377,17 @@ impl CustomOp2 for CrossAttention {
         });
         Ok((CpuStorage::F32(out), Shape::from((nq, d))))
     }
+
+    fn bwd(
+        &self,
+        q: &Tensor,
+        kv: &Tensor,
+        _res: &Tensor,
+        grad: &Tensor,
+    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
+        let (dq, dkv) = cross_attention_grad(self, q, kv, grad)?;
+        Ok((Some(dq), Some(dkv)))
+    }
 }
 
 /// Applies [`SelfAttention`] (CPU tensors only): `qkv [B, T, 3D]`, `gate [B, T, H]` ->
@@ -399,6 +409,16 @@ pub fn self_attention_train(
     gate: &Tensor,
 ) -> candle_core::Result<Tensor> {
     qkv.contiguous()?.apply_op2(&gate.contiguous()?, op)
+}
+
+/// Applies [`CrossAttention`] with its gradient (CPU tensors only, for training; query rows
+/// grouped by scene in order): as [`cross_attention`], differentiable in `q` and `kv`.
+pub fn cross_attention_train(
+    op: CrossAttention,
+    q: &Tensor,
+    kv: &Tensor,
+) -> candle_core::Result<Tensor> {
+    q.contiguous()?.apply_op2(&kv.contiguous()?, op)
 }
 
 /// Applies [`CrossAttention`] (CPU tensors only): `q [Nq, D]`, `kv [B, Tk, 2D]` -> `[Nq, D]`.
@@ -543,6 +563,73 @@ mod tests {
                 "b{b} t{t} h{heads}: dqkv {e1}, dgate {e2}"
             );
         }
+    }
+
+    #[test]
+    fn cross_attention_gradients_match_the_composition() {
+        use candle_core::Var;
+        let (b, tk, heads, dh, pairs) = (3usize, 21usize, 4usize, 32usize, 12usize);
+        let d = heads * dh;
+        let counts = [2usize, 0, 5];
+        let nq: usize = counts.iter().sum();
+        let q = Var::from_tensor(&tensor(&random(nq * d, 15, 2.0), &[nq, d])).unwrap();
+        let kv =
+            Var::from_tensor(&tensor(&random(b * tk * 2 * d, 16, 2.0), &[b, tk, 2 * d])).unwrap();
+        let r = tensor(&random(nq * d, 17, 2.0), &[nq, d]);
+        let q_rope = rotary(nq, pairs, 18);
+        let k_rope = rotary(b * tk, pairs, 19);
+        let key_bias = bias(b, tk, &[4, 0, 1]);
+        let query_scene: Vec<u32> = counts
+            .iter()
+            .enumerate()
+            .flat_map(|(s, &c)| std::iter::repeat_n(s as u32, c))
+            .collect();
+        let op = CrossAttention {
+            heads,
+            query_scene: Arc::new(query_scene),
+            key_bias: Arc::new(key_bias.clone()),
+            q_rope: Arc::new(q_rope.clone()),
+            k_rope: Arc::new(k_rope.clone()),
+        };
+        let (qt, kvt) = (q.as_tensor(), kv.as_tensor());
+        let fused = cross_attention_train(op, qt, kvt).unwrap();
+        let mut parts = Vec::new();
+        let mut row = 0;
+        for (s, &c) in counts.iter().enumerate() {
+            if c == 0 {
+                continue;
+            }
+            let rows = |v: &[f32], first: usize, n: usize| {
+                tensor(&v[first * pairs..(first + n) * pairs], &[1, 1, n, pairs])
+            };
+            let (qc, qs) = (rows(&q_rope.cos, row, c), rows(&q_rope.sin, row, c));
+            let (kc, ks) = (rows(&k_rope.cos, s * tk, tk), rows(&k_rope.sin, s * tk, tk));
+            let mask = tensor(&key_bias[s * tk..(s + 1) * tk], &[1, 1, 1, tk]);
+            let kvs = kvt.narrow(0, s, 1).unwrap();
+            let o = multi_head(
+                &qt.narrow(0, row, c).unwrap().unsqueeze(0).unwrap(),
+                &kvs.narrow(2, 0, d).unwrap(),
+                &kvs.narrow(2, d, d).unwrap(),
+                &mask,
+                Some((&qc, &qs)),
+                Some((&kc, &ks)),
+                heads,
+                Mode::Training,
+            )
+            .unwrap();
+            parts.push(o.transpose(1, 2).unwrap().reshape((c, d)).unwrap());
+            row += c;
+        }
+        let reference = Tensor::cat(&parts, 0).unwrap();
+        assert!(max_diff(&fused, &reference) < 2e-5);
+        let grads = |y: &Tensor| {
+            let g = (y * &r).unwrap().sum_all().unwrap().backward().unwrap();
+            (g.get(qt).unwrap().clone(), g.get(kvt).unwrap().clone())
+        };
+        let (dq1, dkv1) = grads(&fused);
+        let (dq2, dkv2) = grads(&reference);
+        let (e1, e2) = (max_diff(&dq1, &dq2), max_diff(&dkv1, &dkv2));
+        assert!(e1 < 1e-4 && e2 < 1e-4, "dq {e1}, dkv {e2}");
     }
 
     #[test]

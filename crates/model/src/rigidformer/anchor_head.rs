@@ -12,8 +12,10 @@ use super::decoder::Decoded;
 use super::inputs::BatchInputs;
 use super::{host_index, host_tensor};
 use crate::kernels::activation::exp_inference;
-use crate::kernels::attention::{CrossAttention, RotaryRows, cross_attention};
-use crate::layers::{Exec, Init, Linear, Mlp, ParamStore, RmsNorm};
+use crate::kernels::attention::{
+    CrossAttention, RotaryRows, cross_attention, cross_attention_train,
+};
+use crate::layers::{Exec, Init, Linear, Mlp, Mode, ParamStore, RmsNorm};
 use crate::{ModelConfig, ModelError};
 
 /// The anchor head's layers (`anchors.*` parameters).
@@ -75,7 +77,7 @@ impl AnchorHead {
         let (o, k) = (inp.o, config.anchors);
         let query = self.queries(config, inp, point_features, dec, exec)?; // [O, K, D]
         let kv = self.keys_values(dec, exec)?; // [B, nT*T, 2D]
-        let acc = if exec.fused_inference() {
+        let acc = if exec.fused {
             self.cross_fused(config, inp, dec, &query, &kv, exec)?
         } else {
             self.cross_composed(config, inp, dec, &query, &kv, exec)?
@@ -160,8 +162,9 @@ impl AnchorHead {
         Ok(self.kv.forward(&Tensor::cat(&kv_in, 1)?)?)
     }
 
-    /// Cross-attention and acceleration MLP with the fused kernel: queries stay packed
-    /// `[O * K, D]`, each attending to its own scene's keys. Returns `[O * K, 3]`.
+    /// Cross-attention and acceleration MLP with the fused kernel (with its gradient in
+    /// training): queries stay packed `[O * K, D]`, each attending to its own scene's keys.
+    /// Returns `[O * K, 3]`.
     fn cross_fused(
         &self,
         c: &ModelConfig,
@@ -210,7 +213,10 @@ impl AnchorHead {
         };
         let query = query.reshape((o * k, d))?;
         let qx = self.q.forward(&self.q_norm.forward_exec(&query, exec)?)?;
-        let att = cross_attention(op, &qx, kv)?;
+        let att = match exec.mode {
+            Mode::Inference => cross_attention(op, &qx, kv)?,
+            Mode::Training => cross_attention_train(op, &qx, kv)?,
+        };
         let y = (query + self.out.forward(&att)?)?;
         Ok(self
             .head
