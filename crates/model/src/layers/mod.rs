@@ -1,6 +1,7 @@
 //! The small layers the networks are built from and the parameter store that creates them.
 //! Every layer takes a [`Mode`]: inference may use fused kernels (candle's own or
-//! [`crate::kernels`]), training must use gradient-carrying compositions (candle 0.11's fused
+//! [`crate::kernels`]), training must use ops that carry gradients: compositions or the
+//! kernels of [`crate::kernels`] that have a backward pass (candle 0.11's fused
 //! `softmax_last_dim` and `rms_norm` silently drop gradients).
 
 mod linear;
