@@ -1,14 +1,17 @@
 //! The Python client (`clients/python`) against a real server on 127.0.0.1 with the real
-//! checkpoint: the test makes a virtual environment under `target/`, installs the package
-//! with pip (numpy comes with it), runs the package's own tests and the push planner example
-//! with a small budget, whose plans are replayed in rapier by this build's `dynaserve sim
-//! replay`.
+//! checkpoints (the RigidFormer and the shipped PhysiFormer): the test makes a virtual
+//! environment under `target/`, installs the package with pip together with its `grpc` extra
+//! (grpcio, protobuf) and its `stubs` extra (the pinned grpcio-tools that checks the committed
+//! stubs), runs the package's own tests over HTTP and gRPC and the push planner example with a
+//! small budget, whose plans are replayed in rapier by this build's `dynaserve sim replay`.
 
 mod common;
 
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 use common::*;
+use dynaserve_server::ServeConfig;
 use tokio::process::Command;
 
 async fn run(cmd: &mut Command, what: &str) -> String {
@@ -44,8 +47,11 @@ async fn venv(root: &Path) -> PathBuf {
                 "--quiet",
                 "--disable-pip-version-check",
             ])
-            .arg(root.join("clients").join("python")),
-        "pip install ./clients/python",
+            .arg(format!(
+                "{}[grpc,stubs]",
+                root.join("clients").join("python").display()
+            )),
+        "pip install ./clients/python[grpc,stubs]",
     )
     .await;
     python
@@ -54,15 +60,20 @@ async fn venv(root: &Path) -> PathBuf {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn python_client_tests_and_push_planner_run_against_a_real_server() {
     let m = test_model();
-    let server = start(&m.dir, |_| {}).await;
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let physiformer = root.join("models").join("physiformer-small");
+    let config = ServeConfig::local(vec![m.dir.clone(), physiformer]);
+    let models = dynaserve_server::load_all(&config.models).unwrap();
+    let server = dynaserve_server::start(config, models).await.unwrap();
+    server.wait_ready(Duration::from_secs(60)).await.unwrap();
     let python = venv(root).await;
     let url = format!("http://{}", server.http_addr);
     let tests = run(
         Command::new(&python)
             .args(["-m", "unittest", "discover", "-v", "-s"])
             .arg(root.join("clients/python/tests"))
-            .env("DYNASERVE_HTTP", &url),
+            .env("DYNASERVE_HTTP", &url)
+            .env("DYNASERVE_GRPC", server.grpc_addr.to_string()),
         "python client tests",
     )
     .await;

@@ -1,5 +1,6 @@
 """Tests of the Python client against a real server whose HTTP address is in DYNASERVE_HTTP
-(started by the workspace test `tests/python_client.rs`)."""
+(started by the workspace test `tests/python_client.rs`; it serves one RigidFormer model,
+which calls naming no model reach, beside a PhysiFormer model)."""
 
 import os
 import unittest
@@ -23,7 +24,7 @@ class ClientTest(unittest.TestCase):
 
     def test_rollout_session_and_predict_agree(self):
         models = self.c.list_models()
-        self.assertEqual(len(models), 1)
+        self.assertEqual([m["architecture"] for m in models].count("rigidformer"), 1)
         frames = list(self.c.rollout(bodies(), steps=6))
         self.assertEqual([f.step for f in frames], list(range(1, 7)))
         self.assertEqual(frames[0].poses.shape, (2, 7))
