@@ -88,8 +88,8 @@ _HTTP_STATUS = {
 _MATERIALS = {"rigid": pb.MATERIAL_RIGID, "elastic": pb.MATERIAL_ELASTIC}
 _SAMPLERS = {"heun": pb.SAMPLER_HEUN, "euler": pb.SAMPLER_EULER}
 
-Scene = Union[Sequence[Body], pb.Scene]
-"""A rigid scene: bodies, or a ready ``dynaserve.v1.Scene`` message."""
+Scene = Union[Sequence[Body], Mapping[str, Any], pb.Scene]
+"""A rigid scene: bodies, the HTTP API's ``Scene`` JSON document, or a ``dynaserve.v1.Scene``."""
 Metadata = List[Tuple[str, str]]
 
 
@@ -184,10 +184,52 @@ def object_spec(b: Body) -> pb.ObjectSpec:
     return o
 
 
+def _pose_doc_pb(d: Mapping[str, Any]) -> pb.Pose:
+    return pose_pb(list(d["translation"]) + list(d.get("rotation", [0.0, 0.0, 0.0, 1.0])))
+
+
+def object_doc_pb(d: Mapping[str, Any]) -> pb.ObjectSpec:
+    """An ``ObjectSpec`` JSON document of the HTTP API (``points`` ``[[x, y, z], ...]`` or a
+    ``mesh``; ``pose``; ``velocity`` or ``previous_pose``; ``mass``, ``friction``,
+    ``restitution``) as an ``ObjectSpec`` message. A key the format does not have raises
+    ``KeyError`` rather than being dropped."""
+    known = {"points", "mesh", "pose", "previous_pose", "velocity", "mass", "friction", "restitution"}
+    unknown = set(d) - known
+    if unknown:
+        raise KeyError(f"unknown object keys {sorted(unknown)}; expected some of {sorted(known)}")
+    o = pb.ObjectSpec(
+        pose=_pose_doc_pb(d["pose"]),
+        mass=float(d["mass"]),
+        friction=float(d.get("friction", 0.0)),
+        restitution=float(d.get("restitution", 0.0)),
+    )
+    if "points" in d:
+        o.points.CopyFrom(pb.PointCloud(xyz=np.asarray(d["points"], dtype=float).reshape(-1).tolist()))
+    if "mesh" in d:
+        m = d["mesh"]
+        o.mesh.CopyFrom(
+            pb.TriangleMesh(
+                vertices=np.asarray(m["vertices"], dtype=float).reshape(-1).tolist(),
+                faces=[int(k) for k in np.asarray(m.get("faces", []), dtype=np.int64).reshape(-1)],
+                samples=int(m.get("samples", 0)),
+                seed=int(m.get("seed", 0)),
+            )
+        )
+    if "velocity" in d:
+        v = d["velocity"]
+        o.velocity.CopyFrom(_velocity(list(v.get("linear", [0.0] * 3)) + list(v.get("angular", [0.0] * 3))))
+    if "previous_pose" in d:
+        o.previous_pose.CopyFrom(_pose_doc_pb(d["previous_pose"]))
+    return o
+
+
 def scene_pb(scene: Scene) -> pb.Scene:
-    """Bodies (or a ready ``Scene`` message) as a ``Scene`` message."""
+    """Bodies, a ``Scene`` JSON document of the HTTP API (e.g. the ``scene`` of a file in
+    ``examples/scenes/``) or a ready ``Scene`` message, as a ``Scene`` message."""
     if isinstance(scene, pb.Scene):
         return scene
+    if isinstance(scene, Mapping):
+        return pb.Scene(objects=[object_doc_pb(o) for o in scene["objects"]])
     return pb.Scene(objects=[object_spec(b) for b in scene])
 
 

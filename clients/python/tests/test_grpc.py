@@ -4,7 +4,9 @@ a RigidFormer and a PhysiFormer model). Each answer is checked against the same 
 the other transport or the other call that must agree with it."""
 
 import asyncio
+import json
 import os
+import pathlib
 import unittest
 
 import numpy as np
@@ -28,6 +30,8 @@ def pusher_path(steps):
     path[:, 0] += 0.02 * np.arange(1, steps + 1)
     return path
 
+
+SCENES = pathlib.Path(__file__).resolve().parents[3] / "examples" / "scenes"
 
 CUBE = np.array([[x, y, z] for x in (-0.15, 0.15) for y in (-0.15, 0.15) for z in (-0.15, 0.15)])
 
@@ -75,6 +79,13 @@ class GrpcTest(unittest.TestCase):
         self.assertEqual(p.shape, (2, 3, 2, 7))
         np.testing.assert_allclose(p, self.h.predict([bodies(), moved], steps=6, every=2), atol=1e-6)
         np.testing.assert_allclose(p[0, -1], frames[-1].poses, atol=1e-6)
+        # A scene file's JSON document (meshes sampled by the server) goes over gRPC as well.
+        with open(SCENES / "collision.json") as f:
+            doc = json.load(f)["scene"]
+        frames = list(self.g.rollout(doc, steps=4))
+        self.assertEqual(frames[0].poses.shape, (len(doc["objects"]), 7))
+        assert_frames_equal(self, frames, list(self.h.rollout(doc, steps=4)))
+        self.assertGreater(np.abs(frames[-1].poses[0, :3] - doc["objects"][0]["pose"]["translation"]).max(), 0.1)
 
     def test_session_fork_step_state_predict_delete(self):
         s = self.g.create_session(bodies(), kinematic=[1])
