@@ -2,8 +2,8 @@
 //! checkpoints (the RigidFormer and the shipped PhysiFormer): the test makes a virtual
 //! environment under `target/`, installs the package with pip together with its `grpc` extra
 //! (grpcio, protobuf) and its `stubs` extra (the pinned grpcio-tools that checks the committed
-//! stubs), runs the package's own tests over HTTP and gRPC and the push planner example with a
-//! small budget, whose plans are replayed in rapier by this build's `dynaserve sim replay`.
+//! stubs), runs the package's own tests over HTTP and gRPC and the push planner example over each
+//! with a small budget, whose plans are replayed in rapier by this build's `dynaserve sim replay`.
 
 mod common;
 
@@ -79,37 +79,41 @@ async fn python_client_tests_and_push_planner_run_against_a_real_server() {
     .await;
     println!("{tests}");
     assert!(tests.contains("OK"), "{tests}");
-    let planner = run(
-        Command::new(&python)
-            .arg(root.join("clients/python/examples/push_planner.py"))
-            .args([
-                "--server",
-                &url,
-                "--rounds",
-                "2",
-                "--samples",
-                "16",
-                "--iterations",
-                "1",
-                "--dynaserve",
-                env!("CARGO_BIN_EXE_dynaserve"),
-            ]),
-        "push planner",
-    )
-    .await;
-    println!("{planner}");
-    assert!(planner.contains("final distance to the goal"), "{planner}");
-    // Both executed pusher paths were replayed in rapier: two finite distances in metres.
-    let line = planner
-        .lines()
-        .find(|l| l.contains("(rapier replay)"))
-        .unwrap_or_else(|| panic!("no rapier replay in:\n{planner}"));
-    let metres: Vec<f64> = line
-        .split_whitespace()
-        .filter_map(|w| w.trim_end_matches(',').parse().ok())
-        .collect();
-    assert_eq!(metres.len(), 2, "{line}");
-    assert!(metres.iter().all(|d| d.is_finite() && *d >= 0.0), "{line}");
+    // The push planner over each transport, with a small budget.
+    let grpc = server.grpc_addr.to_string();
+    for (flag, address) in [("--server", url.as_str()), ("--grpc", grpc.as_str())] {
+        let planner = run(
+            Command::new(&python)
+                .arg(root.join("clients/python/examples/push_planner.py"))
+                .args([
+                    flag,
+                    address,
+                    "--rounds",
+                    "2",
+                    "--samples",
+                    "16",
+                    "--iterations",
+                    "1",
+                    "--dynaserve",
+                    env!("CARGO_BIN_EXE_dynaserve"),
+                ]),
+            "push planner",
+        )
+        .await;
+        println!("{planner}");
+        assert!(planner.contains("final distance to the goal"), "{planner}");
+        // Both executed pusher paths were replayed in rapier: two finite distances in metres.
+        let line = planner
+            .lines()
+            .find(|l| l.contains("(rapier replay)"))
+            .unwrap_or_else(|| panic!("no rapier replay in:\n{planner}"));
+        let metres: Vec<f64> = line
+            .split_whitespace()
+            .filter_map(|w| w.trim_end_matches(',').parse().ok())
+            .collect();
+        assert_eq!(metres.len(), 2, "{line}");
+        assert!(metres.iter().all(|d| d.is_finite() && *d >= 0.0), "{line}");
+    }
     server.shutdown();
     server.wait().await.unwrap();
 }

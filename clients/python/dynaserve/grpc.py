@@ -478,6 +478,8 @@ class _Base:
         self.step_timeout = step_timeout
         self.affinity = affinity or secrets.token_hex(8)
         self._root_certificates = root_certificates
+        self.last_request_bytes = 0
+        """Encoded size of the last unary request, bytes (the planner's bandwidth figure)."""
         self.metadata: Metadata = [(AFFINITY_HEADER, self.affinity)]
         if token:
             self.metadata.append(("authorization", f"Bearer {token}"))
@@ -531,6 +533,7 @@ class GrpcClient(_Base):
         self.close()
 
     def _unary(self, method: Any, request: Any, timeout: Optional[float] = None) -> Any:
+        self.last_request_bytes = request.ByteSize()
         try:
             return method(request, timeout=timeout or self.timeout, metadata=self.metadata)
         except grpc.RpcError as e:
@@ -922,6 +925,7 @@ class AsyncGrpcClient(_Base):
         await self.close()
 
     async def _unary(self, method: Any, request: Any, timeout: Optional[float] = None) -> Any:
+        self.last_request_bytes = request.ByteSize()
         try:
             return await method(request, timeout=timeout or self.timeout, metadata=self.metadata)
         except grpc.aio.AioRpcError as e:

@@ -12,6 +12,7 @@ the ground truth, where both executed pusher paths are replayed in rapier by
 ``target/release`` or ``target/debug``, else on ``PATH``).
 
     python examples/push_planner.py --server http://127.0.0.1:8080
+    python examples/push_planner.py --grpc 127.0.0.1:50051     # the same over gRPC
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ import shutil
 import subprocess
 import tempfile
 import time
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
@@ -91,7 +92,8 @@ def replay(binary: str, bodies, path: np.ndarray, dt_frame: float) -> np.ndarray
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--server", default="http://127.0.0.1:8080")
+    ap.add_argument("--server", default="http://127.0.0.1:8080", help="the server's HTTP address")
+    ap.add_argument("--grpc", help="plan over gRPC at this host:port instead (needs the grpc extra)")
     ap.add_argument("--goal", type=float, nargs=2, default=[0.35, 0.15], help="goal of the box, m")
     ap.add_argument("--rounds", type=int, default=8, help="planning rounds")
     ap.add_argument("--horizon", type=int, default=10, help="steps looked ahead")
@@ -104,8 +106,15 @@ def main() -> None:
     args = ap.parse_args()
     binary = find_dynaserve(args.dynaserve)
     rng = np.random.default_rng(args.seed)
-    client = Client(args.server)
-    dt_frame = client.list_models()[0]["dt_frame"]
+    client: Any
+    if args.grpc:
+        from dynaserve.grpc import GrpcClient
+
+        client = GrpcClient(args.grpc)
+    else:
+        client = Client(args.server)
+    # The session's model: the one RigidFormer (a PhysiFormer may be resident beside it).
+    dt_frame = next(m for m in client.list_models() if m["architecture"] == "rigidformer")["dt_frame"]
     goal = np.array(args.goal)
     bodies = scene(args.seed)
     session = client.create_session(bodies, kinematic=[PUSHER])
