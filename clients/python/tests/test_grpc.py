@@ -239,6 +239,23 @@ class GrpcTest(unittest.TestCase):
         self.assertEqual([next(stream).step, next(stream).step], [1, 2])
         stream.cancel()
         self.assertEqual(list(stream), [])
+        # While one loop holds a session, another caller's step cannot run: its own deadline
+        # ends the wait (the loop's step_timeout, a Step's timeout), and the holder goes on.
+        s = self.g.create_session(bodies(), kinematic=[1])
+        with s.interact() as held:
+            held.step()
+            impatient = GrpcClient(os.environ["DYNASERVE_GRPC"], step_timeout=0.5)
+            waiting = impatient.interact(session_id=s.id)
+            with self.assertRaises(DynaserveError) as e:
+                waiting.step()
+            self.assertEqual((e.exception.status, e.exception.code), (504, "DEADLINE_EXCEEDED"))
+            with self.assertRaises(DynaserveError) as e:
+                s.step(1, timeout=0.5)
+            self.assertEqual(e.exception.code, "DEADLINE_EXCEEDED")
+            self.assertEqual(held.step().step, 2)
+            impatient.close()
+        self.assertEqual(s.state()["step"], 2)
+        s.delete()
 
     def test_async_client_equals_the_blocking_one(self):
         path = pusher_path(3)
