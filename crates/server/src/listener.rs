@@ -33,76 +33,24 @@ use tokio::sync::{Semaphore, watch};
 use tokio_rustls::TlsAcceptor;
 use tower::ServiceExt;
 
-use crate::config::{check_secs, secs};
+use crate::config::{ConnectionConfig, secs};
 use crate::metrics::Metrics;
 
-/// Connection limits and timeouts (flags of `dynaserve serve`).
-#[derive(Clone, Debug, clap::Args)]
-pub struct ConnectionConfig {
-    /// Most open connections per listener; more are closed on accept.
-    #[arg(long, env = "DYNASERVE_MAX_CONNECTIONS", default_value_t = 1024)]
-    pub max_connections: usize,
-    /// Seconds a connection may take to send a request's headers (from accept, and for HTTP/1
-    /// between requests: idle keep-alive connections close after it); 0 disables.
-    #[arg(long, env = "DYNASERVE_HEADER_READ_TIMEOUT_S", default_value_t = 10.0)]
-    pub header_read_timeout_s: f64,
-    /// Seconds a request body may pause between two chunks before the request fails with 408
-    /// (HTTP) and the connection closes; 0 disables.
-    #[arg(long, env = "DYNASERVE_BODY_READ_TIMEOUT_S", default_value_t = 30.0)]
-    pub body_read_timeout_s: f64,
-    /// Seconds between HTTP/2 keep-alive pings; 0 disables.
-    #[arg(
-        long,
-        env = "DYNASERVE_HTTP2_KEEPALIVE_INTERVAL_S",
-        default_value_t = 30.0
-    )]
-    pub http2_keepalive_interval_s: f64,
-    /// Seconds to wait for a keep-alive ping's answer before closing the connection.
-    #[arg(
-        long,
-        env = "DYNASERVE_HTTP2_KEEPALIVE_TIMEOUT_S",
-        default_value_t = 10.0
-    )]
-    pub http2_keepalive_timeout_s: f64,
-}
-
-impl ConnectionConfig {
-    /// Checks the flags for values that cannot work.
-    pub fn validate(&self) -> Result<(), String> {
-        if self.max_connections == 0 {
-            return Err("--max-connections must be at least 1".into());
-        }
-        check_secs("--header-read-timeout-s", self.header_read_timeout_s)?;
-        check_secs("--body-read-timeout-s", self.body_read_timeout_s)?;
-        check_secs(
-            "--http2-keepalive-interval-s",
-            self.http2_keepalive_interval_s,
-        )?;
-        check_secs(
-            "--http2-keepalive-timeout-s",
-            self.http2_keepalive_timeout_s,
-        )
+/// The connection builder of both listeners: HTTP/1 header read timeout, HTTP/2 keep-alive
+/// pings as `config` sets them.
+fn builder(config: &ConnectionConfig) -> Builder<TokioExecutor> {
+    let mut b = Builder::new(TokioExecutor::new());
+    b.http1()
+        .timer(TokioTimer::new())
+        .header_read_timeout(secs(config.header_read_timeout_s));
+    let mut h2 = b.http2();
+    h2.timer(TokioTimer::new());
+    if let Some(every) = secs(config.http2_keepalive_interval_s) {
+        h2.keep_alive_interval(every).keep_alive_timeout(
+            secs(config.http2_keepalive_timeout_s).unwrap_or(Duration::from_secs(10)),
+        );
     }
-
-    /// `body_read_timeout_s` as a duration; `None` when disabled.
-    pub fn body_read_timeout(&self) -> Option<Duration> {
-        secs(self.body_read_timeout_s)
-    }
-
-    fn builder(&self) -> Builder<TokioExecutor> {
-        let mut b = Builder::new(TokioExecutor::new());
-        b.http1()
-            .timer(TokioTimer::new())
-            .header_read_timeout(secs(self.header_read_timeout_s));
-        let mut h2 = b.http2();
-        h2.timer(TokioTimer::new());
-        if let Some(every) = secs(self.http2_keepalive_interval_s) {
-            h2.keep_alive_interval(every).keep_alive_timeout(
-                secs(self.http2_keepalive_timeout_s).unwrap_or(Duration::from_secs(10)),
-            );
-        }
-        b
-    }
+    b
 }
 
 /// Pause after an accept error before accepting again.
@@ -119,7 +67,7 @@ pub async fn serve(
     metrics: Metrics,
     mut stop: watch::Receiver<bool>,
 ) {
-    let builder = Arc::new(config.builder());
+    let builder = Arc::new(builder(&config));
     let slots = Arc::new(Semaphore::new(config.max_connections));
     let first_request = secs(config.header_read_timeout_s);
     let graceful = GracefulShutdown::new();

@@ -34,7 +34,7 @@ pub use generate::{GenerateHandle, GeneratorEntry};
 pub use registry::ModelEntry;
 pub use request::{Protocol, RequestCtx, new_request_id};
 pub use rollout::RolloutHandle;
-pub use sessions::{InteractHandle, SessionConfig, StepHandle};
+pub use sessions::{InteractHandle, StepHandle};
 
 use crate::config::ServeConfig;
 use crate::error::ApiError;

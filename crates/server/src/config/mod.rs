@@ -4,12 +4,24 @@
 //! on `127.0.0.1:50051` and HTTP on `127.0.0.1:8080`, without authentication. Binding another
 //! address needs bearer tokens (`--auth-token-file` or `DYNASERVE_AUTH_TOKENS`) or an explicit
 //! `--allow-unauthenticated`.
+//!
+//! The flag groups that [`ServeConfig`] gathers live beside it: [`ConnectionConfig`] (the
+//! listeners' limits and timeouts) and [`SessionConfig`] (the session store's caps); the
+//! authentication and TLS flags are `crate::security::SecurityConfig`.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 
 use dynaserve_api::limits::{Caps, GenerateCaps};
+
+mod connections;
+mod seconds;
+mod sessions;
+
+pub use connections::ConnectionConfig;
+pub(crate) use seconds::secs;
+pub use sessions::SessionConfig;
 
 /// Default gRPC listen address.
 pub const DEFAULT_GRPC_ADDR: &str = "127.0.0.1:50051";
@@ -109,14 +121,14 @@ pub struct ServeConfig {
 
     /// Connection limits and timeouts of both listeners.
     #[command(flatten)]
-    pub connections: crate::listener::ConnectionConfig,
+    pub connections: ConnectionConfig,
     /// Authentication, TLS and the browser (CORS) policy.
     #[command(flatten)]
     pub security: crate::security::SecurityConfig,
 
     /// Sessions: how many, how much memory, how long they live idle.
     #[command(flatten)]
-    pub sessions: crate::engine::SessionConfig,
+    pub sessions: SessionConfig,
 
     /// On SIGTERM or Ctrl-C: how long running rollouts may continue, seconds, before they are
     /// closed with UNAVAILABLE.
@@ -250,25 +262,6 @@ impl ServeConfig {
         self.connections.validate()?;
         self.sessions.validate()?;
         self.security.validate(&[self.grpc_addr, self.http_addr])
-    }
-}
-
-/// A non-negative number of seconds as a duration; `None` for 0 (disabled). Callers validate
-/// first; out-of-range values are clamped to a day.
-pub(crate) fn secs(s: f64) -> Option<Duration> {
-    if s.is_finite() && s > 0.0 {
-        Some(Duration::from_secs_f64(s.min(86_400.0)))
-    } else {
-        None
-    }
-}
-
-/// Checks that a seconds flag is a finite number >= 0.
-pub(crate) fn check_secs(name: &str, s: f64) -> Result<(), String> {
-    if s.is_finite() && s >= 0.0 {
-        Ok(())
-    } else {
-        Err(format!("{name} must be a finite number >= 0"))
     }
 }
 

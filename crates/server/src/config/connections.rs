@@ -1,0 +1,60 @@
+//! Flags of the listeners: the cap on open connections and the connection timeouts (enforced
+//! by `crate::listener`).
+
+use std::time::Duration;
+
+use super::seconds::{check_secs, secs};
+
+/// Connection limits and timeouts (flags of `dynaserve serve`).
+#[derive(Clone, Debug, clap::Args)]
+pub struct ConnectionConfig {
+    /// Most open connections per listener; more are closed on accept.
+    #[arg(long, env = "DYNASERVE_MAX_CONNECTIONS", default_value_t = 1024)]
+    pub max_connections: usize,
+    /// Seconds a connection may take to send a request's headers (from accept, and for HTTP/1
+    /// between requests: idle keep-alive connections close after it); 0 disables.
+    #[arg(long, env = "DYNASERVE_HEADER_READ_TIMEOUT_S", default_value_t = 10.0)]
+    pub header_read_timeout_s: f64,
+    /// Seconds a request body may pause between two chunks before the request fails with 408
+    /// (HTTP) and the connection closes; 0 disables.
+    #[arg(long, env = "DYNASERVE_BODY_READ_TIMEOUT_S", default_value_t = 30.0)]
+    pub body_read_timeout_s: f64,
+    /// Seconds between HTTP/2 keep-alive pings; 0 disables.
+    #[arg(
+        long,
+        env = "DYNASERVE_HTTP2_KEEPALIVE_INTERVAL_S",
+        default_value_t = 30.0
+    )]
+    pub http2_keepalive_interval_s: f64,
+    /// Seconds to wait for a keep-alive ping's answer before closing the connection.
+    #[arg(
+        long,
+        env = "DYNASERVE_HTTP2_KEEPALIVE_TIMEOUT_S",
+        default_value_t = 10.0
+    )]
+    pub http2_keepalive_timeout_s: f64,
+}
+
+impl ConnectionConfig {
+    /// Checks the flags for values that cannot work.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.max_connections == 0 {
+            return Err("--max-connections must be at least 1".into());
+        }
+        check_secs("--header-read-timeout-s", self.header_read_timeout_s)?;
+        check_secs("--body-read-timeout-s", self.body_read_timeout_s)?;
+        check_secs(
+            "--http2-keepalive-interval-s",
+            self.http2_keepalive_interval_s,
+        )?;
+        check_secs(
+            "--http2-keepalive-timeout-s",
+            self.http2_keepalive_timeout_s,
+        )
+    }
+
+    /// `body_read_timeout_s` as a duration; `None` when disabled.
+    pub fn body_read_timeout(&self) -> Option<Duration> {
+        secs(self.body_read_timeout_s)
+    }
+}
