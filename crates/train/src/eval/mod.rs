@@ -54,7 +54,6 @@ pub mod report;
 mod results;
 pub mod scenario_figures;
 mod scoring;
-pub mod suite_cli;
 mod table;
 
 pub use baselines::{Ballistic, Static};

@@ -6,10 +6,10 @@ use std::sync::Arc;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use super::physics_report::{format_physics_markdown, format_physics_text};
-use super::physics_suite::{SuiteOptions, generate_suite, load_suite, run_suite};
-use super::{Ballistic, ModelPredictor, PointSelection, Predictor, Static, driven};
-use crate::cli::{BaselineKind, EvalArgs};
+use super::args::{BaselineKind, EvalArgs};
+use crate::eval::physics_report::{format_physics_markdown, format_physics_text};
+use crate::eval::physics_suite::{SuiteOptions, generate_suite, load_suite, run_suite};
+use crate::eval::{Ballistic, ModelPredictor, PointSelection, Predictor, Static, driven};
 
 /// Reference points per object of generated suite scenes (as in the datasets).
 const SUITE_POINTS: usize = 1024;
