@@ -67,28 +67,33 @@ impl Family for RigidSteps {
     /// the pass; the others go through one [`WorldModel::step`].
     fn run(&self, items: &[&SceneStep]) -> Result<Vec<Result<Vec<Pose>, String>>, String> {
         let problems: Vec<Option<String>> = items.iter().map(|s| state_problem(&s.state)).collect();
-        if problems.iter().any(Option::is_some) {
-            let good: Vec<&SceneStep> = items
-                .iter()
-                .zip(&problems)
-                .filter(|(_, p)| p.is_none())
-                .map(|(s, _)| *s)
-                .collect();
-            let mut out = if good.is_empty() {
-                Vec::new().into_iter()
-            } else {
-                self.run(&good)?.into_iter()
-            };
-            return Ok(problems
-                .into_iter()
-                .map(|p| match p {
-                    Some(msg) => Err(msg),
-                    None => out
-                        .next()
-                        .unwrap_or_else(|| Err("model returned too few scenes".to_string())),
-                })
-                .collect());
-        }
+        let usable: Vec<&SceneStep> = items
+            .iter()
+            .zip(&problems)
+            .filter(|(_, p)| p.is_none())
+            .map(|(s, _)| *s)
+            .collect();
+        let mut out = if usable.is_empty() {
+            Vec::new().into_iter()
+        } else {
+            self.step_pass(&usable)?.into_iter()
+        };
+        Ok(problems
+            .into_iter()
+            .map(|p| match p {
+                Some(msg) => Err(msg),
+                None => out
+                    .next()
+                    .unwrap_or_else(|| Err("model returned too few scenes".to_string())),
+            })
+            .collect())
+    }
+}
+
+impl RigidSteps {
+    /// One [`WorldModel::step`] over `items` (every state usable); each scene's output is
+    /// checked to hold one pose per object.
+    fn step_pass(&self, items: &[&SceneStep]) -> Result<Vec<Result<Vec<Pose>, String>>, String> {
         let batch: Vec<StepItem<'_>> = items
             .iter()
             .map(|s| StepItem {
