@@ -1,0 +1,275 @@
+//! Bad input over both protocols is refused naming the field while a good stream runs on.
+
+use std::time::{Duration, Instant};
+
+use crate::common::*;
+use dynaserve_api::json;
+use dynaserve_api::v1;
+use futures::StreamExt;
+use tonic::Code;
+
+/// Every bad input is refused with INVALID_ARGUMENT / 422 naming the field, while a good
+/// stream keeps running next to them.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn invalid_inputs_are_refused_naming_the_field_while_others_are_served() {
+    let m = test_model();
+    let server = start(&m.dir, |c| {
+        c.max_objects = 8;
+        c.max_points_per_object = 100;
+        c.max_steps = 500;
+        c.max_dt_steps = 4;
+        c.max_request_bytes = 64 * 1024;
+    })
+    .await;
+    let model = load(&m.dir);
+    let good = rollout_request(&m.name, scene(11, 2, 32), 150);
+    let expected = in_process(&*model, &good);
+    let mut c = client(&server).await;
+    let mut running = c.rollout(&good).await.unwrap();
+    let mut frames = vec![running.frames.next().await.unwrap().unwrap()];
+
+    let base = rollout_request(&m.name, scene(12, 2, 32), 5);
+    type Edit = Box<dyn Fn(&mut json::RolloutRequest)>;
+    let o = |f: fn(&mut json::ObjectSpec)| -> Edit {
+        Box::new(move |r: &mut json::RolloutRequest| f(&mut r.scene.objects[1]))
+    };
+    let cases: Vec<(&str, Edit, &str)> = vec![
+        (
+            "unknown model",
+            Box::new(|r| r.model = "nope".into()),
+            "model",
+        ),
+        ("zero steps", Box::new(|r| r.steps = 0), "steps"),
+        ("too many steps", Box::new(|r| r.steps = 501), "steps"),
+        ("bad step size", Box::new(|r| r.dt_steps = 5), "dt_steps"),
+        (
+            "no objects",
+            Box::new(|r| r.scene.objects.clear()),
+            "scene.objects",
+        ),
+        (
+            "too many objects",
+            Box::new(|r| r.scene.objects = vec![r.scene.objects[0].clone(); 9]),
+            "scene.objects",
+        ),
+        (
+            "empty cloud",
+            o(|o| o.points = Some(vec![])),
+            "scene.objects[1].points",
+        ),
+        (
+            "oversized cloud",
+            o(|o| o.points = Some(vec![[0.1, 0.0, 0.0]; 101])),
+            "scene.objects[1].points",
+        ),
+        (
+            "infinite point",
+            o(|o| o.points.as_mut().unwrap()[3][2] = f32::INFINITY),
+            "scene.objects[1].points[3]",
+        ),
+        (
+            "non-unit quaternion",
+            o(|o| o.pose.rotation = [0.0, 0.0, 0.5, 0.5]),
+            "scene.objects[1].pose.rotation",
+        ),
+        (
+            "zero quaternion",
+            o(|o| o.pose.rotation = [0.0; 4]),
+            "scene.objects[1].pose.rotation",
+        ),
+        (
+            "infinite translation",
+            o(|o| o.pose.translation[0] = f32::INFINITY),
+            "scene.objects[1].pose.translation",
+        ),
+        ("zero mass", o(|o| o.mass = 0.0), "scene.objects[1].mass"),
+        ("huge mass", o(|o| o.mass = 1e9), "scene.objects[1].mass"),
+        (
+            "negative friction",
+            o(|o| o.friction = -0.1),
+            "scene.objects[1].friction",
+        ),
+        (
+            "restitution above 1",
+            o(|o| o.restitution = 1.5),
+            "scene.objects[1].restitution",
+        ),
+        (
+            "absurd speed",
+            o(|o| o.velocity.as_mut().unwrap().linear[0] = 1e7),
+            "scene.objects[1].velocity.linear",
+        ),
+        (
+            // (HTTP only: a protobuf oneof cannot carry both)
+            "two motions",
+            o(|o| o.previous_pose = Some(o.pose)),
+            "scene.objects[1]",
+        ),
+        (
+            "bad mesh face",
+            o(|o| {
+                o.points = None;
+                o.mesh = Some(json::TriangleMesh {
+                    vertices: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+                    faces: vec![[0, 1, 7]],
+                    samples: 16,
+                    seed: 0,
+                });
+            }),
+            "scene.objects[1].mesh.faces[0]",
+        ),
+        (
+            "payload too large",
+            o(|o| {
+                // Vertex counts are limited only by the payload size: 8000 vertices are
+                // ~96 KB as protobuf and ~300 KB as JSON, over the 64 KiB limit.
+                o.points = None;
+                o.mesh = Some(json::TriangleMesh {
+                    vertices: (0..8000)
+                        .map(|k| [1e-4 * k as f32, 0.123_456_7, -0.234_567_8])
+                        .collect(),
+                    faces: vec![[0, 1, 2]],
+                    samples: 16,
+                    seed: 0,
+                });
+            }),
+            "request",
+        ),
+    ];
+    for (what, edit, field) in &cases {
+        let mut bad = base.clone();
+        edit(&mut bad);
+        let is_payload = *field == "request";
+        // gRPC
+        let grpc_can_express = *what != "two motions";
+        if grpc_can_express && (!is_payload || bad.to_proto().encoded_len_ok(64 * 1024)) {
+            match c.rollout(&bad).await {
+                Ok(_) => panic!("{what}: accepted over gRPC"),
+                Err(dynaserve_client::ClientError::Status(s)) => {
+                    assert_eq!(s.code(), Code::InvalidArgument, "{what}: {s:?}");
+                    assert!(
+                        s.message().starts_with(&format!("{field}:")),
+                        "{what}: message {:?} does not name {field}",
+                        s.message()
+                    );
+                }
+                Err(e) => panic!("{what}: {e}"),
+            }
+        }
+        // HTTP (JSON cannot carry infinities: send a number that overflows f32 instead)
+        let mut body = serde_json::to_string(&bad).unwrap();
+        body = body.replace("null", "1e39");
+        let resp = http(
+            server.http_addr,
+            "POST",
+            "/v1/rollout",
+            &[],
+            Some(body.as_bytes()),
+        )
+        .await;
+        assert_eq!(resp.status, 422, "{what}: {}", resp.text());
+        let e: json::ErrorResponse = resp.json();
+        assert_eq!(e.error.code, "INVALID_ARGUMENT");
+        assert_eq!(
+            e.error.field.as_deref(),
+            Some(*field),
+            "{what}: {}",
+            e.error.message
+        );
+    }
+    // NaN can only be sent over gRPC.
+    let mut nan = base.clone().to_proto();
+    nan.scene.as_mut().unwrap().objects[0].mass = f32::NAN;
+    let s = dynaserve_api::v1::world_model_client::WorldModelClient::connect(format!(
+        "http://{}",
+        server.grpc_addr
+    ))
+    .await
+    .unwrap()
+    .rollout(nan)
+    .await
+    .err()
+    .unwrap();
+    assert_eq!(s.code(), Code::InvalidArgument);
+    assert!(
+        s.message().starts_with("scene.objects[0].mass:"),
+        "{}",
+        s.message()
+    );
+    // A malformed flat cloud and malformed JSON name their fields too.
+    let mut flat = base.clone().to_proto();
+    if let Some(v1::object_spec::Shape::Points(p)) =
+        &mut flat.scene.as_mut().unwrap().objects[1].shape
+    {
+        p.xyz.pop();
+    }
+    let s = dynaserve_api::v1::world_model_client::WorldModelClient::connect(format!(
+        "http://{}",
+        server.grpc_addr
+    ))
+    .await
+    .unwrap()
+    .rollout(flat)
+    .await
+    .err()
+    .unwrap();
+    assert!(
+        s.message().starts_with("scene.objects[1].points.xyz:"),
+        "{}",
+        s.message()
+    );
+    let mut body = serde_json::to_value(&base).unwrap();
+    body["scene"]["objects"][1]["mass"] = serde_json::json!("heavy");
+    let resp = post_json(server.http_addr, "/v1/rollout", &body).await;
+    assert_eq!(resp.status, 422);
+    let e: json::ErrorResponse = resp.json();
+    assert_eq!(e.error.field.as_deref(), Some("scene.objects[1].mass"));
+    let mut body = serde_json::to_value(&base).unwrap();
+    body["scene"]["objects"][0]["colour"] = serde_json::json!("red");
+    let resp = post_json(server.http_addr, "/v1/rollout", &body).await;
+    assert_eq!(resp.status, 422);
+    // Predict variants are named by index.
+    let mut p = json::PredictRequest {
+        model: m.name.clone(),
+        variants: vec![scene(1, 1, 16), scene(2, 1, 16)],
+        steps: 2,
+        dt_steps: 1,
+        every: 0,
+        timeout_ms: 0,
+    };
+    p.variants[1].objects[0].restitution = -1.0;
+    let resp = post_json(server.http_addr, "/v1/predict", &p).await;
+    let e: json::ErrorResponse = resp.json();
+    assert_eq!(
+        e.error.field.as_deref(),
+        Some("variants[1].objects[0].restitution")
+    );
+
+    // The good stream ran on, undisturbed.
+    while let Some(f) = running.frames.next().await {
+        frames.push(f.unwrap());
+    }
+    assert!(max_diff(&frames, &expected) <= 1e-5);
+    let text = metrics(&server).await;
+    let failures = sample(
+        &text,
+        "dynaserve_request_failures_total{method=\"rollout\",protocol=\"http\",reason=\"invalid_argument\"}",
+    )
+    .unwrap();
+    assert!(failures >= cases.len() as f64);
+    server.shutdown();
+    server.wait().await.unwrap();
+}
+
+trait EncodedLenOk {
+    fn encoded_len_ok(&self, limit: usize) -> bool;
+}
+
+impl EncodedLenOk for v1::RolloutRequest {
+    /// True when the message is over the server's limit but under tonic's hard cap (4x),
+    /// i.e. when the server itself reports the size.
+    fn encoded_len_ok(&self, limit: usize) -> bool {
+        let n = prost::Message::encoded_len(self);
+        n > limit && n <= 4 * limit
+    }
+}
