@@ -5,7 +5,6 @@ use std::time::{Duration, Instant};
 
 use crate::common::*;
 use dynaserve_api::json;
-use dynaserve_api::v1;
 use futures::StreamExt;
 use tonic::Code;
 

@@ -1,12 +1,7 @@
 //! The example scene files run through the client library, HTTP and the command line.
 
-use std::time::{Duration, Instant};
-
 use crate::common::*;
 use dynaserve_api::json;
-use dynaserve_api::v1;
-use futures::StreamExt;
-use tonic::Code;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn example_scenes_run_through_the_client_library_http_and_the_cli() {

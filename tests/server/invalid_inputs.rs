@@ -1,7 +1,5 @@
 //! Bad input over both protocols is refused naming the field while a good stream runs on.
 
-use std::time::{Duration, Instant};
-
 use crate::common::*;
 use dynaserve_api::json;
 use dynaserve_api::v1;

@@ -1,13 +1,8 @@
 //! The Prometheus exposition: every family listed before the first request, in valid text
 //! format; health and model listing.
 
-use std::time::{Duration, Instant};
-
 use crate::common::*;
 use dynaserve_api::json;
-use dynaserve_api::v1;
-use futures::StreamExt;
-use tonic::Code;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn metrics_are_listed_before_the_first_request_and_parse() {

@@ -1,13 +1,9 @@
 //! Rollouts over gRPC, HTTP JSON and Server-Sent Events, alone, concurrent and as Predict
 //! calls, each equal to the in-process rollout of the same scene.
 
-use std::time::{Duration, Instant};
-
 use crate::common::*;
 use dynaserve_api::json;
-use dynaserve_api::v1;
 use futures::StreamExt;
-use tonic::Code;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn grpc_stream_of_100_steps_equals_the_in_process_rollout() {
