@@ -31,7 +31,7 @@ pub use layers::Mode;
 pub use physiformer::PhysiFormer;
 pub use prepare::{MAX_BODY_EXTENT, MAX_DT_STEPS, MAX_WORLD_EXTENT, PreparedScene, normalise_pose};
 pub use rigidformer::features::{
-    FeatureFrame, contact_velocity, object_params, raw_point_features,
+    FeatureFrame, ScenePoints, contact_velocity, object_params, raw_point_features,
 };
 pub use rigidformer::{RigidFormer, StepProfile, TrainItem, TrainOutput};
 pub use runtime::configure_compute;

@@ -1,10 +1,13 @@
 //! The per-point input features shared by the model and the trainer's normalisation fit:
-//! physical parameters, the frame features are measured from, the 12 base raw values and the
-//! optional contact velocity.
+//! physical parameters, the frame features are measured from, the 12 base raw values, the
+//! optional contact velocity, and [`ScenePoints`], the one place a scene's points are placed
+//! in the world, searched for contacts and turned into raw features.
 
-use dynaserve_geometry::{ContactSource, Point};
+use dynaserve_geometry::{ContactConfig, ContactHit, ContactSource, Point, contact_hits};
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
-use crate::config::{BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig};
+use crate::api::Pose;
+use crate::config::{BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig, ModelConfig};
 
 /// Physical parameters as the model sees them: `[ln(mass / kg), friction, restitution]`.
 pub fn object_params(mass: f32, friction: f32, restitution: f32) -> [f32; 3] {
@@ -89,5 +92,105 @@ pub fn contact_velocity(
         }
         ContactSource::Ground => increment(q).map(|v| -v),
         ContactSource::Free => [0.0; 3],
+    }
+}
+
+/// A pose as the rotation matrix and translation (metres) points are moved with.
+pub(crate) fn rotation_translation(p: &Pose) -> (Matrix3<f32>, Vector3<f32>) {
+    let [x, y, z, w] = p.rotation;
+    let q = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z));
+    (
+        q.to_rotation_matrix().into_inner(),
+        Vector3::from(p.translation),
+    )
+}
+
+/// A scene's points in the world at t and t-1, object after object, with every point's
+/// contact hit: what the raw point features of one step are measured on.
+#[derive(Clone, Debug)]
+pub struct ScenePoints {
+    /// Every point at t, `[n, 3]` metres.
+    pub world: Vec<Point>,
+    /// Every point at t-1, `[n, 3]` metres.
+    pub world_prev: Vec<Point>,
+    /// First point of each object, `[objects + 1]`.
+    pub offsets: Vec<usize>,
+    /// The contact search's result per point, `[n]` (radius and ground from the model).
+    pub contact: Vec<ContactHit>,
+}
+
+impl ScenePoints {
+    /// Places the reference cloud of each object (body frame, metres) at its `current` and
+    /// `previous` pose and runs the contact search with `cfg`'s radius and ground height.
+    pub fn new<'a>(
+        cfg: &ModelConfig,
+        references: impl IntoIterator<Item = &'a [Point]>,
+        current: &[Pose],
+        previous: &[Pose],
+    ) -> ScenePoints {
+        let mut offsets = vec![0usize];
+        let mut world = Vec::new();
+        let mut world_prev = Vec::new();
+        for ((reference, now), before) in references.into_iter().zip(current).zip(previous) {
+            let (rc, pc) = rotation_translation(now);
+            let (rp, pp) = rotation_translation(before);
+            for x in reference {
+                let xv = Vector3::from(*x);
+                let a = rc * xv + pc;
+                let b = rp * xv + pp;
+                world.push([a.x, a.y, a.z]);
+                world_prev.push([b.x, b.y, b.z]);
+            }
+            offsets.push(world.len());
+        }
+        let contact = contact_hits(
+            &world,
+            &offsets,
+            &ContactConfig {
+                radius: cfg.contact_radius,
+                ground_z: cfg.ground_z,
+            },
+        );
+        ScenePoints {
+            world,
+            world_prev,
+            offsets,
+            contact,
+        }
+    }
+
+    /// Writes the raw (unnormalised) features of point `q` of the scene into `out`: the
+    /// [`raw_point_features`] of its `reference` position (body frame, metres) and its
+    /// object's `params`, then, when `with_contact_velocity`, its [`contact_velocity`].
+    /// `out` holds [`BASE_POINT_FEATURES`] values, plus [`CONTACT_VELOCITY_FEATURES`] with
+    /// the contact velocity.
+    pub fn raw_features(
+        &self,
+        q: usize,
+        reference: Point,
+        params: [f32; 3],
+        frame: &FeatureFrame,
+        with_contact_velocity: bool,
+        out: &mut [f32],
+    ) {
+        let hit = self.contact[q];
+        out[..BASE_POINT_FEATURES].copy_from_slice(&raw_point_features(
+            hit.displacement,
+            self.world[q],
+            self.world_prev[q],
+            reference,
+            params,
+            frame,
+        ));
+        if with_contact_velocity {
+            out[BASE_POINT_FEATURES..BASE_POINT_FEATURES + CONTACT_VELOCITY_FEATURES]
+                .copy_from_slice(&contact_velocity(
+                    hit.source,
+                    q,
+                    &self.world,
+                    &self.world_prev,
+                    frame,
+                ));
+        }
     }
 }

@@ -5,13 +5,11 @@
 //! Scenes are processed in parallel with rayon; objects are laid out scene-major, and the
 //! per-point rows are packed without padding (the point MLP never sees a padding row).
 
-use dynaserve_geometry::{ContactConfig, contact_hits};
-use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+use nalgebra::Vector3;
 use rayon::prelude::*;
 
-use super::features::{FeatureFrame, contact_velocity, raw_point_features};
+use super::features::{FeatureFrame, ScenePoints, rotation_translation as rot};
 use crate::api::Pose;
-use crate::config::BASE_POINT_FEATURES;
 use crate::prepare::PreparedScene;
 use crate::{ModelConfig, ModelError};
 
@@ -79,15 +77,6 @@ pub(crate) struct BatchInputs {
     pub anchors_ref: Vec<Vec<[f64; 3]>>,
     /// Current rotation per object (for the quaternion sign of the output).
     pub current_rot: Vec<[f32; 4]>,
-}
-
-fn rot(p: &Pose) -> (Matrix3<f32>, Vector3<f32>) {
-    let [x, y, z, w] = p.rotation;
-    let q = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z));
-    (
-        q.to_rotation_matrix().into_inner(),
-        Vector3::from(p.translation),
-    )
 }
 
 /// ARoPE frequencies (radians per metre): `rope_dim / 6` per axis, log-spaced.
@@ -252,33 +241,16 @@ fn scene_chunk(
     let norm = &cfg.normalization;
     let nf = cfg.point_features();
     let with_cv = cfg.dynamics.contact_velocity;
-    // World points at t and t-1.
-    let mut offsets = Vec::with_capacity(m + 1);
-    offsets.push(0usize);
-    let mut world = Vec::with_capacity(scene.total_points());
-    let mut world_prev = Vec::with_capacity(scene.total_points());
+    // World points at t and t-1 and their contacts.
+    let points = ScenePoints::new(
+        cfg,
+        scene.objects.iter().map(|o| o.reference.as_slice()),
+        &r.current,
+        &r.previous,
+    );
+    let (world, offsets) = (&points.world, &points.offsets);
     let poses: Vec<_> = r.current.iter().map(rot).collect();
     let poses_prev: Vec<_> = r.previous.iter().map(rot).collect();
-    for (j, obj) in scene.objects.iter().enumerate() {
-        let (rc, pc) = poses[j];
-        let (rp, pp) = poses_prev[j];
-        for x in &obj.reference {
-            let xv = Vector3::from(*x);
-            let a = rc * xv + pc;
-            let b = rp * xv + pp;
-            world.push([a.x, a.y, a.z]);
-            world_prev.push([b.x, b.y, b.z]);
-        }
-        offsets.push(world.len());
-    }
-    let contact = contact_hits(
-        &world,
-        &offsets,
-        &ContactConfig {
-            radius: cfg.contact_radius,
-            ground_z: cfg.ground_z,
-        },
-    );
     let mut c = SceneChunk {
         feats: vec![0.0; scene.total_points() * nf],
         group_idx: Vec::with_capacity(m * s * g),
@@ -306,21 +278,10 @@ fn scene_chunk(
         let frame = FeatureFrame::new(&cfg.dynamics, r.dt_steps, r.current[j].translation);
         // Per-point features.
         for i in 0..n {
-            let x = obj.reference[i];
-            let w = world[base + i];
-            let wp = world_prev[base + i];
-            let hit = contact[base + i];
-            let raw = raw_point_features(hit.displacement, w, wp, x, obj.params, &frame);
             let dst = &mut c.feats[(base + i) * nf..(base + i + 1) * nf];
-            for f in 0..BASE_POINT_FEATURES {
-                dst[f] = (raw[f] - norm.mean[f]) / norm.std[f];
-            }
-            if with_cv {
-                let cv = contact_velocity(hit.source, base + i, &world, &world_prev, &frame);
-                for (k, v) in cv.iter().enumerate() {
-                    let f = BASE_POINT_FEATURES + k;
-                    dst[f] = (v - norm.mean[f]) / norm.std[f];
-                }
+            points.raw_features(base + i, obj.reference[i], obj.params, &frame, with_cv, dst);
+            for (f, v) in dst.iter_mut().enumerate() {
+                *v = (*v - norm.mean[f]) / norm.std[f];
             }
             c.point_mask[j * nmax + i] = 1.0;
         }
@@ -397,6 +358,7 @@ mod tests {
 
     use super::*;
     use crate::ObjectInput;
+    use crate::config::BASE_POINT_FEATURES;
     use crate::prepare::prepare_scene;
 
     /// 96 points on the surface of a cube of half extent 0.1 m (a 4 x 4 grid on each face).

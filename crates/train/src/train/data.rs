@@ -15,10 +15,7 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-use dynaserve_geometry::{ContactConfig, contact_hits};
-use dynaserve_model::{
-    BASE_POINT_FEATURES, FeatureFrame, contact_velocity, object_params, raw_point_features,
-};
+use dynaserve_model::{FeatureFrame, ScenePoints, object_params};
 use dynaserve_model::{
     FeatureNormalization, ModelConfig, ObjectInput, Pose, PreparedScene, SceneState, WorldModel,
 };
@@ -477,9 +474,10 @@ fn worker(
 
 /// Per-feature mean and standard deviation of the raw point features of `model` (contact
 /// displacement, per-step increment, offset from the reference cloud, `[ln mass, friction,
-/// restitution]`, then the contact velocity if the model takes it) over `c.norm_windows` augmented windows of each of the first `c.norm_scenes`
-/// scenes, computed exactly as the model computes them. Standard deviations are floored at
-/// 0.01 so constant features do not explode.
+/// restitution]`, then the contact velocity if the model takes it) over `c.norm_windows`
+/// augmented windows of each of the first `c.norm_scenes` scenes, computed by the model's own
+/// [`ScenePoints`]. Standard deviations are floored at 0.01 so constant features do not
+/// explode.
 pub fn fit_normalization(
     sources: &Sources,
     c: &DataConfig,
@@ -492,10 +490,6 @@ pub fn fit_normalization(
     let mut sq = vec![0f64; nf];
     let mut raw = vec![0f32; nf];
     let mut count = 0f64;
-    let contact_cfg = ContactConfig {
-        radius: model.contact_radius,
-        ground_z: model.ground_z,
-    };
     let scenes = sources
         .readers()
         .iter()
@@ -508,18 +502,12 @@ pub fn fit_normalization(
         for w in 0..c.norm_windows {
             let mut rng = rng_for(seed, 4, (i * 1000 + w) as u64);
             let win = sample_window(&rec, c, &mut rng, false)?;
-            let mut world = Vec::new();
-            let mut world_prev = Vec::new();
-            let mut offsets = vec![0usize];
-            for (j, o) in win.objects.iter().enumerate() {
-                let (cur, prev) = (&win.state.current[j], &win.state.previous[j]);
-                for x in &o.reference {
-                    world.push(cur.transform_point(*x));
-                    world_prev.push(prev.transform_point(*x));
-                }
-                offsets.push(world.len());
-            }
-            let contact = contact_hits(&world, &offsets, &contact_cfg);
+            let points = ScenePoints::new(
+                model,
+                win.objects.iter().map(|o| o.reference.as_slice()),
+                &win.state.current,
+                &win.state.previous,
+            );
             for (j, o) in win.objects.iter().enumerate() {
                 let params = object_params(o.mass, o.friction, o.restitution);
                 let frame = FeatureFrame::new(
@@ -527,25 +515,9 @@ pub fn fit_normalization(
                     win.dt_steps,
                     win.state.current[j].translation,
                 );
-                for (q, x) in (offsets[j]..offsets[j + 1]).zip(&o.reference) {
-                    let (wc, wp, hit) = (world[q], world_prev[q], contact[q]);
-                    raw[..BASE_POINT_FEATURES].copy_from_slice(&raw_point_features(
-                        hit.displacement,
-                        wc,
-                        wp,
-                        *x,
-                        params,
-                        &frame,
-                    ));
-                    if with_cv {
-                        raw[BASE_POINT_FEATURES..].copy_from_slice(&contact_velocity(
-                            hit.source,
-                            q,
-                            &world,
-                            &world_prev,
-                            &frame,
-                        ));
-                    }
+                let first = points.offsets[j];
+                for (q, x) in (first..points.offsets[j + 1]).zip(&o.reference) {
+                    points.raw_features(q, *x, params, &frame, with_cv, &mut raw);
                     for f in 0..nf {
                         sum[f] += raw[f] as f64;
                         sq[f] += (raw[f] as f64).powi(2);
