@@ -11,7 +11,7 @@
 //! - `frames` 0 (the maximum) or 2..=`max_frames`; `denoise_steps` 0 (the default) or
 //!   1..=`max_denoise_steps`; `samples` 0 (one) or 1..=`max_samples`.
 
-use dynaserve_model::Pose;
+use dynaserve_model::physiformer::rigid::fit_rigid;
 use dynaserve_model::physiformer::scene::{MAX_SPEED, Material, MeshScene};
 
 use crate::error::FieldError;
@@ -192,29 +192,13 @@ pub fn build_mesh_scene(
     Ok(scene)
 }
 
-/// The rigid motion best fitting `target` from `reference` (Kabsch, uniform weights) as a pose
-/// of the body frame `reference - centroid`, with the RMS residual; `None` if the fit fails
-/// (non-finite points).
-pub fn fit_rigid(reference: &[[f32; 3]], target: &[[f32; 3]]) -> Option<RigidFit> {
-    let a: Vec<[f64; 3]> = reference.iter().map(|p| p.map(f64::from)).collect();
-    let b: Vec<[f64; 3]> = target.iter().map(|p| p.map(f64::from)).collect();
-    let sol = dynaserve_geometry::kabsch(&a, &b, None).ok()?;
-    let q = dynaserve_geometry::quat::from_rotation_matrix(&sol.rotation).ok()?;
-    let sq: f64 = a
-        .iter()
-        .zip(&b)
-        .map(|(x, y)| {
-            let m = sol.apply(*x);
-            (0..3).map(|k| (m[k] - y[k]).powi(2)).sum::<f64>()
-        })
-        .sum();
-    let c = sol.target_centroid;
+/// The fitted rigid motion of one object at one frame as reported ([`fit_rigid`] from its
+/// frame-0 vertices), or `None` when the fit fails (non-finite points).
+fn reported_fit(reference: &[[f32; 3]], target: &[[f32; 3]]) -> Option<RigidFit> {
+    let fit = fit_rigid(reference, target).ok()?;
     Some(RigidFit {
-        pose: Pose {
-            translation: [c.x as f32, c.y as f32, c.z as f32],
-            rotation: q.map(|v| v as f32),
-        },
-        rms: (sq / a.len() as f64).sqrt() as f32,
+        pose: fit.pose().ok()?,
+        rms: fit.rms as f32,
     })
 }
 
@@ -239,7 +223,7 @@ pub fn mesh_frames(
                         .map(|c| [c[0], c[1], c[2]])
                         .collect();
                     let fit = (scene.materials[o] == Material::Rigid)
-                        .then(|| fit_rigid(&scene.positions[s..e], &vertices))
+                        .then(|| reported_fit(&scene.positions[s..e], &vertices))
                         .flatten();
                     ObjectFrame { vertices, fit }
                 })

@@ -1,12 +1,67 @@
-//! Rigid projection of a sampled trajectory: every rigid object's vertices at every frame are
-//! replaced by the rigid motion of its frame-0 shape that fits them best (Kabsch, least
-//! squares). The network predicts vertices freely; this makes rigid objects exactly rigid and
-//! removes the part of the error that is not a rigid motion.
+//! Rigid motions of sampled vertices: the least-squares rigid motion of a rigid object's
+//! frame-0 vertices onto its vertices at a later frame (Kabsch, uniform weights, in f64), as
+//! a fit with its residual ([`fit_rigid`], the pose the server reports per rigid object and
+//! frame) and as a projection of a whole trajectory ([`project_rigid`]): the network predicts
+//! vertices freely; the projection makes rigid objects exactly rigid and removes the part of
+//! the error that is not a rigid motion.
 
-use dynaserve_geometry::kabsch;
+use dynaserve_geometry::{KabschSolution, kabsch, quat};
 
 use super::scene::{Material, MeshScene};
-use crate::ModelError;
+use crate::{ModelError, Pose};
+
+/// The rigid motion best fitting a target point set from a reference one ([`fit_rigid`]).
+#[derive(Clone, Debug)]
+pub struct RigidMotionFit {
+    /// The Kabsch solution: rotation, translation (metres) and both centroids.
+    pub solution: KabschSolution,
+    /// RMS distance of the target points from the moved reference points, metres.
+    pub rms: f64,
+}
+
+impl RigidMotionFit {
+    /// Moves a reference point by the fitted motion, metres.
+    pub fn apply(&self, p: [f32; 3]) -> [f32; 3] {
+        self.solution.apply(p.map(f64::from)).map(|c| c as f32)
+    }
+
+    /// The fitted motion as a pose of the body frame `reference - centroid(reference)`: the
+    /// target centroid (metres) and the rotation (unit quaternion `[x, y, z, w]`).
+    pub fn pose(&self) -> Result<Pose, ModelError> {
+        let q = quat::from_rotation_matrix(&self.solution.rotation)
+            .map_err(|e| ModelError::Internal(format!("rigid fit rotation: {e}")))?;
+        let c = self.solution.target_centroid;
+        Ok(Pose {
+            translation: [c.x as f32, c.y as f32, c.z as f32],
+            rotation: q.map(|v| v as f32),
+        })
+    }
+}
+
+/// The rigid motion best fitting `target` from `reference` (the same points in the same
+/// order, metres) with its RMS residual. Errors for empty or unequal sets and non-finite
+/// points.
+pub fn fit_rigid(
+    reference: &[[f32; 3]],
+    target: &[[f32; 3]],
+) -> Result<RigidMotionFit, ModelError> {
+    let a: Vec<[f64; 3]> = reference.iter().map(|p| p.map(f64::from)).collect();
+    let b: Vec<[f64; 3]> = target.iter().map(|p| p.map(f64::from)).collect();
+    let solution =
+        kabsch(&a, &b, None).map_err(|e| ModelError::InvalidInput(format!("rigid fit: {e}")))?;
+    let sq: f64 = a
+        .iter()
+        .zip(&b)
+        .map(|(x, y)| {
+            let m = solution.apply(*x);
+            (0..3).map(|k| (m[k] - y[k]).powi(2)).sum::<f64>()
+        })
+        .sum();
+    Ok(RigidMotionFit {
+        solution,
+        rms: (sq / a.len() as f64).sqrt(),
+    })
+}
 
 /// Projects the rigid objects of `trajectory` (`[frames, V, 3]` flattened, metres; frame 0 the
 /// scene's initial positions) onto rigid motions of their frame-0 shape, in place. Elastic
@@ -29,21 +84,14 @@ pub fn project_rigid(
             continue;
         }
         let (a, b) = (scene.vertex_offsets[o], scene.vertex_offsets[o + 1]);
-        let reference: Vec<[f64; 3]> = scene.positions[a..b]
-            .iter()
-            .map(|p| p.map(f64::from))
-            .collect();
+        let reference = &scene.positions[a..b];
         for fr in 1..frames {
             let rows = &mut trajectory[(fr * nv + a) * 3..(fr * nv + b) * 3];
-            let target: Vec<[f64; 3]> = rows
-                .chunks_exact(3)
-                .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64])
-                .collect();
-            let fit = kabsch::kabsch(&reference, &target, None)
+            let target: Vec<[f32; 3]> = rows.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect();
+            let fit = fit_rigid(reference, &target)
                 .map_err(|e| ModelError::Internal(format!("rigid fit of object {o}: {e}")))?;
-            for (row, r) in rows.chunks_exact_mut(3).zip(&reference) {
-                let y = fit.apply(*r);
-                row.copy_from_slice(&[y[0] as f32, y[1] as f32, y[2] as f32]);
+            for (row, r) in rows.chunks_exact_mut(3).zip(reference) {
+                row.copy_from_slice(&fit.apply(*r));
             }
         }
     }
