@@ -333,16 +333,18 @@ async fn calls_started_at_different_steps_share_passes_and_return_what_they_retu
         "{shared_before} -> {shared_after}"
     );
 
-    // Each returns what it returns alone. A pass pads its scenes to the largest one, which
-    // reorders a few float sums: equal to rounding, not necessarily bitwise.
+    // Each returns, bit for bit, what it returns alone (every scene of a pass runs its own
+    // forward).
     let (da, db) = (
         max_vertex_diff(&together_a, &alone_a),
         max_vertex_diff(&together_b, &alone_b),
     );
     assert!(
-        da <= 1e-5 && db <= 1e-5,
+        da == 0.0 && db == 0.0,
         "sharing passes changed A by {da} m, B by {db} m"
     );
+    assert_eq!(together_a, alone_a);
+    assert_eq!(together_b, alone_b);
     server.shutdown();
     server.wait().await.unwrap();
 }

@@ -9,7 +9,7 @@ use candle_nn::Optimizer;
 use dynaserve_model::PhysiFormer;
 use dynaserve_model::physiformer::config::PhysiConfig;
 use dynaserve_model::physiformer::flow::{Sampler, TrainScene};
-use dynaserve_model::physiformer::inputs::DenoiseItem;
+use dynaserve_model::physiformer::inputs::{DenoiseItem, PreparedItem};
 use dynaserve_model::physiformer::scene::{Material, MeshScene};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -192,6 +192,87 @@ fn a_scene_output_does_not_depend_on_its_batch_mates_or_their_flow_time() {
     assert!(max_diff(&with_b[0], &with_b[2]) > 1e-3);
     let b_alone = model.denoise(&[ib(0.1)]).unwrap().remove(0);
     assert!(max_diff(&b_alone, &with_b[2]) < 1e-5);
+}
+
+/// A scene prepared once per sample and evaluated step after step from its cache gives what
+/// the per-step path (laying everything out and embedding the condition again) gives, in a
+/// pass of scenes of different sizes (so the cached parts are padded) at different flow
+/// times, bit for bit; a noisy trajectory of the wrong size and a bad frame count are clear errors.
+#[test]
+fn prepared_scenes_give_what_the_per_step_path_gives() {
+    let model = perturbed_model(7);
+    let a = two_objects();
+    let b = scene(
+        8,
+        &[
+            ([0.0, 0.0, 0.0], 0.1, Material::Rigid),
+            ([0.5, 0.5, 0.5], 0.1, Material::Elastic),
+            ([-0.5, 0.2, 0.5], 0.1, Material::Rigid),
+        ],
+        9,
+    );
+    let pa = model.prepare(&a.scene, a.frames).unwrap();
+    let pb = model.prepare(&b.scene, b.frames).unwrap();
+    assert_eq!((pa.frames(), pa.vertices()), (6, 16));
+    assert_eq!((pb.frames(), pb.vertices()), (9, 24));
+    for (step, t) in [0.0f32, 0.35, 0.8].into_iter().enumerate() {
+        let (za, zb) = (noisy(&a, 10 + step as u64), noisy(&b, 20 + step as u64));
+        let per_step = model
+            .denoise(&[
+                DenoiseItem {
+                    scene: &a.scene,
+                    z: &za,
+                    frames: a.frames,
+                    t,
+                },
+                DenoiseItem {
+                    scene: &b.scene,
+                    z: &zb,
+                    frames: b.frames,
+                    t: 1.0 - t,
+                },
+            ])
+            .unwrap();
+        let cached = model
+            .denoise_prepared(&[
+                PreparedItem {
+                    scene: &pa,
+                    z: &za,
+                    t,
+                },
+                PreparedItem {
+                    scene: &pb,
+                    z: &zb,
+                    t: 1.0 - t,
+                },
+            ])
+            .unwrap();
+        assert_eq!(cached[0].len(), a.trajectory.len());
+        assert_eq!(cached[1].len(), b.trajectory.len());
+        // Bit for bit: the cache holds the very values the per-step path computes again.
+        assert_eq!(cached, per_step, "step {step}: the cached path differs");
+        // The prepared scene alone gives what it gives in the pass.
+        let alone = model
+            .denoise_prepared(&[PreparedItem {
+                scene: &pb,
+                z: &zb,
+                t: 1.0 - t,
+            }])
+            .unwrap();
+        assert!(max_diff(&alone[0], &cached[1]) < 1e-5);
+    }
+    let short = vec![0f32; 3];
+    let err = model
+        .denoise_prepared(&[PreparedItem {
+            scene: &pa,
+            z: &short,
+            t: 0.5,
+        }])
+        .unwrap_err();
+    assert!(err.to_string().contains("noisy trajectory"), "{err}");
+    let err = model.prepare(&a.scene, 1).unwrap_err();
+    assert!(err.to_string().contains("frames"), "{err}");
+    assert!(model.denoise_prepared(&[]).is_err());
 }
 
 #[test]

@@ -11,7 +11,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::PhysiFormer;
 use super::config::PhysiConfig;
-use super::inputs::{DenoiseItem, build};
+use super::inputs::{DenoiseItem, PreparedItem, build};
 use super::scene::MeshScene;
 use crate::ModelError;
 use crate::layers::Mode;
@@ -351,22 +351,21 @@ impl PhysiFormer {
             .enumerate()
             .map(|(i, (s, f))| Sampler::new(&self.config, s, *f, steps, seed + i as u64))
             .collect::<Result<Vec<_>, _>>()?;
+        let prepared = scenes
+            .iter()
+            .map(|(s, f)| self.prepare(s, *f))
+            .collect::<Result<Vec<_>, _>>()?;
         while samplers.first().is_some_and(|s| !s.done()) {
             let preds = {
-                let items: Vec<DenoiseItem<'_>> = samplers
+                let items: Vec<PreparedItem<'_>> = samplers
                     .iter()
-                    .zip(scenes)
-                    .map(|(s, (scene, frames))| {
+                    .zip(&prepared)
+                    .map(|(s, scene)| {
                         let (z, t) = s.query();
-                        DenoiseItem {
-                            scene,
-                            z,
-                            frames: *frames,
-                            t,
-                        }
+                        PreparedItem { scene, z, t }
                     })
                     .collect();
-                self.denoise(&items)?
+                self.denoise_prepared(&items)?
             };
             for (s, p) in samplers.iter_mut().zip(&preds) {
                 s.advance(p)?;

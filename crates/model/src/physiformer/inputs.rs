@@ -2,6 +2,11 @@
 //! padded to the largest vertex count V and frame count T of the pass, with the masks and
 //! rotary codes of the three attention kinds.
 //!
+//! What does not change between the denoising steps of a sample (frame-0 inputs, prior,
+//! per-object masks, and the embedding of the frame-0 condition) can be laid out once
+//! ([`PreparedScene`]); a pass of prepared scenes ([`PreparedItem`]) then only writes in the
+//! noisy positions, their rotary code and the flow times.
+//!
 //! Token groups: spatial and per-object attention see one frame of one scene (`[B * T]`
 //! groups of `R + V` tokens, registers first); temporal attention sees one vertex across
 //! frames (`[B * V]` groups of `R + T` tokens).
@@ -37,15 +42,11 @@ pub(crate) struct PassInputs {
     pub v: usize,
     /// Noisy positions `[B, T, V, 3]`.
     pub z: Tensor,
-    /// Frame-0 positions `[B, 1, V, 3]`.
-    pub x0: Tensor,
-    /// Frame-0 velocities `[B, 1, V, 3]`.
-    pub v0: Tensor,
     /// The trajectory the network output is added to (`TrajectoryPrior`): `[B, 1, V, 3]` for
     /// the static prior (frame-0 positions), `[B, T, V, 3]` for the ballistic one, metres.
     pub prior: Tensor,
-    /// Material input of each vertex's object `[B, 1, V, 2]`.
-    pub material: Tensor,
+    /// The scenes' frame-0 condition, raw or embedded.
+    pub condition: Condition,
     /// Flow time per scene `[B]`.
     pub time: Tensor,
     /// Valid frames `[B, T, 1, 1]` (1 or 0) and their count `[B, 1, 1]`.
@@ -104,59 +105,192 @@ fn ballistic_prior(
     }
 }
 
-/// Lays out `items` for one pass on `device` (see [`PassInputs`]). Every item must have been
-/// validated against `config`; this checks only the sizes of `z`.
+/// The step-invariant layout of one scene over its frames, at its own size (no padding): what
+/// a pass needs from the scene besides its noisy trajectory and flow time.
+#[derive(Clone, Debug)]
+pub(crate) struct SceneLayout {
+    /// Frames laid out (frame 0 included).
+    frames: usize,
+    /// Vertices of the scene.
+    vertices: usize,
+    /// Frame-0 positions `[V, 3]`, metres.
+    x0: Vec<f32>,
+    /// Frame-0 velocities `[V, 3]`, m/s.
+    v0: Vec<f32>,
+    /// Material input of each vertex's object `[V, 2]`.
+    material: Vec<f32>,
+    /// Ballistic prior `[frames, V, 3]`, metres; empty for the static prior.
+    prior: Vec<f32>,
+    /// Per-object key bias of one frame's group `[R + V, R + V]` (the same at every frame).
+    object_bias: Vec<f32>,
+}
+
+impl SceneLayout {
+    /// Lays out `scene` (already validated against `config`) over `frames` frames.
+    pub(crate) fn new(
+        config: &PhysiConfig,
+        scene: &MeshScene,
+        frames: usize,
+    ) -> Result<SceneLayout, ModelError> {
+        if frames < 2 || frames > config.frames {
+            return Err(ModelError::InvalidInput(format!(
+                "frames {frames} outside 2..={}",
+                config.frames
+            )));
+        }
+        let nv = scene.vertices();
+        let r = config.registers;
+        let objects = scene.object_of_vertex();
+        let mut x0 = Vec::with_capacity(nv * 3);
+        let mut v0 = Vec::with_capacity(nv * 3);
+        let mut material = Vec::with_capacity(nv * 2);
+        for (i, (p, u)) in scene.positions.iter().zip(&scene.velocities).enumerate() {
+            x0.extend_from_slice(p);
+            v0.extend_from_slice(u);
+            material.extend_from_slice(&scene.materials[objects[i] as usize].features());
+        }
+        let prior = if config.prior == TrajectoryPrior::Ballistic {
+            let mut p = vec![0f32; frames * nv * 3];
+            ballistic_prior(config, scene, frames, nv, &mut p);
+            p
+        } else {
+            Vec::new()
+        };
+        let lv = r + nv;
+        let mut object_bias = vec![0f32; lv * lv];
+        for qi in r..lv {
+            for kj in r..lv {
+                if objects[qi - r] != objects[kj - r] {
+                    object_bias[qi * lv + kj] = MASKED;
+                }
+            }
+        }
+        Ok(SceneLayout {
+            frames,
+            vertices: nv,
+            x0,
+            v0,
+            material,
+            prior,
+            object_bias,
+        })
+    }
+
+    /// The raw condition of this scene alone on `device`: frame-0 positions and velocities
+    /// `[1, 1, V, 3]` and material inputs `[1, 1, V, 2]`.
+    pub(crate) fn raw_condition(&self, device: &Device) -> Result<Condition, ModelError> {
+        let nv = self.vertices;
+        Ok(Condition::Raw {
+            x0: tensor(self.x0.clone(), &[1, 1, nv, 3], device)?,
+            v0: tensor(self.v0.clone(), &[1, 1, nv, 3], device)?,
+            material: tensor(self.material.clone(), &[1, 1, nv, 2], device)?,
+        })
+    }
+}
+
+/// How a pass carries the scenes' frame-0 condition.
+pub(crate) enum Condition {
+    /// The raw inputs, embedded by the network: frame-0 positions and velocities
+    /// `[B, 1, V, 3]` and material inputs `[B, 1, V, 2]`.
+    Raw {
+        x0: Tensor,
+        v0: Tensor,
+        material: Tensor,
+    },
+    /// Already embedded (the sum of the three embeddings) `[B, 1, V, D]`; zero at padded
+    /// vertices.
+    Embedded(Tensor),
+}
+
+/// One scene of a pass being laid out: its layout, noisy trajectory and flow time.
+struct PassScene<'a> {
+    layout: &'a SceneLayout,
+    z: &'a [f32],
+    t: f32,
+}
+
+/// Checks the noisy trajectory and flow time of scene `s` against its layout.
+fn check_step(s: usize, layout: &SceneLayout, z: &[f32], t: f32) -> Result<(), ModelError> {
+    let need = layout.frames * layout.vertices * 3;
+    if z.len() != need {
+        return Err(ModelError::InvalidInput(format!(
+            "scene {s}: noisy trajectory holds {} values, expected {need} (frames x vertices x 3)",
+            z.len()
+        )));
+    }
+    if !(0.0..=1.0).contains(&t) {
+        return Err(ModelError::InvalidInput(format!(
+            "scene {s}: flow time {t} outside [0, 1]"
+        )));
+    }
+    Ok(())
+}
+
+/// Lays out `items` for one pass on `device` (see [`PassInputs`]), the condition raw. Every
+/// item must have been validated against `config`; this checks the frames and the sizes of
+/// `z`.
 pub(crate) fn build(
     config: &PhysiConfig,
     items: &[DenoiseItem<'_>],
     device: &Device,
 ) -> Result<PassInputs, ModelError> {
-    if items.is_empty() {
+    let layouts = items
+        .iter()
+        .enumerate()
+        .map(|(s, it)| {
+            SceneLayout::new(config, it.scene, it.frames).map_err(|e| match e {
+                ModelError::InvalidInput(m) => ModelError::InvalidInput(format!("scene {s}: {m}")),
+                other => other,
+            })
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let scenes: Vec<PassScene<'_>> = items
+        .iter()
+        .zip(&layouts)
+        .map(|(it, layout)| PassScene {
+            layout,
+            z: it.z,
+            t: it.t,
+        })
+        .collect();
+    assemble(config, &scenes, None, device)
+}
+
+/// Assembles one pass from laid-out scenes, padding them to the largest vertex and frame
+/// count. `embedded`, when given, holds each scene's embedded condition `[1, 1, V_s, D]`;
+/// otherwise the pass carries the raw condition.
+fn assemble(
+    config: &PhysiConfig,
+    scenes: &[PassScene<'_>],
+    embedded: Option<&[&Tensor]>,
+    device: &Device,
+) -> Result<PassInputs, ModelError> {
+    if scenes.is_empty() {
         return Err(ModelError::InvalidInput(
             "a pass needs at least one scene".into(),
         ));
     }
-    let b = items.len();
-    let v = items.iter().map(|i| i.scene.vertices()).max().unwrap_or(0);
-    let t = items.iter().map(|i| i.frames).max().unwrap_or(0);
+    for (s, sc) in scenes.iter().enumerate() {
+        check_step(s, sc.layout, sc.z, sc.t)?;
+    }
+    let b = scenes.len();
+    let v = scenes.iter().map(|s| s.layout.vertices).max().unwrap_or(0);
+    let t = scenes.iter().map(|s| s.layout.frames).max().unwrap_or(0);
     let r = config.registers;
     let f = config.coord_freqs();
-    for (s, it) in items.iter().enumerate() {
-        let need = it.frames * it.scene.vertices() * 3;
-        if it.z.len() != need {
-            return Err(ModelError::InvalidInput(format!(
-                "scene {s}: noisy trajectory holds {} values, expected {need} (frames x vertices x 3)",
-                it.z.len()
-            )));
-        }
-        if !(0.0..=1.0).contains(&it.t) {
-            return Err(ModelError::InvalidInput(format!(
-                "scene {s}: flow time {} outside [0, 1]",
-                it.t
-            )));
-        }
-        if it.frames < 2 || it.frames > config.frames {
-            return Err(ModelError::InvalidInput(format!(
-                "scene {s}: frames {} outside 2..={}",
-                it.frames, config.frames
-            )));
-        }
-    }
+    let (lv, lt) = (r + v, r + t);
+    let ballistic = config.prior == TrajectoryPrior::Ballistic;
 
     let mut z = vec![0f32; b * t * v * 3];
     let mut x0 = vec![0f32; b * v * 3];
-    let mut v0 = vec![0f32; b * v * 3];
-    let ballistic = config.prior == TrajectoryPrior::Ballistic;
     let mut prior = if ballistic {
         vec![0f32; b * t * v * 3]
     } else {
         Vec::new()
     };
-    let mut material = vec![0f32; b * v * 2];
     let mut frame_mask = vec![0f32; b * t];
     let mut vertex_mask = vec![0f32; b * v];
     let mut token_mask = vec![0f32; b * t * v];
-    let (lv, lt) = (r + v, r + t);
     let mut spatial_bias = vec![0f32; b * t * lv];
     let mut object_bias = vec![0f32; b * t * lv * lv];
     let mut temporal_bias = vec![0f32; b * v * lt];
@@ -165,71 +299,50 @@ pub(crate) fn build(
     let mut frame_count = Vec::with_capacity(b);
     let mut vertex_count = Vec::with_capacity(b);
 
-    for (s, it) in items.iter().enumerate() {
-        let sc = it.scene;
-        let nv = sc.vertices();
-        let objects = sc.object_of_vertex();
-        times.push(it.t);
-        frame_count.push(it.frames as f32);
+    for (s, sc) in scenes.iter().enumerate() {
+        let lay = sc.layout;
+        let (nv, frames) = (lay.vertices, lay.frames);
+        times.push(sc.t);
+        frame_count.push(frames as f32);
         vertex_count.push(nv as f32);
-        for (i, (p, u)) in sc.positions.iter().zip(&sc.velocities).enumerate() {
-            let at = (s * v + i) * 3;
-            x0[at..at + 3].copy_from_slice(p);
-            v0[at..at + 3].copy_from_slice(u);
-            let m = sc.materials[objects[i] as usize].features();
-            material[(s * v + i) * 2..][..2].copy_from_slice(&m);
-            vertex_mask[s * v + i] = 1.0;
-        }
-        if ballistic {
-            ballistic_prior(
-                config,
-                sc,
-                it.frames,
-                v,
-                &mut prior[s * t * v * 3..][..t * v * 3],
-            );
-        }
-        for fr in 0..it.frames {
+        x0[s * v * 3..][..nv * 3].copy_from_slice(&lay.x0);
+        vertex_mask[s * v..][..nv].fill(1.0);
+        for fr in 0..frames {
             frame_mask[s * t + fr] = 1.0;
-            let src = &it.z[fr * nv * 3..(fr + 1) * nv * 3];
-            z[((s * t + fr) * v) * 3..][..nv * 3].copy_from_slice(src);
-            for i in 0..nv {
-                token_mask[(s * t + fr) * v + i] = 1.0;
+            let at = ((s * t + fr) * v) * 3;
+            z[at..at + nv * 3].copy_from_slice(&sc.z[fr * nv * 3..(fr + 1) * nv * 3]);
+            if ballistic {
+                prior[at..at + nv * 3].copy_from_slice(&lay.prior[fr * nv * 3..(fr + 1) * nv * 3]);
+            }
+            token_mask[(s * t + fr) * v..][..nv].fill(1.0);
+        }
+        // The per-object bias of one frame at the pass's width: padded keys masked, padded
+        // queries see the registers only.
+        let own = r + nv;
+        let mut frame_bias = vec![MASKED; lv * lv];
+        for qi in 0..lv {
+            let row = &mut frame_bias[qi * lv..(qi + 1) * lv];
+            if qi < own {
+                row[..own].copy_from_slice(&lay.object_bias[qi * own..(qi + 1) * own]);
+            } else {
+                row[..r].fill(0.0);
             }
         }
         // Spatial and per-object groups: one per (scene, frame).
         for fr in 0..t {
             let g = s * t + fr;
-            let group = &mut spatial_bias[g * lv..(g + 1) * lv];
-            for (j, slot) in group.iter_mut().enumerate().skip(r) {
-                if j - r >= nv {
-                    *slot = MASKED;
-                }
-            }
-            let ob = &mut object_bias[g * lv * lv..(g + 1) * lv * lv];
-            for qi in 0..lv {
-                for kj in 0..lv {
-                    let key_valid = kj < r || kj - r < nv;
-                    let same = qi < r
-                        || kj < r
-                        || (qi - r < nv && kj - r < nv && objects[qi - r] == objects[kj - r]);
-                    if !(key_valid && same) {
-                        ob[qi * lv + kj] = MASKED;
-                    }
-                }
-            }
+            spatial_bias[g * lv + own..(g + 1) * lv].fill(MASKED);
+            object_bias[g * lv * lv..(g + 1) * lv * lv].copy_from_slice(&frame_bias);
             // Registers sit at the mean position of the frame's vertices.
-            let frame_z = if fr < it.frames {
-                &it.z[fr * nv * 3..(fr + 1) * nv * 3]
+            let frame_z = if fr < frames {
+                &sc.z[fr * nv * 3..(fr + 1) * nv * 3]
             } else {
                 &[][..]
             };
             let mut mean = [0f32; 3];
-            if !frame_z.is_empty() {
-                for p in frame_z.chunks_exact(3) {
-                    for c in 0..3 {
-                        mean[c] += p[c] / nv as f32;
-                    }
+            for p in frame_z.chunks_exact(3) {
+                for c in 0..3 {
+                    mean[c] += p[c] / nv as f32;
                 }
             }
             for _ in 0..r {
@@ -247,11 +360,7 @@ pub(crate) fn build(
         // Temporal groups: one per (scene, vertex).
         for i in 0..v {
             let g = s * v + i;
-            for j in 0..t {
-                if j >= it.frames {
-                    temporal_bias[g * lt + r + j] = MASKED;
-                }
-            }
+            temporal_bias[g * lt + r + frames..(g + 1) * lt].fill(MASKED);
         }
     }
 
@@ -273,19 +382,35 @@ pub(crate) fn build(
     let ssin: Vec<f32> = phases.iter().map(|p| p.sin()).collect();
 
     let x0 = tensor(x0, &[b, 1, v, 3], device)?;
+    let prior = if ballistic {
+        tensor(prior, &[b, t, v, 3], device)?
+    } else {
+        x0.clone()
+    };
+    let condition = match embedded {
+        Some(parts) => Condition::Embedded(pad_and_stack(parts, v)?),
+        None => {
+            let mut v0 = vec![0f32; b * v * 3];
+            let mut material = vec![0f32; b * v * 2];
+            for (s, sc) in scenes.iter().enumerate() {
+                let nv = sc.layout.vertices;
+                v0[s * v * 3..][..nv * 3].copy_from_slice(&sc.layout.v0);
+                material[s * v * 2..][..nv * 2].copy_from_slice(&sc.layout.material);
+            }
+            Condition::Raw {
+                x0: x0.clone(),
+                v0: tensor(v0, &[b, 1, v, 3], device)?,
+                material: tensor(material, &[b, 1, v, 2], device)?,
+            }
+        }
+    };
     Ok(PassInputs {
         b,
         t,
         v,
         z: tensor(z, &[b, t, v, 3], device)?,
-        prior: if ballistic {
-            tensor(prior, &[b, t, v, 3], device)?
-        } else {
-            x0.clone()
-        },
-        x0,
-        v0: tensor(v0, &[b, 1, v, 3], device)?,
-        material: tensor(material, &[b, 1, v, 2], device)?,
+        prior,
+        condition,
         time: tensor(times, &[b], device)?,
         frame_mask: tensor(frame_mask, &[b, t, 1, 1], device)?,
         frame_count: tensor(frame_count, &[b, 1, 1], device)?,
@@ -304,6 +429,81 @@ pub(crate) fn build(
             tensor(tsin, &[1, 1, lt, half], device)?,
         ),
     })
+}
+
+/// Pads each `[1, 1, V_s, D]` with zero rows to `[1, 1, v, D]` and stacks them into
+/// `[B, 1, v, D]` (no copy for a pass of one unpadded scene).
+fn pad_and_stack(parts: &[&Tensor], v: usize) -> candle_core::Result<Tensor> {
+    let padded = parts
+        .iter()
+        .map(|p| {
+            let nv = p.dim(2)?;
+            if nv == v {
+                Ok((*p).clone())
+            } else {
+                p.pad_with_zeros(2, 0, v - nv)
+            }
+        })
+        .collect::<candle_core::Result<Vec<_>>>()?;
+    if padded.len() == 1 {
+        return Ok(padded[0].clone());
+    }
+    Tensor::cat(&padded, 0)
+}
+
+/// A scene prepared for sampling (see [`super::PhysiFormer::prepare`]): everything a
+/// denoising pass needs from the scene that does not change between its steps, built once
+/// per sample and kept with it: the layout over its frames (prior, object masks) and the
+/// embedding of its frame-0 positions, velocities and materials. Only the noisy trajectory
+/// and the flow time change per step ([`PreparedItem`]).
+#[derive(Clone, Debug)]
+pub struct PreparedScene {
+    pub(crate) layout: SceneLayout,
+    /// The embedded condition `[1, 1, V, D]`.
+    pub(crate) embedded: Tensor,
+}
+
+impl PreparedScene {
+    /// Frames the scene was prepared for (frame 0 included).
+    pub fn frames(&self) -> usize {
+        self.layout.frames
+    }
+
+    /// Number of vertices V.
+    pub fn vertices(&self) -> usize {
+        self.layout.vertices
+    }
+}
+
+/// One prepared scene of a network evaluation: its current noisy trajectory and its own flow
+/// time.
+#[derive(Clone, Copy, Debug)]
+pub struct PreparedItem<'a> {
+    /// The prepared scene.
+    pub scene: &'a PreparedScene,
+    /// Noisy trajectory `[frames, V, 3]` flattened, metres (`frames` of the preparation).
+    pub z: &'a [f32],
+    /// Flow time in `[0, 1]` (0 noise, 1 data).
+    pub t: f32,
+}
+
+/// Lays out a pass of prepared scenes on `device`: the cached parts padded and stacked, the
+/// noisy positions and flow times written in.
+pub(crate) fn assemble_prepared(
+    config: &PhysiConfig,
+    items: &[PreparedItem<'_>],
+    device: &Device,
+) -> Result<PassInputs, ModelError> {
+    let scenes: Vec<PassScene<'_>> = items
+        .iter()
+        .map(|it| PassScene {
+            layout: &it.scene.layout,
+            z: it.z,
+            t: it.t,
+        })
+        .collect();
+    let embedded: Vec<&Tensor> = items.iter().map(|it| &it.scene.embedded).collect();
+    assemble(config, &scenes, Some(&embedded), device)
 }
 
 #[cfg(test)]

@@ -8,7 +8,8 @@
 //! The head predicts the clean trajectory (x-prediction) as a displacement from frame 0.
 //!
 //! Modules: [`config`] (sizes and presets), [`scene`] (a scene's condition), [`inputs`]
-//! (padded pass layout), [`block`], [`flow`] (training loss and the Heun sampler).
+//! (padded pass layout, scenes prepared once per sample), [`block`], [`flow`] (training loss
+//! and the Heun sampler), [`rigid`] (rigid fits of sampled vertices).
 //!
 //! Shapes: `B` scenes in a pass, `T` frames and `V` vertices (the largest of the pass), `R`
 //! registers, `D = width`.
@@ -28,7 +29,11 @@ use candle_nn::VarMap;
 
 use self::block::{AttentionKind, Block, modulate};
 use self::config::PhysiConfig;
-use self::inputs::{DenoiseItem, PassInputs, build};
+use self::inputs::{
+    Condition, DenoiseItem, PassInputs, PreparedItem, PreparedScene, SceneLayout,
+    assemble_prepared, build,
+};
+use self::scene::MeshScene;
 use crate::ModelError;
 use crate::checkpoint::{dir_name, parse_config, write_checkpoint};
 use crate::layers::{Init, Linear, Mlp, Mode, ParamStore, RmsNorm};
@@ -169,15 +174,80 @@ impl PhysiFormer {
         self.varmap.all_vars().iter().map(|v| v.elem_count()).sum()
     }
 
+    /// The embedded frame-0 condition: embeddings of the positions and velocities plus the
+    /// material MLP, `[B, 1, V, D]` (an embedded condition is returned as it is).
+    fn embed_condition(&self, condition: &Condition) -> candle_core::Result<Tensor> {
+        match condition {
+            Condition::Raw { x0, v0, material } => self
+                .embed_x0
+                .forward(x0)?
+                .broadcast_add(&self.embed_v0.forward(v0)?)?
+                .broadcast_add(&self.material.forward(material, false)?),
+            Condition::Embedded(e) => Ok(e.clone()),
+        }
+    }
+
+    /// Prepares `scene` for sampling `frames` frames (frame 0 included): validates it once and
+    /// lays out what every denoising step of it shares (see [`PreparedScene`]), for
+    /// [`PhysiFormer::denoise_prepared`].
+    pub fn prepare(&self, scene: &MeshScene, frames: usize) -> Result<PreparedScene, ModelError> {
+        scene.validate(&self.config)?;
+        let layout = SceneLayout::new(&self.config, scene, frames)?;
+        let embedded = self.embed_condition(&layout.raw_condition(&self.device)?)?;
+        Ok(PreparedScene { layout, embedded })
+    }
+
+    /// One network evaluation of many prepared scenes, each at its own flow time: the
+    /// predicted clean trajectory of every item, `[frames, V, 3]` flattened, metres. Equal to
+    /// [`PhysiFormer::denoise`] on the same scenes, without laying out or validating again
+    /// what does not change between steps.
+    pub fn denoise_prepared(
+        &self,
+        items: &[PreparedItem<'_>],
+    ) -> Result<Vec<Vec<f32>>, ModelError> {
+        let inp = assemble_prepared(&self.config, items, &self.device)?;
+        let sizes: Vec<(usize, usize)> = items
+            .iter()
+            .map(|it| (it.scene.frames(), it.scene.vertices()))
+            .collect();
+        self.run_pass(&inp, &sizes)
+    }
+
+    /// Runs a laid-out pass and cuts each scene's `(frames, vertices)` out of the padded
+    /// output.
+    fn run_pass(
+        &self,
+        inp: &PassInputs,
+        sizes: &[(usize, usize)],
+    ) -> Result<Vec<Vec<f32>>, ModelError> {
+        let out = self
+            .forward(inp, Mode::Inference)?
+            .to_device(&Device::Cpu)?
+            .to_dtype(DType::F32)?;
+        let (t, v) = (inp.t, inp.v);
+        let data = out.flatten_all()?.to_vec1::<f32>()?;
+        Ok(sizes
+            .iter()
+            .enumerate()
+            .map(|(s, &(frames, nv))| {
+                let mut o = Vec::with_capacity(frames * nv * 3);
+                for fr in 0..frames {
+                    let at = ((s * t + fr) * v) * 3;
+                    o.extend_from_slice(&data[at..at + nv * 3]);
+                }
+                o
+            })
+            .collect())
+    }
+
     /// The network on a laid-out pass: predicted clean trajectories `[B, T, V, 3]`, metres.
     pub(crate) fn forward(&self, inp: &PassInputs, mode: Mode) -> candle_core::Result<Tensor> {
         let (b, r) = (inp.b, self.config.registers.max(1));
-        let mut x = self
-            .embed_z
-            .forward(&inp.z)?
-            .broadcast_add(&self.embed_x0.forward(&inp.x0)?)?
-            .broadcast_add(&self.embed_v0.forward(&inp.v0)?)?
-            .broadcast_add(&self.material.forward(&inp.material, false)?)?;
+        let cond = match &inp.condition {
+            Condition::Embedded(e) => e.clone(),
+            raw => self.embed_condition(raw)?,
+        };
+        let mut x = self.embed_z.forward(&inp.z)?.broadcast_add(&cond)?;
         let c = self
             .time
             .forward(&time_features(&inp.time, self.config.time_features)?, false)?
@@ -206,25 +276,11 @@ impl PhysiFormer {
             })?;
         }
         let inp = build(&self.config, items, &self.device)?;
-        let out = self
-            .forward(&inp, Mode::Inference)?
-            .to_device(&Device::Cpu)?
-            .to_dtype(DType::F32)?;
-        let (t, v) = (inp.t, inp.v);
-        let data = out.flatten_all()?.to_vec1::<f32>()?;
-        Ok(items
+        let sizes: Vec<(usize, usize)> = items
             .iter()
-            .enumerate()
-            .map(|(s, it)| {
-                let nv = it.scene.vertices();
-                let mut o = Vec::with_capacity(it.frames * nv * 3);
-                for fr in 0..it.frames {
-                    let at = ((s * t + fr) * v) * 3;
-                    o.extend_from_slice(&data[at..at + nv * 3]);
-                }
-                o
-            })
-            .collect())
+            .map(|it| (it.frames, it.scene.vertices()))
+            .collect();
+        self.run_pass(&inp, &sizes)
     }
 
     /// Writes `config.json` and `model.safetensors` (f32) into `dir`, creating it.

@@ -8,28 +8,33 @@ use std::time::{Duration, Instant};
 
 use dynaserve_model::PhysiFormer;
 use dynaserve_model::physiformer::flow::{Sampler, SamplerKind};
-use dynaserve_model::physiformer::inputs::DenoiseItem;
+use dynaserve_model::physiformer::inputs::{PreparedItem, PreparedScene};
 use dynaserve_model::physiformer::scene::MeshScene;
 use tokio::sync::oneshot;
 
 use super::{Family, Job, Priority, Scheduler, StepError};
 
-/// One evaluation: the scene, its current noisy trajectory and its flow time.
+/// One evaluation: the prepared scene, its current noisy trajectory and its flow time.
 #[derive(Clone, Debug)]
 pub struct DenoiseStep {
-    /// The scene's condition (shared by every evaluation of a request).
-    pub scene: Arc<MeshScene>,
-    /// Noisy trajectory `[frames, V, 3]` flattened, metres.
+    /// The scene prepared once per sample ([`PhysiFormer::prepare`]: validated, its
+    /// step-invariant inputs laid out and embedded), shared by every evaluation of the sample.
+    pub scene: Arc<PreparedScene>,
+    /// Noisy trajectory `[frames, V, 3]` flattened, metres (`frames` of the preparation).
     pub z: Vec<f32>,
-    /// Frames of the trajectory.
-    pub frames: usize,
     /// Flow time in `[0, 1]`.
     pub t: f32,
 }
 
 /// PhysiFormer models as a scheduler family: items are [`DenoiseStep`]s costing their vertex
-/// count; a pass is one [`PhysiFormer::denoise`] and yields each item's predicted clean
-/// trajectory `[frames, V, 3]`.
+/// count; a pass evaluates every item, each as its own [`PhysiFormer::denoise_prepared`]
+/// forward, and yields each item's predicted clean trajectory `[frames, V, 3]`.
+///
+/// One forward per scene instead of one padded forward for the whole pass: on these CPUs a
+/// padded pass of 8 example scenes costs more per scene than 8 forwards of one (its tensors
+/// outgrow the caches; BENCHMARKS.md, "Generate"), and a scene's result is then bit for bit
+/// the same whatever its pass-mates, since it runs the same kernels on the same shapes. A
+/// scene whose forward fails fails alone.
 pub struct DenoiseSteps {
     model: Arc<PhysiFormer>,
 }
@@ -59,17 +64,20 @@ impl Family for DenoiseSteps {
     }
 
     fn run(&self, items: &[&DenoiseStep]) -> Result<Vec<Result<Vec<f32>, String>>, String> {
-        let batch: Vec<DenoiseItem<'_>> = items
+        Ok(items
             .iter()
-            .map(|s| DenoiseItem {
-                scene: &s.scene,
-                z: &s.z,
-                frames: s.frames,
-                t: s.t,
+            .map(|s| {
+                let item = PreparedItem {
+                    scene: &s.scene,
+                    z: &s.z,
+                    t: s.t,
+                };
+                self.model
+                    .denoise_prepared(&[item])
+                    .map_err(|e| e.to_string())
+                    .and_then(|mut out| out.pop().ok_or_else(|| "no prediction".to_string()))
             })
-            .collect();
-        let out = self.model.denoise(&batch).map_err(|e| e.to_string())?;
-        Ok(out.into_iter().map(Ok).collect())
+            .collect())
     }
 }
 
@@ -157,6 +165,13 @@ pub async fn generate(
         job.sampler,
     )
     .map_err(|e| GenerateError::Invalid(e.to_string()))?;
+    let prepared = Arc::new(
+        scheduler
+            .family()
+            .model()
+            .prepare(&job.scene, job.frames)
+            .map_err(|e| GenerateError::Invalid(e.to_string()))?,
+    );
     let _idle = IdleOnDrop {
         scheduler,
         stream_id: job.stream_id,
@@ -169,9 +184,8 @@ pub async fn generate(
             let (tx, rx) = oneshot::channel();
             scheduler.submit(Job {
                 item: DenoiseStep {
-                    scene: job.scene.clone(),
+                    scene: prepared.clone(),
                     z: z.to_vec(),
-                    frames: job.frames,
                     t,
                 },
                 priority: job.priority,
