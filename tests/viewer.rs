@@ -1,17 +1,22 @@
-//! The browser viewer as a person uses it: a real server on loopback with the real checkpoint,
-//! Debian's Chromium headless opening the page (which starts the first example by itself),
-//! then another example run with a click, the frames drawn as they arrive, the timeline
-//! scrubbed, and the operator dashboard; plus the viewer's routes over plain HTTP.
+//! The browser viewer as a person uses it: a real server on loopback with the real
+//! checkpoints (a RigidFormer and the shipped PhysiFormer), Debian's Chromium headless opening
+//! the page (which starts the first example by itself), then another example run with a
+//! click, the frames drawn as they arrive, the timeline scrubbed, a PhysiFormer scene sampled
+//! and played back as meshes, and the operator dashboard; plus the viewer's routes over plain
+//! HTTP.
 //!
-//! `DYNASERVE_VIEWER_SCREENSHOT=path.png` saves the page after the clicked run.
+//! `DYNASERVE_VIEWER_SCREENSHOT=path.png` saves the page after the clicked rollout,
+//! `DYNASERVE_VIEWER_MESH_SCREENSHOT=path.png` after the sampled mesh scene.
 
 mod browser;
 mod common;
 
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use browser::{Browser, Image};
-use common::{http, start, test_model};
+use common::{http, test_model};
+use dynaserve_server::{RunningServer, ServeConfig};
 
 /// Generous: a debug build on two shared cores.
 const WAIT: Duration = Duration::from_secs(90);
@@ -21,8 +26,25 @@ const PAGE_STATE: &str = "JSON.stringify({...document.body.dataset, \
      status: document.getElementById('status')?.textContent, \
      error: document.getElementById('error')?.textContent})";
 
-fn example_stems() -> Vec<String> {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/scenes");
+/// The shipped PhysiFormer checkpoint.
+fn physiformer_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("models/physiformer-small")
+}
+
+/// A server on free loopback ports with the test RigidFormer and the shipped PhysiFormer.
+async fn start(rigid: &Path) -> RunningServer {
+    let config = ServeConfig::local(vec![rigid.to_path_buf(), physiformer_dir()]);
+    let models = dynaserve_server::load_all(&config.models).unwrap();
+    let server = dynaserve_server::start(config, models).await.unwrap();
+    server.wait_ready(Duration::from_secs(60)).await.unwrap();
+    server
+}
+
+/// File stems of the JSON files directly in `examples/scenes/{sub}`, sorted.
+fn example_stems(sub: &str) -> Vec<String> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("examples/scenes")
+        .join(sub);
     let mut v: Vec<String> = std::fs::read_dir(dir)
         .unwrap()
         .map(|e| e.unwrap().path())
@@ -36,7 +58,7 @@ fn example_stems() -> Vec<String> {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn viewer_routes_serve_embedded_pages_and_every_example_scene_rolls_out() {
     let model = test_model();
-    let server = start(&model.dir, |_| {}).await;
+    let server = start(&model.dir).await;
     let addr = server.http_addr;
 
     let page = http(addr, "GET", "/", &[], None).await;
@@ -90,7 +112,7 @@ async fn viewer_routes_serve_embedded_pages_and_every_example_scene_rolls_out() 
         .collect();
     assert_eq!(names[0], "collision");
     names.sort();
-    assert_eq!(names, example_stems());
+    assert_eq!(names, example_stems(""));
     for e in examples {
         let mut req = e["request"].clone();
         req["steps"] = 2.into();
@@ -108,6 +130,40 @@ async fn viewer_routes_serve_embedded_pages_and_every_example_scene_rolls_out() 
         assert_eq!(out["frames"].as_array().unwrap().len(), 2);
     }
 
+    // Every scene of examples/scenes/generate is offered for PhysiFormer models and samples
+    // as given (here shortened to 4 frames of 2 denoising steps).
+    let generate = doc["generate_examples"].as_array().unwrap();
+    let mut names: Vec<String> = generate
+        .iter()
+        .map(|e| e["name"].as_str().unwrap().to_string())
+        .collect();
+    names.sort();
+    assert_eq!(names, example_stems("generate"));
+    for e in generate {
+        assert!(e["title"].as_str().unwrap().contains("elastic"), "{e}");
+        let mut req = e["request"].clone();
+        req["frames"] = 4.into();
+        req["denoise_steps"] = 2.into();
+        req["model"] = "physiformer-small".into();
+        let body = serde_json::to_vec(&req).unwrap();
+        let r = http(
+            addr,
+            "POST",
+            "/v1/generate",
+            &[("content-type", "application/json")],
+            Some(&body),
+        )
+        .await;
+        assert_eq!(r.status, 200, "{}: {}", e["name"], r.text());
+        let out: serde_json::Value = r.json();
+        let frames = out["samples"][0]["frames"].as_array().unwrap();
+        assert_eq!(frames.len(), 4);
+        assert_eq!(
+            frames[3]["objects"].as_array().unwrap().len(),
+            req["scene"]["objects"].as_array().unwrap().len()
+        );
+    }
+
     let api: serde_json::Value = http(addr, "GET", "/openapi.json", &[], None).await.json();
     assert!(api["paths"]["/v1/examples"]["get"].is_object());
     server.shutdown();
@@ -118,7 +174,7 @@ async fn viewer_routes_serve_embedded_pages_and_every_example_scene_rolls_out() 
 fn a_person_opens_the_viewer_runs_an_example_and_scrubs_the_timeline() {
     let runtime = tokio::runtime::Runtime::new().unwrap();
     let model = test_model();
-    let server = runtime.block_on(start(&model.dir, |_| {}));
+    let server = runtime.block_on(start(&model.dir));
     let base = format!("http://{}/", server.http_addr);
     let mut b = Browser::launch(1280, 800).unwrap();
 
@@ -193,6 +249,89 @@ fn a_person_opens_the_viewer_runs_an_example_and_scrubs_the_timeline() {
         moved > 0.001,
         "step 0 and step 20 look the same ({moved:.4})"
     );
+
+    // A PhysiFormer model and its mesh scene: the page samples it (2 denoising steps, to be
+    // quick), follows the denoising progress, then plays the trajectory back as meshes.
+    let mesh_scene: serde_json::Value = serde_json::from_str(include_str!(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/examples/scenes/generate/elastic_drop.json"
+    )))
+    .unwrap();
+    let frames = mesh_scene["frames"].as_u64().unwrap();
+    let family = b
+        .eval(
+            "(() => { const m = document.getElementById('model'); \
+             m.value = 'physiformer-small'; m.dispatchEvent(new Event('change')); \
+             const s = document.getElementById('example'); \
+             s.value = [...s.options].find(o => o.textContent.startsWith('elastic_drop')).value; \
+             s.dispatchEvent(new Event('change')); \
+             document.getElementById('denoise-steps').value = '2'; \
+             return document.body.dataset.family; })()",
+        )
+        .unwrap();
+    assert_eq!(family, "generate");
+    b.click("#run").unwrap();
+    let sampled = b
+        .wait_for(
+            &format!(
+                "document.body.dataset.requested === '{frames}' && \
+                 document.body.dataset.state !== 'running' && ({{...document.body.dataset}})"
+            ),
+            WAIT,
+            PAGE_STATE,
+        )
+        .unwrap();
+    assert_eq!(sampled["state"], "done", "{sampled}");
+    assert_eq!(sampled["frames"], frames.to_string(), "{sampled}");
+    assert_eq!(sampled["denoised"], "2", "{sampled}");
+    let bar = b
+        .eval("[document.getElementById('denoise').value, document.getElementById('denoise').max]")
+        .unwrap();
+    assert_eq!(bar, serde_json::json!([2, 2]), "the progress bar");
+    let end = u32::try_from(frames - 1).unwrap();
+    assert_eq!(scrub(&mut b, end), end.to_string());
+    let last = Image::from_png(&b.screenshot("#view canvas").unwrap()).unwrap();
+    assert_eq!(scrub(&mut b, 0), "0");
+    let first = Image::from_png(&b.screenshot("#view canvas").unwrap()).unwrap();
+    assert!(
+        last.distinct_colours() > 50 && last.non_background_share() > 0.01,
+        "the mesh view looks blank: {} colours, {:.3} non-background",
+        last.distinct_colours(),
+        last.non_background_share()
+    );
+    // Both meshes are drawn in their colours (object 0 orange-red, object 1 blue), not just
+    // the grey box: flat shading darkens them, so a hue test rather than exact colours.
+    let red = last.share_matching(|[r, g, b]| r > g.saturating_add(40) && r > b.saturating_add(40));
+    let blue = last.share_matching(|[r, _, b]| b > r.saturating_add(40));
+    assert!(
+        red > 0.0005 && blue > 0.0005,
+        "the meshes are not drawn: {red:.4} red, {blue:.4} blue pixels"
+    );
+    let moved = last.differing_share(&first, 8);
+    assert!(
+        moved > 0.001,
+        "frame 0 and frame {end} look the same ({moved:.4})"
+    );
+    if let Some(path) = std::env::var_os("DYNASERVE_VIEWER_MESH_SCREENSHOT") {
+        // For the picture, the scene's own denoising steps and a frame mid-flight.
+        let steps = mesh_scene["denoise_steps"].as_u64().unwrap();
+        b.eval(&format!(
+            "document.getElementById('denoise-steps').value = '{steps}'"
+        ))
+        .unwrap();
+        b.click("#run").unwrap();
+        b.wait_for(
+            &format!(
+                "document.body.dataset.denoised === '{steps}' && \
+                 document.body.dataset.state === 'done'"
+            ),
+            WAIT,
+            PAGE_STATE,
+        )
+        .unwrap();
+        scrub(&mut b, end / 2);
+        std::fs::write(path, b.screenshot("body").unwrap()).unwrap();
+    }
 
     // The dashboard reads the server's metrics: both rollouts are counted.
     b.navigate(&format!("{base}dashboard")).unwrap();

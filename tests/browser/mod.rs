@@ -348,6 +348,17 @@ impl Image {
         1.0 - top as f64 / n as f64
     }
 
+    /// Share of pixels whose RGB satisfies `pick` (e.g. a hue one drawn object has).
+    pub fn share_matching(&self, pick: impl Fn([u8; 3]) -> bool) -> f64 {
+        let n = self.rgba.len() / 4;
+        let hits = self
+            .rgba
+            .chunks(4)
+            .filter(|p| pick([p[0], p[1], p[2]]))
+            .count();
+        hits as f64 / n.max(1) as f64
+    }
+
     /// Share of pixels whose RGB differs by more than `tolerance` in some channel from the
     /// same pixel of `other` (same size).
     pub fn differing_share(&self, other: &Image, tolerance: u8) -> f64 {

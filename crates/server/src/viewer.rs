@@ -2,10 +2,10 @@
 //!
 //! | route | |
 //! |---|---|
-//! | `GET /` | the viewer: pick a model and an example scene (or drop a scene file), watch the rollout in 3D as its frames stream in, scrub the timeline, see per-step server timings; with ground truth, the model's rollout over the ghosted truth and the error against time |
+//! | `GET /` | the viewer: pick a model and an example scene (or drop a scene file), watch the rollout in 3D as its frames stream in, scrub the timeline, see per-step server timings; with ground truth, the model's rollout over the ghosted truth and the error against time; for a PhysiFormer model, the denoising progress, then the sampled trajectory as deforming meshes |
 //! | `GET /dashboard` | throughput, active streams, batch sizes and latency quantiles, read from `/metrics` |
 //! | `GET /viewer/{file}` | the pages' scripts, style sheet and the vendored three.js bundle |
-//! | `GET /v1/examples` | the example scenes (`examples/scenes/*.json`, embedded at build time) and any comparison scene, as [`ExamplesResponse`] |
+//! | `GET /v1/examples` | the example scenes, embedded at build time, as [`ExamplesResponse`]: rollout bodies (`examples/scenes/*.json`) and any comparison scene for RigidFormer models, generate bodies (`examples/scenes/generate/*.json`) for PhysiFormer models |
 //!
 //! The pages use relative URLs only, so they work behind a gateway that serves the server under
 //! a path prefix. Nothing is fetched from elsewhere at run time. How the page draws frames
@@ -55,28 +55,74 @@ impl Example {
     }
 }
 
+/// One mesh scene the viewer offers to PhysiFormer models.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct GenerateExample {
+    /// Short name: the scene file's stem (`elastic_drop`).
+    pub name: String,
+    /// One line saying what it is, e.g. `elastic_drop: 1 rigid + 1 elastic, 49 frames`.
+    pub title: String,
+    /// A complete `POST /v1/generate` body.
+    pub request: json::GenerateRequest,
+}
+
+impl GenerateExample {
+    /// An example named `name` for `request`, titled with its materials and frame count.
+    pub fn new(name: impl Into<String>, request: json::GenerateRequest) -> GenerateExample {
+        let name = name.into();
+        let objects = &request.scene.objects;
+        let elastic = objects
+            .iter()
+            .filter(|o| o.material == json::Material::Elastic)
+            .count();
+        let frames = match request.frames {
+            0 => "the model's frames".to_string(),
+            n => format!("{n} frames"),
+        };
+        let title = format!(
+            "{name}: {} rigid + {elastic} elastic, {frames}",
+            objects.len() - elastic
+        );
+        GenerateExample {
+            name,
+            title,
+            request,
+        }
+    }
+}
+
 /// Result of `GET /v1/examples`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct ExamplesResponse {
-    /// Scenes in display order; the viewer starts the first one when it opens.
+    /// Rollout scenes (for RigidFormer models) in display order; the viewer starts the first
+    /// one when it opens.
     pub examples: Vec<Example>,
+    /// Mesh scenes (for PhysiFormer models) in display order.
+    #[serde(default)]
+    pub generate_examples: Vec<GenerateExample>,
 }
 
-/// What the viewer offers: the example scenes, in display order.
+/// What the viewer offers: the example scenes of each model family, in display order.
 #[derive(Clone, Debug, Default)]
 pub struct Viewer {
     examples: Vec<Example>,
+    generate_examples: Vec<GenerateExample>,
 }
 
 /// (file stem, JSON text) of every `examples/scenes/*.json`, sorted by name.
 const EMBEDDED_EXAMPLES: &[(&str, &str)] = include!(concat!(env!("OUT_DIR"), "/examples.rs"));
 
+/// (file stem, JSON text) of every `examples/scenes/generate/*.json`, sorted by name.
+const EMBEDDED_GENERATE_EXAMPLES: &[(&str, &str)] =
+    include!(concat!(env!("OUT_DIR"), "/generate_examples.rs"));
+
 /// The example shown first when the page opens: a short, lively scene.
 const FIRST_EXAMPLE: &str = "collision";
 
 impl Viewer {
-    /// The example scenes embedded at build time, `collision` first. A file that is not a
-    /// rollout request (another kind of example) is left out with a warning.
+    /// The example scenes embedded at build time: the rollout scenes `collision` first, then
+    /// the generate scenes. A file that does not parse as its directory's kind of request is
+    /// left out with a warning.
     pub fn builtin() -> Viewer {
         let mut examples: Vec<Example> = EMBEDDED_EXAMPLES
             .iter()
@@ -91,7 +137,22 @@ impl Viewer {
             )
             .collect();
         examples.sort_by_key(|e| e.name != FIRST_EXAMPLE);
-        Viewer { examples }
+        let generate_examples = EMBEDDED_GENERATE_EXAMPLES
+            .iter()
+            .filter_map(
+                |(name, text)| match serde_json::from_str::<json::GenerateRequest>(text) {
+                    Ok(req) => Some(GenerateExample::new(*name, req)),
+                    Err(e) => {
+                        tracing::warn!(example = name, error = %e, "example is not a generate request; not offered by the viewer");
+                        None
+                    }
+                },
+            )
+            .collect();
+        Viewer {
+            examples,
+            generate_examples,
+        }
     }
 
     /// Puts `example` first (the page starts it when it opens).
@@ -100,9 +161,14 @@ impl Viewer {
         self
     }
 
-    /// The examples in display order.
+    /// The rollout examples in display order.
     pub fn examples(&self) -> &[Example] {
         &self.examples
+    }
+
+    /// The generate examples in display order.
+    pub fn generate_examples(&self) -> &[GenerateExample] {
+        &self.generate_examples
     }
 }
 
@@ -218,13 +284,17 @@ async fn file(Path(path): Path<String>, headers: HeaderMap) -> Response {
 async fn examples(State(viewer): State<Arc<Viewer>>) -> Response {
     axum::Json(ExamplesResponse {
         examples: viewer.examples.clone(),
+        generate_examples: viewer.generate_examples.clone(),
     })
     .into_response()
 }
 
 /// The OpenAPI document of the viewer's data route (merged into `/openapi.json`).
 #[derive(utoipa::OpenApi)]
-#[openapi(paths(examples), components(schemas(ExamplesResponse, Example)))]
+#[openapi(
+    paths(examples),
+    components(schemas(ExamplesResponse, Example, GenerateExample))
+)]
 pub struct ViewerDoc;
 
 /// Routes of the viewer, the dashboard and `/v1/examples`.
@@ -281,6 +351,25 @@ mod tests {
         assert_eq!(v.examples()[0].name, FIRST_EXAMPLE);
         for e in v.examples() {
             assert!(e.request.steps > 0 && !e.request.scene.objects.is_empty());
+        }
+    }
+
+    #[test]
+    fn every_embedded_generate_example_is_offered() {
+        let v = Viewer::builtin();
+        assert_eq!(
+            v.generate_examples().len(),
+            EMBEDDED_GENERATE_EXAMPLES.len()
+        );
+        assert!(
+            v.generate_examples()
+                .iter()
+                .any(|e| e.name == "elastic_drop"),
+            "examples/scenes/generate has elastic_drop"
+        );
+        for e in v.generate_examples() {
+            assert!(!e.request.scene.objects.is_empty(), "{}", e.name);
+            assert!(e.title.starts_with(&e.name), "{}", e.title);
         }
     }
 

@@ -1,7 +1,8 @@
-// The 3D view: floor, lights, orbit camera, and one drawable per object. Objects are drawn
-// from per-frame vertex arrays (world frame, metres, z up), so a rigid frame (poses applied to
-// the body-frame geometry) and a deforming one (vertex positions given per frame) are drawn
-// the same way. See docs/viewer.md for the frame format.
+// The 3D view: floor (or the closed box of a mesh scene), lights, orbit camera, and one
+// drawable per object. Objects are drawn from per-frame vertex arrays (world frame, metres,
+// z up), so a rigid frame (poses applied to the body-frame geometry) and a deforming one
+// (vertex positions given per frame) are drawn the same way. See docs/viewer.md for the frame
+// format.
 
 import {
   BufferAttribute,
@@ -47,6 +48,48 @@ export function bodiesOf(request) {
     }
     throw new Error(`scene.objects[${j}]: neither points nor mesh`);
   });
+}
+
+/**
+ * Geometry of every object of a generate request (a mesh scene in the world frame at frame 0):
+ * `{points: Float32Array(3n), faces: Uint32Array | null, material}`; `points` are the frame-0
+ * vertices, `faces` null when the object has none (it is then drawn as points).
+ */
+export function meshBodiesOf(request) {
+  return request.scene.objects.map((o, j) => {
+    if (!Array.isArray(o.vertices) || !o.vertices.length) throw new Error(`scene.objects[${j}]: no vertices`);
+    const faces = Array.isArray(o.faces) && o.faces.length ? Uint32Array.from(o.faces.flat()) : null;
+    return { points: Float32Array.from(o.vertices.flat()), faces, material: o.material || 'rigid' };
+  });
+}
+
+/**
+ * The frames of one sampled trajectory (a generate `sample` event) as `{step, time,
+ * positions, fits}`: `step` the frame index, `positions` one world-frame vertex array per
+ * object, `fits` the RMS distance of each rigid object from its best rigid motion (null for
+ * elastic ones). Throws when the sample does not match the scene.
+ */
+export function sampleFrames(sample, bodies) {
+  return sample.frames.map((f) => {
+    if (f.objects.length !== bodies.length) {
+      throw new Error(`frame ${f.frame}: ${f.objects.length} objects, expected ${bodies.length}`);
+    }
+    const positions = f.objects.map((o, j) => {
+      if (o.vertices.length * 3 !== bodies[j].points.length) {
+        throw new Error(`frame ${f.frame}: object ${j} has ${o.vertices.length} vertices, expected ${bodies[j].points.length / 3}`);
+      }
+      return Float32Array.from(o.vertices.flat());
+    });
+    const fits = f.objects.map((o) => (typeof o.fit_rms === 'number' ? o.fit_rms : null));
+    return { step: f.frame, time: f.time, positions, fits, timing: null };
+  });
+}
+
+/** The eight corners of the box `[-e, e]^3` as one vertex array (for framing the camera). */
+export function boxCorners(e) {
+  const out = [];
+  for (const x of [-e, e]) for (const y of [-e, e]) for (const z of [-e, e]) out.push(x, y, z);
+  return [Float32Array.from(out)];
 }
 
 /** Applies a pose `{translation: [x,y,z], rotation: [x,y,z,w]}` to body-frame points. */
@@ -157,10 +200,14 @@ export class View {
       new MeshStandardMaterial({ color: 0x3a4048, roughness: 1 }),
     );
     floor.position.z = -0.001;
-    this.scene.add(floor);
     const grid = new GridHelper(40, 80, 0x6b7480, 0x4a515b);
     grid.rotation.x = Math.PI / 2; // the helper lies in x-z; the floor is the x-y plane
-    this.scene.add(grid);
+    this.ground = new Group();
+    this.ground.add(floor, grid);
+    this.scene.add(this.ground);
+    this.box = new Group();
+    this.box.visible = false;
+    this.scene.add(this.box);
     this.model = new Group();
     this.truth = new Group();
     this.scene.add(this.truth, this.model);
@@ -181,6 +228,33 @@ export class View {
     if (withTruth) bodies.forEach((b) => this.truth.add(drawable(b, 0, true)));
   }
 
+  /**
+   * Draws the closed box `[-e, e]^3` of a mesh scene as a wireframe (its floor with a grid of
+   * quarter-size cells) in place of the open floor, or restores the floor when `e` is null.
+   */
+  setBox(e) {
+    for (const c of [...this.box.children]) {
+      c.geometry.dispose();
+      c.material.dispose();
+      this.box.remove(c);
+    }
+    this.box.visible = !!e;
+    this.ground.visible = !e;
+    if (e) {
+      // A grid helper is a square of lines in its x-z plane; four of them outline the box.
+      const face = (divisions, colour, place) => {
+        const g = new GridHelper(2 * e, divisions, colour, colour);
+        place(g);
+        this.box.add(g);
+      };
+      face(4, 0x59616c, (g) => { g.rotation.x = Math.PI / 2; g.position.z = -e; });
+      face(1, 0x9aa4b0, (g) => { g.rotation.x = Math.PI / 2; g.position.z = e; });
+      face(1, 0x9aa4b0, (g) => { g.rotation.z = Math.PI / 2; g.position.x = -e; });
+      face(1, 0x9aa4b0, (g) => { g.rotation.z = Math.PI / 2; g.position.x = e; });
+    }
+    this.render();
+  }
+
   /** Shows world-frame vertex arrays (one per object) on the model or the ghost layer. */
   show(positions, layer = 'model') {
     const group = layer === 'truth' ? this.truth : this.model;
@@ -196,8 +270,11 @@ export class View {
     this.render();
   }
 
-  /** Points the camera at the objects' bounding box (positions: vertex arrays). */
-  frame(positions) {
+  /**
+   * Points the camera at the objects' bounding box (positions: vertex arrays), from a distance
+   * of `distance` times the box's diagonal.
+   */
+  frame(positions, distance = 1.25) {
     const min = new Vector3(Infinity, Infinity, 0);
     const max = new Vector3(-Infinity, -Infinity, -Infinity);
     for (const p of positions) {
@@ -209,7 +286,8 @@ export class View {
     const centre = min.clone().add(max).multiplyScalar(0.5);
     const size = Math.max(max.distanceTo(min), 1.5);
     this.controls.target.copy(centre);
-    this.camera.position.copy(centre).add(new Vector3(0.75, -1.1, 0.65).multiplyScalar(size * 0.85));
+    const away = new Vector3(0.75, -1.1, 0.65).normalize().multiplyScalar(size * distance);
+    this.camera.position.copy(centre).add(away);
     this.controls.update();
     this.render();
   }

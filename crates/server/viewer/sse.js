@@ -1,5 +1,6 @@
 // Calls to the server's HTTP API with relative URLs (the page may sit behind a gateway under a
-// path prefix), and a reader of the Server-Sent Events a streamed rollout answers.
+// path prefix), and a reader of the Server-Sent Events a streamed rollout or generation
+// answers.
 
 const TOKEN_KEY = 'dynaserve-token';
 
@@ -45,12 +46,14 @@ export async function getJson(path) {
 }
 
 /**
- * Starts a streamed rollout (`POST v1/rollout`, SSE) and calls `onEvent(name, data)` for each
- * `frame`, `error` and `done` event, with `data` parsed from JSON. Resolves when the stream
- * ends; rejects on a failed request. `signal` (an AbortSignal) stops it.
+ * POSTs `request` to a streaming route (`v1/rollout`: `frame` events; `v1/generate`:
+ * `progress` and `sample` events; both end with `done` or `error`) asking for Server-Sent
+ * Events, and calls `onEvent(name, data)` for each event, with `data` parsed from JSON.
+ * Resolves when the stream ends; rejects on a failed request. `signal` (an AbortSignal)
+ * stops it.
  */
-export async function streamRollout(request, onEvent, signal) {
-  const resp = await fetch('v1/rollout', {
+export async function streamPost(path, request, onEvent, signal) {
+  const resp = await fetch(path, {
     method: 'POST',
     headers: headers({ 'content-type': 'application/json', accept: 'text/event-stream' }),
     body: JSON.stringify(request),

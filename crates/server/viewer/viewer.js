@@ -1,13 +1,28 @@
-// The viewer page: pick a model and a scene (an example, or a dropped scene file), stream its
-// rollout from the server and draw each frame as it arrives; play, pause and scrub; chart the
-// server's per-step timings and, when the scene has ground truth, the error against time.
+// The viewer page: pick a model and a scene (an example, or a dropped scene file). For a model
+// that rolls scenes out (family `rollout`), stream its rollout from the server and draw each
+// frame as it arrives; for a PhysiFormer model (family `generate`), show the denoising
+// progress, then play the sampled trajectory back as deforming meshes in the model's box.
+// Play, pause and scrub; chart the server's per-step timings and, when the scene has ground
+// truth, the error against time.
 //
 // The page reports its progress on <body> for people and for tests: data-state (loading, idle,
-// running, done, stopped, error), data-frames (frames received), data-requested (steps asked
-// for) and data-shown (the step on screen).
+// running, done, stopped, error), data-family (rollout or generate), data-frames (rollout:
+// steps received; generate: frames of the sampled trajectory, frame 0 included), data-requested
+// (steps or frames asked for), data-denoised (denoising steps completed) and data-shown (the
+// step or frame on screen).
 
-import { View, bodiesOf, initialPositions, meanDistance, objectColour, positionsOf } from './scene.js';
-import { ApiFailure, getJson, setToken, streamRollout } from './sse.js';
+import {
+  View,
+  bodiesOf,
+  boxCorners,
+  initialPositions,
+  meanDistance,
+  meshBodiesOf,
+  objectColour,
+  positionsOf,
+  sampleFrames,
+} from './scene.js';
+import { ApiFailure, getJson, setToken, streamPost } from './sse.js';
 import { drawChart } from './charts.js';
 
 const $ = (id) => document.getElementById(id);
@@ -15,7 +30,9 @@ const $ = (id) => document.getElementById(id);
 const st = {
   view: null,
   models: [],
-  examples: [],
+  /** example lists by family: rollout bodies and generate bodies */
+  examples: { rollout: [], generate: [] },
+  family: 'rollout',
   example: null,
   bodies: null,
   /** index 0: the initial state; index k: step k. Each {step, time, positions, timing}. */
@@ -31,6 +48,11 @@ const st = {
   stepSeconds: 1 / 24,
   startedAt: 0,
   finishedAt: 0,
+  /** generate: denoising steps asked for, completed, and each step's timing */
+  denoiseSteps: 0,
+  denoised: 0,
+  progress: [],
+  sampled: false,
 };
 
 function setState(s) {
@@ -45,19 +67,38 @@ function currentModel() {
   return st.models.find((m) => m.name === $('model').value) || st.models[0];
 }
 
+/** The calls a model answers: `generate` (PhysiFormer) or `rollout` (every other model). */
+function familyOf(model) {
+  return model && model.architecture === 'physiformer' ? 'generate' : 'rollout';
+}
+
+/** The example list of the selected model's family. */
+function examples() {
+  return st.examples[st.family];
+}
+
 // ----- scene selection -----
+
+/** Switches the page to `family`: its inputs, its example list, its floor or box. */
+function setFamily(family) {
+  st.family = family;
+  document.body.dataset.family = family;
+  $('rollout-inputs').hidden = family !== 'rollout';
+  $('generate-inputs').hidden = family !== 'generate';
+  $('denoise-box').hidden = true;
+}
 
 function fillExamples(selectName) {
   const sel = $('example');
   sel.replaceChildren(
-    ...st.examples.map((e, i) => {
+    ...examples().map((e, i) => {
       const o = document.createElement('option');
       o.value = String(i);
       o.textContent = e.ground_truth && e.ground_truth.length ? `${e.title} (with ground truth)` : e.title;
       return o;
     }),
   );
-  const i = Math.max(0, st.examples.findIndex((e) => e.name === selectName));
+  const i = Math.max(0, examples().findIndex((e) => e.name === selectName));
   sel.value = String(i);
 }
 
@@ -65,6 +106,7 @@ function fillExamples(selectName) {
  * `keepCamera`). */
 function selectExample(example, keepCamera = false) {
   st.example = example;
+  if (st.family === 'generate') return selectMeshExample(example, keepCamera);
   const req = example.request;
   $('steps').value = String(req.steps || 48);
   $('dt-steps').value = String(req.dt_steps || 1);
@@ -78,10 +120,42 @@ function selectExample(example, keepCamera = false) {
   st.frames = [{ step: 0, time: 0, positions: initial, timing: null }];
   st.truth = null;
   st.requested = 0;
+  st.view.setBox(null);
   st.view.setBodies(st.bodies, hasTruth(example));
   st.view.show(initial);
   st.view.show(null, 'truth');
   if (!keepCamera) st.view.frame(initial);
+  legend();
+  showFrame(0);
+  charts();
+  return true;
+}
+
+/** `selectExample` for a mesh scene (a generate body): its frame-0 vertices in the model's box. */
+function selectMeshExample(example, keepCamera) {
+  const req = example.request;
+  const model = currentModel();
+  $('gen-frames').value = String(req.frames || (model && model.max_frames) || 49);
+  $('denoise-steps').value = String(req.denoise_steps || (model && model.default_denoise_steps) || 16);
+  $('seed').value = String(req.seed || 0);
+  try {
+    st.bodies = meshBodiesOf(req);
+  } catch (e) {
+    showError(`${example.name}: ${e.message}`);
+    return false;
+  }
+  const initial = st.bodies.map((b) => b.points);
+  st.frames = [{ step: 0, time: 0, positions: initial, fits: null, timing: null }];
+  st.truth = null;
+  st.requested = 0;
+  resetDenoise(0);
+  $('denoise-box').hidden = true;
+  const e = (model && model.box_half_extent) || 1;
+  st.view.setBox(e);
+  st.view.setBodies(st.bodies, false);
+  st.view.show(initial);
+  st.view.show(null, 'truth');
+  if (!keepCamera) st.view.frame(boxCorners(e), 1.2);
   legend();
   showFrame(0);
   charts();
@@ -99,7 +173,13 @@ function legend() {
     const sw = document.createElement('span');
     sw.className = 'swatch';
     sw.style.background = objectColour(j);
-    row.append(sw, `object ${j}: ${b.faces ? `mesh, ${b.points.length / 3} vertices` : `${b.points.length / 3} points`}`);
+    const n = b.points.length / 3;
+    const what = b.material
+      ? `${b.material} ${b.faces ? 'mesh' : 'points'}, ${n} vertices`
+      : b.faces ? `mesh, ${n} vertices` : `${n} points`;
+    const fit = document.createElement('span');
+    fit.className = 'fit';
+    row.append(sw, `object ${j}: ${what}`, fit);
     return row;
   });
   if (hasTruth(st.example)) {
@@ -129,14 +209,36 @@ async function loadFile(file) {
   } else if (doc && doc.scene && Array.isArray(doc.scene.objects)) {
     example = { name: file.name, title: `${file.name}: ${doc.scene.objects.length} objects`, request: doc, ground_truth: [] };
   } else if (doc && Array.isArray(doc.objects)) {
-    example = { name: file.name, title: `${file.name}: ${doc.objects.length} objects`, request: { scene: doc, steps: 48 }, ground_truth: [] };
+    const request = isMeshScene(doc) ? { scene: doc } : { scene: doc, steps: 48 };
+    example = { name: file.name, title: `${file.name}: ${doc.objects.length} objects`, request, ground_truth: [] };
   } else {
-    showError(`${file.name}: expected a rollout request ({"scene": {"objects": [...]}, "steps": n}) or a scene ({"objects": [...]})`);
+    showError(
+      `${file.name}: expected a rollout request ({"scene": {"objects": [...]}, "steps": n}), a generate request ` +
+        `({"scene": {"objects": [{"vertices": [...], "material": "elastic"}]}, "frames": n}) or a scene ({"objects": [...]})`,
+    );
     return;
   }
-  st.examples.push(example);
+  // A mesh scene (objects given by world-frame vertices) is sampled by a PhysiFormer model,
+  // anything else rolled out: switch to a model of that family if needed.
+  const family = isMeshScene(example.request.scene) ? 'generate' : 'rollout';
+  if (family !== st.family) {
+    const model = st.models.find((m) => familyOf(m) === family);
+    if (!model) {
+      showError(`${file.name}: no resident model ${family === 'generate' ? 'samples mesh scenes (PhysiFormer)' : 'rolls scenes out'}`);
+      return;
+    }
+    stop();
+    $('model').value = model.name;
+    setFamily(family);
+  }
+  st.examples[family].push(example);
   fillExamples(example.name);
   if (selectExample(example)) run();
+}
+
+/** Whether a scene is a generate scene: its objects are given by world-frame vertices. */
+function isMeshScene(scene) {
+  return Array.isArray(scene.objects) && scene.objects.length > 0 && scene.objects.every((o) => Array.isArray(o.vertices));
 }
 
 // ----- running -----
@@ -153,6 +255,7 @@ async function run() {
   stop();
   showError('');
   const model = currentModel();
+  if (st.family === 'generate') return runGenerate(model);
   let steps, dtSteps;
   try {
     steps = positiveInt('steps', 'steps', model && model.max_steps);
@@ -178,7 +281,7 @@ async function run() {
   buttons();
   progress();
   try {
-    await streamRollout(req, (name, data) => onEvent(name, data), abort.signal);
+    await streamPost('v1/rollout', req, (name, data) => onEvent(name, data), abort.signal);
     if (st.abort !== abort || !st.running) return;
     if (document.body.dataset.state === 'error') finish('error');
     else if (received() < st.requested) {
@@ -197,13 +300,117 @@ async function run() {
   }
 }
 
-/** Re-selects the current example's bodies while keeping the step inputs the user typed. */
+/**
+ * Samples the selected mesh scene with a PhysiFormer model (`POST v1/generate`, one sample,
+ * streamed): the progress bar follows the denoising steps, then the trajectory plays.
+ */
+async function runGenerate(model) {
+  let frames, denoiseSteps, seed;
+  try {
+    frames = positiveInt('gen-frames', 'frames', model && model.max_frames);
+    if (frames < 2) throw new Error('frames must be at least 2 (frame 0 and one more)');
+    denoiseSteps = positiveInt('denoise-steps', 'denoising steps', model && model.max_denoise_steps);
+    seed = Number($('seed').value);
+    if (!Number.isSafeInteger(seed) || seed < 0) throw new Error('seed must be a whole number >= 0');
+  } catch (e) {
+    showError(e.message);
+    return;
+  }
+  if (!selectExampleKeepInputs()) return;
+  const req = { ...st.example.request, model: model ? model.name : '', frames, denoise_steps: denoiseSteps, seed, samples: 1, stream: true };
+  delete req.timeout_ms;
+  st.requested = frames;
+  st.stepSeconds = model ? model.dt_frame : 1 / 48;
+  resetDenoise(denoiseSteps);
+  $('denoise-box').hidden = false;
+  st.running = true;
+  st.playing = false;
+  st.cursor = 0;
+  st.startedAt = performance.now();
+  const abort = new AbortController();
+  st.abort = abort;
+  setState('running');
+  buttons();
+  progress();
+  try {
+    await streamPost('v1/generate', req, (name, data) => onGenerateEvent(name, data), abort.signal);
+    if (st.abort !== abort || !st.running) return;
+    if (document.body.dataset.state === 'error') finish('error');
+    else if (!st.sampled) {
+      showError(`the stream ended after ${st.denoised} of ${st.denoiseSteps} denoising steps, before the trajectory`);
+      finish('error');
+    } else finish('done');
+  } catch (e) {
+    if (st.abort !== abort) return; // superseded by another run
+    if (e.name === 'AbortError') {
+      finish('stopped');
+      return;
+    }
+    if (e instanceof ApiFailure && e.status === 401) $('token-box').hidden = false;
+    showError(e.message);
+    finish('error');
+  }
+}
+
+/** Clears the denoising progress for a run of `steps` denoising steps. */
+function resetDenoise(steps) {
+  st.denoiseSteps = steps;
+  st.denoised = 0;
+  st.progress = [];
+  st.sampled = false;
+  denoiseProgress();
+}
+
+function denoiseProgress() {
+  document.body.dataset.denoised = String(st.denoised);
+  $('denoise').max = Math.max(st.denoiseSteps, 1);
+  $('denoise').value = st.denoised;
+  const last = st.progress[st.progress.length - 1];
+  $('denoise-text').textContent = st.sampled
+    ? `denoised in ${st.denoiseSteps} steps; trajectory of ${st.frames.length} frames received`
+    : `denoising step ${st.denoised} of ${st.denoiseSteps}` + (last ? ` (flow time ${last.t.toFixed(2)})` : '');
+}
+
+function onGenerateEvent(name, data) {
+  if (name === 'progress') {
+    st.denoised = data.step;
+    st.progress.push(data);
+    denoiseProgress();
+    progress();
+    charts();
+  } else if (name === 'sample') {
+    if (data.sample !== 0 || st.sampled) return;
+    let frames;
+    try {
+      frames = sampleFrames(data, st.bodies);
+    } catch (e) {
+      showError(e.message);
+      setState('error');
+      return;
+    }
+    st.frames = frames;
+    st.sampled = true;
+    st.cursor = 0;
+    st.playing = true;
+    denoiseProgress();
+    progress();
+    showFrame(0);
+  } else if (name === 'error') {
+    showError(`${data.error.code}: ${data.error.message}`);
+    setState('error');
+  } else if (name === 'done') {
+    st.done = data;
+  }
+}
+
+/** Re-selects the current example's bodies while keeping the inputs the user typed. */
 function selectExampleKeepInputs() {
-  const steps = $('steps').value;
-  const dt = $('dt-steps').value;
+  const ids = ['steps', 'dt-steps', 'gen-frames', 'denoise-steps', 'seed'];
+  const kept = ids.map((id) => $(id).value);
   const ok = selectExample(st.example, true);
-  $('steps').value = steps;
-  $('dt-steps').value = dt;
+  ids.forEach((id, i) => {
+    $(id).value = kept[i];
+  });
   return ok;
 }
 
@@ -263,13 +470,26 @@ function received() {
 }
 
 function progress() {
+  const wall = ((st.running ? performance.now() : st.finishedAt) - st.startedAt) / 1000;
+  const state = document.body.dataset.state;
+  if (st.family === 'generate') {
+    const n = st.sampled ? st.frames.length : 0;
+    document.body.dataset.frames = String(n);
+    document.body.dataset.requested = String(st.requested);
+    $('frames').textContent = `${n} / ${st.requested} frames`;
+    $('timeline').max = String(Math.max(st.requested - 1, received(), 0));
+    $('status').textContent = !st.requested
+      ? 'ready'
+      : st.sampled
+        ? `${state}: ${n} frames sampled in ${st.denoiseSteps} denoising steps, ${wall.toFixed(2)} s`
+        : `${state}: denoising step ${st.denoised} of ${st.denoiseSteps} in ${wall.toFixed(2)} s`;
+    return;
+  }
   const n = received();
   document.body.dataset.frames = String(n);
   document.body.dataset.requested = String(st.requested);
   $('frames').textContent = `${n} / ${st.requested} frames`;
   $('timeline').max = String(Math.max(st.requested, n));
-  const wall = ((st.running ? performance.now() : st.finishedAt) - st.startedAt) / 1000;
-  const state = document.body.dataset.state;
   const rate = n && wall > 0 ? ` · ${(n / wall).toFixed(0)} steps/s` : '';
   $('status').textContent = st.requested ? `${state}: ${n} of ${st.requested} steps in ${wall.toFixed(2)} s${rate}` : 'ready';
 }
@@ -285,7 +505,12 @@ function showFrame(i) {
   }
   document.body.dataset.shown = String(i);
   $('timeline').value = String(i);
-  $('clock').textContent = `step ${f.step} · ${f.time.toFixed(3)} s`;
+  $('clock').textContent = `${st.family === 'generate' ? 'frame' : 'step'} ${f.step} · ${f.time.toFixed(3)} s`;
+  // Rigid objects of a sampled trajectory: how far the vertices are from a rigid motion.
+  $('legend').querySelectorAll('.fit').forEach((el, j) => {
+    const fit = f.fits ? f.fits[j] : null;
+    el.textContent = typeof fit === 'number' ? ` · ${(fit * 1000).toFixed(1)} mm off rigid` : '';
+  });
   $('play').textContent = st.playing ? '❚❚' : '▶';
 }
 
@@ -315,7 +540,10 @@ function togglePlay() {
 // ----- charts -----
 
 function charts() {
-  const steps = st.frames.slice(1).filter((f) => f.timing);
+  // Rollout: one point per step; generate: one per denoising step.
+  const gen = st.family === 'generate';
+  const steps = gen ? st.progress : st.frames.slice(1).filter((f) => f.timing);
+  const unit = gen ? 'denoising step' : 'step';
   drawChart(
     $('timing-chart'),
     [
@@ -323,13 +551,19 @@ function charts() {
       { label: 'queue ms', colour: '#f3a712', points: steps.map((f) => [f.step, f.timing.queue_ms]) },
       { label: 'batch', colour: '#3bb273', kind: 'bar', right: true, points: steps.map((f) => [f.step, f.timing.batch_scenes]) },
     ],
-    { xMax: Math.max(st.requested, 1), xLabel: 'step', yLabel: 'ms', y2Label: 'scenes', marker: st.shown },
+    {
+      xMax: Math.max(gen ? st.denoiseSteps : st.requested, 1),
+      xLabel: unit,
+      yLabel: 'ms',
+      y2Label: 'scenes',
+      marker: gen ? null : st.shown,
+    },
   );
   const last = steps[steps.length - 1];
   if (last) {
     const mean = (k) => steps.reduce((s, f) => s + f.timing[k], 0) / steps.length;
     $('timing-text').textContent =
-      `step ${last.step}: queue ${last.timing.queue_ms.toFixed(2)} ms, forward ${last.timing.forward_ms.toFixed(2)} ms, ` +
+      `${unit} ${last.step}: queue ${last.timing.queue_ms.toFixed(2)} ms, forward ${last.timing.forward_ms.toFixed(2)} ms, ` +
       `batch ${last.timing.batch_scenes} scenes · mean forward ${mean('forward_ms').toFixed(2)} ms, mean batch ${mean('batch_scenes').toFixed(1)}`;
   } else {
     $('timing-text').textContent = 'per-step server timing';
@@ -356,28 +590,46 @@ function charts() {
 // ----- start-up -----
 
 async function loadLists() {
-  const [models, examples] = await Promise.all([getJson('v1/models'), getJson('v1/examples')]);
-  // Only models that roll scenes out; PhysiFormer models answer Generate, not rollouts.
-  st.models = models.models.filter((m) => m.architecture !== 'physiformer');
-  st.examples = examples.examples;
+  const [models, offered] = await Promise.all([getJson('v1/models'), getJson('v1/examples')]);
+  st.models = models.models;
+  st.examples = { rollout: offered.examples || [], generate: offered.generate_examples || [] };
   $('model').replaceChildren(
     ...st.models.map((m) => {
       const o = document.createElement('option');
       o.value = m.name;
-      o.textContent = `${m.name} (${m.architecture})`;
+      o.textContent = `${m.name} (${m.architecture}, ${familyOf(m)})`;
       return o;
     }),
   );
-  fillExamples(st.examples[0] && st.examples[0].name);
+  // Start with a model that rolls scenes out when there is one (the first example is a
+  // rollout scene), else the first model.
+  const first = st.models.find((m) => familyOf(m) === 'rollout' && st.examples.rollout.length) || st.models[0];
+  if (first) $('model').value = first.name;
+  setFamily(familyOf(first));
+  fillExamples(examples()[0] && examples()[0].name);
+}
+
+/** A model was chosen: switch to its family's scenes unless they are already shown. */
+function selectModel() {
+  const family = familyOf(currentModel());
+  if (family === st.family) return;
+  stop();
+  showError('');
+  setFamily(family);
+  fillExamples(examples()[0] && examples()[0].name);
+  const e = examples()[0];
+  if (e && selectExample(e)) setState('idle');
+  else if (!e) $('status').textContent = `no example scenes for this model; drop a scene JSON file`;
 }
 
 function wire() {
   $('run').addEventListener('click', () => run());
   $('stop').addEventListener('click', () => stop());
   $('play').addEventListener('click', () => togglePlay());
+  $('model').addEventListener('change', () => selectModel());
   $('example').addEventListener('change', () => {
     stop();
-    const e = st.examples[Number($('example').value)];
+    const e = examples()[Number($('example').value)];
     if (e && selectExample(e)) setState('idle');
   });
   $('timeline').addEventListener('input', () => {
@@ -426,12 +678,12 @@ async function start() {
     setState('error');
     return;
   }
-  if (!st.examples.length) {
+  if (!examples().length) {
     setState('idle');
     $('status').textContent = 'no example scenes; drop a scene JSON file';
     return;
   }
-  if (!selectExample(st.examples[0])) return;
+  if (!selectExample(examples()[0])) return;
   setState('idle');
   // Opening the page shows a scene rolling out; ?autoplay=0 waits for Run.
   if (new URLSearchParams(location.search).get('autoplay') !== '0') run();
