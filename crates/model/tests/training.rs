@@ -361,7 +361,10 @@ fn kinematic_objects_add_nothing_to_the_loss() {
             .map(|o| o.loss.to_scalar::<f32>().unwrap())
     };
     let flags = [false, false, true];
-    let (kept, shifted) = (loss(&target, &flags).unwrap(), loss(&moved, &flags).unwrap());
+    let (kept, shifted) = (
+        loss(&target, &flags).unwrap(),
+        loss(&moved, &flags).unwrap(),
+    );
     assert!(kept > 0.0);
     assert_eq!(kept, shifted, "a kinematic target moved the loss");
     let learned = loss(&moved, &[]).unwrap();

@@ -1,5 +1,5 @@
-//! Command line of `dynaserve-loadtest`: the flags ([`args`]), their checks and the run they
-//! describe ([`plan`]), and [`main`], which runs the sides in turn and writes the reports.
+//! Command line of `dynaserve-loadtest`: the flags (`args`), their checks and the run they
+//! describe (`plan`), and [`main`], which runs the sides in turn and writes the reports.
 
 mod args;
 mod plan;
