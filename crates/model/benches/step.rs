@@ -4,6 +4,8 @@
 //! (`fused_ab`, interleaved in one process), the machine's matmul peak (`matmul_peak`), a
 //! training iteration (forward + backward + AdamW) for the `small` and `paper` configs, and
 //! training iterations with and without the fused kernels interleaved (`train_ab`).
+//! One file because criterion binds a bench target to one `main`; the cases share the scene
+//! builders and the phase timer.
 //!
 //! `cargo bench -p dynaserve-model --bench step` (release). Phase medians are printed to
 //! stdout; criterion reports the totals.
