@@ -1,5 +1,5 @@
 //! Report types (serialised with `--json`) and the A/B comparison; the human-readable tables
-//! are in [`text`], the self-contained HTML chart in [`html`], the soak's section in [`soak`].
+//! are in `text`, the self-contained HTML chart in `html`, the soak's section in `soak`.
 
 mod html;
 mod soak;

@@ -1,7 +1,7 @@
-//! The driver that runs a load ([`load`]: its modes, scenes and target) against one side (a
+//! The driver that runs a load (`load`: its modes, scenes and target) against one side (a
 //! server over gRPC or HTTP, or the model in-process), scraping the server's `/metrics` around
 //! every level. The callers that keep a level busy (streams, planner calls, Poisson arrivals)
-//! are in [`workers`], the soak in [`soak`].
+//! are in `workers`, the soak in `soak`.
 
 mod load;
 mod remote;

@@ -6,7 +6,7 @@
 //! Query rows are split over rayon's pool in chunks when the pass is large.
 //!
 //! Rotary codes rotate channel pairs `(2i, 2i + 1)`, `i < P`, of every head by the row's
-//! `(cos_i, sin_i)`, as [`crate::layers::rotate_pairs`] does.
+//! `(cos_i, sin_i)`, as `crate::layers::rotate_pairs` does.
 //!
 //! Longer than the other modules on purpose: the self- and cross-attention kernels share their
 //! inner loops and scratch layout, and splitting them would expose those internals between files.

@@ -3,8 +3,8 @@
 //! depths -> per-anchor accelerations -> Verlet -> Kabsch -> rigid poses
 //! (`docs/rigidformer.md`).
 //!
-//! One module per stage: [`encoder`], [`decoder`], [`anchor_head`] (with [`attention`] shared
-//! by both), [`projection`] (inference) and [`train`] (loss). [`inputs`] lays a batch out for
+//! One module per stage: `encoder`, `decoder`, `anchor_head` (with `attention` shared
+//! by both), `projection` (inference) and [`train`] (loss). `inputs` lays a batch out for
 //! one pass; [`features`] defines the per-point inputs.
 //!
 //! Shapes: `B` scenes, `O` objects in the batch, `M` the largest object count, `T = M + R`

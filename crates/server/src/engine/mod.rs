@@ -6,8 +6,8 @@
 //!   model lookup;
 //! - [`registry`]: resident models with their schedulers and limits, scene preparation;
 //! - [`request`]: request context, ids and the metrics record of each request;
-//! - [`stepper`]: one scene stepping through the scheduler (the only code that submits steps);
-//! - [`rollout`], [`predict`], [`warmup`]: the three users of steppers;
+//! - `stepper`: one scene stepping through the scheduler (the only code that submits steps);
+//! - `rollout`, `predict`, `warmup`: the three users of steppers;
 //! - [`generate`]: PhysiFormer models and Generate calls, one scheduler stream per sample;
 //! - [`sessions`]: scenes kept with their state between calls (planners), stepped through
 //!   steppers whose kinematic objects follow given poses.

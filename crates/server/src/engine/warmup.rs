@@ -42,7 +42,7 @@ fn cube(x: f32, z: f32, points: u32) -> ObjectSpec {
 }
 
 impl Engine {
-    /// Runs [`STEPS`] steps of two cubes through every model's scheduler.
+    /// Runs `STEPS` steps of two cubes through every model's scheduler.
     pub async fn warm_up(&self) -> Result<(), ApiError> {
         for entry in self.models.values() {
             let start = Instant::now();

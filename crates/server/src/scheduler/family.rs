@@ -63,7 +63,7 @@ impl Family for RigidSteps {
         item.scene.len()
     }
 
-    /// Items whose state the model would refuse (see [`state_problem`]) fail alone before
+    /// Items whose state the model would refuse (see `state_problem`) fail alone before
     /// the pass; the others go through one [`WorldModel::step`].
     fn run(&self, items: &[&SceneStep]) -> Result<Vec<Result<Vec<Pose>, String>>, String> {
         let problems: Vec<Option<String>> = items.iter().map(|s| state_problem(&s.state)).collect();

@@ -3,7 +3,7 @@
 //! Callers (rollout sessions, Predict variants, warm-up) submit one [`Job`] at a time: a unit
 //! of work of the model's [`Family`] (for rigid models a [`SceneStep`]: a prepared scene and
 //! its two latest poses) with its priority, deadline, stream and a oneshot reply channel.
-//! Between forward passes the worker ([`worker`]) drains its channel into the [`Queue`]
+//! Between forward passes the worker (`worker`) drains its channel into the [`Queue`]
 //! ([`queue`], plain state tested without threads or sleeps), which
 //!
 //! 1. drops jobs whose caller has gone and answers those whose deadline has passed with

@@ -1,5 +1,5 @@
 //! The scheduler's queue as plain state, with no thread, clock or channel: the worker loop
-//! ([`super::worker`]) feeds it and asks it what to run, and tests drive it with explicit
+//! (`super::worker`) feeds it and asks it what to run, and tests drive it with explicit
 //! instants.
 //!
 //! - Two FIFO levels, [`Priority::Interactive`] ahead of [`Priority::Bulk`].

@@ -1,11 +1,11 @@
 //! Mesh scenes: rigid and elastic triangle meshes bouncing in a closed box, recorded as
 //! per-vertex trajectories (the ground truth of mesh-trajectory models such as PhysiFormer).
 //!
-//! - [`templates`]: the convex and concave unit meshes objects are made of;
+//! - [`mod@templates`]: the convex and concave unit meshes objects are made of;
 //! - [`record`]: a scene in memory ([`MeshScene`]), as written and as read back;
 //! - [`simulate`]: the rapier world (box, rigid bodies, FEM soft bodies) and its recording;
 //! - [`sets`]: the curriculum sets `mesh-d1` ... `mesh-d4` and their scene samplers;
-//! - [`format`], [`writer`], [`reader`]: shards and manifest, generation of a split, and
+//! - [`mod@format`], [`writer`], [`reader`]: shards and manifest, generation of a split, and
 //!   [`MeshDatasetReader`], which returns scenes as `[V, T, 3]` vertex trajectories with faces,
 //!   per-object vertex ranges and materials;
 //! - [`stats`], [`preview`], [`cli`]: `dynaserve sim inspect`, `sim preview` and the

@@ -5,7 +5,7 @@
 //! Objects that start on the floor or on each other are first settled in a separate rapier
 //! world (dropped from 1 cm with zero velocity and stepped until every body is still), so
 //! they start on a stable face at the equilibrium of rapier's soft contacts. Every scene's
-//! scenario and variant is returned with it ([`SceneLabel`]) and recorded in the manifest.
+//! scenario and variant is returned with it ([`crate::SceneLabel`]) and recorded in the manifest.
 //!
 //! - `parameters`: the scenarios, `rest` arrangements and the ranges scenes are drawn from;
 //! - `placement`: drawing objects and settling their starting poses;

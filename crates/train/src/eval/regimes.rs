@@ -108,7 +108,7 @@ pub struct ContactFlags {
 }
 
 /// Median distance from a point of the cloud to its nearest neighbour in the cloud (over the
-/// first [`SPACING_SAMPLES`] points), metres; 0 for clouds of fewer than 2 points.
+/// first 128 points), metres; 0 for clouds of fewer than 2 points.
 pub fn sampling_spacing(cloud: &[[f32; 3]]) -> f32 {
     if cloud.len() < 2 {
         return 0.0;

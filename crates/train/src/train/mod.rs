@@ -8,7 +8,7 @@
 //! - [`trainer`]: the loop, its checkpoints, resume, CSV log and loss curve;
 //! - [`run_dir`]: a run directory's checkpoint swap, resume point and log truncation, shared
 //!   with PhysiFormer runs;
-//! - [`export`]: a checkpoint written as a model directory;
+//! - [`mod@export`]: a checkpoint written as a model directory;
 //! - [`plot`]: PNG line charts.
 
 pub mod config;

@@ -2,10 +2,10 @@
 //!
 //! - this module: the store (ids, caps on count and memory, idle TTL and reaping, metrics) and
 //!   the calls that do not step (create, fork, get, set, delete);
-//! - [`driven`]: a [`super::stepper::Stepper`] whose kinematic objects follow given poses, and
+//! - `driven`: a `super::stepper::Stepper` whose kinematic objects follow given poses, and
 //!   the `Step` call;
-//! - [`predict`]: Predict from a session (variants of its state with their own actions);
-//! - [`interact`]: the closed loop, one step per client message.
+//! - `predict`: Predict from a session (variants of its state with their own actions);
+//! - `interact`: the closed loop, one step per client message.
 //!
 //! Steps of a session go through the model's scheduler like any rollout step (interactive
 //! priority; Predict variants bulk), so they share its batches. One call at a time holds a
