@@ -435,20 +435,9 @@ mod tests {
     use candle_core::{Device, Tensor};
 
     use super::*;
+    use crate::kernels::test_data::{max_diff, uniform as random};
     use crate::layers::Mode;
     use crate::rigidformer::attention::multi_head;
-
-    fn random(n: usize, seed: u64, scale: f32) -> Vec<f32> {
-        let mut x = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
-        (0..n)
-            .map(|_| {
-                x ^= x << 13;
-                x ^= x >> 7;
-                x ^= x << 17;
-                ((x >> 40) as f32 / (1u64 << 24) as f32 - 0.5) * scale
-            })
-            .collect()
-    }
 
     fn rotary(rows: usize, pairs: usize, seed: u64) -> RotaryRows {
         let angles = random(rows * pairs, seed, 6.0);
@@ -461,11 +450,6 @@ mod tests {
 
     fn tensor(data: &[f32], shape: &[usize]) -> Tensor {
         Tensor::from_slice(data, shape, &Device::Cpu).unwrap()
-    }
-
-    fn max_diff(a: &Tensor, b: &Tensor) -> f32 {
-        let d = (a - b).unwrap().abs().unwrap().flatten_all().unwrap();
-        d.max(0).unwrap().to_scalar::<f32>().unwrap()
     }
 
     /// Key bias with the last `padded[s]` keys of scene `s` masked.

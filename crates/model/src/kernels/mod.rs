@@ -10,3 +10,5 @@ pub mod kabsch;
 pub mod norm;
 pub mod pool;
 pub mod simd;
+#[cfg(test)]
+mod test_data;
