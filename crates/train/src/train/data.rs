@@ -42,9 +42,9 @@ pub struct Window {
     pub dt_steps: u32,
     /// Kinematic objects `[objects]` (in `objects` order): inputs only, not learned.
     pub kinematic: Vec<bool>,
-    /// For a pushforward sample (`DataConfig::pushforward`), the recorded poses at
-    /// `t - 2 dt_steps`, `[objects]`: the trainer replaces `state.current` by the model's step
-    /// from these and the recorded (not noised) poses at `t - dt_steps`.
+    /// For a pushforward sample (`DataConfig::pushforward`), the recorded (not noised) poses
+    /// at `t - 2 dt_steps` and `t - dt_steps`, each `[objects]`: the trainer replaces
+    /// `state.current` by the model's step from them.
     pub pushforward: Option<(Vec<Pose>, Vec<Pose>)>,
 }
 

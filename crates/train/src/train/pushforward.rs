@@ -11,22 +11,18 @@ use super::data::Sample;
 /// in one batched pass, and makes its prediction the sample's current pose; kinematic objects
 /// keep their recorded pose. Returns how many samples were replaced.
 pub fn apply(model: &RigidFormer, samples: &mut [Sample]) -> Result<usize, TrainError> {
-    let chosen: Vec<usize> = (0..samples.len())
-        .filter(|&i| samples[i].pushforward.is_some())
-        .collect();
+    // The recorded poses move out of the samples: they are used once.
+    let (chosen, states): (Vec<usize>, Vec<SceneState>) = samples
+        .iter_mut()
+        .enumerate()
+        .filter_map(|(i, s)| {
+            let (previous, current) = s.pushforward.take()?;
+            Some((i, SceneState { previous, current }))
+        })
+        .unzip();
     if chosen.is_empty() {
         return Ok(0);
     }
-    let states: Vec<SceneState> = chosen
-        .iter()
-        .map(|&i| {
-            let (before, previous) = samples[i].pushforward.clone().unwrap_or_default();
-            SceneState {
-                previous: before,
-                current: previous,
-            }
-        })
-        .collect();
     let items: Vec<StepItem<'_>> = chosen
         .iter()
         .zip(&states)
@@ -45,7 +41,6 @@ pub fn apply(model: &RigidFormer, samples: &mut [Sample]) -> Result<usize, Train
                 s.state.current[j] = pose;
             }
         }
-        s.pushforward = None;
     }
     Ok(chosen.len())
 }
