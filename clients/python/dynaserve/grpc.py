@@ -484,6 +484,16 @@ class _Base:
         if token:
             self.metadata.append(("authorization", f"Bearer {token}"))
 
+    def _connect(self, channels: Any) -> None:
+        """Opens the channel with ``channels`` (``grpc`` or ``grpc.aio``) and its stubs."""
+        if self.tls:
+            creds = grpc.ssl_channel_credentials(self._root_certificates)
+            self.channel = channels.secure_channel(self.address, creds, options=_OPTIONS)
+        else:
+            self.channel = channels.insecure_channel(self.address, options=_OPTIONS)
+        self.world = world_model_pb2_grpc.WorldModelStub(self.channel)
+        self.sessions = sessions_pb2_grpc.SessionsStub(self.channel)
+
 
 # ---- synchronous ----
 
@@ -514,13 +524,7 @@ class GrpcClient(_Base):
         root_certificates: Optional[bytes] = None,
     ) -> None:
         super().__init__(target, timeout, stream_timeout, step_timeout, affinity, token, root_certificates)
-        if self.tls:
-            creds = grpc.ssl_channel_credentials(root_certificates)
-            self.channel = grpc.secure_channel(self.address, creds, options=_OPTIONS)
-        else:
-            self.channel = grpc.insecure_channel(self.address, options=_OPTIONS)
-        self.world = world_model_pb2_grpc.WorldModelStub(self.channel)
-        self.sessions = sessions_pb2_grpc.SessionsStub(self.channel)
+        self._connect(grpc)
 
     def close(self) -> None:
         """Closes the channel (cancelling calls still open)."""
@@ -906,13 +910,7 @@ class AsyncGrpcClient(_Base):
         root_certificates: Optional[bytes] = None,
     ) -> None:
         super().__init__(target, timeout, stream_timeout, step_timeout, affinity, token, root_certificates)
-        if self.tls:
-            creds = grpc.ssl_channel_credentials(root_certificates)
-            self.channel = grpc.aio.secure_channel(self.address, creds, options=_OPTIONS)
-        else:
-            self.channel = grpc.aio.insecure_channel(self.address, options=_OPTIONS)
-        self.world = world_model_pb2_grpc.WorldModelStub(self.channel)
-        self.sessions = sessions_pb2_grpc.SessionsStub(self.channel)
+        self._connect(grpc.aio)
 
     async def close(self) -> None:
         """Closes the channel."""
