@@ -63,6 +63,11 @@ pub struct DataConfig {
     /// recorded pose at `t + k`, so the model learns to correct the errors it makes itself in
     /// a rollout. Only samples with `t >= 2k` qualify. 0 disables.
     pub pushforward: f32,
+    /// Fraction of the samples whose window frame is drawn with probability proportional to
+    /// its surprise (how far the objects' acceleration departs from the window before's: an
+    /// impact, a pusher's first touch) instead of uniformly; see [`super::events`]. The other
+    /// samples, and validation windows, stay uniform. 0 disables.
+    pub event_share: f32,
     /// Batches the loader thread prepares ahead of the trainer.
     pub prefetch: usize,
     /// Scenes read to fit the feature normalisation before training.
@@ -86,6 +91,7 @@ impl Default for DataConfig {
             noise_position: 0.0,
             noise_rotation: 0.0,
             pushforward: 0.0,
+            event_share: 0.0,
             prefetch: 8,
             norm_scenes: 200,
             norm_windows: 4,
@@ -294,6 +300,9 @@ impl TrainConfig {
         }
         if !(0.0..=1.0).contains(&d.pushforward) {
             return bad("data.pushforward must be a probability in [0, 1]");
+        }
+        if !(0.0..=1.0).contains(&d.event_share) {
+            return bad("data.event_share must be a fraction in [0, 1]");
         }
         if d.prefetch == 0 {
             return bad("data.prefetch must be >= 1");

@@ -134,7 +134,16 @@ pub fn sample_window(
         valid[rng.random_range(0..valid.len())]
     };
     let ku = k as usize;
-    let t = rng.random_range(ku..=frames - 1 - ku);
+    // The event draw happens only when enabled, so configurations without it keep their
+    // sample streams.
+    let weighted = noise && c.event_share > 0.0 && rng.random::<f32>() < c.event_share;
+    let t = match weighted
+        .then(|| super::events::draw_frame(scene, ku, rng))
+        .flatten()
+    {
+        Some(t) => t,
+        None => rng.random_range(ku..=frames - 1 - ku),
+    };
     let mut order: Vec<usize> = (0..scene.objects.len()).collect();
     if c.shuffle_objects {
         order.shuffle(rng);

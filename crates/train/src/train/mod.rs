@@ -4,6 +4,7 @@
 //! - [`config`]: the documented configuration (TOML or JSON);
 //! - [`data`]: the streaming loader (worker thread, windows, augmentation) and the fit of the
 //!   feature normalisation;
+//! - [`events`]: event-weighted choice of a window's frame (impacts, first touches);
 //! - [`optim`]: learning-rate schedule, gradient clipping, AdamW with per-parameter decay;
 //! - [`trainer`]: the loop, its checkpoints, resume, CSV log and loss curve;
 //! - [`run_dir`]: a run directory's checkpoint swap, resume point and log truncation, shared
@@ -13,6 +14,7 @@
 
 pub mod config;
 pub mod data;
+pub mod events;
 pub mod export;
 pub mod optim;
 pub mod plot;
