@@ -77,9 +77,24 @@ fn scene(seed: u64, cubes: &[([f32; 3], f32, Material)], frames: usize) -> Train
 /// A tiny model whose zero-initialised gates and head are perturbed, so every path carries
 /// signal (a fresh model is the identity by design).
 fn perturbed_model(seed: u64) -> PhysiFormer {
-    let m = PhysiFormer::new("test", PhysiConfig::tiny(), seed, &Device::Cpu).unwrap();
+    perturbed_model_with(PhysiConfig::tiny(), seed)
+}
+
+/// [`perturbed_model`] with another configuration of the same shapes (same weights).
+fn perturbed_model_with(config: PhysiConfig, seed: u64) -> PhysiFormer {
+    let m = PhysiFormer::new("test", config, seed, &Device::Cpu).unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(seed + 1);
-    for var in m.varmap().all_vars() {
+    // In name order: the map's own order differs between instances.
+    let mut vars: Vec<_> = m
+        .varmap()
+        .data()
+        .lock()
+        .unwrap()
+        .clone()
+        .into_iter()
+        .collect();
+    vars.sort_by(|a, b| a.0.cmp(&b.0));
+    for (_, var) in vars {
         let n = var.elem_count();
         let noise: Vec<f32> = (0..n).map(|_| rng.random_range(-0.1..0.1)).collect();
         let noise = Tensor::from_vec(noise, var.shape(), &Device::Cpu).unwrap();
@@ -273,6 +288,50 @@ fn prepared_scenes_give_what_the_per_step_path_gives() {
     let err = model.prepare(&a.scene, 1).unwrap_err();
     assert!(err.to_string().contains("frames"), "{err}");
     assert!(model.denoise_prepared(&[]).is_err());
+}
+
+/// With `correction_ramp_frames = n`, the network's correction of the prior at frame `f` is
+/// scaled by `min(1, f / n)`: frame 0 is the prior itself, frames from `n` on are unchanged,
+/// and the frames between are the prior plus the scaled correction.
+#[test]
+fn the_correction_ramp_scales_the_correction_by_frame() {
+    use dynaserve_model::physiformer::config::TrajectoryPrior;
+    let plain = PhysiConfig {
+        prior: TrajectoryPrior::Static,
+        ..PhysiConfig::tiny()
+    };
+    let ramped = PhysiConfig {
+        correction_ramp_frames: 4,
+        ..plain.clone()
+    };
+    let (m0, m4) = (
+        perturbed_model_with(plain, 11),
+        perturbed_model_with(ramped, 11),
+    );
+    let ts = two_objects();
+    let z = noisy(&ts, 12);
+    let item = [DenoiseItem {
+        scene: &ts.scene,
+        z: &z,
+        frames: ts.frames,
+        t: 0.4,
+    }];
+    let (a, b) = (
+        m0.denoise(&item).unwrap().remove(0),
+        m4.denoise(&item).unwrap().remove(0),
+    );
+    let x0: Vec<f32> = ts.scene.positions.iter().flatten().copied().collect();
+    let nv3 = x0.len();
+    for f in 0..ts.frames {
+        let w = (f as f32 / 4.0).min(1.0);
+        let expect: Vec<f32> = (0..nv3)
+            .map(|i| x0[i] + w * (a[f * nv3 + i] - x0[i]))
+            .collect();
+        let d = max_diff(&b[f * nv3..(f + 1) * nv3], &expect);
+        assert!(d < 1e-5, "frame {f}: {d}");
+    }
+    // The network does correct the prior, so the test above can fail.
+    assert!(max_diff(&a[nv3..2 * nv3], &x0) > 1e-3);
 }
 
 #[test]

@@ -87,6 +87,13 @@ pub struct PhysiConfig {
     /// checkpoints, which are `static`.
     #[serde(default)]
     pub prior: TrajectoryPrior,
+    /// Frames over which the network's correction of the prior grows from nothing to its full
+    /// size: the output at frame `f` is `prior + min(1, f / n) * head`. Near frame 0 the prior
+    /// (the initial state moving with its initial velocity) is nearly exact, and the ramp lets
+    /// the network depart from it only as far as time allows. 0 = no ramp (checkpoints written
+    /// before the option).
+    #[serde(default)]
+    pub correction_ramp_frames: usize,
 }
 
 impl PhysiConfig {
@@ -115,6 +122,7 @@ impl PhysiConfig {
             t_eps: 0.05,
             default_steps: 50,
             prior: TrajectoryPrior::Ballistic,
+            correction_ramp_frames: 0,
         }
     }
 

@@ -262,7 +262,12 @@ impl PhysiFormer {
         }
         let m = self.final_ada.forward(&c)?.chunk(2, D::Minus1)?;
         let y = modulate(&self.final_norm.forward(&x, mode)?, &m[0], &m[1])?;
-        self.head.forward(&y)?.broadcast_add(&inp.prior)
+        let correction = self.head.forward(&y)?;
+        let correction = match self.config.correction_ramp_frames {
+            0 => correction,
+            n => correction.broadcast_mul(&correction_ramp(inp.t, n, x.device())?)?,
+        };
+        correction.broadcast_add(&inp.prior)
     }
 
     /// One network evaluation of many scenes, each at its own flow time: the predicted clean
@@ -303,6 +308,15 @@ impl PhysiFormer {
         }
         Ok(())
     }
+}
+
+/// The weight `min(1, f / n)` of the network's correction at frame `f` of `frames`
+/// (`PhysiConfig::correction_ramp_frames`): `[1, frames, 1, 1]`.
+fn correction_ramp(frames: usize, n: usize, device: &Device) -> candle_core::Result<Tensor> {
+    let w: Vec<f32> = (0..frames)
+        .map(|f| (f as f32 / n as f32).min(1.0))
+        .collect();
+    Tensor::from_vec(w, (1, frames, 1, 1), device)
 }
 
 /// Reads and validates a PhysiFormer `config.json` from a checkpoint directory.

@@ -43,6 +43,15 @@ pub struct PhysiTrainConfig {
     /// other than the checkpoint's.
     #[serde(default)]
     pub prior: Option<TrajectoryPrior>,
+    /// Frames over which the network's correction of the prior ramps up from zero
+    /// (`correction_ramp_frames` of the model's `config.json`), replacing the preset's or the
+    /// `init` model's; `--resume` refuses a value other than the checkpoint's.
+    #[serde(default)]
+    pub correction_ramp_frames: Option<usize>,
+    /// A model directory whose weights (and configuration, with `prior` and
+    /// `correction_ramp_frames` applied) a new run starts from instead of a fresh preset.
+    #[serde(default)]
+    pub init: Option<PathBuf>,
     /// Mesh dataset split directories trained on (scenes drawn uniformly from their union).
     pub train: Vec<PathBuf>,
     /// Optimiser and schedule (`[optim]`, as for RigidFormer).
@@ -113,6 +122,13 @@ pub fn run(
                 m.config().prior
             );
         }
+        if let Some(n) = cfg.correction_ramp_frames {
+            anyhow::ensure!(
+                n == m.config().correction_ramp_frames,
+                "--resume: the configuration asks for correction_ramp_frames {n} but the run's checkpoint has {}",
+                m.config().correction_ramp_frames
+            );
+        }
         m
     } else {
         anyhow::ensure!(
@@ -121,12 +137,40 @@ pub fn run(
             cfg.out_dir.display()
         );
         std::fs::create_dir_all(&cfg.out_dir)?;
-        let mut mc = PhysiConfig::preset(&cfg.preset)?;
-        mc.frames = scenes.iter().map(|s| s.frames).max().unwrap_or(mc.frames);
-        if let Some(prior) = cfg.prior {
-            mc.prior = prior;
+        let adjust = |mc: &mut PhysiConfig| {
+            if let Some(prior) = cfg.prior {
+                mc.prior = prior;
+            }
+            if let Some(n) = cfg.correction_ramp_frames {
+                mc.correction_ramp_frames = n;
+            }
+        };
+        match &cfg.init {
+            Some(dir) => {
+                let init = PhysiFormer::load(dir, &device, true)
+                    .with_context(|| format!("init: {}", dir.display()))?;
+                let mut mc = init.config().clone();
+                adjust(&mut mc);
+                let m = PhysiFormer::new("physiformer", mc, cfg.seed, &device)?;
+                let weights: HashMap<String, _> = init
+                    .varmap()
+                    .data()
+                    .lock()
+                    .unwrap()
+                    .iter()
+                    .map(|(k, v)| (k.clone(), v.as_tensor().clone()))
+                    .collect();
+                m.set_weights(&weights)
+                    .with_context(|| format!("init: {}", dir.display()))?;
+                m
+            }
+            None => {
+                let mut mc = PhysiConfig::preset(&cfg.preset)?;
+                mc.frames = scenes.iter().map(|s| s.frames).max().unwrap_or(mc.frames);
+                adjust(&mut mc);
+                PhysiFormer::new("physiformer", mc, cfg.seed, &device)?
+            }
         }
-        PhysiFormer::new("physiformer", mc, cfg.seed, &device)?
     };
     for (i, s) in scenes.iter().enumerate() {
         s.scene
