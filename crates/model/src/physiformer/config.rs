@@ -26,6 +26,10 @@ pub enum TrajectoryPrior {
     /// Each vertex's ballistic path from its initial position and velocity under gravity,
     /// `X_0 + V_0 s + g s^2 / 2` at `s = frame * dt_frame` seconds, clamped to the box.
     Ballistic,
+    /// The same free flight, but an object that would leave the box is shifted back as a
+    /// whole instead of vertex by vertex: an object resting on the floor stays on it, and a
+    /// translating rigid object stays rigid (the vertex clamp squashes it against the floor).
+    ObjectBallistic,
 }
 
 /// Every size and constant of a PhysiFormer network; nothing about its shape is hard-coded.

@@ -94,13 +94,34 @@ fn ballistic_prior(
     out: &mut [f32],
 ) {
     let e = config.box_half_extent;
+    let per_object = config.prior == TrajectoryPrior::ObjectBallistic;
     for fr in 0..frames {
         let s = fr as f32 * config.dt_frame;
+        let frame = &mut out[fr * v * 3..(fr * v + scene.vertices()) * 3];
         for (i, (p, u)) in scene.positions.iter().zip(&scene.velocities).enumerate() {
             for c in 0..3 {
-                let x = p[c] + u[c] * s + 0.5 * config.gravity[c] * s * s;
-                out[(fr * v + i) * 3 + c] = x.clamp(-e, e);
+                frame[i * 3 + c] = p[c] + u[c] * s + 0.5 * config.gravity[c] * s * s;
             }
+        }
+        if per_object {
+            // Shift each object back inside the box as a whole, axis by axis.
+            for w in scene.vertex_offsets.windows(2) {
+                let rows = &mut frame[w[0] * 3..w[1] * 3];
+                for c in 0..3 {
+                    let (lo, hi) = rows
+                        .chunks_exact(3)
+                        .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), r| {
+                            (lo.min(r[c]), hi.max(r[c]))
+                        });
+                    let shift = (-e - lo).max(0.0) - (hi - e).max(0.0);
+                    for r in rows.chunks_exact_mut(3) {
+                        r[c] += shift;
+                    }
+                }
+            }
+        }
+        for x in frame.iter_mut() {
+            *x = x.clamp(-e, e);
         }
     }
 }
@@ -119,7 +140,7 @@ pub(crate) struct SceneLayout {
     v0: Vec<f32>,
     /// Material input of each vertex's object `[V, 2]`.
     material: Vec<f32>,
-    /// Ballistic prior `[frames, V, 3]`, metres; empty for the static prior.
+    /// Ballistic prior (either kind) `[frames, V, 3]`, metres; empty for the static prior.
     prior: Vec<f32>,
     /// Per-object key bias of one frame's group `[R + V, R + V]` (the same at every frame).
     object_bias: Vec<f32>,
@@ -149,7 +170,7 @@ impl SceneLayout {
             v0.extend_from_slice(u);
             material.extend_from_slice(&scene.materials[objects[i] as usize].features());
         }
-        let prior = if config.prior == TrajectoryPrior::Ballistic {
+        let prior = if config.prior != TrajectoryPrior::Static {
             let mut p = vec![0f32; frames * nv * 3];
             ballistic_prior(config, scene, frames, nv, &mut p);
             p
@@ -279,7 +300,7 @@ fn assemble(
     let r = config.registers;
     let f = config.coord_freqs();
     let (lv, lt) = (r + v, r + t);
-    let ballistic = config.prior == TrajectoryPrior::Ballistic;
+    let ballistic = config.prior != TrajectoryPrior::Static;
 
     let mut z = vec![0f32; b * t * v * 3];
     let mut x0 = vec![0f32; b * v * 3];
@@ -560,6 +581,44 @@ mod tests {
         let last_x = p[(4 * 2 + 1) * 3];
         assert_eq!(last_x, cfg.box_half_extent);
         assert!(p.iter().all(|x| x.abs() <= cfg.box_half_extent));
+    }
+
+    /// The object-wise prior shifts a whole object back into the box: a resting box on the
+    /// floor keeps its shape and height where the vertex clamp squashes it.
+    #[test]
+    fn object_ballistic_prior_keeps_a_resting_object_whole() {
+        let e = 1.0;
+        let sc = MeshScene {
+            positions: vec![[0.0, 0.0, -e], [0.0, 0.0, -e + 0.2], [0.1, 0.0, -e]],
+            velocities: vec![[0.5, 0.0, 0.0]; 3],
+            vertex_offsets: vec![0, 3],
+            materials: vec![Material::Rigid],
+        };
+        let run = |prior| {
+            let cfg = PhysiConfig {
+                prior,
+                ..PhysiConfig::tiny()
+            };
+            let mut out = vec![0f32; 5 * 3 * 3];
+            ballistic_prior(&cfg, &sc, 5, 3, &mut out);
+            (cfg, out)
+        };
+        let (cfg, whole) = run(TrajectoryPrior::ObjectBallistic);
+        let (_, clamped) = run(TrajectoryPrior::Ballistic);
+        let s = 4.0 * cfg.dt_frame;
+        for i in 0..3 {
+            let at = (4 * 3 + i) * 3;
+            let p = sc.positions[i];
+            // Slides with its velocity and keeps its height.
+            assert!((whole[at] - (p[0] + 0.5 * s)).abs() < 1e-6);
+            assert!(
+                (whole[at + 2] - p[2]).abs() < 1e-6,
+                "vertex {i}: {}",
+                whole[at + 2]
+            );
+        }
+        // The vertex clamp lets the top vertex fall towards the floor.
+        assert!(clamped[(4 * 3 + 1) * 3 + 2] < sc.positions[1][2] - 0.01);
     }
 
     #[test]
