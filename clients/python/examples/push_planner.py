@@ -58,6 +58,20 @@ def path_from(start_xy: np.ndarray, velocities: np.ndarray, dt: float) -> np.nda
     return poses
 
 
+def approach_cost(traj: np.ndarray, paths: np.ndarray, goal: np.ndarray) -> np.ndarray:
+    """How close each candidate's pusher comes to the box's pushing side ``[candidates]``, m:
+    the smallest distance over the horizon between the pusher (``paths``: ``[candidates,
+    steps, 7]``) and the point just behind the predicted box (``traj``: ``[candidates, steps,
+    objects, 7]``) on the side away from the goal, from where a push moves it towards the goal.
+    It rewards making contact from the right side before the model's rollout can show the box
+    moving."""
+    box = traj[:, :, BOX, :2]
+    away = box - goal
+    away /= np.linalg.norm(away, axis=-1, keepdims=True) + 1e-9
+    behind = box + away * (HALF + PUSHER_HALF)
+    return np.linalg.norm(paths[:, :, :2] - behind, axis=-1).min(axis=1)
+
+
 def find_dynaserve(given: Optional[str]) -> Optional[str]:
     """The ``dynaserve`` binary: ``given``, else the repository's release or debug build, else
     the one on ``PATH``; ``None`` when there is none."""
@@ -101,6 +115,12 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=48, help="candidate paths per call")
     ap.add_argument("--iterations", type=int, default=2, help="CEM iterations per round")
     ap.add_argument("--speed", type=float, default=0.8, help="largest pusher speed, m/s")
+    ap.add_argument(
+        "--approach-weight",
+        type=float,
+        default=0.5,
+        help="weight of the pusher's distance to the box's pushing side in the cost (0: goal distance only)",
+    )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--dynaserve", help="dynaserve binary for the rapier replay (default: found)")
     args = ap.parse_args()
@@ -132,10 +152,12 @@ def main() -> None:
         for _ in range(args.iterations):
             v = np.clip(mean + std * rng.standard_normal((args.samples, args.horizon, 2)), -args.speed, args.speed)
             paths = [path_from(here[PUSHER, :2], v[i], dt_frame) for i in range(args.samples)]
-            final = session.predict(args.horizon, kinematic=[{PUSHER: p} for p in paths])[:, -1]
+            traj = session.predict(args.horizon, kinematic=[{PUSHER: p} for p in paths])
             calls += 1
             sent += client.last_request_bytes
-            cost = np.linalg.norm(final[:, BOX, :2] - goal, axis=1)
+            cost = np.linalg.norm(traj[:, -1, BOX, :2] - goal, axis=1)
+            if args.approach_weight > 0:
+                cost += args.approach_weight * approach_cost(traj, np.array(paths), goal)
             elite = v[np.argsort(cost)[: max(2, args.samples // 8)]]
             mean, std = elite.mean(axis=0), elite.std(axis=0) + 0.05
         best = path_from(here[PUSHER, :2], mean, dt_frame)

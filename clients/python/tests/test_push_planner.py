@@ -1,0 +1,30 @@
+"""The push planner example's cost terms (no server needed)."""
+
+import importlib.util
+import os
+import unittest
+
+import numpy as np
+
+_PATH = os.path.join(os.path.dirname(__file__), "..", "examples", "push_planner.py")
+_spec = importlib.util.spec_from_file_location("push_planner", _PATH)
+planner = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(planner)
+
+
+class ApproachCost(unittest.TestCase):
+    def test_zero_behind_the_box_and_larger_on_the_wrong_side(self):
+        goal = np.array([1.0, 0.0])
+        steps = 3
+        traj = np.zeros((2, steps, 2, 7))  # box at the origin, not moving
+        behind = -(planner.HALF + planner.PUSHER_HALF)
+        paths = np.zeros((2, steps, 7))
+        paths[0, :, 0] = [behind - 0.2, behind - 0.1, behind]  # reaches the pushing side
+        paths[1, :, 0] = [-behind, -behind + 0.1, -behind + 0.2]  # stays on the goal side
+        cost = planner.approach_cost(traj, paths, goal)
+        self.assertAlmostEqual(cost[0], 0.0, places=9)
+        self.assertAlmostEqual(cost[1], 2 * -behind, places=9)
+
+
+if __name__ == "__main__":
+    unittest.main()
