@@ -32,6 +32,14 @@ pub enum TrajectoryPrior {
     ObjectBallistic,
 }
 
+impl TrajectoryPrior {
+    /// True when the prior differs from frame to frame (both ballistic kinds), so a pass lays
+    /// it out `[B, T, V, 3]`; the static prior is the frame-0 positions `[B, 1, V, 3]`.
+    pub fn per_frame(self) -> bool {
+        self != TrajectoryPrior::Static
+    }
+}
+
 /// Every size and constant of a PhysiFormer network; nothing about its shape is hard-coded.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

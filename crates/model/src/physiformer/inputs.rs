@@ -43,7 +43,7 @@ pub(crate) struct PassInputs {
     /// Noisy positions `[B, T, V, 3]`.
     pub z: Tensor,
     /// The trajectory the network output is added to (`TrajectoryPrior`): `[B, 1, V, 3]` for
-    /// the static prior (frame-0 positions), `[B, T, V, 3]` for the ballistic one, metres.
+    /// the static prior (frame-0 positions), `[B, T, V, 3]` for either ballistic prior, metres.
     pub prior: Tensor,
     /// The scenes' frame-0 condition, raw or embedded.
     pub condition: Condition,
@@ -82,10 +82,10 @@ fn coord_phases(p: [f32; 3], freqs: usize, out: &mut Vec<f32>) {
     }
 }
 
-/// Writes the ballistic prior of `scene` for its first `frames` frames into `out`
-/// (`[T, v, 3]` of the pass, `v` its padded vertex count; padded rows left at zero): each
-/// vertex moves from its initial position with its initial velocity under gravity, clamped to
-/// the box, metres.
+/// Writes the ballistic prior of `scene` for its first `frames` frames into `out` (`[T, v, 3]`
+/// of the pass, `v` its padded vertex count; padded rows left at zero): each vertex moves from
+/// its initial position with its initial velocity under gravity and is kept in the box, vertex
+/// by vertex or, for `ObjectBallistic`, object by object; metres.
 fn ballistic_prior(
     config: &PhysiConfig,
     scene: &MeshScene,
@@ -170,7 +170,7 @@ impl SceneLayout {
             v0.extend_from_slice(u);
             material.extend_from_slice(&scene.materials[objects[i] as usize].features());
         }
-        let prior = if config.prior != TrajectoryPrior::Static {
+        let prior = if config.prior.per_frame() {
             let mut p = vec![0f32; frames * nv * 3];
             ballistic_prior(config, scene, frames, nv, &mut p);
             p
@@ -300,11 +300,11 @@ fn assemble(
     let r = config.registers;
     let f = config.coord_freqs();
     let (lv, lt) = (r + v, r + t);
-    let ballistic = config.prior != TrajectoryPrior::Static;
+    let per_frame_prior = config.prior.per_frame();
 
     let mut z = vec![0f32; b * t * v * 3];
     let mut x0 = vec![0f32; b * v * 3];
-    let mut prior = if ballistic {
+    let mut prior = if per_frame_prior {
         vec![0f32; b * t * v * 3]
     } else {
         Vec::new()
@@ -332,7 +332,7 @@ fn assemble(
             frame_mask[s * t + fr] = 1.0;
             let at = ((s * t + fr) * v) * 3;
             z[at..at + nv * 3].copy_from_slice(&sc.z[fr * nv * 3..(fr + 1) * nv * 3]);
-            if ballistic {
+            if per_frame_prior {
                 prior[at..at + nv * 3].copy_from_slice(&lay.prior[fr * nv * 3..(fr + 1) * nv * 3]);
             }
             token_mask[(s * t + fr) * v..][..nv].fill(1.0);
@@ -403,7 +403,7 @@ fn assemble(
     let ssin: Vec<f32> = phases.iter().map(|p| p.sin()).collect();
 
     let x0 = tensor(x0, &[b, 1, v, 3], device)?;
-    let prior = if ballistic {
+    let prior = if per_frame_prior {
         tensor(prior, &[b, t, v, 3], device)?
     } else {
         x0.clone()
