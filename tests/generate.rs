@@ -82,6 +82,7 @@ fn request(frames: u32, steps: u32, samples: u32, seed: u64) -> json::GenerateRe
         samples,
         seed,
         timeout_ms: 0,
+        raw_vertices: false,
         stream: false,
     }
 }
@@ -104,6 +105,10 @@ async fn generate_grpc(
         }
     }
     Ok((progress, samples))
+}
+
+fn dist(a: [f32; 3], b: [f32; 3]) -> f32 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 
 fn max_vertex_diff(a: &[json::GeneratedSample], b: &[json::GeneratedSample]) -> f32 {
@@ -180,6 +185,55 @@ async fn generate_over_grpc_and_http_with_both_models_resident() {
     }
     // The samples start from different noise, so they differ.
     assert!(max_vertex_diff(&samples[..1], &samples[1..]) > 1e-4);
+    // Rigid objects come back exactly rigid: every frame keeps frame 0's pairwise distances.
+    let rigid_error = |samples: &[json::GeneratedSample]| {
+        let v0 = &req.scene.objects[0].vertices;
+        let mut worst = 0f32;
+        for f in samples.iter().flat_map(|s| &s.frames) {
+            let v = &f.objects[0].vertices;
+            for i in 0..v.len() {
+                for j in 0..i {
+                    worst = worst.max((dist(v[i], v[j]) - dist(v0[i], v0[j])).abs());
+                }
+            }
+        }
+        worst
+    };
+    assert!(rigid_error(&samples) < 1e-4, "{}", rigid_error(&samples));
+    // raw_vertices: the same samples and fits, the rigid cube's vertices as the network drew
+    // them (not rigid: its fit residual is what the projection removed).
+    let mut raw_req = req.clone();
+    raw_req.raw_vertices = true;
+    let (_, raw) = generate_grpc(&mut c, &raw_req).await.unwrap();
+    let (last, last_raw) = (
+        &samples[0].frames[4].objects[0],
+        &raw[0].frames[4].objects[0],
+    );
+    let rms = last_raw.fit_rms.unwrap();
+    assert!((last.fit_rms.unwrap() - rms).abs() < 1e-5);
+    assert!(
+        rms > 0.0 && rigid_error(&raw) > 1e-4,
+        "raw sample rigid to {rms} m"
+    );
+    let moved = last
+        .vertices
+        .iter()
+        .zip(&last_raw.vertices)
+        .map(|(a, b)| dist(*a, *b).powi(2))
+        .sum::<f32>()
+        / 8.0;
+    assert!(
+        (moved.sqrt() - rms).abs() < 1e-4,
+        "{} vs {rms}",
+        moved.sqrt()
+    );
+    let elastic = samples[0].frames[4].objects[1]
+        .vertices
+        .iter()
+        .zip(&raw[0].frames[4].objects[1].vertices)
+        .map(|(a, b)| dist(*a, *b))
+        .fold(0f32, f32::max);
+    assert!(elastic < 1e-5, "elastic vertices {elastic} m apart");
 
     // Same request, same seed: the same trajectories (to float rounding: the two samples may
     // share a pass or not, and a pass's layout reorders a few sums); another seed: others.
@@ -246,13 +300,13 @@ async fn generate_over_grpc_and_http_with_both_models_resident() {
         &text,
         &format!("dynaserve_denoise_steps_total{{model=\"{PHYSI}\"}}"),
     );
-    // 6 calls of 2 samples x 3 steps (the warm-up is not counted).
-    assert_eq!(steps, Some(36.0), "{steps:?}");
+    // 7 calls of 2 samples x 3 steps (the warm-up is not counted).
+    assert_eq!(steps, Some(42.0), "{steps:?}");
     let timed = sample(
         &text,
         &format!("dynaserve_generate_sample_seconds_count{{model=\"{PHYSI}\"}}"),
     );
-    assert_eq!(timed, Some(12.0));
+    assert_eq!(timed, Some(14.0));
     server.shutdown();
     server.wait().await.unwrap();
 }

@@ -345,6 +345,7 @@ def _generate_request(
     seed: int,
     model: str,
     timeout_ms: int,
+    raw_vertices: bool,
 ) -> pb.GenerateRequest:
     if sampler not in _SAMPLERS:
         raise ValueError(f"sampler: {sampler!r} is not one of {sorted(_SAMPLERS)}")
@@ -357,6 +358,7 @@ def _generate_request(
         samples=samples,
         seed=seed,
         timeout_ms=timeout_ms,
+        raw_vertices=raw_vertices,
     )
 
 
@@ -601,11 +603,16 @@ class GrpcClient(_Base):
         timeout_ms: int = 0,
         timeout: Optional[float] = None,
         on_progress: Optional[Callable[[dict], None]] = None,
+        raw_vertices: bool = False,
     ) -> Generated:
         """Samples whole trajectories of a mesh scene with a PhysiFormer model; ``frames`` and
         ``denoise_steps`` of 0 take the model's defaults. ``on_progress`` is called once per
-        denoising step. The result's ``vertices`` are ``[samples, frames, vertices, 3]``."""
-        req = _generate_request(objects, frames, denoise_steps, sampler, samples, seed, model, timeout_ms)
+        denoising step. The result's ``vertices`` are ``[samples, frames, vertices, 3]``; a rigid
+        object's are its frame-0 vertices moved by its fitted pose (exactly rigid) unless
+        ``raw_vertices`` asks for the network's own."""
+        req = _generate_request(
+            objects, frames, denoise_steps, sampler, samples, seed, model, timeout_ms, raw_vertices
+        )
         call = self.world.Generate(req, timeout=timeout or self.stream_timeout, metadata=self.metadata)
         out = _Collector(objects, on_progress)
         try:
@@ -982,9 +989,12 @@ class AsyncGrpcClient(_Base):
         timeout_ms: int = 0,
         timeout: Optional[float] = None,
         on_progress: Optional[Callable[[dict], None]] = None,
+        raw_vertices: bool = False,
     ) -> Generated:
         """See :meth:`GrpcClient.generate`; ``vertices`` ``[samples, frames, vertices, 3]``."""
-        req = _generate_request(objects, frames, denoise_steps, sampler, samples, seed, model, timeout_ms)
+        req = _generate_request(
+            objects, frames, denoise_steps, sampler, samples, seed, model, timeout_ms, raw_vertices
+        )
         call = self.world.Generate(req, timeout=timeout or self.stream_timeout, metadata=self.metadata)
         out = _Collector(objects, on_progress)
         try:

@@ -210,6 +210,18 @@ class GrpcTest(unittest.TestCase):
             [[np.concatenate([o["vertices"] for o in f["objects"]]) for f in s["frames"]] for s in http["samples"]]
         )
         np.testing.assert_allclose(g.vertices, over_http, atol=1e-5)
+        # The rigid cube keeps its shape; with raw_vertices it is the network's own vertices,
+        # as far from rigid as the fit residual says.
+        def spread(v):
+            return np.linalg.norm(v[..., :, None, :] - v[..., None, :, :], axis=-1)
+
+        cube = g.object_vertices(0)
+        np.testing.assert_allclose(spread(cube), np.broadcast_to(spread(cube[0, 0]), spread(cube).shape), atol=1e-4)
+        raw = self.g.generate(mesh_scene(), frames=6, denoise_steps=2, samples=2, seed=7, raw_vertices=True)
+        np.testing.assert_allclose(raw.fit_rms, g.fit_rms, atol=1e-5)
+        moved = np.sqrt(((raw.object_vertices(0) - cube) ** 2).sum(-1).mean(-1))
+        np.testing.assert_allclose(moved, raw.fit_rms[:, :, 0], atol=1e-4)
+        np.testing.assert_allclose(raw.object_vertices(1), g.object_vertices(1), atol=1e-5)
 
     def test_errors_carry_status_code_and_field(self):
         bad = bodies()

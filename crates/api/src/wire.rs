@@ -164,6 +164,7 @@ impl crate::json::GenerateRequest {
             samples: self.samples,
             seed: self.seed,
             timeout_ms: self.timeout_ms,
+            raw_vertices: self.raw_vertices,
         }
     }
 }

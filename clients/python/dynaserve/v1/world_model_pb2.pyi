@@ -240,7 +240,7 @@ class MeshScene(_message.Message):
     def __init__(self, objects: _Optional[_Iterable[_Union[MeshObject, _Mapping]]] = ...) -> None: ...
 
 class GenerateRequest(_message.Message):
-    __slots__ = ("model", "scene", "frames", "denoise_steps", "sampler", "samples", "seed", "timeout_ms")
+    __slots__ = ("model", "scene", "frames", "denoise_steps", "sampler", "samples", "seed", "timeout_ms", "raw_vertices")
     MODEL_FIELD_NUMBER: _ClassVar[int]
     SCENE_FIELD_NUMBER: _ClassVar[int]
     FRAMES_FIELD_NUMBER: _ClassVar[int]
@@ -249,6 +249,7 @@ class GenerateRequest(_message.Message):
     SAMPLES_FIELD_NUMBER: _ClassVar[int]
     SEED_FIELD_NUMBER: _ClassVar[int]
     TIMEOUT_MS_FIELD_NUMBER: _ClassVar[int]
+    RAW_VERTICES_FIELD_NUMBER: _ClassVar[int]
     model: str
     scene: MeshScene
     frames: int
@@ -257,7 +258,8 @@ class GenerateRequest(_message.Message):
     samples: int
     seed: int
     timeout_ms: int
-    def __init__(self, model: _Optional[str] = ..., scene: _Optional[_Union[MeshScene, _Mapping]] = ..., frames: _Optional[int] = ..., denoise_steps: _Optional[int] = ..., sampler: _Optional[_Union[Sampler, str]] = ..., samples: _Optional[int] = ..., seed: _Optional[int] = ..., timeout_ms: _Optional[int] = ...) -> None: ...
+    raw_vertices: bool
+    def __init__(self, model: _Optional[str] = ..., scene: _Optional[_Union[MeshScene, _Mapping]] = ..., frames: _Optional[int] = ..., denoise_steps: _Optional[int] = ..., sampler: _Optional[_Union[Sampler, str]] = ..., samples: _Optional[int] = ..., seed: _Optional[int] = ..., timeout_ms: _Optional[int] = ..., raw_vertices: _Optional[bool] = ...) -> None: ...
 
 class GenerateProgress(_message.Message):
     __slots__ = ("step", "steps", "t", "timing")

@@ -87,6 +87,10 @@ pub struct GenerateRequest {
     /// Deadline, milliseconds from arrival; 0 or absent means none.
     #[serde(default, skip_serializing_if = "is_zero_u32")]
     pub timeout_ms: u32,
+    /// Return rigid objects' vertices as sampled; by default (false) they are the frame-0
+    /// vertices moved by the fitted rigid motion, so rigid objects stay exactly rigid.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub raw_vertices: bool,
     /// Stream `progress` and `sample` events as Server-Sent Events (same as
     /// `Accept: text/event-stream`).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
@@ -112,13 +116,14 @@ pub struct GenerateProgress {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct ObjectFrame {
-    /// Vertex positions `[[x, y, z], ...]`, metres, world frame, in request order.
+    /// Vertex positions `[[x, y, z], ...]`, metres, world frame, in request order. For a rigid
+    /// object, its frame-0 vertices moved by `pose` unless the request set `raw_vertices`.
     pub vertices: Vec<[f32; 3]>,
-    /// Rigid objects: the best-fitting rigid motion (Kabsch) as a pose whose body frame is the
-    /// frame-0 vertices about their centroid.
+    /// Rigid objects: the rigid motion best fitting the sampled vertices (Kabsch) as a pose
+    /// whose body frame is the frame-0 vertices about their centroid.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pose: Option<Pose>,
-    /// Rigid objects: RMS distance of the vertices from that rigid motion, metres.
+    /// Rigid objects: RMS distance of the sampled vertices from that rigid motion, metres.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fit_rms: Option<f32>,
 }

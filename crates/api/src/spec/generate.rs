@@ -47,6 +47,8 @@ pub struct GenerateSpec {
     pub seed: u64,
     /// Deadline in milliseconds from arrival; 0 means none.
     pub timeout_ms: u32,
+    /// Rigid objects' vertices as sampled instead of moved by their fitted rigid motion.
+    pub raw_vertices: bool,
 }
 
 /// One denoising step completed by every sample of a request.
@@ -74,9 +76,10 @@ pub struct RigidFit {
 /// One object at one frame.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ObjectFrame {
-    /// Vertex positions `[n, 3]`, metres, world frame.
+    /// Vertex positions `[n, 3]`, metres, world frame (for a rigid object, its frame-0
+    /// vertices moved by `fit` unless the request asked for the raw sample).
     pub vertices: Vec<[f32; 3]>,
-    /// Rigid objects only: the fitted rigid motion.
+    /// Rigid objects only: the rigid motion fitted to the sampled vertices.
     pub fit: Option<RigidFit>,
 }
 
@@ -150,6 +153,7 @@ impl GenerateSpec {
             samples: r.samples,
             seed: r.seed,
             timeout_ms: r.timeout_ms,
+            raw_vertices: r.raw_vertices,
         })
     }
 
@@ -204,6 +208,7 @@ impl GenerateSpec {
             samples: r.samples,
             seed: r.seed,
             timeout_ms: r.timeout_ms,
+            raw_vertices: r.raw_vertices,
         })
     }
 }

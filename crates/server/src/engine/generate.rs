@@ -362,7 +362,13 @@ impl GenerateRun {
             let sample = GeneratedSample {
                 sample: i as u32,
                 seed: self.seed.wrapping_add(i as u64),
-                frames: mesh_frames(&self.scene, &traj, self.params.frames, dt_frame),
+                frames: mesh_frames(
+                    &self.scene,
+                    &traj,
+                    self.params.frames,
+                    dt_frame,
+                    self.params.raw_vertices,
+                ),
             };
             if tx.send(Ok(GenerateEvent::Sample(sample))).await.is_err() {
                 return Err(ApiError::cancelled("client went away"));
