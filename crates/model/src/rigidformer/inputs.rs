@@ -5,7 +5,7 @@
 //! Scenes are processed in parallel with rayon; objects are laid out scene-major, and the
 //! per-point rows are packed without padding (the point MLP never sees a padding row).
 
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
 use super::features::{FeatureFrame, ScenePoints, rotation_translation as rot};
@@ -69,11 +69,11 @@ pub(crate) struct BatchInputs {
     pub tau: Vec<f32>,
     /// Step size in frames per object `[o]`.
     pub object_dt: Vec<u32>,
-    /// Anchors at t, t-1 and in the reference frame, per object `[K]`, metres (f64).
-    pub anchors_t: Vec<Vec<[f64; 3]>>,
-    /// See `anchors_t`.
-    pub anchors_prev: Vec<Vec<[f64; 3]>>,
-    /// See `anchors_t`.
+    /// The Verlet base of every anchor before free fall, per object `[K]`, world frame,
+    /// metres (f64): where the anchor goes at constant velocity
+    /// ([`verlet_base`]).
+    pub anchors_base: Vec<Vec<[f64; 3]>>,
+    /// Anchors in the reference (body) frame, per object `[K]`, metres (f64).
     pub anchors_ref: Vec<Vec<[f64; 3]>>,
     /// Current rotation per object (for the quaternion sign of the output).
     pub current_rot: Vec<[f32; 4]>,
@@ -118,9 +118,28 @@ struct SceneChunk {
     anchor_sin: Vec<f32>,
     object_cos: Vec<f32>,
     object_sin: Vec<f32>,
-    anchors_t: Vec<Vec<[f64; 3]>>,
-    anchors_prev: Vec<Vec<[f64; 3]>>,
+    anchors_base: Vec<Vec<[f64; 3]>>,
     anchors_ref: Vec<Vec<[f64; 3]>>,
+}
+
+/// The constant-velocity prediction of one anchor at body-frame position `x` (metres) of an
+/// object at pose `(r, p)` now and `(r_prev, p_prev)` one step before, metres (world frame).
+/// With `rigid` the object keeps its linear and angular velocity (`R_{t+k} = (R_t R_{t-k}^T)
+/// R_t`, centre `2 p_t - p_{t-k}`), exact for a spinning body in free flight; otherwise the
+/// anchor's own linear extrapolation `2 A_t - A_{t-k}`, which for a spinning body lags the
+/// rotation (by about `5/6 theta^3` for `theta` radians per step) and leaves that to the network.
+pub(crate) fn verlet_base(
+    rigid: bool,
+    x: &Vector3<f64>,
+    (r, p): (&Matrix3<f64>, &Vector3<f64>),
+    (r_prev, p_prev): (&Matrix3<f64>, &Vector3<f64>),
+) -> [f64; 3] {
+    let y = if rigid {
+        r * r_prev.transpose() * (r * x) + p * 2.0 - p_prev
+    } else {
+        (r * x + p) * 2.0 - (r_prev * x + p_prev)
+    };
+    [y.x, y.y, y.z]
 }
 
 /// Builds the inputs of one batched pass. Checks that every scene was prepared for `cfg`.
@@ -197,8 +216,7 @@ pub(crate) fn build_inputs(
             .iter()
             .flat_map(|r| std::iter::repeat_n(r.dt_steps, r.scene.len()))
             .collect(),
-        anchors_t: Vec::with_capacity(o),
-        anchors_prev: Vec::with_capacity(o),
+        anchors_base: Vec::with_capacity(o),
         anchors_ref: Vec::with_capacity(o),
         current_rot: requests
             .iter()
@@ -219,8 +237,7 @@ pub(crate) fn build_inputs(
         inp.anchor_sin.extend(c.anchor_sin);
         inp.object_cos.extend(c.object_cos);
         inp.object_sin.extend(c.object_sin);
-        inp.anchors_t.extend(c.anchors_t);
-        inp.anchors_prev.extend(c.anchors_prev);
+        inp.anchors_base.extend(c.anchors_base);
         inp.anchors_ref.extend(c.anchors_ref);
     }
     Ok(inp)
@@ -241,6 +258,7 @@ fn scene_chunk(
     let norm = &cfg.normalization;
     let nf = cfg.point_features();
     let with_cv = cfg.dynamics.contact_velocity;
+    let rigid = cfg.dynamics.rigid_extrapolation;
     // World points at t and t-1 and their contacts.
     let points = ScenePoints::new(
         cfg,
@@ -265,8 +283,7 @@ fn scene_chunk(
         anchor_sin: Vec::with_capacity(m * k * p),
         object_cos: Vec::with_capacity(m * p),
         object_sin: Vec::with_capacity(m * p),
-        anchors_t: Vec::with_capacity(m),
-        anchors_prev: Vec::with_capacity(m),
+        anchors_base: Vec::with_capacity(m),
         anchors_ref: Vec::with_capacity(m),
     };
     let mut ang = Vec::with_capacity(3 * freqs.len());
@@ -305,8 +322,9 @@ fn scene_chunk(
             .zip(obj.anchor_d2.chunks(n))
             .for_each(|(dst, src)| dst[..n].copy_from_slice(src));
         let (rp, pp) = poses_prev[j];
-        let mut at = Vec::with_capacity(k);
-        let mut ap = Vec::with_capacity(k);
+        let now64 = (rc.cast::<f64>(), pc.cast::<f64>());
+        let before64 = (rp.cast::<f64>(), pp.cast::<f64>());
+        let mut ab = Vec::with_capacity(k);
         let mut ar = Vec::with_capacity(k);
         let mut mean_cos = vec![0f32; p];
         let mut mean_sin = vec![0f32; p];
@@ -337,16 +355,17 @@ fn scene_chunk(
             c.anchor_sin.extend_from_slice(&sin);
             // Anchor kinematics in f64 for Verlet and Kabsch.
             let x = Vector3::from(obj.reference[a]).cast::<f64>();
-            let now = rc.cast::<f64>() * x + pc.cast::<f64>();
-            let before = rp.cast::<f64>() * x + pp.cast::<f64>();
-            at.push([now.x, now.y, now.z]);
-            ap.push([before.x, before.y, before.z]);
+            ab.push(verlet_base(
+                rigid,
+                &x,
+                (&now64.0, &now64.1),
+                (&before64.0, &before64.1),
+            ));
             ar.push([x.x, x.y, x.z]);
         }
         c.object_cos.extend(mean_cos);
         c.object_sin.extend(mean_sin);
-        c.anchors_t.push(at);
-        c.anchors_prev.push(ap);
+        c.anchors_base.push(ab);
         c.anchors_ref.push(ar);
     }
     c
@@ -379,6 +398,54 @@ mod tests {
             }
         }
         out
+    }
+
+    /// A body spinning at a constant rate about a tilted axis while its centre moves at a
+    /// constant velocity: the rigid base puts every anchor exactly where the motion takes it;
+    /// the linear base does not, and after a Kabsch fit it lags the turn by about
+    /// `5/6 theta^3`.
+    #[test]
+    fn rigid_base_continues_a_spin_and_the_linear_base_lags_it() {
+        let theta = 0.6f64; // radians per step
+        let axis = nalgebra::Unit::new_normalize(Vector3::new(0.3, -0.2, 1.0));
+        let turn = nalgebra::Rotation3::from_axis_angle(&axis, theta);
+        let r_prev = nalgebra::Rotation3::from_euler_angles(0.1, 0.2, 0.3);
+        let (r_now, r_next) = (turn * r_prev, turn * turn * r_prev);
+        let (p_prev, p_now) = (Vector3::new(0.0, 0.0, 1.0), Vector3::new(0.1, -0.05, 1.02));
+        let p_next = p_now * 2.0 - p_prev;
+        let anchors: Vec<Vector3<f64>> = cube()
+            .iter()
+            .step_by(12)
+            .map(|x| Vector3::from(*x).cast::<f64>())
+            .collect();
+        let base = |rigid: bool| -> Vec<[f64; 3]> {
+            anchors
+                .iter()
+                .map(|x| {
+                    verlet_base(
+                        rigid,
+                        x,
+                        (r_now.matrix(), &p_now),
+                        (r_prev.matrix(), &p_prev),
+                    )
+                })
+                .collect()
+        };
+        let reference: Vec<[f64; 3]> = anchors.iter().map(|x| [x.x, x.y, x.z]).collect();
+        for (x, b) in anchors.iter().zip(base(true)) {
+            let exact = r_next * x + p_next;
+            for d in 0..3 {
+                assert!((b[d] - exact[d]).abs() < 1e-12, "{b:?} vs {exact:?}");
+            }
+        }
+        let fit = dynaserve_geometry::kabsch(&reference, &base(false), None).unwrap();
+        let r_fit = nalgebra::Rotation3::from_matrix_unchecked(fit.rotation);
+        let lag = (r_next.inverse() * r_fit).angle();
+        let expected = 5.0 / 6.0 * theta.powi(3);
+        assert!(
+            (lag - expected).abs() < 0.35 * expected,
+            "lag {lag} rad, expected about {expected}"
+        );
     }
 
     /// Two cubes 0.1 m apart closing in along x, and a third far away resting 0.05 m above the

@@ -142,6 +142,14 @@ impl RigidFormer {
         self
     }
 
+    /// Switches the rigid Verlet base ([`crate::DynamicsConfig::rigid_extrapolation`]) on or
+    /// off. No weight changes, but the network's output now adds to another base: a model
+    /// trained with the other base needs fine-tuning before it predicts well.
+    pub fn with_rigid_extrapolation(mut self, on: bool) -> RigidFormer {
+        self.config.dynamics.rigid_extrapolation = on;
+        self
+    }
+
     /// Sets the model's name (normally its checkpoint directory name).
     pub fn with_name(mut self, name: impl Into<String>) -> RigidFormer {
         self.name = name.into();

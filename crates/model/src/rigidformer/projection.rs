@@ -1,5 +1,6 @@
 //! From anchor accelerations to rigid poses at inference: Verlet at the anchors
-//! (`A_{t+k} = 2 A_t - A_{t-k} + b + a`, metres), then the Kabsch fit per object (f64).
+//! (`A_{t+k} = base + b + a`, metres, the base `2 A_t - A_{t-k}` or the rigid constant-velocity
+//! extrapolation, `DynamicsConfig::rigid_extrapolation`), then the Kabsch fit per object (f64).
 
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
@@ -32,9 +33,9 @@ pub(crate) fn project_poses(
             let fall = free_fall(c, inp.object_dt[obj]);
             let target: Vec<[f64; 3]> = (0..k)
                 .map(|i| {
-                    let (at, ap) = (inp.anchors_t[obj][i], inp.anchors_prev[obj][i]);
+                    let base = inp.anchors_base[obj][i];
                     let a = &acc[(obj * k + i) * 3..(obj * k + i + 1) * 3];
-                    [0, 1, 2].map(|d| 2.0 * at[d] - ap[d] + fall[d] + a[d] as f64)
+                    [0, 1, 2].map(|d| base[d] + fall[d] + a[d] as f64)
                 })
                 .collect();
             let sol = dynaserve_geometry::kabsch(&inp.anchors_ref[obj], &target, None)

@@ -39,11 +39,11 @@ pub struct TrainOutput {
     pub terms: [Tensor; 4],
     /// Predicted anchor accelerations `a` (m/step^2), before projection.
     pub accel_pre: Tensor,
-    /// Anchor positions after Verlet, before projection: `2A_t - A_{t-1} + a`.
+    /// Anchor positions after Verlet, before projection: `base + b + a`.
     pub positions_pre: Tensor,
     /// Anchor positions after Kabsch projection: `R A_ref + p`.
     pub positions_post: Tensor,
-    /// Implied accelerations after projection: `positions_post - 2A_t + A_{t-1}`.
+    /// Implied accelerations after projection: `positions_post - (base + b)`.
     pub accel_post: Tensor,
     /// Rigid transforms `[O, 12]`: row-major R then p (metres).
     pub transforms: Tensor,
@@ -102,8 +102,7 @@ impl RigidFormer {
         let flat = |v: &Vec<Vec<[f64; 3]>>| -> Vec<f32> {
             v.iter().flatten().flatten().map(|x| *x as f32).collect()
         };
-        let a_t = host_tensor(&self.device, &flat(&inp.anchors_t), &[o, k, 3])?;
-        let a_prev = host_tensor(&self.device, &flat(&inp.anchors_prev), &[o, k, 3])?;
+        let a_base = host_tensor(&self.device, &flat(&inp.anchors_base), &[o, k, 3])?;
         let a_ref = host_tensor(&self.device, &flat(&inp.anchors_ref), &[o, k, 3])?;
         let mut tgt = Vec::with_capacity(o * k * 3);
         for (obj, pose) in targets.iter().enumerate() {
@@ -114,17 +113,13 @@ impl RigidFormer {
             }
         }
         let target_positions = host_tensor(&self.device, &tgt, &[o, k, 3])?;
-        // 2 A_t - A_{t-1} (+ free fall with a gravity residual), per object.
+        // The Verlet base (+ free fall with a gravity residual), per object.
         let fall: Vec<f32> = inp
             .object_dt
             .iter()
             .flat_map(|&dt| free_fall(&self.config, dt).map(|v| v as f32))
             .collect();
-        let base = ((&a_t * 2.0)? - &a_prev)?.broadcast_add(&host_tensor(
-            &self.device,
-            &fall,
-            &[o, 1, 3],
-        )?)?;
+        let base = a_base.broadcast_add(&host_tensor(&self.device, &fall, &[o, 1, 3])?)?;
         let target_accel = (&target_positions - &base)?;
         let positions_pre = (&base + &accel_pre)?;
         let op = KabschOp::new(inp.anchors_ref.clone());

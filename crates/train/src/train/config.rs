@@ -124,6 +124,10 @@ pub struct ModelSection {
     /// normalisation constants are kept and the 3 new ones fitted from the training data).
     /// `false` on an `init` model that has them is an error.
     pub contact_velocity: Option<bool>,
+    /// The rigid Verlet base (`DynamicsConfig::rigid_extrapolation`): unset keeps what the
+    /// preset, config or `init` model has; set, it switches the base of any of them (an `init`
+    /// model keeps its weights and learns the new base's residual).
+    pub rigid_extrapolation: Option<bool>,
 }
 
 impl Default for ModelSection {
@@ -135,15 +139,20 @@ impl Default for ModelSection {
             fit_normalization: true,
             init: None,
             contact_velocity: None,
+            rigid_extrapolation: None,
         }
     }
 }
 
 impl ModelSection {
     /// The model configuration this section names (before normalisation fitting), with
-    /// `contact_velocity` applied (the normalisation then resized to its defaults).
+    /// `contact_velocity` (the normalisation then resized to its defaults) and
+    /// `rigid_extrapolation` applied.
     pub fn model_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {
         let mut c = self.named_config(base)?;
+        if let Some(on) = self.rigid_extrapolation {
+            c.dynamics.rigid_extrapolation = on;
+        }
         if let Some(cv) = self.contact_velocity
             && cv != c.dynamics.contact_velocity
         {
@@ -338,6 +347,20 @@ impl TrainConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn rigid_extrapolation_switches_the_named_config() {
+        let base = Path::new(".");
+        let preset = ModelSection::default().model_config(base).unwrap();
+        assert!(preset.dynamics.rigid_extrapolation);
+        let c: TrainConfig = toml::from_str("[model]\nrigid_extrapolation = false\n").unwrap();
+        let off = c.model.model_config(base).unwrap();
+        assert!(!off.dynamics.rigid_extrapolation);
+        assert_eq!(
+            off.dynamics.contact_velocity,
+            preset.dynamics.contact_velocity
+        );
+    }
 
     #[test]
     fn toml_overrides_defaults_and_rejects_unknown_keys() {

@@ -231,6 +231,10 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                 )));
             }
             eprintln!("initialised from {}", init.display());
+            let m = match cfg.model.rigid_extrapolation {
+                Some(on) => m.with_rigid_extrapolation(on),
+                None => m,
+            };
             init_contact_velocity(m, cfg, &reader)?
         } else {
             let mut mc = cfg.model.model_config(Path::new("."))?;
