@@ -208,10 +208,11 @@ fn init_widens_a_model_for_the_contact_velocity() {
 
 /// Pushforward (`data.pushforward`) draws its choice after everything else, so a window's
 /// inputs and target are those it has without it, and its extra poses are the recorded ones
-/// at `t - 2k` and `t - k`; a run that trains on the model's own predictions still resumes
-/// bit for bit.
+/// at `t - 2k` and `t - k` (with two steps also `t - 3k`, and both observed poses become the
+/// model's); a run that trains on the model's own predictions still resumes bit for bit.
 #[test]
 fn pushforward_keeps_the_window_stream_and_resumes_exactly() {
+    use dynaserve_model::WorldModel;
     use dynaserve_train::train::data::sample_window;
     use rand::SeedableRng;
 
@@ -239,8 +240,14 @@ fn pushforward_keeps_the_window_stream_and_resumes_exactly() {
             (&a.state, &a.target, a.dt_steps),
             (&b.state, &b.target, b.dt_steps)
         );
-        if let Some((before, previous)) = &b.pushforward {
+        if let Some(frames) = &b.pushforward {
             with_poses += 1;
+            let [before, previous] = frames.as_slice() else {
+                panic!(
+                    "one pushforward step needs 2 recorded frames, got {}",
+                    frames.len()
+                );
+            };
             assert_eq!(before.len(), a.target.len());
             // No input noise in this configuration: t - k is the window's previous pose.
             assert_eq!(previous, &a.state.previous);
@@ -249,9 +256,58 @@ fn pushforward_keeps_the_window_stream_and_resumes_exactly() {
     }
     assert!(with_poses > 0, "no window qualified for pushforward");
 
+    // Two steps: three recorded frames ending at t - k, and the model's own predictions
+    // replace both observed poses of the sample (kinematic objects excepted).
+    let two = dynaserve_train::train::config::DataConfig {
+        pushforward_steps: 2,
+        ..pushed.clone()
+    };
+    let model = dynaserve_model::RigidFormer::new(
+        dynaserve_model::ModelConfig::tiny(),
+        0,
+        &candle_core::Device::Cpu,
+    )
+    .unwrap();
+    let mut checked = 0;
+    for seed in 0..24 {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let w = sample_window(&scenes[seed as usize % scenes.len()], &two, &mut rng, true).unwrap();
+        let Some(frames) = w.pushforward.clone() else {
+            continue;
+        };
+        assert_eq!(frames.len(), 3);
+        assert_eq!(frames[2], w.state.previous);
+        let mut samples = vec![dynaserve_train::train::data::Sample {
+            scene: model.prepare(w.objects).unwrap(),
+            state: w.state.clone(),
+            target: w.target.clone(),
+            dt_steps: w.dt_steps,
+            kinematic: w.kinematic.clone(),
+            pushforward: Some(frames.clone()),
+        }];
+        assert_eq!(
+            dynaserve_train::train::pushforward::apply(&model, &mut samples).unwrap(),
+            1
+        );
+        let s = &samples[0];
+        assert!(s.pushforward.is_none());
+        for (j, kinematic) in w.kinematic.iter().enumerate() {
+            if *kinematic {
+                assert_eq!(s.state.previous[j], frames[2][j]);
+                assert_eq!(s.state.current[j], w.state.current[j]);
+            } else {
+                assert_ne!(s.state.previous[j], frames[2][j]);
+                assert_ne!(s.state.current[j], w.state.current[j]);
+            }
+        }
+        checked += 1;
+    }
+    assert!(checked > 0, "no window qualified for two-step pushforward");
+
     let config = |name: &str| {
         let mut c = tiny_config(&data, &dir.join(name), 4);
         c.data.pushforward = 0.5;
+        c.data.pushforward_steps = 2;
         c
     };
     train(&config("straight"), &TrainOptions::default()).unwrap();

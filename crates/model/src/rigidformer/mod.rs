@@ -150,6 +150,14 @@ impl RigidFormer {
         self
     }
 
+    /// Sets the Smooth L1 transition point of the training loss ([`crate::LossConfig::beta`],
+    /// in units of the loss scale). Inference is unaffected; fine-tuning then weighs errors
+    /// below the new point linearly instead of quadratically (or the reverse).
+    pub fn with_loss_beta(mut self, beta: f32) -> RigidFormer {
+        self.config.loss.beta = beta;
+        self
+    }
+
     /// Sets the model's name (normally its checkpoint directory name).
     pub fn with_name(mut self, name: impl Into<String>) -> RigidFormer {
         self.name = name.into();

@@ -63,6 +63,11 @@ pub struct DataConfig {
     /// recorded pose at `t + k`, so the model learns to correct the errors it makes itself in
     /// a rollout. Only samples with `t >= 2k` qualify. 0 disables.
     pub pushforward: f32,
+    /// Model steps of a pushforward sample (1 or 2). With 2 the model steps from the recorded
+    /// poses at `t - 3k` and `t - 2k` to `t - k`, then from there to `t`, and both observed
+    /// poses of the sample are its own predictions, as in a rollout past its second step;
+    /// samples need `t >= 3k`. 1 (the default) replaces only the current pose.
+    pub pushforward_steps: u32,
     /// Fraction of the samples whose window frame is drawn with probability proportional to
     /// its surprise (how far the objects' acceleration departs from the window before's: an
     /// impact, a pusher's first touch) instead of uniformly; see [`super::events`]. The other
@@ -91,6 +96,7 @@ impl Default for DataConfig {
             noise_position: 0.0,
             noise_rotation: 0.0,
             pushforward: 0.0,
+            pushforward_steps: 1,
             event_share: 0.0,
             prefetch: 8,
             norm_scenes: 200,
@@ -128,6 +134,11 @@ pub struct ModelSection {
     /// preset, config or `init` model has; set, it switches the base of any of them (an `init`
     /// model keeps its weights and learns the new base's residual).
     pub rigid_extrapolation: Option<bool>,
+    /// The Smooth L1 transition point of the loss (`LossConfig::beta`, in units of its
+    /// 1 mm scale): unset keeps what the preset, config or `init` model has. Errors below it
+    /// pull quadratically (weakly), errors above it linearly; a smaller value gives the
+    /// sub-millimetre errors of resting objects a full L1 gradient.
+    pub loss_beta: Option<f32>,
 }
 
 impl Default for ModelSection {
@@ -140,6 +151,7 @@ impl Default for ModelSection {
             init: None,
             contact_velocity: None,
             rigid_extrapolation: None,
+            loss_beta: None,
         }
     }
 }
@@ -147,11 +159,14 @@ impl Default for ModelSection {
 impl ModelSection {
     /// The model configuration this section names (before normalisation fitting), with
     /// `contact_velocity` (the normalisation then resized to its defaults) and
-    /// `rigid_extrapolation` applied.
+    /// `rigid_extrapolation` and `loss_beta` applied.
     pub fn model_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {
         let mut c = self.named_config(base)?;
         if let Some(on) = self.rigid_extrapolation {
             c.dynamics.rigid_extrapolation = on;
+        }
+        if let Some(beta) = self.loss_beta {
+            c.loss.beta = beta;
         }
         if let Some(cv) = self.contact_velocity
             && cv != c.dynamics.contact_velocity
@@ -310,11 +325,19 @@ impl TrainConfig {
         if !(0.0..=1.0).contains(&d.pushforward) {
             return bad("data.pushforward must be a probability in [0, 1]");
         }
+        if !(1..=2).contains(&d.pushforward_steps) {
+            return bad("data.pushforward_steps must be 1 or 2");
+        }
         if !(0.0..=1.0).contains(&d.event_share) {
             return bad("data.event_share must be a fraction in [0, 1]");
         }
         if d.prefetch == 0 {
             return bad("data.prefetch must be >= 1");
+        }
+        if let Some(beta) = self.model.loss_beta
+            && !(beta > 0.0 && beta.is_finite())
+        {
+            return bad("model.loss_beta must be finite and > 0");
         }
         let o = &self.optim;
         if o.batch_size == 0 || o.iterations == 0 {
@@ -347,6 +370,16 @@ impl TrainConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn loss_beta_switches_the_named_config_and_is_checked() {
+        let base = Path::new(".");
+        let c: TrainConfig = toml::from_str("[model]\nloss_beta = 0.1\n").unwrap();
+        assert_eq!(c.model.model_config(base).unwrap().loss.beta, 0.1);
+        c.validate().unwrap();
+        let zero: TrainConfig = toml::from_str("[model]\nloss_beta = 0.0\n").unwrap();
+        assert!(zero.validate().is_err());
+    }
 
     #[test]
     fn rigid_extrapolation_switches_the_named_config() {

@@ -43,9 +43,9 @@ pub struct Window {
     /// Kinematic objects `[objects]` (in `objects` order): inputs only, not learned.
     pub kinematic: Vec<bool>,
     /// For a pushforward sample (`DataConfig::pushforward`), the recorded (not noised) poses
-    /// at `t - 2 dt_steps` and `t - dt_steps`, each `[objects]`: the trainer replaces
-    /// `state.current` by the model's step from them.
-    pub pushforward: Option<(Vec<Pose>, Vec<Pose>)>,
+    /// at `t - (n + 1) dt_steps, ..., t - dt_steps` (`n` = `pushforward_steps`), each
+    /// `[objects]`: the trainer replaces the observed poses by the model's steps from them.
+    pub pushforward: Option<Vec<Vec<Pose>>>,
 }
 
 /// One prepared training sample.
@@ -60,8 +60,9 @@ pub struct Sample {
     pub dt_steps: u32,
     /// Kinematic objects `[objects]`: inputs only, not learned.
     pub kinematic: Vec<bool>,
-    /// Recorded poses at `t - 2 dt_steps` and `t - dt_steps` of a pushforward sample.
-    pub pushforward: Option<(Vec<Pose>, Vec<Pose>)>,
+    /// Recorded poses at `t - (n + 1) dt_steps, ..., t - dt_steps` of a pushforward sample
+    /// ([`Window::pushforward`]).
+    pub pushforward: Option<Vec<Vec<Pose>>>,
 }
 
 /// A batch of samples for iteration `step`.
@@ -224,18 +225,20 @@ pub fn sample_window(
         target.push(pose_at(o, t + ku));
     }
     // Drawn last and only when enabled, so configurations without it keep their streams.
+    let n = c.pushforward_steps.max(1) as usize;
     let pushforward =
-        (noise && c.pushforward > 0.0 && t >= 2 * ku && rng.random::<f32>() < c.pushforward).then(
-            || {
-                let at = |f: usize| {
-                    order
-                        .iter()
-                        .map(|&j| pose_at(&scene.objects[j], f))
-                        .collect()
-                };
-                (at(t - 2 * ku), at(t - ku))
-            },
-        );
+        (noise && c.pushforward > 0.0 && t >= (n + 1) * ku && rng.random::<f32>() < c.pushforward)
+            .then(|| {
+                (1..=n + 1)
+                    .rev()
+                    .map(|back| {
+                        order
+                            .iter()
+                            .map(|&j| pose_at(&scene.objects[j], t - back * ku))
+                            .collect()
+                    })
+                    .collect()
+            });
     Ok(Window {
         objects,
         state: SceneState { previous, current },

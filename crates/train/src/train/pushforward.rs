@@ -1,46 +1,82 @@
-//! Pushforward samples: the current pose of a sample replaced by the model's own one-step
-//! prediction, so that training sees the inputs a rollout gives the model
-//! (`DataConfig::pushforward`, docs/training.md).
+//! Pushforward samples: the observed poses of a sample replaced by the model's own
+//! predictions, so that training sees the inputs a rollout gives the model
+//! (`DataConfig::pushforward` and `pushforward_steps`, docs/training.md).
 
-use dynaserve_model::{RigidFormer, SceneState, StepItem, WorldModel};
+use dynaserve_model::{Pose, RigidFormer, SceneState, StepItem, WorldModel};
 
 use super::TrainError;
 use super::data::Sample;
 
 /// Steps the model (inference, no gradient) for every sample that carries pushforward poses,
-/// in one batched pass, and makes its prediction the sample's current pose; kinematic objects
-/// keep their recorded pose. Returns how many samples were replaced.
+/// all such samples in one batched pass per step, and makes its predictions the sample's
+/// observed poses: after one step the current pose, after two both (the previous one is then
+/// the first step's prediction). Kinematic objects keep their recorded poses at every step.
+/// Returns how many samples were replaced.
 pub fn apply(model: &RigidFormer, samples: &mut [Sample]) -> Result<usize, TrainError> {
     // The recorded poses move out of the samples: they are used once.
-    let (chosen, states): (Vec<usize>, Vec<SceneState>) = samples
+    let (chosen, recorded): (Vec<usize>, Vec<Vec<Vec<Pose>>>) = samples
         .iter_mut()
         .enumerate()
-        .filter_map(|(i, s)| {
-            let (previous, current) = s.pushforward.take()?;
-            Some((i, SceneState { previous, current }))
-        })
+        .filter_map(|(i, s)| Some((i, s.pushforward.take()?)))
+        .filter(|(_, r)| r.len() >= 2)
         .unzip();
     if chosen.is_empty() {
         return Ok(0);
     }
-    let items: Vec<StepItem<'_>> = chosen
+    let steps = recorded.iter().map(|r| r.len() - 1).max().unwrap_or(1);
+    // Per chosen sample: the state the next step starts from, and its first predicted frame.
+    let mut states: Vec<SceneState> = recorded
         .iter()
-        .zip(&states)
-        .map(|(&i, state)| StepItem {
-            scene: &samples[i].scene,
-            state,
-            dt_steps: samples[i].dt_steps,
+        .map(|r| SceneState {
+            previous: r[0].clone(),
+            current: r[1].clone(),
         })
         .collect();
-    let predicted = model.step(&items)?;
-    drop(items);
-    for (&i, poses) in chosen.iter().zip(predicted) {
-        let s = &mut samples[i];
-        for (j, pose) in poses.into_iter().enumerate() {
-            if !s.kinematic.get(j).copied().unwrap_or(false) {
-                s.state.current[j] = pose;
-            }
+    for step in 0..steps {
+        // Samples with fewer recorded frames than `steps + 1` stop early.
+        let active: Vec<usize> = (0..chosen.len())
+            .filter(|&c| step < recorded[c].len() - 1)
+            .collect();
+        let items: Vec<StepItem<'_>> = active
+            .iter()
+            .map(|&c| StepItem {
+                scene: &samples[chosen[c]].scene,
+                state: &states[c],
+                dt_steps: samples[chosen[c]].dt_steps,
+            })
+            .collect();
+        let predicted = model.step(&items)?;
+        drop(items);
+        for (&c, poses) in active.iter().zip(predicted) {
+            let s = &samples[chosen[c]];
+            // The recorded frame this step predicted: index step + 2 of `recorded`, or the
+            // sample's own current frame after the last recorded one.
+            let next: Vec<Pose> = poses
+                .into_iter()
+                .enumerate()
+                .map(|(j, pose)| {
+                    if s.kinematic.get(j).copied().unwrap_or(false) {
+                        match recorded[c].get(step + 2) {
+                            Some(frame) => frame[j],
+                            None => s.state.current[j],
+                        }
+                    } else {
+                        pose
+                    }
+                })
+                .collect();
+            let st = &mut states[c];
+            st.previous = std::mem::replace(&mut st.current, next);
         }
+    }
+    for (c, &i) in chosen.iter().enumerate() {
+        let s = &mut samples[i];
+        let st = &states[c];
+        // After one step the previous pose is the recorded (noised) one: keep the sample's.
+        if recorded[c].len() > 2 {
+            s.state.previous = st.previous.clone();
+        }
+        s.state.current = st.current.clone();
     }
     Ok(chosen.len())
 }

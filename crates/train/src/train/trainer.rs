@@ -235,6 +235,10 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                 Some(on) => m.with_rigid_extrapolation(on),
                 None => m,
             };
+            let m = match cfg.model.loss_beta {
+                Some(beta) => m.with_loss_beta(beta),
+                None => m,
+            };
             init_contact_velocity(m, cfg, &reader)?
         } else {
             let mut mc = cfg.model.model_config(Path::new("."))?;
