@@ -1,8 +1,8 @@
 //! One model step for batches of MOVi-like scenes (10 objects x 512 points) split into phases,
 //! one step of a 216-cube wrecking-ball scene (both for the `small` and `paper` configs), padded
 //! vs block-diagonal decoder batching, the fused CPU kernels against the plain composition
-//! (`fused_ab`, interleaved in one process), the machine's matmul peak (`matmul_peak`), a
-//! training iteration (forward + backward + AdamW) for the `small` and `paper` configs, and
+//! (`fused_ab`, interleaved in one process), the anchor-pooling kernel alone (`avp_ab`), the
+//! machine's matmul peak (`matmul_peak`), a training iteration (forward + backward + AdamW) for the `small` and `paper` configs, and
 //! training iterations with and without the fused kernels interleaved (`train_ab`).
 //! One file because criterion binds a bench target to one `main`; the cases share the scene
 //! builders and the phase timer.
@@ -297,6 +297,86 @@ fn bench_fused_ab(c: &mut Criterion) {
             });
             let batch = items(scenes);
             bench.iter(|| black_box(fused.step(&batch).expect("step")))
+        });
+    }
+    group.finish();
+}
+
+/// The fused anchor-vertex pooling kernel against the candle composition it replaces, on the
+/// AVP shapes of a batch of 8 MOVi-like scenes (80 objects x 512 points) and of the wrecking
+/// ball (216 objects x 128 points and one of 512, padded to 512 by the composition), `small`
+/// widths; interleaved in one process, medians of 25 calls each.
+fn bench_avp_ab(c: &mut Criterion) {
+    use dynaserve_model::kernels::avp::{AnchorPooling, anchor_pooling, anchor_pooling_composed};
+    let cfg = ModelConfig::small();
+    let (k, ch) = (cfg.anchors, cfg.point_dim);
+    let mut group = c.benchmark_group("avp_ab");
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(2));
+    for (case, counts) in [
+        ("batch_8", vec![512usize; 80]),
+        ("wrecking_ball", [vec![128usize; 216], vec![512]].concat()),
+    ] {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let nmax = *counts.iter().max().expect("objects");
+        let o = counts.len();
+        let mut objects = Vec::new();
+        let (mut pad, mut mask) = (Vec::new(), Vec::new());
+        let mut first = 0;
+        for &n in &counts {
+            objects.push((first, n));
+            for i in 0..nmax {
+                pad.push(if i < n { (first + i) as u32 } else { u32::MAX });
+                mask.push(if i < n { 1f32 } else { 0.0 });
+            }
+            first += n;
+        }
+        let p = first;
+        pad.iter_mut()
+            .filter(|r| **r == u32::MAX)
+            .for_each(|r| *r = p as u32);
+        let d2: Vec<f32> = (0..o * k * nmax)
+            .map(|_| rng.random_range(0.0f32..0.09))
+            .collect();
+        let h: Vec<f32> = (0..p * ch)
+            .map(|_| rng.random_range(-1.0f32..1.0))
+            .collect();
+        let dev = Device::Cpu;
+        let h = Tensor::from_vec(h, (p, ch), &dev).expect("h");
+        let maskt = Tensor::from_vec(mask, (o, 1, nmax), &dev).expect("mask");
+        let padt = Tensor::from_vec(pad, o * nmax, &dev).expect("pad");
+        let inv_sigma2 = 1.0 / (0.05f32 * 0.05);
+        let inv = Tensor::new(&[inv_sigma2], &dev).expect("sigma");
+        let op = AnchorPooling {
+            anchors: k,
+            objects: &objects,
+            d2: &d2,
+            nmax,
+            inv_sigma2,
+        };
+        // The composition on host data, as a step builds it: tensors from the batch inputs.
+        let composed = || {
+            let d2t = Tensor::from_slice(&d2, (o, k, nmax), &dev).expect("d2");
+            anchor_pooling_composed(&h, &d2t, &maskt, &padt, &inv, true).expect("composed")
+        };
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        for _ in 0..25 {
+            let t0 = Instant::now();
+            black_box(anchor_pooling(&h, &op).expect("fused"));
+            a.push(t0.elapsed());
+            let t0 = Instant::now();
+            black_box(composed());
+            b.push(t0.elapsed());
+        }
+        let (a, b) = (ms(median(a)), ms(median(b)));
+        println!(
+            "avp_ab {case}: fused {a:.3} ms | composition {b:.3} ms | composition / fused {:.2}x",
+            b / a
+        );
+        group.bench_function(case, |bench| {
+            bench.iter(|| black_box(anchor_pooling(&h, &op).expect("fused")))
         });
     }
     group.finish();
@@ -636,6 +716,7 @@ criterion_group!(
     bench_steps,
     bench_wrecking_ball,
     bench_fused_ab,
+    bench_avp_ab,
     bench_matmul_peak,
     bench_training,
     bench_train_ab

@@ -6,6 +6,7 @@ pub mod activation;
 pub mod activation_grad;
 pub mod attention;
 pub mod attention_grad;
+pub mod avp;
 pub mod kabsch;
 pub mod norm;
 pub mod pool;

@@ -11,10 +11,10 @@ use super::attention::multi_head;
 use super::decoder::Decoded;
 use super::inputs::BatchInputs;
 use super::{host_index, host_tensor};
-use crate::kernels::activation::exp_inference;
 use crate::kernels::attention::{
     CrossAttention, RotaryRows, cross_attention, cross_attention_train,
 };
+use crate::kernels::avp::{AnchorPooling, anchor_pooling, anchor_pooling_composed};
 use crate::layers::{Exec, Init, Linear, Mlp, Mode, ParamStore, RmsNorm};
 use crate::{ModelConfig, ModelError};
 
@@ -107,26 +107,19 @@ impl AnchorHead {
         let (c1, p) = (c.point_dim, c.rope_dim / 2);
         let t = m + c.registers;
         // Anchor-vertex pooling with a learned bandwidth: w = exp(-d^2 / sigma^2), normalised.
-        let d2 = host_tensor(device, &inp.avp_d2, &[o, k, n])?;
-        let pmask = host_tensor(device, &inp.point_mask, &[o, 1, n])?;
-        let inv_s2 = (self.log_sigma.clone() * -2.0)?.exp()?; // [1]
-        let arg = d2.broadcast_mul(&inv_s2)?.neg()?;
-        let w = if exec.fused_inference() {
-            exp_inference(&arg)?
+        let avp = if exec.fused_inference() && device.is_cpu() {
+            let inv_sigma2 = (self.log_sigma.clone() * -2.0)?.exp()?.to_vec1::<f32>()?[0];
+            let op = AnchorPooling {
+                anchors: k,
+                objects: &inp.object_points,
+                d2: &inp.avp_d2,
+                nmax: n,
+                inv_sigma2,
+            };
+            anchor_pooling(point_features, &op)?
         } else {
-            arg.exp()?
+            self.avp_composed(c, inp, point_features, exec)?
         };
-        let w = w.broadcast_mul(&pmask)?; // [O, K, N]
-        // Packed point features laid out per object `[O, N, C1]`, zero rows for padding.
-        let hp = Tensor::cat(
-            &[point_features, &Tensor::zeros((1, c1), DType::F32, device)?],
-            0,
-        )?
-        .index_select(&host_index(device, &inp.pad_idx)?, 0)?
-        .reshape((o, n, c1))?;
-        let num = w.matmul(&hp)?; // [O, K, C1]
-        let den = w.sum_keepdim(2)?; // >= 1: the anchor itself has weight 1
-        let avp = num.broadcast_div(&den)?;
         let own = point_features
             .index_select(&host_index(device, &inp.anchor_idx)?, 0)?
             .reshape((o, k, c1))?;
@@ -149,6 +142,27 @@ impl AnchorHead {
             .own_token
             .forward(&self.own_norm.forward_exec(&own_tok, exec)?)?;
         Ok(query.broadcast_add(&own_tok.unsqueeze(1)?)?)
+    }
+
+    /// Anchor-vertex pooling `[O, K, C1]` as a composition of candle ops (every device, and
+    /// training, where the gradient reaches the bandwidth).
+    fn avp_composed(
+        &self,
+        c: &ModelConfig,
+        inp: &BatchInputs,
+        point_features: &Tensor,
+        exec: Exec,
+    ) -> Result<Tensor, ModelError> {
+        let device = &self.device;
+        let (o, n, k) = (inp.o, inp.nmax, c.anchors);
+        Ok(anchor_pooling_composed(
+            point_features,
+            &host_tensor(device, &inp.avp_d2, &[o, k, n])?,
+            &host_tensor(device, &inp.point_mask, &[o, 1, n])?,
+            &host_index(device, &inp.pad_idx)?,
+            &(self.log_sigma.clone() * -2.0)?.exp()?,
+            exec.fused_inference(),
+        )?)
     }
 
     /// Keys and values `[B, nT*T, 2D]`: the tapped depths, each normalised, plus a depth

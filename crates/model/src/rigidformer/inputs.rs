@@ -41,6 +41,8 @@ pub(crate) struct BatchInputs {
     pub feats: Vec<f32>,
     /// Packed point row of every padded slot `[o, nmax]`; `P` (a zero row) for padding.
     pub pad_idx: Vec<u32>,
+    /// First packed point row and point count of every object, `[o]`.
+    pub object_points: Vec<(usize, usize)>,
     /// Neighbour rows into the packed points, `[o, S, G]`.
     pub group_idx: Vec<u32>,
     /// Neighbour minus centre, world frame, scaled, `[o, S, G, 3]`.
@@ -196,6 +198,10 @@ pub(crate) fn build_inputs(
         points,
         feats: Vec::with_capacity(points * cfg.point_features()),
         pad_idx,
+        object_points: point_offsets
+            .windows(2)
+            .map(|w| (w[0], w[1] - w[0]))
+            .collect(),
         group_idx: Vec::new(),
         group_rel: Vec::new(),
         centre_rel: Vec::new(),
