@@ -1,8 +1,9 @@
 //! One model step for batches of MOVi-like scenes (10 objects x 512 points) split into phases,
 //! one step of a 216-cube wrecking-ball scene (both for the `small` and `paper` configs), padded
 //! vs block-diagonal decoder batching, the fused CPU kernels against the plain composition
-//! (`fused_ab`, interleaved in one process), the anchor-pooling kernel alone (`avp_ab`), the
-//! machine's matmul peak (`matmul_peak`), a training iteration (forward + backward + AdamW) for the `small` and `paper` configs, and
+//! (`fused_ab`, interleaved in one process), the anchor-pooling kernel alone (`avp_ab`), 256
+//! against 512 points per object (`points_ab`), the machine's matmul peak (`matmul_peak`), a
+//! training iteration (forward + backward + AdamW) for the `small` and `paper` configs, and
 //! training iterations with and without the fused kernels interleaved (`train_ab`).
 //! One file because criterion binds a bench target to one `main`; the cases share the scene
 //! builders and the phase timer.
@@ -382,6 +383,43 @@ fn bench_avp_ab(c: &mut Criterion) {
     group.finish();
 }
 
+/// A batch-8 step of 10-object scenes at 256 and at 512 points per object, interleaved 15 times
+/// in one process (`small`, random weights): the speed side of choosing the nominal point count
+/// (the accuracy side is in BENCHMARKS.md, "Accuracy against the point count").
+fn bench_points_ab(c: &mut Criterion) {
+    let model = RigidFormer::new(ModelConfig::small(), 1, &Device::Cpu).expect("model");
+    let mut group = c.benchmark_group("points_ab");
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(3));
+    let mut cache: Option<Vec<(PreparedScene, SceneState)>> = None;
+    group.bench_function("batch_8_256", |bench| {
+        let small = cache.get_or_insert_with(|| {
+            let small = prepared_batch(&model, 8, 10, 256, 8);
+            let large = prepared_batch(&model, 8, 10, 512, 8);
+            let (mut a, mut b) = (Vec::new(), Vec::new());
+            for _ in 0..15 {
+                for (scenes, times) in [(&small, &mut a), (&large, &mut b)] {
+                    let batch = items(scenes);
+                    let t0 = Instant::now();
+                    black_box(model.step(&batch).expect("step"));
+                    times.push(t0.elapsed());
+                }
+            }
+            let (a, b) = (ms(median(a)), ms(median(b)));
+            println!(
+                "points_ab batch 8: 256 points {a:.2} ms | 512 points {b:.2} ms | 512 / 256 {:.2}x",
+                b / a
+            );
+            small
+        });
+        let batch = items(small);
+        bench.iter(|| black_box(model.step(&batch).expect("step")))
+    });
+    group.finish();
+}
+
 fn bench_wrecking_ball(c: &mut Criterion) {
     for (name, config) in [
         ("small", ModelConfig::small()),
@@ -717,6 +755,7 @@ criterion_group!(
     bench_wrecking_ball,
     bench_fused_ab,
     bench_avp_ab,
+    bench_points_ab,
     bench_matmul_peak,
     bench_training,
     bench_train_ab
