@@ -77,6 +77,33 @@ fn rest_scenes_are_still_from_frame_zero() {
 }
 
 #[test]
+fn rest_towers_of_small_cubes_follow_tower_scale_and_stand() {
+    let mut p = ScenarioParameters::new(vec![Scenario::Rest]);
+    p.rest_variants = vec![RestVariant::Tower];
+    p.tower_scale = [0.3, 0.5];
+    for g in scenes(Generator::Scenario(Box::new(p.clone())), 4, 3) {
+        assert!(g.record.objects.len() >= 2);
+        for (i, o) in g.spec.objects.iter().enumerate() {
+            assert!(
+                (0.3..=0.5).contains(&o.scale),
+                "cube {i} has side {} m",
+                o.scale
+            );
+        }
+        for (i, o) in g.record.objects.iter().enumerate() {
+            let d = drift(o);
+            assert!(d < 1e-3, "small tower cube {i} moved {d} m");
+        }
+    }
+    p.tower_scale = [0.5, 0.3];
+    let opts = options(Generator::Scenario(Box::new(p)), 4, 1);
+    assert!(
+        generate_scene(&opts, 0).is_err(),
+        "an empty range is rejected"
+    );
+}
+
+#[test]
 fn dropped_objects_fall_bounce_and_end_on_the_floor() {
     // Shapes that cannot roll away, so each must end at rest.
     let mut p = ScenarioParameters::new(vec![Scenario::Drop]);

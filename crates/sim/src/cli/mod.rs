@@ -27,7 +27,7 @@ use crate::mesh_scenes::cli::{self as mesh_cli, MeshGenerateArgs};
 use crate::mesh_scenes::{MeshSet, is_mesh_dataset};
 use crate::preview::write_preview;
 use crate::replay::cli::{ReplayArgs, run_replay};
-use crate::scenarios::Scenario;
+use crate::scenarios::{Scenario, ScenarioParameters};
 use crate::stats::inspect;
 use crate::writer::generate_dataset;
 use split_args::{scene_progress, worker_pool};
@@ -53,7 +53,7 @@ pub enum SimCommand {
     #[command(name = "wrecking-ball")]
     WreckingBall(WreckingBallArgs),
     /// Physics scenario: objects at rest from frame 0 (single objects, box towers, piles).
-    Rest(GenerateArgs),
+    Rest(RestArgs),
     /// Physics scenario: one object dropped from 0.5-3 m with random attitude and spin.
     Drop(GenerateArgs),
     /// Physics scenario: objects launched along the floor that friction stops.
@@ -104,6 +104,18 @@ pub struct GenerateArgs {
     pub scenes_per_shard: Option<usize>,
 }
 
+/// Options of `dynaserve sim rest`.
+#[derive(Args, Debug, Clone)]
+pub struct RestArgs {
+    /// Shared generator options.
+    #[command(flatten)]
+    pub common: GenerateArgs,
+    /// Side range of a tower's cubes, metres, as `MIN,MAX` (default 0.7,1.4, the scale of
+    /// every other object).
+    #[arg(long, value_delimiter = ',', num_args = 2, value_name = "MIN,MAX")]
+    pub tower_scale: Option<Vec<f32>>,
+}
+
 /// Options of `dynaserve sim wrecking-ball`.
 #[derive(Args, Debug, Clone)]
 pub struct WreckingBallArgs {
@@ -150,7 +162,13 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
         SimCommand::MoviA(a) => run_generate(Generator::movi_a(), &a),
         SimCommand::MoviB(a) => run_generate(Generator::movi_b(), &a),
         SimCommand::WreckingBall(a) => run_generate(Generator::wrecking_ball(a.size)?, &a.common),
-        SimCommand::Rest(a) => run_generate(Generator::scenario(Scenario::Rest), &a),
+        SimCommand::Rest(a) => {
+            let mut p = ScenarioParameters::new(vec![Scenario::Rest]);
+            if let Some(r) = &a.tower_scale {
+                p.tower_scale = [r[0], r[1]];
+            }
+            run_generate(Generator::Scenario(Box::new(p)), &a.common)
+        }
         SimCommand::Drop(a) => run_generate(Generator::scenario(Scenario::Drop), &a),
         SimCommand::Slide(a) => run_generate(Generator::scenario(Scenario::Slide), &a),
         SimCommand::Collide(a) => run_generate(Generator::scenario(Scenario::Collide), &a),

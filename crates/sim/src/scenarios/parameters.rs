@@ -108,6 +108,8 @@ pub struct ScenarioParameters {
     pub rest_singles: [usize; 2],
     /// Cubes of a `rest` tower.
     pub tower_boxes: [usize; 2],
+    /// Uniform scale range (side, metres) of a `rest` tower's cubes; by default `scale`'s.
+    pub tower_scale: [f32; 2],
     /// Largest horizontal offset of a tower box from the one below, per axis, metres.
     pub tower_offset: f32,
     /// Largest yaw of a tower box relative to the tower, radians.
@@ -206,6 +208,7 @@ impl ScenarioParameters {
             scenarios,
             shapes: ShapeKind::MOVI_B.to_vec(),
             scale: [0.7, 1.4],
+            tower_scale: [0.7, 1.4],
             materials: vec![("metal".into(), METAL), ("rubber".into(), RUBBER)],
             floor: MOVI_FLOOR,
             gravity: [0.0, 0.0, -10.0],
@@ -296,6 +299,7 @@ impl ScenarioParameters {
         }
         let spans = [
             self.scale,
+            self.tower_scale,
             self.drop_height,
             self.slide_speed,
             self.collide_speed,

@@ -45,7 +45,7 @@ fn sample_rest<R: Rng + ?Sized>(
         }
         RestVariant::Tower => {
             let n = count(rng, p.tower_boxes);
-            tower(p, n, p.scale, rng)?
+            tower(p, n, p.tower_scale, rng)?
         }
         RestVariant::Pile => sample_pile(p, rng)?,
     };
