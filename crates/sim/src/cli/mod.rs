@@ -112,7 +112,7 @@ pub struct RestArgs {
     pub common: GenerateArgs,
     /// Side range of a tower's cubes, metres, as `MIN,MAX` (default 0.7,1.4, the scale of
     /// every other object).
-    #[arg(long, value_delimiter = ',', num_args = 2, value_name = "MIN,MAX")]
+    #[arg(long, value_delimiter = ',', value_name = "MIN,MAX")]
     pub tower_scale: Option<Vec<f32>>,
 }
 
@@ -165,7 +165,10 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
         SimCommand::Rest(a) => {
             let mut p = ScenarioParameters::new(vec![Scenario::Rest]);
             if let Some(r) = &a.tower_scale {
-                p.tower_scale = [r[0], r[1]];
+                let [lo, hi] = r[..] else {
+                    bail!("--tower-scale takes two numbers, MIN,MAX (got {r:?})");
+                };
+                p.tower_scale = [lo, hi];
             }
             run_generate(Generator::Scenario(Box::new(p)), &a.common)
         }
