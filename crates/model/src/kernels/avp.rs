@@ -8,10 +8,11 @@
 //! in L1. No gradient: for inference only (training keeps the composition, whose gradient
 //! also reaches the learned bandwidth).
 
-use candle_core::{CpuStorage, CustomOp1, DType, Layout, Shape, Tensor};
+use candle_core::{CpuStorage, CustomOp1, Layout, Shape, Tensor};
 
 use super::activation::{exp_inference, f32_slice};
 use super::simd::{axpy, exp_slice, row_blocks};
+use crate::layers::gather_padded;
 
 /// The pooling of one batch: per-object point ranges and distances, host data borrowed from
 /// the batch inputs.
@@ -161,9 +162,7 @@ pub fn anchor_pooling_composed(
     };
     let w = w.broadcast_mul(mask)?; // [O, K, N]
     // The packed features laid out per object `[O, N, C]`, zero rows for padding.
-    let hp = Tensor::cat(&[h, &Tensor::zeros((1, c), DType::F32, h.device())?], 0)?
-        .index_select(pad_idx, 0)?
-        .reshape((o, n, c))?;
+    let hp = gather_padded(h, pad_idx)?.reshape((o, n, c))?;
     let num = w.matmul(&hp)?; // [O, K, C]
     let den = w.sum_keepdim(2)?; // > 0 wherever an object has a point
     num.broadcast_div(&den)

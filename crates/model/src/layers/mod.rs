@@ -70,6 +70,14 @@ pub(crate) fn rotate_pairs(x: &Tensor, cos: &Tensor, sin: &Tensor) -> candle_cor
     }
 }
 
+/// Rows of `rows [P, C]` picked by `index [L]` (u32), where index `P` picks a zero row: how
+/// packed rows are laid out in a padded layout. Differentiable in `rows`. Returns `[L, C]`.
+pub(crate) fn gather_padded(rows: &Tensor, index: &Tensor) -> candle_core::Result<Tensor> {
+    let c = rows.dim(1)?;
+    let zero = Tensor::zeros((1, c), rows.dtype(), rows.device())?;
+    Tensor::cat(&[rows, &zero], 0)?.index_select(index, 0)
+}
+
 /// Elementwise Smooth L1 of `diff` with transition `beta`, averaged over all elements.
 pub fn smooth_l1_mean(diff: &Tensor, beta: f32) -> candle_core::Result<Tensor> {
     let a = diff.abs()?;

@@ -5,7 +5,7 @@
 
 use std::sync::Arc;
 
-use candle_core::{DType, Device, Tensor};
+use candle_core::{Device, Tensor};
 
 use super::attention::multi_head;
 use super::decoder::Decoded;
@@ -15,7 +15,7 @@ use crate::kernels::attention::{
     CrossAttention, RotaryRows, cross_attention, cross_attention_train,
 };
 use crate::kernels::avp::{AnchorPooling, anchor_pooling, anchor_pooling_composed};
-use crate::layers::{Exec, Init, Linear, Mlp, Mode, ParamStore, RmsNorm};
+use crate::layers::{Exec, Init, Linear, Mlp, Mode, ParamStore, RmsNorm, gather_padded};
 use crate::{ModelConfig, ModelError};
 
 /// The anchor head's layers (`anchors.*` parameters).
@@ -268,15 +268,8 @@ impl AnchorHead {
                 }
             }
         }
-        let query = Tensor::cat(
-            &[
-                query.reshape((o * k, d))?,
-                Tensor::zeros((1, d), DType::F32, device)?,
-            ],
-            0,
-        )?
-        .index_select(&host_index(device, &gather)?, 0)?
-        .reshape((b, m * k, d))?;
+        let query = gather_padded(&query.reshape((o * k, d))?, &host_index(device, &gather)?)?
+            .reshape((b, m * k, d))?;
         let qcos = host_tensor(device, &qcos, &[b, 1, m * k, p])?;
         let qsin = host_tensor(device, &qsin, &[b, 1, m * k, p])?;
         let nt = dec.taps.len();

@@ -4,13 +4,13 @@
 
 use std::sync::Arc;
 
-use candle_core::{DType, Device, Tensor};
+use candle_core::{Device, Tensor};
 
 use super::attention::multi_head;
 use super::host_tensor;
 use super::inputs::BatchInputs;
 use crate::kernels::attention::{RotaryRows, SelfAttention, self_attention, self_attention_train};
-use crate::layers::{Exec, Init, Linear, Mode, ParamStore, RmsNorm, SwiGlu};
+use crate::layers::{Exec, Init, Linear, Mode, ParamStore, RmsNorm, SwiGlu, gather_padded};
 use crate::{ModelConfig, ModelError};
 
 /// Additive attention bias of a padded key.
@@ -181,12 +181,8 @@ impl Decoder {
                 mask[s * t + j] = 0.0;
             }
         }
-        let padded = Tensor::cat(
-            &[tokens.clone(), Tensor::zeros((1, d), DType::F32, device)?],
-            0,
-        )?
-        .index_select(&super::host_index(device, &gather)?, 0)?
-        .reshape((b, m, d))?;
+        let padded =
+            gather_padded(tokens, &super::host_index(device, &gather)?)?.reshape((b, m, d))?;
         let regs = self.registers.unsqueeze(0)?.broadcast_as((b, r, d))?;
         let mut x = if r > 0 {
             Tensor::cat(&[padded, regs.contiguous()?], 1)?
