@@ -176,6 +176,21 @@ fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
 }
 
+/// Times `a` and `b` alternately `runs` times each and returns their medians in ms: both sides
+/// see the same machine load, so their ratio holds even where absolute times do not.
+fn interleaved(runs: usize, mut a: impl FnMut(), mut b: impl FnMut()) -> (f64, f64) {
+    let (mut ta, mut tb) = (Vec::with_capacity(runs), Vec::with_capacity(runs));
+    for _ in 0..runs {
+        let t0 = Instant::now();
+        a();
+        ta.push(t0.elapsed());
+        let t0 = Instant::now();
+        b();
+        tb.push(t0.elapsed());
+    }
+    (ms(median(ta)), ms(median(tb)))
+}
+
 fn print_phases(label: &str, model: &RigidFormer, batch: &[StepItem<'_>], runs: usize) {
     let mut profiles = Vec::with_capacity(runs);
     for _ in 0..runs {
@@ -281,15 +296,11 @@ fn bench_fused_ab(c: &mut Criterion) {
                     }
                 };
                 let batch = items(&scenes);
-                let (mut a, mut b) = (Vec::new(), Vec::new());
-                for _ in 0..15 {
-                    for (model, times) in [(&fused, &mut a), (&plain, &mut b)] {
-                        let t0 = Instant::now();
-                        black_box(model.step(&batch).expect("step"));
-                        times.push(t0.elapsed());
-                    }
-                }
-                let (a, b) = (ms(median(a)), ms(median(b)));
+                let (a, b) = interleaved(
+                    15,
+                    || drop(black_box(fused.step(&batch).expect("step"))),
+                    || drop(black_box(plain.step(&batch).expect("step"))),
+                );
                 println!(
                     "fused_ab {case}: fused {a:.2} ms | composition {b:.2} ms | composition / fused {:.2}x",
                     b / a
@@ -323,21 +334,17 @@ fn bench_avp_ab(c: &mut Criterion) {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let nmax = *counts.iter().max().expect("objects");
         let o = counts.len();
+        let p: usize = counts.iter().sum();
         let mut objects = Vec::new();
         let (mut pad, mut mask) = (Vec::new(), Vec::new());
         let mut first = 0;
         for &n in &counts {
             objects.push((first, n));
-            for i in 0..nmax {
-                pad.push(if i < n { (first + i) as u32 } else { u32::MAX });
-                mask.push(if i < n { 1f32 } else { 0.0 });
-            }
+            // Padding slots gather row `p`, the zero row the composition appends.
+            pad.extend((0..nmax).map(|i| if i < n { first + i } else { p } as u32));
+            mask.extend((0..nmax).map(|i| if i < n { 1f32 } else { 0.0 }));
             first += n;
         }
-        let p = first;
-        pad.iter_mut()
-            .filter(|r| **r == u32::MAX)
-            .for_each(|r| *r = p as u32);
         let d2: Vec<f32> = (0..o * k * nmax)
             .map(|_| rng.random_range(0.0f32..0.09))
             .collect();
@@ -362,16 +369,11 @@ fn bench_avp_ab(c: &mut Criterion) {
             let d2t = Tensor::from_slice(&d2, (o, k, nmax), &dev).expect("d2");
             anchor_pooling_composed(&h, &d2t, &maskt, &padt, &inv, true).expect("composed")
         };
-        let (mut a, mut b) = (Vec::new(), Vec::new());
-        for _ in 0..25 {
-            let t0 = Instant::now();
-            black_box(anchor_pooling(&h, &op).expect("fused"));
-            a.push(t0.elapsed());
-            let t0 = Instant::now();
-            black_box(composed());
-            b.push(t0.elapsed());
-        }
-        let (a, b) = (ms(median(a)), ms(median(b)));
+        let (a, b) = interleaved(
+            25,
+            || drop(black_box(anchor_pooling(&h, &op).expect("fused"))),
+            || drop(black_box(composed())),
+        );
         println!(
             "avp_ab {case}: fused {a:.3} ms | composition {b:.3} ms | composition / fused {:.2}x",
             b / a
@@ -398,16 +400,13 @@ fn bench_points_ab(c: &mut Criterion) {
         let small = cache.get_or_insert_with(|| {
             let small = prepared_batch(&model, 8, 10, 256, 8);
             let large = prepared_batch(&model, 8, 10, 512, 8);
-            let (mut a, mut b) = (Vec::new(), Vec::new());
-            for _ in 0..15 {
-                for (scenes, times) in [(&small, &mut a), (&large, &mut b)] {
-                    let batch = items(scenes);
-                    let t0 = Instant::now();
-                    black_box(model.step(&batch).expect("step"));
-                    times.push(t0.elapsed());
-                }
-            }
-            let (a, b) = (ms(median(a)), ms(median(b)));
+            let (small_batch, large_batch) = (items(&small), items(&large));
+            let (a, b) = interleaved(
+                15,
+                || drop(black_box(model.step(&small_batch).expect("step"))),
+                || drop(black_box(model.step(&large_batch).expect("step"))),
+            );
+            drop((small_batch, large_batch));
             println!(
                 "points_ab batch 8: 256 points {a:.2} ms | 512 points {b:.2} ms | 512 / 256 {:.2}x",
                 b / a
