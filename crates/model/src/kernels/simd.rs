@@ -24,8 +24,17 @@ fn exp_lane(x: f32) -> f32 {
     p = p * r + 1.666_666_5e-1;
     p = p * r + 0.5;
     let e = p * r * r + r + 1.0;
-    let scale = f32::from_bits(((n as i32 + 127) << 23) as u32);
-    e * scale
+    e * pow2(n)
+}
+
+/// `2^n` for an integral `n` in `[-126, 128]`, built in the exponent bits without a float to
+/// integer conversion (Rust's saturating `as i32` stops the compiler from vectorising the
+/// loop): `n + 127 + 2^23` holds `n + 127` in its low mantissa bits.
+#[inline(always)]
+fn pow2(n: f32) -> f32 {
+    const SHIFTED_BIAS: f32 = 127.0 + 8_388_608.0;
+    const MAGIC_BITS: u32 = 0x4B00_0000;
+    f32::from_bits((n + SHIFTED_BIAS).to_bits().wrapping_sub(MAGIC_BITS) << 23)
 }
 
 #[inline(always)]
