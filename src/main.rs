@@ -41,6 +41,7 @@ enum Command {
 fn main() -> anyhow::Result<()> {
     // SAFETY: first statement of main; no other thread exists yet.
     unsafe { dynaserve_model::configure_compute(None) };
+    dynaserve_model::keep_freed_memory();
     let cli = Cli::parse();
     match cli.command {
         Command::Version => {

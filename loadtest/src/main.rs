@@ -7,6 +7,7 @@ fn main() {
     // SAFETY: first statement of main; no other thread exists yet. The in-process baseline
     // must run candle with the same thread settings as the server binary.
     unsafe { dynaserve_model::configure_compute(None) };
+    dynaserve_model::keep_freed_memory();
     match dynaserve_loadtest::cli::main() {
         Ok(0) => {}
         Ok(code) => std::process::exit(code),

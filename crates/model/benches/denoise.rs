@@ -66,6 +66,7 @@ fn env_list(name: &str, default: &[usize]) -> Vec<usize> {
 }
 
 fn main() {
+    dynaserve_model::keep_freed_memory();
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/physiformer-small");
     let device = candle_core::Device::Cpu;
     let model = PhysiFormer::load(&dir, &device, false).expect("load physiformer-small");

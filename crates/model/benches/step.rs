@@ -762,6 +762,7 @@ criterion_group!(
 fn main() {
     // SAFETY: first statement of main; criterion has not started any thread yet.
     unsafe { dynaserve_model::configure_compute(None) };
+    dynaserve_model::keep_freed_memory();
     benches();
     Criterion::default().configure_from_args().final_summary();
 }

@@ -34,7 +34,7 @@ pub use rigidformer::features::{
     FeatureFrame, ScenePoints, contact_velocity, object_params, raw_point_features,
 };
 pub use rigidformer::{RigidFormer, StepProfile, TrainItem, TrainOutput};
-pub use runtime::configure_compute;
+pub use runtime::{configure_compute, keep_freed_memory};
 
 /// Re-exported so callers can name devices and dtypes without depending on candle directly.
 pub use candle_core::{DType, Device};
