@@ -7,6 +7,7 @@ pub mod activation_grad;
 pub mod attention;
 pub mod attention_grad;
 pub mod avp;
+pub mod grouped_mlp;
 pub mod kabsch;
 pub mod norm;
 pub mod pool;

@@ -1,11 +1,12 @@
 //! Fully connected layers: [`Linear`], the two-layer SiLU [`Mlp`] and the [`SwiGlu`]
 //! feed-forward.
 
-use candle_core::{D, Tensor};
+use candle_core::{D, DType, Tensor};
 
 use super::ParamStore;
 use crate::ModelError;
 use crate::kernels::activation::{bias_silu, swiglu_product};
+use crate::kernels::grouped_mlp::MlpWeights;
 use crate::kernels::pool::bias_group_max;
 
 /// `y = x W^T + b` over the last dimension of any-rank input.
@@ -72,6 +73,21 @@ impl Mlp {
         Ok(Mlp {
             a: p.linear(&format!("{name}.0"), input, hidden, true)?,
             b: p.linear(&format!("{name}.1"), hidden, output, true)?,
+        })
+    }
+
+    /// Host copy of the parameters for the CPU kernel of
+    /// [`crate::kernels::grouped_mlp`] (both layers must have biases).
+    pub fn host_weights(&self) -> candle_core::Result<MlpWeights> {
+        let v = |t: &Tensor| t.flatten_all()?.to_dtype(DType::F32)?.to_vec1::<f32>();
+        let (Some(b1), Some(b2)) = (&self.a.b, &self.b.b) else {
+            candle_core::bail!("grouped MLP: both layers need a bias");
+        };
+        Ok(MlpWeights {
+            w1: v(&self.a.w)?,
+            b1: v(b1)?,
+            w2: v(&self.b.w)?,
+            b2: v(b2)?,
         })
     }
 

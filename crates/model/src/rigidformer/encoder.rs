@@ -7,6 +7,7 @@ use candle_core::{Device, Tensor};
 use super::inputs::BatchInputs;
 use super::{host_index, host_tensor};
 use crate::kernels::activation::silu_inference;
+use crate::kernels::grouped_mlp::GroupedMlp;
 use crate::layers::{Exec, Linear, Mlp, ParamStore};
 use crate::{ModelConfig, ModelError};
 
@@ -50,6 +51,9 @@ impl Encoder {
         let fused = exec.fused;
         let (o, s, g) = (inp.o, self.sa_centres, self.sa_neighbours);
         let feats = host_tensor(device, &inp.feats, &[inp.points, self.features])?;
+        if exec.fused_inference() && device.is_cpu() {
+            return self.forward_cpu_inference(inp, &feats);
+        }
         let h = self.point.forward(&feats, fused)?; // [P, C1]
         let grouped = h.index_select(&host_index(device, &inp.group_idx)?, 0)?; // [O*S*G, C1]
         let rel = host_tensor(device, &inp.group_rel, &[o * s * g, 3])?;
@@ -64,6 +68,42 @@ impl Encoder {
             x.silu()?
         };
         let tokens = self.token.forward(&x)?;
+        Ok((h, tokens))
+    }
+
+    /// [`Encoder::forward`] for inference on the CPU: the point MLP and both set-abstraction
+    /// levels as [`GroupedMlp`] passes (gather, MLP and pooling per block of rows, no
+    /// intermediate tensors); the same values as the composition within float rounding.
+    fn forward_cpu_inference(
+        &self,
+        inp: &BatchInputs,
+        feats: &Tensor,
+    ) -> Result<(Tensor, Tensor), ModelError> {
+        let point = self.point.host_weights()?;
+        let h = feats.apply_op1_no_bwd(&GroupedMlp {
+            mlp: &point,
+            index: None,
+            lead: &[],
+            lead_dim: 0,
+            group: 1,
+        })?; // [P, C1]
+        let sa1 = self.sa1.host_weights()?;
+        let x = h.apply_op1_no_bwd(&GroupedMlp {
+            mlp: &sa1,
+            index: Some(&inp.group_idx),
+            lead: &inp.group_rel,
+            lead_dim: 3,
+            group: self.sa_neighbours,
+        })?; // [O*S, C2]
+        let sa2 = self.sa2.host_weights()?;
+        let x = x.apply_op1_no_bwd(&GroupedMlp {
+            mlp: &sa2,
+            index: None,
+            lead: &inp.centre_rel,
+            lead_dim: 3,
+            group: self.sa_centres,
+        })?; // [O, D]
+        let tokens = self.token.forward(&silu_inference(&x)?)?;
         Ok((h, tokens))
     }
 }
