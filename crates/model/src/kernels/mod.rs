@@ -9,6 +9,7 @@ pub mod attention_grad;
 pub mod avp;
 pub mod grouped_mlp;
 pub mod kabsch;
+pub mod linear;
 pub mod norm;
 pub mod pool;
 pub mod simd;

@@ -7,6 +7,7 @@ use super::ParamStore;
 use crate::ModelError;
 use crate::kernels::activation::{bias_silu, swiglu_product};
 use crate::kernels::grouped_mlp::MlpWeights;
+use crate::kernels::linear::linear;
 use crate::kernels::pool::bias_group_max;
 
 /// `y = x W^T + b` over the last dimension of any-rank input.
@@ -20,20 +21,12 @@ impl Linear {
     pub fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
         if x.rank() == 2 {
             // No reshapes: each would be one more node with a full-size gradient copy.
-            let y = x.matmul(&self.w.t()?)?;
-            return match &self.b {
-                Some(b) => y.broadcast_add(b),
-                None => Ok(y),
-            };
+            return linear(x, &self.w, self.b.as_ref());
         }
         let dims = x.dims().to_vec();
         let last = dims[dims.len() - 1];
         let rows = x.elem_count() / last.max(1);
-        let x2 = x.reshape((rows, last))?;
-        let mut y = x2.matmul(&self.w.t()?)?;
-        if let Some(b) = &self.b {
-            y = y.broadcast_add(b)?;
-        }
+        let y = linear(&x.reshape((rows, last))?, &self.w, self.b.as_ref())?;
         let mut out = dims;
         let n = out.len();
         out[n - 1] = self.w.dim(0)?;
