@@ -314,6 +314,42 @@ fn bench_fused_ab(c: &mut Criterion) {
     group.finish();
 }
 
+/// Scene groups on their own threads against every operation split across the threads, on
+/// the same scenes, interleaved in one process (15 steps each): medians and their ratio.
+fn bench_scene_threads_ab(c: &mut Criterion) {
+    let grouped = RigidFormer::new(ModelConfig::small(), 1, &Device::Cpu).expect("model");
+    let split = RigidFormer::new(ModelConfig::small(), 1, &Device::Cpu)
+        .expect("model")
+        .with_scene_threads(false);
+    let mut group = c.benchmark_group("scene_threads_ab");
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(3));
+    for b in [2usize, 8, 32] {
+        let mut cache: Option<Vec<(PreparedScene, SceneState)>> = None;
+        group.bench_function(format!("batch_{b}"), |bench| {
+            let scenes = cache.get_or_insert_with(|| {
+                let scenes = prepared_batch(&grouped, b, 10, 512, b as u64);
+                let batch = items(&scenes);
+                let (g, o) = interleaved(
+                    15,
+                    || drop(black_box(grouped.step(&batch).expect("step"))),
+                    || drop(black_box(split.step(&batch).expect("step"))),
+                );
+                println!(
+                    "scene_threads_ab batch {b}: scene groups {g:.2} ms | split operations {o:.2} ms | ratio {:.2}x",
+                    o / g
+                );
+                scenes
+            });
+            let batch = items(scenes);
+            bench.iter(|| black_box(grouped.step(&batch).expect("step")))
+        });
+    }
+    group.finish();
+}
+
 /// The fused anchor-vertex pooling kernel against the candle composition it replaces, on the
 /// AVP shapes of a batch of 8 MOVi-like scenes (80 objects x 512 points) and of the wrecking
 /// ball (216 objects x 128 points and one of 512, padded to 512 by the composition), `small`
@@ -754,6 +790,7 @@ criterion_group!(
     bench_wrecking_ball,
     bench_fused_ab,
     bench_avp_ab,
+    bench_scene_threads_ab,
     bench_points_ab,
     bench_matmul_peak,
     bench_training,

@@ -17,6 +17,7 @@ pub mod physiformer;
 mod prepare;
 pub mod rigidformer;
 pub mod runtime;
+pub mod scene_threads;
 
 pub use api::{ObjectInput, Pose, SceneState, StepItem, WorldModel, rollout};
 pub use batching::PassBudget;

@@ -58,6 +58,48 @@ fn fused_kernels_match_the_composition() {
     }
 }
 
+#[test]
+fn scene_groups_on_their_own_threads_match_one_pass() {
+    // Two compute threads even where the machine has one, so the batch really splits.
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .unwrap();
+    pool.install(|| {
+        let grouped = RigidFormer::new(ModelConfig::small(), 12, &Device::Cpu).unwrap();
+        let one_pass = RigidFormer::new(ModelConfig::small(), 12, &Device::Cpu)
+            .unwrap()
+            .with_scene_threads(false);
+        let scenes: Vec<_> = [(3, 40), (7, 150), (1, 9), (5, 64), (2, 30)]
+            .iter()
+            .enumerate()
+            .map(|(i, &(m, n))| {
+                let (objects, state) = random_scene(60 + i as u64, m, n);
+                (grouped.prepare(objects).unwrap(), state, 1 + (i % 3) as u32)
+            })
+            .collect();
+        let items: Vec<StepItem<'_>> = scenes
+            .iter()
+            .map(|(scene, state, dt)| StepItem {
+                scene,
+                state,
+                dt_steps: *dt,
+            })
+            .collect();
+        let a = grouped.step(&items).unwrap();
+        let b = one_pass.step(&items).unwrap();
+        assert_eq!(a.len(), items.len());
+        for (i, (x, y)) in a.iter().zip(&b).enumerate() {
+            assert_eq!(x.len(), items[i].scene.len());
+            let diff = max_pose_diff(x, y);
+            assert!(
+                diff < 1e-5,
+                "scene {i}: grouped and one-pass steps differ by {diff}"
+            );
+        }
+    });
+}
+
 /// Loss and the gradient of every parameter of a training batch (three scenes of different
 /// object and point counts and step sizes), keyed by parameter name.
 fn loss_and_gradients(

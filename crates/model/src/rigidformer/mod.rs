@@ -35,6 +35,7 @@ use crate::api::{Pose, StepItem, WorldModel};
 use crate::batching::PassBudget;
 use crate::layers::{Exec, Mode, ParamStore};
 use crate::prepare::{PreparedScene, prepare_scene, validate_state};
+use crate::scene_threads::run_scene_groups;
 use crate::{ModelConfig, ModelError, ObjectInput};
 
 pub use self::train::{TrainItem, TrainOutput};
@@ -78,6 +79,7 @@ pub struct RigidFormer {
     anchors: AnchorHead,
     max_pass_objects: usize,
     fused_kernels: bool,
+    scene_threads: bool,
 }
 
 /// A host buffer as an f32 tensor of `shape` on `device`.
@@ -124,6 +126,7 @@ impl RigidFormer {
             anchors,
             max_pass_objects: DEFAULT_MAX_PASS_OBJECTS,
             fused_kernels: true,
+            scene_threads: true,
         })
     }
 
@@ -139,6 +142,15 @@ impl RigidFormer {
     /// within float rounding; this exists to compare the two.
     pub fn with_fused_kernels(mut self, fused: bool) -> RigidFormer {
         self.fused_kernels = fused;
+        self
+    }
+
+    /// Allows (the default) or forbids running a batch's scenes as concurrent groups, one per
+    /// compute thread ([`crate::scene_threads`]; CPU only). Without it every operation of the
+    /// batch is split across the threads instead. Results agree within float rounding (each
+    /// group pads to its own largest scene); this exists to compare the two.
+    pub fn with_scene_threads(mut self, on: bool) -> RigidFormer {
+        self.scene_threads = on;
         self
     }
 
@@ -261,11 +273,19 @@ impl RigidFormer {
         }
         // Split into passes of whole scenes under the object budget (the one batching rule).
         let objects: Vec<usize> = batch.iter().map(|it| it.scene.len()).collect();
-        let mut out = Vec::with_capacity(batch.len());
-        for pass in PassBudget::objects(self.max_pass_objects).plan(&objects) {
-            out.extend(self.step_pass(&requests[pass], mode, profile.as_deref_mut())?);
+        let passes = |range: std::ops::Range<usize>, mut profile: Option<&mut StepProfile>| {
+            let mut out = Vec::with_capacity(range.len());
+            for pass in PassBudget::objects(self.max_pass_objects).plan(&objects[range.clone()]) {
+                let pass = range.start + pass.start..range.start + pass.end;
+                out.extend(self.step_pass(&requests[pass], mode, profile.as_deref_mut())?);
+            }
+            Ok(out)
+        };
+        // Groups of scenes on their own threads (not with a profile: phases would overlap).
+        if self.scene_threads && profile.is_none() && self.device.is_cpu() {
+            return run_scene_groups(&objects, |range| passes(range, None));
         }
-        Ok(out)
+        passes(0..batch.len(), profile)
     }
 
     fn step_pass(
