@@ -291,6 +291,19 @@ impl CustomOp2 for SelfAttention {
             .into_par_iter()
             .map(|s| scene_keys(src, s, h, dh, &self.rope))
             .collect();
+        if t >= LONG_KEYS {
+            let ranges: Vec<_> = (0..b).map(|s| s * t..(s + 1) * t).collect();
+            let queries = LongQueries {
+                q: qkv,
+                stride: d3,
+                rope: &self.rope,
+                ranges: &ranges,
+                key_bias: &self.key_bias,
+                gate: Some(gate),
+            };
+            let out = attend_long(&queries, h, d, &keys, t);
+            return Ok((CpuStorage::F32(out), Shape::from((b, t, d))));
+        }
         let out = run_rows(b * t, d, h, &keys, t, |r| {
             let s = r / t;
             let (cos, sin) = self.rope.row(r);
@@ -364,6 +377,20 @@ impl CustomOp2 for CrossAttention {
             .into_par_iter()
             .map(|s| scene_keys(src, s, h, dh, &self.k_rope))
             .collect();
+        if tk >= LONG_KEYS
+            && let Some(ranges) = scene_ranges(&self.query_scene, b)
+        {
+            let queries = LongQueries {
+                q,
+                stride: d,
+                rope: &self.q_rope,
+                ranges: &ranges,
+                key_bias: &self.key_bias,
+                gate: None,
+            };
+            let out = attend_long(&queries, h, d, &keys, tk);
+            return Ok((CpuStorage::F32(out), Shape::from((nq, d))));
+        }
         let out = run_rows(nq, d, h, &keys, tk, |r| {
             let s = self.query_scene[r] as usize;
             let (cos, sin) = self.q_rope.row(r);
@@ -390,6 +417,181 @@ impl CustomOp2 for CrossAttention {
     ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
         let (dq, dkv) = cross_attention_grad(self, q, kv, grad)?;
         Ok((Some(dq), Some(dkv)))
+    }
+}
+
+/// Key count from which [`CrossAttention`] and [`SelfAttention`] run as blocked products
+/// (`gemm`) instead of one query row at a time: the row kernel re-reads its scores for every
+/// channel, which costs more than packing once the key list is long (the wrecking ball's
+/// anchor queries see 675 keys, its decoder tokens 225).
+pub const LONG_KEYS: usize = 128;
+
+/// Query rows per block of the blocked path: the block's scores (`rows x Tk`) stay in L2.
+const LONG_KEYS_BLOCK_ROWS: usize = 64;
+
+/// Consecutive query rows of every scene, `[B]`, if the rows are grouped by scene in order.
+fn scene_ranges(query_scene: &[u32], b: usize) -> Option<Vec<std::ops::Range<usize>>> {
+    let mut ranges = vec![0..0; b];
+    let mut r = 0;
+    while r < query_scene.len() {
+        let (s, start) = (query_scene[r] as usize, r);
+        while r < query_scene.len() && query_scene[r] as usize == s {
+            r += 1;
+        }
+        if s >= b || !ranges[s].is_empty() {
+            return None;
+        }
+        ranges[s] = start..r;
+    }
+    Some(ranges)
+}
+
+/// Query rows of the blocked path ([`attend_long`]).
+struct LongQueries<'a> {
+    /// Query row `r` starts at `q[r * stride]` (`D` values, heads side by side).
+    q: &'a [f32],
+    stride: usize,
+    /// Rotary code of every query row.
+    rope: &'a RotaryRows,
+    /// Query rows of every scene, `[B]`.
+    ranges: &'a [std::ops::Range<usize>],
+    /// Additive bias per key `[B, Tk]`.
+    key_bias: &'a [f32],
+    /// Per-head gate logits `[Nq, H]` (self-attention), output scaled by their sigmoid.
+    gate: Option<&'a [f32]>,
+}
+
+/// The blocked path: per scene, head and block of query rows, rotated queries, scores
+/// `Q K^T / sqrt(dh) + bias` by one product, a row softmax, and `P V` by a second product
+/// written straight into the head's output columns (then gated). Returns `[Nq, D]`.
+fn attend_long(
+    queries: &LongQueries<'_>,
+    heads: usize,
+    d: usize,
+    keys: &[SceneKeys],
+    tk: usize,
+) -> Vec<f32> {
+    let dh = d / heads;
+    let scale = 1.0 / (dh as f32).sqrt();
+    let nq = queries.ranges.iter().map(|r| r.end).max().unwrap_or(0);
+    let mut out = vec![0f32; nq * d];
+    // Tasks: (scene, head, first row, rows); each writes its own rows x dh block.
+    let mut tasks = Vec::new();
+    for (s, r) in queries.ranges.iter().enumerate() {
+        for h in 0..heads {
+            let mut first = r.start;
+            while first < r.end {
+                let rows = LONG_KEYS_BLOCK_ROWS.min(r.end - first);
+                tasks.push((s, h, first, rows));
+                first += rows;
+            }
+        }
+    }
+    let out_ptr = SendPtr(out.as_mut_ptr());
+    let task = |&(s, h, first, rows): &(usize, usize, usize, usize)| {
+        let keys = &keys[s];
+        let mut qb = vec![0f32; rows * dh];
+        for (i, qr) in qb.chunks_exact_mut(dh).enumerate() {
+            let at = (first + i) * queries.stride + h * dh;
+            qr.copy_from_slice(&queries.q[at..at + dh]);
+            let (cos, sin) = queries.rope.row(first + i);
+            rotate(qr, cos, sin);
+        }
+        let bias = &queries.key_bias[s * tk..(s + 1) * tk];
+        let mut sc = Vec::with_capacity(rows * tk);
+        for _ in 0..rows {
+            sc.extend_from_slice(bias);
+        }
+        let kt = &keys.kt[h * dh * tk..(h + 1) * dh * tk];
+        // SAFETY: qb is [rows, dh], kt [dh, tk] and sc [rows, tk], all row-major and of
+        // exactly those lengths; sc is read (the bias) and overwritten.
+        unsafe {
+            gemm::gemm(
+                rows,
+                tk,
+                dh,
+                sc.as_mut_ptr(),
+                1,
+                tk as isize,
+                true,
+                qb.as_ptr(),
+                1,
+                dh as isize,
+                kt.as_ptr(),
+                1,
+                tk as isize,
+                1.0f32,
+                scale,
+                false,
+                false,
+                false,
+                gemm::Parallelism::None,
+            )
+        };
+        for row in sc.chunks_exact_mut(tk) {
+            let max = row.iter().fold(f32::NEG_INFINITY, |m, &x| m.max(x));
+            row.iter_mut().for_each(|x| *x -= max);
+            exp_slice(row);
+            let inv = 1.0 / row.iter().sum::<f32>();
+            row.iter_mut().for_each(|x| *x *= inv);
+        }
+        let v = &keys.v[h * tk * dh..(h + 1) * tk * dh];
+        // SAFETY: sc is [rows, tk], v [tk, dh]; the destination is rows x dh values of `out`
+        // at rows first.. (row stride d) and columns h * dh.., a block no other task touches
+        // (tasks differ in rows or head columns), inside `out` (nq * d values).
+        unsafe {
+            let dst = out_ptr.get().add(first * d + h * dh);
+            gemm::gemm(
+                rows,
+                dh,
+                tk,
+                dst,
+                1,
+                d as isize,
+                false,
+                sc.as_ptr(),
+                1,
+                tk as isize,
+                v.as_ptr(),
+                1,
+                dh as isize,
+                0.0f32,
+                1.0f32,
+                false,
+                false,
+                false,
+                gemm::Parallelism::None,
+            );
+            if let Some(gate) = queries.gate {
+                for i in 0..rows {
+                    let r = first + i;
+                    let w = 1.0 / (1.0 + (-gate[r * heads + h]).exp());
+                    let o = std::slice::from_raw_parts_mut(dst.add(i * d), dh);
+                    o.iter_mut().for_each(|x| *x *= w);
+                }
+            }
+        };
+    };
+    if tasks.len() > 1 && rayon::current_num_threads() > 1 {
+        tasks.par_iter().for_each(task);
+    } else {
+        tasks.iter().for_each(task);
+    }
+    out
+}
+
+/// A raw output pointer shared by tasks that write disjoint blocks.
+#[derive(Clone, Copy)]
+struct SendPtr(*mut f32);
+
+// SAFETY: only used by `attend_long`, whose tasks write disjoint blocks of one
+// buffer that outlives them.
+unsafe impl Send for SendPtr {}
+unsafe impl Sync for SendPtr {}
+
+impl SendPtr {
+    fn get(self) -> *mut f32 {
+        self.0
     }
 }
 
@@ -465,7 +667,12 @@ mod tests {
 
     #[test]
     fn self_attention_matches_the_composition() {
-        for (b, t, heads, dh, pairs) in [(3, 18, 4, 32, 12), (1, 70, 2, 16, 6), (2, 5, 1, 8, 0)] {
+        for (b, t, heads, dh, pairs) in [
+            (3, 18, 4, 32, 12),
+            (1, 70, 2, 16, 6),
+            (2, 5, 1, 8, 0),
+            (2, LONG_KEYS + 22, 4, 32, 12),
+        ] {
             let d = heads * dh;
             let qkv = tensor(&random(b * t * 3 * d, 1, 2.0), &[b, t, 3 * d]);
             let gate = tensor(&random(b * t * heads, 2, 4.0), &[b, t, heads]);
@@ -621,10 +828,16 @@ mod tests {
 
     #[test]
     fn cross_attention_matches_the_composition() {
-        let (b, tk, heads, dh, pairs) = (3usize, 21usize, 4usize, 32usize, 12usize);
+        // Short key lists (the row kernel) and long ones (the blocked path, several row blocks
+        // per scene); scenes with ragged query counts, one empty.
+        for (tk, counts) in [(21usize, [2usize, 0, 5]), (LONG_KEYS + 22, [70, 0, 131])] {
+            cross_attention_case(tk, counts);
+        }
+    }
+
+    fn cross_attention_case(tk: usize, counts: [usize; 3]) {
+        let (b, heads, dh, pairs) = (3usize, 4usize, 32usize, 12usize);
         let d = heads * dh;
-        // Scenes with 2, 0 and 5 query rows (ragged, one empty).
-        let counts = [2usize, 0, 5];
         let nq: usize = counts.iter().sum();
         let q = tensor(&random(nq * d, 5, 2.0), &[nq, d]);
         let kv = tensor(&random(b * tk * 2 * d, 6, 2.0), &[b, tk, 2 * d]);
