@@ -40,10 +40,12 @@ use crate::{ModelConfig, ModelError, ObjectInput};
 
 pub use self::train::{TrainItem, TrainOutput};
 
-/// Default object budget of one forward pass inside [`WorldModel::step`]: larger batches are
-/// split into consecutive passes of whole scenes (measured: per-scene time grows again past
-/// about 32 MOVi-like scenes per pass as intermediate tensors outgrow the caches).
-pub const DEFAULT_MAX_PASS_OBJECTS: usize = 320;
+/// Default object budget of one forward pass inside [`WorldModel::step`] (per scene group,
+/// [`crate::scene_threads`]): larger batches are split into consecutive passes of whole
+/// scenes. Measured with scene groups on 2 cores: 64 streams of 10-object scenes in process
+/// ran at 459 scene-steps/s with 32-scene passes per thread and 592 with 16, as a pass's
+/// intermediates outgrow the core's L2 cache.
+pub const DEFAULT_MAX_PASS_OBJECTS: usize = 160;
 
 /// Wall-clock time of each phase of one batched step (CPU; on an accelerator the phases are
 /// not synchronised, so only the total is meaningful there).
