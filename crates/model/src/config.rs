@@ -90,6 +90,23 @@ pub struct LossConfig {
     pub scale: f32,
     /// Weights of `[pos_pre, acc_pre, pos_post, acc_post]`.
     pub weights: [f32; 4],
+    /// Factor on the errors of objects at rest in the training window (ground truth: the
+    /// previous, current and target poses within [`REST_TRANSLATION_PER_FRAME_M`] and
+    /// [`REST_ROTATION_PER_FRAME_RAD`] per frame of each other); 1 weighs them as any
+    /// object. Dimensionless, > 0; absent in older `config.json` files, which means 1.
+    #[serde(default = "unit_weight")]
+    pub rest_weight: f32,
+}
+
+/// Resting test of [`LossConfig::rest_weight`]: largest centre displacement per frame, metres
+/// (0.5 mm a frame: 1.2 cm/s at 24 frames a second).
+pub const REST_TRANSLATION_PER_FRAME_M: f32 = 5.0e-4;
+/// Resting test of [`LossConfig::rest_weight`]: largest rotation per frame, radians (0.05
+/// degrees a frame: 1.2 degrees a second at 24 frames a second).
+pub const REST_ROTATION_PER_FRAME_RAD: f32 = 8.7e-4;
+
+fn unit_weight() -> f32 {
+    1.0
 }
 
 impl Default for LossConfig {
@@ -102,6 +119,7 @@ impl Default for LossConfig {
             beta: 1.0,
             scale: 0.001,
             weights: [1.0; 4],
+            rest_weight: 1.0,
         }
     }
 }
@@ -428,6 +446,7 @@ impl ModelConfig {
             ("accel_scale", self.accel_scale),
             ("loss.beta", self.loss.beta),
             ("loss.scale", self.loss.scale),
+            ("loss.rest_weight", self.loss.rest_weight),
         ];
         for (name, v) in finite_pos {
             if !(v.is_finite() && v > 0.0) {

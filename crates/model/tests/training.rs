@@ -372,3 +372,51 @@ fn kinematic_objects_add_nothing_to_the_loss() {
     let err = loss(&target, &[true]).unwrap_err().to_string();
     assert!(err.contains("kinematic flags"), "{err}");
 }
+
+#[test]
+fn rest_weight_scales_only_objects_at_rest() {
+    let plain = RigidFormer::new(ModelConfig::tiny(), 7, &Device::Cpu).unwrap();
+    let weighted = RigidFormer::new(ModelConfig::tiny(), 7, &Device::Cpu)
+        .unwrap()
+        .with_rest_weight(4.0);
+    let (objs, st) = random_scene(10, 3, 40);
+    let sc = plain.prepare(objs).unwrap();
+    // Object 0 rests (three equal poses); the others move.
+    let mut resting = st.clone();
+    resting.previous[0] = resting.current[0];
+    let mut target = next_poses(&resting);
+    target[0] = resting.current[0];
+    let loss = |model: &RigidFormer, state: &SceneState, target: &[Pose]| {
+        model
+            .train_forward(&[TrainItem {
+                scene: &sc,
+                state,
+                target,
+                dt_steps: 1,
+                kinematic: &[],
+            }])
+            .unwrap()
+            .loss
+            .to_scalar::<f32>()
+            .unwrap()
+    };
+    let moving_target = next_poses(&st);
+    assert_eq!(
+        loss(&plain, &st, &moving_target),
+        loss(&weighted, &st, &moving_target),
+        "no object rests: the weight must change nothing"
+    );
+    let (a, b) = (
+        loss(&plain, &resting, &target),
+        loss(&weighted, &resting, &target),
+    );
+    assert!(b > a * 1.05, "resting object weighted: {a} -> {b}");
+    let bad = ModelConfig {
+        loss: dynaserve_model::LossConfig {
+            rest_weight: 0.0,
+            ..Default::default()
+        },
+        ..ModelConfig::tiny()
+    };
+    assert!(bad.validate().is_err());
+}

@@ -172,6 +172,13 @@ impl RigidFormer {
         self
     }
 
+    /// Sets the factor on the training loss of objects at rest in their window
+    /// ([`crate::LossConfig::rest_weight`]). Inference is unaffected.
+    pub fn with_rest_weight(mut self, weight: f32) -> RigidFormer {
+        self.config.loss.rest_weight = weight;
+        self
+    }
+
     /// Sets the model's name (normally its checkpoint directory name).
     pub fn with_name(mut self, name: impl Into<String>) -> RigidFormer {
         self.name = name.into();

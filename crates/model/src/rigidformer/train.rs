@@ -136,13 +136,20 @@ impl RigidFormer {
         let learned = items.iter().flat_map(|it| {
             (0..it.scene.len()).map(|j| !it.kinematic.get(j).copied().unwrap_or(false))
         });
+        // Objects at rest in the window weigh `rest_weight` times as much.
+        let resting = requests.iter().zip(items).flat_map(|(r, it)| {
+            (0..it.scene.len())
+                .map(move |j| at_rest([&r.previous[j], &r.current[j], &it.target[j]], it.dt_steps))
+        });
         let inv: Vec<f32> = inp
             .object_dt
             .iter()
             .zip(learned)
-            .map(|(&dt, learn)| {
+            .zip(resting)
+            .map(|((&dt, learn), rest)| {
+                let w = if rest { lc.rest_weight } else { 1.0 };
                 if learn {
-                    1.0 / (lc.scale * self.config.dynamics.output_factor(dt))
+                    w / (lc.scale * self.config.dynamics.output_factor(dt))
                 } else {
                     0.0
                 }
@@ -174,4 +181,22 @@ impl RigidFormer {
             target_accel,
         })
     }
+}
+
+/// True when the three poses `[t - k, t, t + k]` of one object lie within the resting
+/// tolerances of [`crate::config::REST_TRANSLATION_PER_FRAME_M`] and
+/// [`crate::config::REST_ROTATION_PER_FRAME_RAD`] per frame of each consecutive one.
+pub(crate) fn at_rest(poses: [&Pose; 3], dt_steps: u32) -> bool {
+    let k = dt_steps.max(1) as f32;
+    poses.windows(2).all(|w| {
+        let (a, b) = (w[0], w[1]);
+        let d2: f32 = (0..3)
+            .map(|i| (a.translation[i] - b.translation[i]).powi(2))
+            .sum();
+        // Angle between unit quaternions: 2 acos(|<a, b>|).
+        let dot: f32 = (0..4).map(|i| a.rotation[i] * b.rotation[i]).sum();
+        let angle = 2.0 * dot.abs().min(1.0).acos();
+        d2.sqrt() <= crate::config::REST_TRANSLATION_PER_FRAME_M * k
+            && angle <= crate::config::REST_ROTATION_PER_FRAME_RAD * k
+    })
 }

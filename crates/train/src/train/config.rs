@@ -139,6 +139,11 @@ pub struct ModelSection {
     /// pull quadratically (weakly), errors above it linearly; a smaller value gives the
     /// sub-millimetre errors of resting objects a full L1 gradient.
     pub loss_beta: Option<f32>,
+    /// Factor on the loss of objects at rest in their window (`LossConfig::rest_weight`;
+    /// ground truth within 0.5 mm and 0.05 degrees a frame): unset keeps what the preset,
+    /// config or `init` model has (1 unless set before). Above 1 it weighs the millimetre
+    /// errors that make resting objects drift against those of impacts.
+    pub rest_weight: Option<f32>,
 }
 
 impl Default for ModelSection {
@@ -152,6 +157,7 @@ impl Default for ModelSection {
             contact_velocity: None,
             rigid_extrapolation: None,
             loss_beta: None,
+            rest_weight: None,
         }
     }
 }
@@ -167,6 +173,9 @@ impl ModelSection {
         }
         if let Some(beta) = self.loss_beta {
             c.loss.beta = beta;
+        }
+        if let Some(w) = self.rest_weight {
+            c.loss.rest_weight = w;
         }
         if let Some(cv) = self.contact_velocity
             && cv != c.dynamics.contact_velocity
@@ -339,6 +348,11 @@ impl TrainConfig {
         {
             return bad("model.loss_beta must be finite and > 0");
         }
+        if let Some(w) = self.model.rest_weight
+            && !(w > 0.0 && w.is_finite())
+        {
+            return bad("model.rest_weight must be finite and > 0");
+        }
         let o = &self.optim;
         if o.batch_size == 0 || o.iterations == 0 {
             return bad("optim.batch_size and optim.iterations must be >= 1");
@@ -379,6 +393,24 @@ mod tests {
         c.validate().unwrap();
         let zero: TrainConfig = toml::from_str("[model]\nloss_beta = 0.0\n").unwrap();
         assert!(zero.validate().is_err());
+    }
+
+    #[test]
+    fn rest_weight_switches_the_named_config_and_is_checked() {
+        let base = Path::new(".");
+        assert_eq!(
+            ModelSection::default()
+                .model_config(base)
+                .unwrap()
+                .loss
+                .rest_weight,
+            1.0
+        );
+        let c: TrainConfig = toml::from_str("[model]\nrest_weight = 4.0\n").unwrap();
+        assert_eq!(c.model.model_config(base).unwrap().loss.rest_weight, 4.0);
+        c.validate().unwrap();
+        let neg: TrainConfig = toml::from_str("[model]\nrest_weight = -1.0\n").unwrap();
+        assert!(neg.validate().is_err());
     }
 
     #[test]

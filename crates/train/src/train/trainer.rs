@@ -239,6 +239,10 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                 Some(beta) => m.with_loss_beta(beta),
                 None => m,
             };
+            let m = match cfg.model.rest_weight {
+                Some(w) => m.with_rest_weight(w),
+                None => m,
+            };
             init_contact_velocity(m, cfg, &reader)?
         } else {
             let mut mc = cfg.model.model_config(Path::new("."))?;
