@@ -5,8 +5,9 @@
 //! - `wrecking_216x64`: a 6 x 6 x 6 stack of touching unit cubes on the ground, 64 surface
 //!   points per cube.
 //!
-//! `fast` is the default entry point (serial below `PARALLEL_MIN_POINTS`, so for both scenes),
-//! `fast_parallel` the same search forced onto rayon's pool, `brute` the exhaustive reference.
+//! `fast` is the default entry point (parallel from `PARALLEL_MIN_POINTS` points, so for both
+//! scenes), `fast_parallel` the same search forced onto rayon's pool, `brute` the exhaustive
+//! reference.
 //! `contact/threshold/*` compares serial and parallel on growing touching stacks.
 //!
 //! Run: `cargo bench -p dynaserve-geometry --bench contact`

@@ -12,11 +12,13 @@ use super::hit::{ContactHit, ContactSource, dist2, ground_fallback};
 use crate::Point;
 
 /// Scenes with at least this many points search in parallel on rayon's pool; smaller ones run
-/// serially. Measured with the `contact/threshold` bench on a busy two-core machine, the
-/// parallel search was slower at 4096 points (1.59 vs 1.47 ms) and no faster at 13824 and
-/// 32768 points, so only very large scenes fan out (callers usually already run scenes in
-/// parallel). Tune per deployment with [`ContactWorkspace::with_parallel_threshold`].
-pub const PARALLEL_MIN_POINTS: usize = 32768;
+/// serially. Measured with the `contact/threshold` bench on an idle two-core machine, parallel
+/// against serial: 1.82x at 4096 points (0.68 vs 1.23 ms), 1.66x at 13824, 1.64x at 32768,
+/// and no gain at 512. (On the same machine kept busy by two training jobs, parallel was
+/// slower at 4096 points and no faster above.) Inside a one-thread pool, such as a scene group
+/// of a batched step, the search is serial anyway. Tune per deployment with
+/// [`ContactWorkspace::with_parallel_threshold`].
+pub const PARALLEL_MIN_POINTS: usize = 4096;
 
 /// Rows of the 3 x 3 x 3 neighbourhood as (dy, dz), the centre first so that the best
 /// distance shrinks early and prunes more of the rest.
