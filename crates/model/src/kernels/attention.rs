@@ -18,6 +18,7 @@ use rayon::prelude::*;
 
 use super::activation::f32_slice;
 use super::attention_grad::{cross_attention_grad, self_attention_grad};
+use super::product::{Operand, product};
 use super::simd::{axpy, exp_slice};
 
 /// Rows of rotary cosines and sines, each `[rows, P]`.
@@ -506,25 +507,22 @@ fn attend_long(
         // SAFETY: qb is [rows, dh], kt [dh, tk] and sc [rows, tk], all row-major and of
         // exactly those lengths; sc is read (the bias) and overwritten.
         unsafe {
-            gemm::gemm(
-                rows,
-                tk,
-                dh,
+            product(
+                (rows, tk, dh),
                 sc.as_mut_ptr(),
-                1,
-                tk as isize,
+                tk,
                 true,
-                qb.as_ptr(),
-                1,
-                dh as isize,
-                kt.as_ptr(),
-                1,
-                tk as isize,
-                1.0f32,
+                Operand {
+                    ptr: qb.as_ptr(),
+                    rs: dh,
+                    cs: 1,
+                },
+                Operand {
+                    ptr: kt.as_ptr(),
+                    rs: tk,
+                    cs: 1,
+                },
                 scale,
-                false,
-                false,
-                false,
                 gemm::Parallelism::None,
             )
         };
@@ -541,25 +539,22 @@ fn attend_long(
         // (tasks differ in rows or head columns), inside `out` (nq * d values).
         unsafe {
             let dst = out_ptr.get().add(first * d + h * dh);
-            gemm::gemm(
-                rows,
-                dh,
-                tk,
+            product(
+                (rows, dh, tk),
                 dst,
-                1,
-                d as isize,
+                d,
                 false,
-                sc.as_ptr(),
-                1,
-                tk as isize,
-                v.as_ptr(),
-                1,
-                dh as isize,
-                0.0f32,
-                1.0f32,
-                false,
-                false,
-                false,
+                Operand {
+                    ptr: sc.as_ptr(),
+                    rs: tk,
+                    cs: 1,
+                },
+                Operand {
+                    ptr: v.as_ptr(),
+                    rs: dh,
+                    cs: 1,
+                },
+                1.0,
                 gemm::Parallelism::None,
             );
             if let Some(gate) = queries.gate {

@@ -14,6 +14,8 @@
 use candle_core::{CpuStorage, CustomOp1, Layout, Shape};
 
 use super::activation::f32_slice;
+use super::pool::group_max_value;
+use super::product::{Operand, product};
 use super::simd::silu_slice;
 
 /// Input rows per block: the block's input, hidden and output buffers (about 128 KiB at the
@@ -145,25 +147,22 @@ impl GroupedMlp<'_> {
         // and of exactly those lengths (checked in `rows` and built above); rhs = w1^T is read
         // with column stride `input` and row stride 1.
         unsafe {
-            gemm::gemm(
-                rows,
-                hidden,
-                input,
+            product(
+                (rows, hidden, input),
                 h.as_mut_ptr(),
-                1,
-                hidden as isize,
+                hidden,
                 true,
-                x.as_ptr(),
-                1,
-                input as isize,
-                m.w1.as_ptr(),
-                input as isize,
-                1,
-                1.0f32,
-                1.0f32,
-                false,
-                false,
-                false,
+                Operand {
+                    ptr: x.as_ptr(),
+                    rs: input,
+                    cs: 1,
+                },
+                Operand {
+                    ptr: m.w1.as_ptr(),
+                    rs: 1,
+                    cs: input,
+                },
+                1.0,
                 gemm::Parallelism::None,
             )
         };
@@ -173,39 +172,28 @@ impl GroupedMlp<'_> {
         // SAFETY: h is [rows, hidden], y [rows, out] and w2 [out, hidden], row-major; the
         // product overwrites y without reading it.
         unsafe {
-            gemm::gemm(
-                rows,
-                n_out,
-                hidden,
+            product(
+                (rows, n_out, hidden),
                 y.as_mut_ptr(),
-                1,
-                n_out as isize,
+                n_out,
                 false,
-                h.as_ptr(),
-                1,
-                hidden as isize,
-                m.w2.as_ptr(),
-                hidden as isize,
-                1,
-                0.0f32,
-                1.0f32,
-                false,
-                false,
-                false,
+                Operand {
+                    ptr: h.as_ptr(),
+                    rs: hidden,
+                    cs: 1,
+                },
+                Operand {
+                    ptr: m.w2.as_ptr(),
+                    rs: 1,
+                    cs: hidden,
+                },
+                1.0,
                 gemm::Parallelism::None,
             )
         };
         let gn = g * n_out;
         for (o, grp) in out.chunks_exact_mut(n_out).zip(y.chunks_exact(gn)) {
-            o.copy_from_slice(&grp[..n_out]);
-            for row in grp.chunks_exact(n_out).skip(1) {
-                for (m, v) in o.iter_mut().zip(row) {
-                    *m = if *v > *m { *v } else { *m };
-                }
-            }
-            for (m, b) in o.iter_mut().zip(&m.b2) {
-                *m += b;
-            }
+            group_max_value(grp, &m.b2, n_out, o);
         }
     }
 }

@@ -6,9 +6,10 @@
 use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Shape, Tensor};
 
 use super::activation::f32_slice;
+use super::product::{Operand, product};
 
 /// `x [m, k]` (any 2-D strides) times `w [n, k]` (contiguous) transposed, plus `b [n]`.
-fn product(
+fn linear_product(
     op: &str,
     xs: &CpuStorage,
     xl: &Layout,
@@ -55,25 +56,22 @@ fn product(
         // capacity m * n and is either fully initialised with the bias rows (read) or written
         // in full by the product (not read; alpha 0) before its length is set.
         unsafe {
-            gemm::gemm(
-                m,
-                n,
-                k,
+            product(
+                (m, n, k),
                 y.as_mut_ptr(),
-                1,
-                n as isize,
+                n,
                 read,
-                x.as_ptr(),
-                cs as isize,
-                rs as isize,
-                w.as_ptr(),
-                k as isize,
-                1,
-                if read { 1.0f32 } else { 0.0f32 },
-                1.0f32,
-                false,
-                false,
-                false,
+                Operand {
+                    ptr: x.as_ptr(),
+                    rs,
+                    cs,
+                },
+                Operand {
+                    ptr: w.as_ptr(),
+                    rs: 1,
+                    cs: k,
+                },
+                1.0,
                 par,
             );
             y.set_len(m * n);
@@ -98,7 +96,7 @@ impl CustomOp2 for LinearNoBias {
         l2: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
         let w = f32_slice(self.name(), s2, l2)?;
-        product(self.name(), s1, l1, w, l2, None)
+        linear_product(self.name(), s1, l1, w, l2, None)
     }
 
     fn bwd(
@@ -131,7 +129,7 @@ impl CustomOp3 for LinearBias {
     ) -> candle_core::Result<(CpuStorage, Shape)> {
         let w = f32_slice(self.name(), s2, l2)?;
         let b = f32_slice(self.name(), s3, l3)?;
-        product(self.name(), s1, l1, w, l2, Some(b))
+        linear_product(self.name(), s1, l1, w, l2, Some(b))
     }
 
     fn bwd(

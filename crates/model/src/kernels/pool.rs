@@ -47,7 +47,7 @@ fn group_max(rows: &[f32], b: &[f32], n: usize, max: &mut [f32], arg: &mut [u32]
 /// a branch-free column maximum the compiler vectorises, with the bias added once per group
 /// (the same values: rounding `y + b` is monotone in `y`).
 #[inline(always)]
-fn group_max_value(rows: &[f32], b: &[f32], n: usize, max: &mut [f32]) {
+pub(crate) fn group_max_value(rows: &[f32], b: &[f32], n: usize, max: &mut [f32]) {
     max.copy_from_slice(&rows[..n]);
     for row in rows.chunks_exact(n).skip(1) {
         for (m, y) in max.iter_mut().zip(row) {
