@@ -44,8 +44,16 @@ impl AnchorPooling<'_> {
         exp_slice(w);
         out.fill(0.0);
         let points = &h[first * c..(first + n) * c];
+        // Four anchors at a time with their sums in registers where the width allows; the
+        // rest (other widths, fewer than four anchors left) one row update at a time.
+        let done = match c {
+            16 => pool_four_anchors::<16>(w, n, points, out),
+            32 => pool_four_anchors::<32>(w, n, points, out),
+            64 => pool_four_anchors::<64>(w, n, points, out),
+            _ => 0,
+        };
         for (i, hi) in points.chunks_exact(c).enumerate() {
-            for (kk, acc) in out.chunks_exact_mut(c).enumerate() {
+            for (kk, acc) in out.chunks_exact_mut(c).enumerate().skip(done) {
                 axpy(acc, w[kk * n + i], hi);
             }
         }
@@ -88,6 +96,41 @@ impl AnchorPooling<'_> {
         }
         body(self, h, c, first, out)
     }
+}
+
+/// Weighted sums of `points [n, C]` for the anchors of `out [K, C]` in groups of four, weights
+/// `w [K, n]`: each group's four `C`-wide sums stay in registers over all points (the same
+/// additions in the same order as one row update at a time). Returns the anchors done.
+#[inline(always)]
+fn pool_four_anchors<const C: usize>(
+    w: &[f32],
+    n: usize,
+    points: &[f32],
+    out: &mut [f32],
+) -> usize {
+    let groups = out.len() / (4 * C);
+    for (g, rows) in out.chunks_exact_mut(4 * C).enumerate() {
+        let wg = &w[g * 4 * n..(g + 1) * 4 * n];
+        let (w0, rest) = wg.split_at(n);
+        let (w1, rest) = rest.split_at(n);
+        let (w2, w3) = rest.split_at(n);
+        let mut acc = [[0f32; C]; 4];
+        for (i, hi) in points.chunks_exact(C).enumerate() {
+            let Ok(hi) = <&[f32; C]>::try_from(hi) else {
+                continue;
+            };
+            let a = [w0[i], w1[i], w2[i], w3[i]];
+            for (acc, a) in acc.iter_mut().zip(a) {
+                for (s, x) in acc.iter_mut().zip(hi) {
+                    *s += a * *x;
+                }
+            }
+        }
+        for (row, acc) in rows.chunks_exact_mut(C).zip(&acc) {
+            row.copy_from_slice(acc);
+        }
+    }
+    4 * groups
 }
 
 impl CustomOp1 for AnchorPooling<'_> {
