@@ -220,7 +220,7 @@ fn bench_steps(c: &mut Criterion) {
 }
 
 fn bench_steps_for(c: &mut Criterion, name: &str, config: ModelConfig) {
-    let model = RigidFormer::new(config, 1, &Device::Cpu).expect("model");
+    let model = RigidFormer::new_frozen(config, 1, &Device::Cpu).expect("model");
     let mut group = c.benchmark_group(format!("step_{name}_10x512"));
     group
         .sample_size(10)
@@ -269,85 +269,89 @@ fn bench_steps_for(c: &mut Criterion, name: &str, config: ModelConfig) {
     }
 }
 
-/// Fused CPU kernels against the plain candle composition on the same scenes, interleaved in
-/// one process (A B A B ..., 15 steps each): prints both medians and their ratio.
-fn bench_fused_ab(c: &mut Criterion) {
-    let fused = RigidFormer::new(ModelConfig::small(), 1, &Device::Cpu).expect("model");
-    let plain = RigidFormer::new(ModelConfig::small(), 1, &Device::Cpu)
-        .expect("model")
-        .with_fused_kernels(false);
-    let mut group = c.benchmark_group("fused_ab");
+/// Two models on the same scenes, interleaved in one process (A B A B ..., 15 steps each):
+/// prints both medians and the ratio `b / a` per case, then lets criterion time `a`. Cases
+/// are `batch_N` (N 10-object x 512-point scenes) and `wrecking_ball`.
+fn bench_model_ab(
+    c: &mut Criterion,
+    name: &str,
+    (la, a): (&str, &RigidFormer),
+    (lb, b): (&str, &RigidFormer),
+    cases: &[&str],
+) {
+    let mut group = c.benchmark_group(name);
     group
         .sample_size(10)
         .warm_up_time(Duration::from_secs(1))
         .measurement_time(Duration::from_secs(3));
-    for case in ["batch_1", "batch_8", "batch_32", "wrecking_ball"] {
+    for &case in cases {
         let mut cache: Option<Vec<(PreparedScene, SceneState)>> = None;
         group.bench_function(case, |bench| {
             let scenes = cache.get_or_insert_with(|| {
                 let scenes = match case {
                     "wrecking_ball" => {
                         let (objects, state) = wrecking_ball(128);
-                        vec![(fused.prepare(objects).expect("valid scene"), state)]
+                        vec![(a.prepare(objects).expect("valid scene"), state)]
                     }
                     _ => {
-                        let b: usize = case[6..].parse().expect("batch size");
-                        prepared_batch(&fused, b, 10, 512, b as u64)
+                        let n: usize = case[6..].parse().expect("batch size");
+                        prepared_batch(a, n, 10, 512, n as u64)
                     }
                 };
                 let batch = items(&scenes);
-                let (a, b) = interleaved(
+                let (ta, tb) = interleaved(
                     15,
-                    || drop(black_box(fused.step(&batch).expect("step"))),
-                    || drop(black_box(plain.step(&batch).expect("step"))),
+                    || drop(black_box(a.step(&batch).expect("step"))),
+                    || drop(black_box(b.step(&batch).expect("step"))),
                 );
                 println!(
-                    "fused_ab {case}: fused {a:.2} ms | composition {b:.2} ms | composition / fused {:.2}x",
-                    b / a
+                    "{name} {case}: {la} {ta:.2} ms | {lb} {tb:.2} ms | {lb} / {la} {:.2}x",
+                    tb / ta
                 );
                 scenes
             });
             let batch = items(scenes);
-            bench.iter(|| black_box(fused.step(&batch).expect("step")))
+            bench.iter(|| black_box(a.step(&batch).expect("step")))
         });
     }
     group.finish();
 }
 
-/// Scene groups on their own threads against every operation split across the threads, on
-/// the same scenes, interleaved in one process (15 steps each): medians and their ratio.
+/// Fused CPU kernels against the plain candle composition.
+fn bench_fused_ab(c: &mut Criterion) {
+    let fused = RigidFormer::new_frozen(ModelConfig::small(), 1, &Device::Cpu).expect("model");
+    let plain = RigidFormer::new_frozen(ModelConfig::small(), 1, &Device::Cpu)
+        .expect("model")
+        .with_fused_kernels(false);
+    let cases = ["batch_1", "batch_8", "batch_32", "wrecking_ball"];
+    bench_model_ab(
+        c,
+        "fused_ab",
+        ("fused", &fused),
+        ("composition", &plain),
+        &cases,
+    );
+}
+
+/// Scene groups on their own threads against every operation split across the threads.
 fn bench_scene_threads_ab(c: &mut Criterion) {
-    let grouped = RigidFormer::new(ModelConfig::small(), 1, &Device::Cpu).expect("model");
-    let split = RigidFormer::new(ModelConfig::small(), 1, &Device::Cpu)
+    let grouped = RigidFormer::new_frozen(ModelConfig::small(), 1, &Device::Cpu).expect("model");
+    let split = RigidFormer::new_frozen(ModelConfig::small(), 1, &Device::Cpu)
         .expect("model")
         .with_scene_threads(false);
-    let mut group = c.benchmark_group("scene_threads_ab");
-    group
-        .sample_size(10)
-        .warm_up_time(Duration::from_secs(1))
-        .measurement_time(Duration::from_secs(3));
-    for b in [2usize, 8, 32] {
-        let mut cache: Option<Vec<(PreparedScene, SceneState)>> = None;
-        group.bench_function(format!("batch_{b}"), |bench| {
-            let scenes = cache.get_or_insert_with(|| {
-                let scenes = prepared_batch(&grouped, b, 10, 512, b as u64);
-                let batch = items(&scenes);
-                let (g, o) = interleaved(
-                    15,
-                    || drop(black_box(grouped.step(&batch).expect("step"))),
-                    || drop(black_box(split.step(&batch).expect("step"))),
-                );
-                println!(
-                    "scene_threads_ab batch {b}: scene groups {g:.2} ms | split operations {o:.2} ms | ratio {:.2}x",
-                    o / g
-                );
-                scenes
-            });
-            let batch = items(scenes);
-            bench.iter(|| black_box(grouped.step(&batch).expect("step")))
-        });
-    }
-    group.finish();
+    let cases = ["batch_2", "batch_8", "batch_32"];
+    let (a, b) = (("scene groups", &grouped), ("split operations", &split));
+    bench_model_ab(c, "scene_threads_ab", a, b, &cases);
+}
+
+/// An inference model (constant weights, transposed copies for the products) against the same
+/// weights as training variables (products read the `[out, in]` parameters).
+fn bench_frozen_ab(c: &mut Criterion) {
+    let frozen = RigidFormer::new_frozen(ModelConfig::small(), 1, &Device::Cpu).expect("model");
+    let variables = RigidFormer::new(ModelConfig::small(), 1, &Device::Cpu).expect("model");
+    let cases = ["batch_1", "batch_8", "batch_32", "wrecking_ball"];
+    let (a, b) = (("frozen", &frozen), ("variables", &variables));
+    bench_model_ab(c, "frozen_ab", a, b, &cases);
 }
 
 /// The fused anchor-vertex pooling kernel against the candle composition it replaces, on the
@@ -425,7 +429,7 @@ fn bench_avp_ab(c: &mut Criterion) {
 /// in one process (`small`, random weights): the speed side of choosing the nominal point count
 /// (the accuracy side is in BENCHMARKS.md, "Accuracy against the point count").
 fn bench_points_ab(c: &mut Criterion) {
-    let model = RigidFormer::new(ModelConfig::small(), 1, &Device::Cpu).expect("model");
+    let model = RigidFormer::new_frozen(ModelConfig::small(), 1, &Device::Cpu).expect("model");
     let mut group = c.benchmark_group("points_ab");
     group
         .sample_size(10)
@@ -460,7 +464,7 @@ fn bench_wrecking_ball(c: &mut Criterion) {
         ("small", ModelConfig::small()),
         ("paper", ModelConfig::paper()),
     ] {
-        let model = RigidFormer::new(config, 1, &Device::Cpu).expect("model");
+        let model = RigidFormer::new_frozen(config, 1, &Device::Cpu).expect("model");
         let mut cache: Option<(PreparedScene, SceneState)> = None;
         let mut group = c.benchmark_group("wrecking_ball");
         group
@@ -796,6 +800,7 @@ criterion_group!(
     bench_fused_ab,
     bench_avp_ab,
     bench_scene_threads_ab,
+    bench_frozen_ab,
     bench_points_ab,
     bench_matmul_peak,
     bench_training,

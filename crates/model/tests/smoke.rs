@@ -31,6 +31,11 @@ fn random_model_steps_saves_and_loads() {
             dt_steps: 2,
         }])
         .unwrap();
-    assert_eq!(out, out2);
+    // An inference model's products sum in another order: equal within float rounding.
+    assert_eq!(out.len(), out2.len());
+    assert!(
+        common::max_pose_diff(&out[0], &out2[0]) < 1e-5,
+        "{out:?} vs {out2:?}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }

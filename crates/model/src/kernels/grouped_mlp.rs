@@ -25,21 +25,45 @@ pub const BLOCK_ROWS: usize = 256;
 /// Below this many multiply-adds a call runs on the calling thread.
 const PARALLEL_MIN_MACS: usize = 1 << 20;
 
-/// Host copy of a two-layer SiLU MLP's parameters, `out = W2 silu(W1 x + b1) + b2`, in the
-/// layout of the network's linear layers.
+/// Host copy of a two-layer SiLU MLP's parameters, `out = W2 silu(W1 x + b1) + b2`, with the
+/// weights stored transposed (`[in, out]` per layer), the layout `gemm` packs with vector
+/// copies.
 #[derive(Clone, Debug)]
 pub struct MlpWeights {
-    /// First layer `[hidden, input]`, row-major.
-    pub w1: Vec<f32>,
+    /// First layer transposed, `[input, hidden]`, row-major.
+    w1t: Vec<f32>,
     /// First bias `[hidden]`.
-    pub b1: Vec<f32>,
-    /// Second layer `[out, hidden]`, row-major.
-    pub w2: Vec<f32>,
+    b1: Vec<f32>,
+    /// Second layer transposed, `[hidden, out]`, row-major.
+    w2t: Vec<f32>,
     /// Second bias `[out]`.
-    pub b2: Vec<f32>,
+    b2: Vec<f32>,
+}
+
+/// `w [rows, cols]` (row-major) transposed to `[cols, rows]`.
+fn transposed(w: &[f32], rows: usize) -> Vec<f32> {
+    let cols = w.len() / rows.max(1);
+    let mut t = vec![0f32; w.len()];
+    for (r, row) in w.chunks_exact(cols.max(1)).enumerate() {
+        for (c, &v) in row.iter().enumerate() {
+            t[c * rows + r] = v;
+        }
+    }
+    t
 }
 
 impl MlpWeights {
+    /// From the layers' parameters as the network stores them: `w1 [hidden, input]`,
+    /// `b1 [hidden]`, `w2 [out, hidden]`, `b2 [out]` (row-major).
+    pub fn new(w1: &[f32], b1: Vec<f32>, w2: &[f32], b2: Vec<f32>) -> MlpWeights {
+        MlpWeights {
+            w1t: transposed(w1, b1.len()),
+            w2t: transposed(w2, b2.len()),
+            b1,
+            b2,
+        }
+    }
+
     fn hidden(&self) -> usize {
         self.b1.len()
     }
@@ -49,7 +73,7 @@ impl MlpWeights {
     }
 
     fn input(&self) -> usize {
-        self.w1.len() / self.hidden().max(1)
+        self.w1t.len() / self.hidden().max(1)
     }
 }
 
@@ -77,8 +101,8 @@ impl GroupedMlp<'_> {
         };
         let name = self.name();
         if self.mlp.input() != self.lead_dim + c
-            || self.mlp.w1.len() != self.mlp.hidden() * self.mlp.input()
-            || self.mlp.w2.len() != self.mlp.out() * self.mlp.hidden()
+            || self.mlp.w1t.len() != self.mlp.hidden() * self.mlp.input()
+            || self.mlp.w2t.len() != self.mlp.out() * self.mlp.hidden()
         {
             candle_core::bail!(
                 "{name}: MLP of {} inputs, {} hidden and {} outputs does not take {} leading + {c} source values",
@@ -129,12 +153,14 @@ impl GroupedMlp<'_> {
         let x: &[f32] = if direct {
             &src[row0 * c..(row0 + rows) * c]
         } else {
-            let x = &mut scratch.x;
-            x.clear();
-            for r in row0..row0 + rows {
-                x.extend_from_slice(&self.lead[r * self.lead_dim..(r + 1) * self.lead_dim]);
+            let (x, ld) = (&mut scratch.x, self.lead_dim);
+            x.resize(rows * input, 0.0);
+            for (i, row) in x.chunks_exact_mut(input).enumerate() {
+                let r = row0 + i;
+                let (lead, rest) = row.split_at_mut(ld);
+                copy_short(lead, &self.lead[r * ld..(r + 1) * ld]);
                 let s = self.index.map_or(r, |ix| ix[r] as usize);
-                x.extend_from_slice(&src[s * c..(s + 1) * c]);
+                copy_short(rest, &src[s * c..(s + 1) * c]);
             }
             x
         };
@@ -143,9 +169,8 @@ impl GroupedMlp<'_> {
         for _ in 0..rows {
             h.extend_from_slice(&m.b1);
         }
-        // SAFETY: x is [rows, input], h [rows, hidden] and w1 [hidden, input], all row-major
-        // and of exactly those lengths (checked in `rows` and built above); rhs = w1^T is read
-        // with column stride `input` and row stride 1.
+        // SAFETY: x is [rows, input], h [rows, hidden] and w1t [input, hidden], all row-major
+        // and of exactly those lengths (checked in `rows` and built above).
         unsafe {
             product(
                 (rows, hidden, input),
@@ -158,9 +183,9 @@ impl GroupedMlp<'_> {
                     cs: 1,
                 },
                 Operand {
-                    ptr: m.w1.as_ptr(),
-                    rs: 1,
-                    cs: input,
+                    ptr: m.w1t.as_ptr(),
+                    rs: hidden,
+                    cs: 1,
                 },
                 1.0,
                 gemm::Parallelism::None,
@@ -169,7 +194,7 @@ impl GroupedMlp<'_> {
         silu_slice(h);
         let y = &mut scratch.y;
         y.resize(rows * n_out, 0.0);
-        // SAFETY: h is [rows, hidden], y [rows, out] and w2 [out, hidden], row-major; the
+        // SAFETY: h is [rows, hidden], y [rows, out] and w2t [hidden, out], row-major; the
         // product overwrites y without reading it.
         unsafe {
             product(
@@ -183,9 +208,9 @@ impl GroupedMlp<'_> {
                     cs: 1,
                 },
                 Operand {
-                    ptr: m.w2.as_ptr(),
-                    rs: 1,
-                    cs: hidden,
+                    ptr: m.w2t.as_ptr(),
+                    rs: n_out,
+                    cs: 1,
                 },
                 1.0,
                 gemm::Parallelism::None,
@@ -195,6 +220,22 @@ impl GroupedMlp<'_> {
         for (o, grp) in out.chunks_exact_mut(n_out).zip(y.chunks_exact(gn)) {
             group_max_value(grp, &m.b2, n_out, o);
         }
+    }
+}
+
+/// `dst.copy_from_slice(src)` for the few dozen values of one gathered row, in 8-value moves
+/// the compiler inlines (a `memcpy` call per row and operand was 3-4% of a step).
+#[inline(always)]
+fn copy_short(dst: &mut [f32], src: &[f32]) {
+    let mut d = dst.chunks_exact_mut(8);
+    let mut s = src.chunks_exact(8);
+    for (a, b) in (&mut d).zip(&mut s) {
+        if let (Ok(a), Ok(b)) = (<&mut [f32; 8]>::try_from(a), <&[f32; 8]>::try_from(b)) {
+            *a = *b;
+        }
+    }
+    for (a, b) in d.into_remainder().iter_mut().zip(s.remainder()) {
+        *a = *b;
     }
 }
 
@@ -292,12 +333,7 @@ mod tests {
             random(&[out], seed + 3, 0.5),
         ];
         let v = |x: &Tensor| x.flatten_all().unwrap().to_vec1::<f32>().unwrap();
-        let host = MlpWeights {
-            w1: v(&t[0]),
-            b1: v(&t[1]),
-            w2: v(&t[2]),
-            b2: v(&t[3]),
-        };
+        let host = MlpWeights::new(&v(&t[0]), v(&t[1]), &v(&t[2]), v(&t[3]));
         (t, host)
     }
 

@@ -2,23 +2,38 @@
 //! no bias, is written only by the product). candle's matmul zero-fills every output before the
 //! product (a memset of each layer's result, 4-6% of a profiled step) and the bias is a second
 //! pass with its own allocation. The gradient is the usual three products, in candle ops.
+//!
+//! [`linear_frozen`] takes the weight already transposed to `[k, n]` (a copy an inference model
+//! keeps): `gemm` packs the weight panel of each call, and reads a `[n, k]` weight one strided
+//! element at a time where a `[k, n]` one is copied a vector at a time.
 
 use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Shape, Tensor};
 
 use super::activation::f32_slice;
 use super::product::{Operand, product};
 
-/// `x [m, k]` (any 2-D strides) times `w [n, k]` (contiguous) transposed, plus `b [n]`.
+/// How a contiguous weight matrix is stored.
+#[derive(Clone, Copy, PartialEq)]
+enum WeightLayout {
+    /// `[n, k]`: the layer's parameter.
+    OutIn,
+    /// `[k, n]`: its transpose.
+    InOut,
+}
+
+/// `x [m, k]` (any 2-D strides) times `w [n, k]` (contiguous, or `[k, n]` with
+/// [`WeightLayout::InOut`]) transposed, plus `b [n]`.
 fn linear_product(
     op: &str,
     xs: &CpuStorage,
     xl: &Layout,
-    w: &[f32],
-    wl: &Layout,
+    (w, wl, layout): (&[f32], &Layout, WeightLayout),
     b: Option<&[f32]>,
 ) -> candle_core::Result<(CpuStorage, Shape)> {
     let (m, k) = xl.shape().dims2()?;
-    let (n, kw) = wl.shape().dims2()?;
+    let (n, kw) = match (wl.shape().dims2()?, layout) {
+        ((n, k), WeightLayout::OutIn) | ((k, n), WeightLayout::InOut) => (n, k),
+    };
     if kw != k || b.is_some_and(|b| b.len() != n) {
         candle_core::bail!(
             "{op}: input {:?}, weight {:?} and bias of {:?} values do not fit",
@@ -51,10 +66,15 @@ fn linear_product(
             gemm::Parallelism::None
         };
         let read = b.is_some();
+        let (w_rs, w_cs) = match layout {
+            WeightLayout::OutIn => (1, k),
+            WeightLayout::InOut => (n, 1),
+        };
         // SAFETY: x holds every element (m - 1) * rs + (k - 1) * cs past its start (checked
-        // above); w is contiguous [n, k] (so w^T has column stride k, row stride 1); y has
-        // capacity m * n and is either fully initialised with the bias rows (read) or written
-        // in full by the product (not read; alpha 0) before its length is set.
+        // above); w is contiguous [n, k] (so w^T has column stride k, row stride 1) or [k, n]
+        // (row stride n, column stride 1); y has capacity m * n and is either fully
+        // initialised with the bias rows (read) or written in full by the product (not read;
+        // alpha 0) before its length is set.
         unsafe {
             product(
                 (m, n, k),
@@ -68,8 +88,8 @@ fn linear_product(
                 },
                 Operand {
                     ptr: w.as_ptr(),
-                    rs: 1,
-                    cs: k,
+                    rs: w_rs,
+                    cs: w_cs,
                 },
                 1.0,
                 par,
@@ -96,7 +116,7 @@ impl CustomOp2 for LinearNoBias {
         l2: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
         let w = f32_slice(self.name(), s2, l2)?;
-        linear_product(self.name(), s1, l1, w, l2, None)
+        linear_product(self.name(), s1, l1, (w, l2, WeightLayout::OutIn), None)
     }
 
     fn bwd(
@@ -129,7 +149,7 @@ impl CustomOp3 for LinearBias {
     ) -> candle_core::Result<(CpuStorage, Shape)> {
         let w = f32_slice(self.name(), s2, l2)?;
         let b = f32_slice(self.name(), s3, l3)?;
-        linear_product(self.name(), s1, l1, w, l2, Some(b))
+        linear_product(self.name(), s1, l1, (w, l2, WeightLayout::OutIn), Some(b))
     }
 
     fn bwd(
@@ -167,6 +187,67 @@ pub fn linear(x: &Tensor, w: &Tensor, b: Option<&Tensor>) -> candle_core::Result
         Some(b) => x.apply_op3(&w, &b.contiguous()?, LinearBias),
         None => x.apply_op2(&w, LinearNoBias),
     }
+}
+
+/// `x W^T + b` with the weight given transposed, `[k, n]`; differentiable in `x` only (the
+/// weight of an inference model is a constant).
+struct LinearFrozen {
+    bias: bool,
+}
+
+impl CustomOp3 for LinearFrozen {
+    fn name(&self) -> &'static str {
+        "linear-frozen"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
+        let wt = f32_slice(self.name(), s2, l2)?;
+        let b = if self.bias {
+            Some(f32_slice(self.name(), s3, l3)?)
+        } else {
+            None
+        };
+        linear_product(self.name(), s1, l1, (wt, l2, WeightLayout::InOut), b)
+    }
+
+    fn bwd(
+        &self,
+        _x: &Tensor,
+        wt: &Tensor,
+        _b: &Tensor,
+        _res: &Tensor,
+        grad: &Tensor,
+    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        Ok((Some(grad.matmul(&wt.t()?)?), None, None))
+    }
+}
+
+/// `x [m, k] W^T + b` on the CPU from the transposed weight `wt [k, n]` (contiguous f32) and
+/// `b [n]` -> `[m, n]`; the same values as [`linear`] with `w = wt^T`. For weights that do not
+/// train: the gradient reaches `x` only.
+pub fn linear_frozen(x: &Tensor, wt: &Tensor, b: Option<&Tensor>) -> candle_core::Result<Tensor> {
+    if !x.device().is_cpu() || x.rank() != 2 || !wt.is_contiguous() {
+        let y = x.matmul(wt)?;
+        return match b {
+            Some(b) => y.broadcast_add(b),
+            None => Ok(y),
+        };
+    }
+    let op = LinearFrozen { bias: b.is_some() };
+    // The bias slot of a bias-free call holds the weight again (never read).
+    let b = match b {
+        Some(b) => b.contiguous()?,
+        None => wt.clone(),
+    };
+    x.apply_op3(wt, &b, op)
 }
 
 #[cfg(test)]
@@ -226,6 +307,32 @@ mod tests {
                 assert!(max_diff(&a, &b) < 1e-4);
             }
         }
+    }
+
+    #[test]
+    fn transposed_weight_gives_the_same_values_and_input_gradient() {
+        for (m, k, n, bias, seed) in [
+            (18usize, 128usize, 512usize, false, 5u64),
+            (7, 5, 3, true, 6),
+        ] {
+            let x = Var::from_tensor(&random(&[m, k], seed, 2.0)).unwrap();
+            let w = random(&[n, k], seed + 1, 1.0);
+            let wt = w.t().unwrap().contiguous().unwrap();
+            let b = random(&[n], seed + 2, 1.0);
+            let r = random(&[m, n], seed + 3, 1.0);
+            let bt = bias.then_some(&b);
+            let y1 = linear_frozen(x.as_tensor(), &wt, bt).unwrap();
+            let y2 = linear(x.as_tensor(), &w, bt).unwrap();
+            assert_eq!(y1.dims(), &[m, n]);
+            assert!(max_diff(&y1, &y2) < 1e-4, "{}", max_diff(&y1, &y2));
+            let g = |y: &Tensor| {
+                let grads = (y * &r).unwrap().sum_all().unwrap().backward().unwrap();
+                grads.get(x.as_tensor()).unwrap().clone()
+            };
+            assert!(max_diff(&g(&y1), &g(&y2)) < 1e-4);
+        }
+        let x = random(&[4, 3], 1, 1.0);
+        assert!(linear_frozen(&x, &random(&[2, 5], 2, 1.0), None).is_err());
     }
 
     #[test]

@@ -1,48 +1,92 @@
 //! Fully connected layers: [`Linear`], the two-layer SiLU [`Mlp`] and the [`SwiGlu`]
 //! feed-forward.
 
+use std::sync::{Arc, OnceLock};
+
 use candle_core::{D, DType, Tensor};
 
 use super::ParamStore;
 use crate::ModelError;
 use crate::kernels::activation::{bias_silu, swiglu_product};
 use crate::kernels::grouped_mlp::MlpWeights;
-use crate::kernels::linear::linear;
+use crate::kernels::linear::{linear, linear_frozen};
 use crate::kernels::pool::bias_group_max;
 
 /// `y = x W^T + b` over the last dimension of any-rank input.
+///
+/// A layer whose weight is not a training variable (a model loaded for inference) keeps, on
+/// first use on the CPU, a copy of `W` transposed to `[in, out]`: the product then reads the
+/// weight along its rows, which `gemm` packs with vector copies instead of one strided load
+/// per element (1.7-2.2x on a scene's 18 decoder rows, 1.05-1.2x from 72 rows). Such weights
+/// never change (training builds its models with variables), so the copy is never stale.
 #[derive(Clone, Debug)]
 pub(crate) struct Linear {
     pub(crate) w: Tensor,
     pub(crate) b: Option<Tensor>,
+    /// `W^T` `[in, out]`, contiguous, for frozen CPU weights (filled on first use).
+    frozen: Arc<OnceLock<Tensor>>,
 }
 
 impl Linear {
-    pub fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+    /// A layer of weight `w [out, in]` and optional bias `b [out]`.
+    pub fn new(w: Tensor, b: Option<Tensor>) -> Linear {
+        Linear {
+            w,
+            b,
+            frozen: Arc::new(OnceLock::new()),
+        }
+    }
+
+    /// The transposed weight for the frozen CPU product, when it applies to `x`.
+    fn frozen_weight(&self, x: &Tensor) -> candle_core::Result<Option<&Tensor>> {
+        if self.w.is_variable()
+            || !self.w.device().is_cpu()
+            || self.w.dtype() != DType::F32
+            || x.dtype() != DType::F32
+        {
+            return Ok(None);
+        }
+        if let Some(t) = self.frozen.get() {
+            return Ok(Some(t));
+        }
+        let t = self.w.t()?.contiguous()?;
+        Ok(Some(self.frozen.get_or_init(|| t)))
+    }
+
+    /// `x [rows, in]` -> `[rows, out]`, with the bias when `bias`.
+    fn forward_2d(&self, x: &Tensor, bias: bool) -> candle_core::Result<Tensor> {
+        let b = if bias { self.b.as_ref() } else { None };
+        match self.frozen_weight(x)? {
+            Some(wt) => linear_frozen(x, wt, b),
+            None => linear(x, &self.w, b),
+        }
+    }
+
+    /// `[.., in]` -> `[.., out]`, with the bias when `bias`.
+    fn forward_with(&self, x: &Tensor, bias: bool) -> candle_core::Result<Tensor> {
         if x.rank() == 2 {
             // No reshapes: each would be one more node with a full-size gradient copy.
-            return linear(x, &self.w, self.b.as_ref());
+            return self.forward_2d(x, bias);
         }
         let dims = x.dims().to_vec();
         let last = dims[dims.len() - 1];
         let rows = x.elem_count() / last.max(1);
-        let y = linear(&x.reshape((rows, last))?, &self.w, self.b.as_ref())?;
+        let y = self.forward_2d(&x.reshape((rows, last))?, bias)?;
         let mut out = dims;
         let n = out.len();
         out[n - 1] = self.w.dim(0)?;
         y.reshape(out)
     }
 
+    /// `[.., in]` -> `[.., out]`.
+    pub fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        self.forward_with(x, true)
+    }
+
     /// `silu(x W^T + b)`; with `fused`, the bias and SiLU run as one kernel (same gradient).
     pub fn forward_silu(&self, x: &Tensor, fused: bool) -> candle_core::Result<Tensor> {
         match (&self.b, fused) {
-            (Some(b), true) => {
-                let no_bias = Linear {
-                    w: self.w.clone(),
-                    b: None,
-                };
-                bias_silu(&no_bias.forward(x)?, b)
-            }
+            (Some(b), true) => bias_silu(&self.forward_with(x, false)?, b),
             _ => self.forward(x)?.silu(),
         }
     }
@@ -53,6 +97,8 @@ impl Linear {
 pub(crate) struct Mlp {
     a: Linear,
     b: Linear,
+    /// Host copy for the CPU kernel, kept when the weights are constants (filled on first use).
+    host: Arc<OnceLock<Arc<MlpWeights>>>,
 }
 
 impl Mlp {
@@ -66,21 +112,34 @@ impl Mlp {
         Ok(Mlp {
             a: p.linear(&format!("{name}.0"), input, hidden, true)?,
             b: p.linear(&format!("{name}.1"), hidden, output, true)?,
+            host: Arc::new(OnceLock::new()),
         })
     }
 
     /// Host copy of the parameters for the CPU kernel of
-    /// [`crate::kernels::grouped_mlp`] (both layers must have biases).
-    pub fn host_weights(&self) -> candle_core::Result<MlpWeights> {
+    /// [`crate::kernels::grouped_mlp`] (both layers must have biases). Built once for
+    /// constant weights, on every call for training variables (which change between calls).
+    pub fn host_weights(&self) -> candle_core::Result<Arc<MlpWeights>> {
+        if let Some(h) = self.host.get() {
+            return Ok(h.clone());
+        }
         let v = |t: &Tensor| t.flatten_all()?.to_dtype(DType::F32)?.to_vec1::<f32>();
         let (Some(b1), Some(b2)) = (&self.a.b, &self.b.b) else {
             candle_core::bail!("grouped MLP: both layers need a bias");
         };
-        Ok(MlpWeights {
-            w1: v(&self.a.w)?,
-            b1: v(b1)?,
-            w2: v(&self.b.w)?,
-            b2: v(b2)?,
+        let h = Arc::new(MlpWeights::new(
+            &v(&self.a.w)?,
+            v(b1)?,
+            &v(&self.b.w)?,
+            v(b2)?,
+        ));
+        let variable = [&self.a.w, b1, &self.b.w, b2]
+            .iter()
+            .any(|t| t.is_variable());
+        Ok(if variable {
+            h
+        } else {
+            self.host.get_or_init(|| h).clone()
         })
     }
 
@@ -100,13 +159,7 @@ impl Mlp {
     ) -> candle_core::Result<Tensor> {
         let h = self.a.forward_silu(x, fused)?;
         match (&self.b.b, fused) {
-            (Some(bias), true) => {
-                let no_bias = Linear {
-                    w: self.b.w.clone(),
-                    b: None,
-                };
-                bias_group_max(&no_bias.forward(&h)?, bias, g)
-            }
+            (Some(bias), true) => bias_group_max(&self.b.forward_with(&h, false)?, bias, g),
             _ => {
                 let y = self.b.forward(&h)?;
                 let (rows, n) = y.dims2()?;

@@ -168,7 +168,7 @@ impl ParamStore {
         } else {
             None
         };
-        Ok(Linear { w, b })
+        Ok(Linear::new(w, b))
     }
 
     /// An RMSNorm over the last dimension of width `dim` (scale initialised to 1).

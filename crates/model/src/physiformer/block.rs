@@ -97,10 +97,7 @@ impl Block {
             proj: p.linear(&format!("{name}.proj"), width, width, true)?,
             norm2: p.rms_norm(&format!("{name}.norm2"), width, eps)?,
             ffn: SwiGlu::new(p, &format!("{name}.ffn"), width, ffn_hidden)?,
-            ada: Linear {
-                w: ada_w,
-                b: Some(ada_b),
-            },
+            ada: Linear::new(ada_w, Some(ada_b)),
         })
     }
 

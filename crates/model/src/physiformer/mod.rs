@@ -122,14 +122,14 @@ impl PhysiFormer {
             Init::Uniform(0.02),
         )?;
         let final_norm = p.rms_norm("final.norm", w, config.norm_eps)?;
-        let final_ada = Linear {
-            w: p.get("final.ada.weight", &[2 * w, w], Init::Const(0.0))?,
-            b: Some(p.get("final.ada.bias", &[2 * w], Init::Const(0.0))?),
-        };
-        let head = Linear {
-            w: p.get("final.head.weight", &[3, w], Init::Const(0.0))?,
-            b: Some(p.get("final.head.bias", &[3], Init::Const(0.0))?),
-        };
+        let final_ada = Linear::new(
+            p.get("final.ada.weight", &[2 * w, w], Init::Const(0.0))?,
+            Some(p.get("final.ada.bias", &[2 * w], Init::Const(0.0))?),
+        );
+        let head = Linear::new(
+            p.get("final.head.weight", &[3, w], Init::Const(0.0))?,
+            Some(p.get("final.head.bias", &[3], Init::Const(0.0))?),
+        );
         let varmap = p.finish()?;
         Ok(PhysiFormer {
             name,
@@ -294,7 +294,14 @@ impl PhysiFormer {
     }
 
     /// Replaces every weight by the tensor of the same name in `weights` (e.g. EMA weights).
+    /// Only for trainable models (`new`, or `load` with `trainable`): a frozen model keeps
+    /// transposed copies of its weights for inference, which this would leave stale.
     pub fn set_weights(&self, weights: &HashMap<String, Tensor>) -> Result<(), ModelError> {
+        if !self.head.w.is_variable() {
+            return Err(ModelError::InvalidInput(
+                "set_weights needs a trainable model (load it with trainable = true)".into(),
+            ));
+        }
         let data = self
             .varmap
             .data()

@@ -106,6 +106,19 @@ impl RigidFormer {
         Self::from_store("rigidformer".into(), config, store, device)
     }
 
+    /// A randomly initialised model for inference only, as a loaded checkpoint is (weights are
+    /// constants, not training variables, so layers may keep inference copies of them);
+    /// otherwise the same network and weights as [`RigidFormer::new`] with the same `seed`.
+    pub fn new_frozen(
+        config: ModelConfig,
+        seed: u64,
+        device: &Device,
+    ) -> Result<RigidFormer, ModelError> {
+        config.validate()?;
+        let store = ParamStore::random(seed, device, false);
+        Self::from_store("rigidformer".into(), config, store, device)
+    }
+
     /// Builds the network from a parameter store (random or loaded). Parameters are created in
     /// a fixed order (encoder, decoder, anchor head) so a seed always gives the same weights.
     pub(crate) fn from_store(

@@ -277,7 +277,7 @@ fn save(
     })?;
     // The weight average as a servable model directory.
     let out = cfg.out_dir.join("model");
-    let ema = PhysiFormer::load(&ckpt, &Device::Cpu, false)?;
+    let ema = PhysiFormer::load(&ckpt, &Device::Cpu, true)?;
     if cfg.optim.ema_decay > 0.0 {
         ema.set_weights(&opt.ema_weights()?)?;
     }
