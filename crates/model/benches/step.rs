@@ -344,16 +344,6 @@ fn bench_scene_threads_ab(c: &mut Criterion) {
     bench_model_ab(c, "scene_threads_ab", a, b, &cases);
 }
 
-/// An inference model (constant weights, transposed copies for the products) against the same
-/// weights as training variables (products read the `[out, in]` parameters).
-fn bench_frozen_ab(c: &mut Criterion) {
-    let frozen = RigidFormer::new_frozen(ModelConfig::small(), 1, &Device::Cpu).expect("model");
-    let variables = RigidFormer::new(ModelConfig::small(), 1, &Device::Cpu).expect("model");
-    let cases = ["batch_1", "batch_8", "batch_32", "wrecking_ball"];
-    let (a, b) = (("frozen", &frozen), ("variables", &variables));
-    bench_model_ab(c, "frozen_ab", a, b, &cases);
-}
-
 /// The fused anchor-vertex pooling kernel against the candle composition it replaces, on the
 /// AVP shapes of a batch of 8 MOVi-like scenes (80 objects x 512 points) and of the wrecking
 /// ball (216 objects x 128 points and one of 512, padded to 512 by the composition), `small`
@@ -800,7 +790,6 @@ criterion_group!(
     bench_fused_ab,
     bench_avp_ab,
     bench_scene_threads_ab,
-    bench_frozen_ab,
     bench_points_ab,
     bench_matmul_peak,
     bench_training,
