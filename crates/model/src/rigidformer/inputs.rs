@@ -106,13 +106,12 @@ fn angles(p: &[f32; 3], freqs: &[f32], out: &mut Vec<f32>) {
     }
 }
 
+/// One scene's share of the per-point and per-object buffers that vary in length (the large
+/// fixed-size ones, features, AVP distances and point mask, are written in place).
 struct SceneChunk {
-    feats: Vec<f32>,
     group_idx: Vec<u32>,
     group_rel: Vec<f32>,
     centre_rel: Vec<f32>,
-    avp_d2: Vec<f32>,
-    point_mask: Vec<f32>,
     anchor_idx: Vec<u32>,
     anchor_rel: Vec<f32>,
     anchor_rope: Vec<f32>,
@@ -122,6 +121,14 @@ struct SceneChunk {
     object_sin: Vec<f32>,
     anchors_base: Vec<Vec<[f64; 3]>>,
     anchors_ref: Vec<Vec<[f64; 3]>>,
+}
+
+/// A scene's rows of the batch's fixed-size buffers: features `[points, F]`, AVP distances
+/// `[m, K, nmax]` and point mask `[m, nmax]`.
+struct SceneRows<'b> {
+    feats: &'b mut [f32],
+    avp_d2: &'b mut [f32],
+    point_mask: &'b mut [f32],
 }
 
 /// The constant-velocity prediction of one anchor at body-frame position `x` (metres) of an
@@ -184,10 +191,30 @@ pub(crate) fn build_inputs(
         }
     }
     let freqs = rope_frequencies(cfg);
+    // The large fixed-size buffers are allocated once and each scene writes its own rows.
+    let (nf, k) = (cfg.point_features(), cfg.anchors);
+    let mut feats = vec![0f32; points * nf];
+    let mut avp_d2 = vec![0f32; o * k * nmax];
+    let mut point_mask = vec![0f32; o * nmax];
+    let mut rows = Vec::with_capacity(b);
+    let (mut f, mut d, mut pm) = (&mut feats[..], &mut avp_d2[..], &mut point_mask[..]);
+    for r in requests {
+        let m = r.scene.len();
+        let (f0, f1) = std::mem::take(&mut f).split_at_mut(r.scene.total_points() * nf);
+        let (d0, d1) = std::mem::take(&mut d).split_at_mut(m * k * nmax);
+        let (p0, p1) = std::mem::take(&mut pm).split_at_mut(m * nmax);
+        rows.push(SceneRows {
+            feats: f0,
+            avp_d2: d0,
+            point_mask: p0,
+        });
+        (f, d, pm) = (f1, d1, p1);
+    }
     let chunks: Vec<SceneChunk> = requests
         .par_iter()
         .zip(scene_offsets.par_iter())
-        .map(|(r, &first)| scene_chunk(cfg, r, point_offsets[first], nmax, &freqs))
+        .zip(rows.into_par_iter())
+        .map(|((r, &first), rows)| scene_chunk(cfg, r, point_offsets[first], nmax, &freqs, rows))
         .collect();
     let mut inp = BatchInputs {
         b,
@@ -196,7 +223,7 @@ pub(crate) fn build_inputs(
         o,
         scene_offsets,
         points,
-        feats: Vec::with_capacity(points * cfg.point_features()),
+        feats,
         pad_idx,
         object_points: point_offsets
             .windows(2)
@@ -205,8 +232,8 @@ pub(crate) fn build_inputs(
         group_idx: Vec::new(),
         group_rel: Vec::new(),
         centre_rel: Vec::new(),
-        avp_d2: Vec::with_capacity(o * cfg.anchors * nmax),
-        point_mask: Vec::with_capacity(o * nmax),
+        avp_d2,
+        point_mask,
         anchor_idx: Vec::new(),
         anchor_rel: Vec::new(),
         anchor_rope: Vec::new(),
@@ -230,12 +257,9 @@ pub(crate) fn build_inputs(
             .collect(),
     };
     for c in chunks {
-        inp.feats.extend(c.feats);
         inp.group_idx.extend(c.group_idx);
         inp.group_rel.extend(c.group_rel);
         inp.centre_rel.extend(c.centre_rel);
-        inp.avp_d2.extend(c.avp_d2);
-        inp.point_mask.extend(c.point_mask);
         inp.anchor_idx.extend(c.anchor_idx);
         inp.anchor_rel.extend(c.anchor_rel);
         inp.anchor_rope.extend(c.anchor_rope);
@@ -255,6 +279,7 @@ fn scene_chunk(
     first_point: usize,
     nmax: usize,
     freqs: &[f32],
+    rows: SceneRows<'_>,
 ) -> SceneChunk {
     let scene = r.scene;
     let m = scene.len();
@@ -276,12 +301,9 @@ fn scene_chunk(
     let poses: Vec<_> = r.current.iter().map(rot).collect();
     let poses_prev: Vec<_> = r.previous.iter().map(rot).collect();
     let mut c = SceneChunk {
-        feats: vec![0.0; scene.total_points() * nf],
         group_idx: Vec::with_capacity(m * s * g),
         group_rel: Vec::with_capacity(m * s * g * 3),
         centre_rel: Vec::with_capacity(m * s * 3),
-        avp_d2: vec![0.0; m * k * nmax],
-        point_mask: vec![0.0; m * nmax],
         anchor_idx: Vec::with_capacity(m * k),
         anchor_rel: Vec::with_capacity(m * k * 3),
         anchor_rope: Vec::with_capacity(m * k * 2 * p),
@@ -301,12 +323,12 @@ fn scene_chunk(
         let frame = FeatureFrame::new(&cfg.dynamics, r.dt_steps, r.current[j].translation);
         // Per-point features.
         for i in 0..n {
-            let dst = &mut c.feats[(base + i) * nf..(base + i + 1) * nf];
+            let dst = &mut rows.feats[(base + i) * nf..(base + i + 1) * nf];
             points.raw_features(base + i, obj.reference[i], obj.params, &frame, with_cv, dst);
             for (f, v) in dst.iter_mut().enumerate() {
                 *v = (*v - norm.mean[f]) / norm.std[f];
             }
-            c.point_mask[j * nmax + i] = 1.0;
+            rows.point_mask[j * nmax + i] = 1.0;
         }
         // Encoder grouping.
         for (ci, &centre) in obj.centres.iter().enumerate() {
@@ -323,7 +345,7 @@ fn scene_chunk(
             }
         }
         // Anchors.
-        c.avp_d2[j * k * nmax..(j * k) * nmax + k * nmax]
+        rows.avp_d2[j * k * nmax..(j * k) * nmax + k * nmax]
             .chunks_mut(nmax)
             .zip(obj.anchor_d2.chunks(n))
             .for_each(|(dst, src)| dst[..n].copy_from_slice(src));
