@@ -64,6 +64,15 @@ fn stat_pair(s: Option<&Stat>) -> String {
     }
 }
 
+/// `mean / median / max` (the resting drift, where one object that falls over moves the
+/// mean by metres).
+fn stat_triple(s: Option<&Stat>) -> String {
+    match s {
+        Some(s) => format!("{} / {} / {}", sig(s.mean), sig(s.median), sig(s.max)),
+        None => "-".into(),
+    }
+}
+
 impl SuiteReport {
     /// Rows of the resting-drift table: the ground truth of `resting`, then every entry's
     /// predicted drift per step size.
@@ -234,7 +243,7 @@ pub fn format_suite(suite: &SuiteReport) -> String {
         let _ = writeln!(
             s,
             "\nresting drift over frames {}..{} ({} s): {} of {} objects at rest in the ground \
-             truth (speed < {} m/s and < {} deg/s between consecutive frames); mean / max",
+             truth (speed < {} m/s and < {} deg/s between consecutive frames); mean / median / max",
             r.first_frame,
             r.last_frame,
             r.options.window_s,
@@ -245,17 +254,17 @@ pub fn format_suite(suite: &SuiteReport) -> String {
         );
         let _ = writeln!(
             s,
-            "{:<16} {:>3} | {:>22} {:>22}",
+            "{:<16} {:>3} | {:>30} {:>30}",
             "predictor", "k", "translation m", "rotation deg"
         );
         for (label, d) in suite.drift_rows(r) {
             let _ = writeln!(
                 s,
-                "{:<16} {:>3} | {:>22} {:>22}",
+                "{:<16} {:>3} | {:>30} {:>30}",
                 label,
                 step_label(d),
-                stat_pair(d.translation_m.as_ref()),
-                stat_pair(d.rotation_deg.as_ref())
+                stat_triple(d.translation_m.as_ref()),
+                stat_triple(d.rotation_deg.as_ref())
             );
         }
     }
@@ -333,7 +342,7 @@ pub fn format_markdown(suite: &SuiteReport) -> String {
         let _ = writeln!(
             s,
             "\n**Resting drift** over frames {}..{} ({} s) of the {} of {} objects at rest in \
-             the ground truth (speed < {} m/s, < {} deg/s); mean / max\n",
+             the ground truth (speed < {} m/s, < {} deg/s); mean / median / max\n",
             r.first_frame,
             r.last_frame,
             r.options.window_s,
@@ -351,8 +360,8 @@ pub fn format_markdown(suite: &SuiteReport) -> String {
                 s,
                 "| {label} | {} | {} | {} |",
                 step_label(d),
-                stat_pair(d.translation_m.as_ref()),
-                stat_pair(d.rotation_deg.as_ref())
+                stat_triple(d.translation_m.as_ref()),
+                stat_triple(d.rotation_deg.as_ref())
             );
         }
     }

@@ -1,5 +1,5 @@
 //! The figures an evaluation reports (serialised as the `--json` report) and the accumulator
-//! behind its mean/maximum statistics.
+//! behind its mean/median/maximum statistics.
 
 use serde::{Deserialize, Serialize};
 
@@ -48,44 +48,51 @@ pub struct StepSizeReport {
     pub curve: Vec<CurvePoint>,
 }
 
-/// Mean and maximum of a non-negative quantity over a set of samples.
+/// Mean, median and maximum of a non-negative quantity over a set of samples.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Stat {
     /// Mean over the samples (0 when there are none).
     pub mean: f64,
+    /// Median over the samples (0 when there are none; the mean of the two middle samples of
+    /// an even count). Reports written before it existed read as 0.
+    #[serde(default)]
+    pub median: f64,
     /// Maximum over the samples (0 when there are none).
     pub max: f64,
     /// Number of samples.
     pub count: u64,
 }
 
-#[derive(Clone, Copy, Debug, Default)]
+/// Accumulates samples for a [`Stat`] (keeps them all, for the median).
+#[derive(Clone, Debug, Default)]
 pub(super) struct StatAcc {
-    sum: f64,
-    max: f64,
-    count: u64,
+    values: Vec<f64>,
 }
 
 impl StatAcc {
     pub(super) fn add(&mut self, x: f64) {
-        self.sum += x;
-        self.max = self.max.max(x);
-        self.count += 1;
+        self.values.push(x);
     }
     pub(super) fn merge(&mut self, o: &StatAcc) {
-        self.sum += o.sum;
-        self.max = self.max.max(o.max);
-        self.count += o.count;
+        self.values.extend_from_slice(&o.values);
     }
     pub(super) fn stat(&self) -> Stat {
+        let n = self.values.len();
+        if n == 0 {
+            return Stat::default();
+        }
+        let mut v = self.values.clone();
+        v.sort_by(f64::total_cmp);
+        let median = if n % 2 == 1 {
+            v[n / 2]
+        } else {
+            0.5 * (v[n / 2 - 1] + v[n / 2])
+        };
         Stat {
-            mean: if self.count > 0 {
-                self.sum / self.count as f64
-            } else {
-                0.0
-            },
-            max: self.max,
-            count: self.count,
+            mean: v.iter().sum::<f64>() / n as f64,
+            median,
+            max: v[n - 1],
+            count: n as u64,
         }
     }
 }
@@ -206,4 +213,28 @@ pub struct DatasetInfo {
     pub seed: u64,
     /// Gravity recorded in the manifest, m/s^2.
     pub gravity: [f32; 3],
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stat_has_mean_median_and_max() {
+        let mut a = StatAcc::default();
+        assert_eq!(a.stat(), Stat::default());
+        for x in [10.0, 1.0, 2.0] {
+            a.add(x);
+        }
+        let s = a.stat();
+        assert_eq!((s.median, s.max, s.count), (2.0, 10.0, 3));
+        assert!((s.mean - 13.0 / 3.0).abs() < 1e-12);
+        let mut b = StatAcc::default();
+        b.add(4.0);
+        a.merge(&b);
+        assert_eq!(a.stat().median, 3.0);
+        // Reports written before the median existed still load.
+        let old: Stat = serde_json::from_str(r#"{"mean":1.0,"max":2.0,"count":3}"#).unwrap();
+        assert_eq!(old.median, 0.0);
+    }
 }
