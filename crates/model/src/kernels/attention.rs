@@ -68,10 +68,22 @@ pub struct CrossAttention {
     pub k_rope: Arc<RotaryRows>,
 }
 
-/// One scene's keys, rotated and transposed `[H, dh, Tk]`, and values `[H, Tk, dh]`.
+/// One scene's keys, rotated and transposed `[H, dh, stride]` (key `j` of channel `d` at
+/// `(h * dh + d) * stride + j`, zeros past `Tk`), and values `[H, Tk, dh]`.
 struct SceneKeys {
     kt: Vec<f32>,
     v: Vec<f32>,
+    stride: usize,
+}
+
+/// Row stride of the transposed keys of `tk` keys: short lists are padded to a multiple of 16
+/// so that a query row's scores fit a fixed number of vector registers.
+fn key_stride(tk: usize) -> usize {
+    if tk < LONG_KEYS {
+        tk.next_multiple_of(16)
+    } else {
+        tk
+    }
 }
 
 /// Where the keys and values of scene `s` are: row `j` of its keys starts at
@@ -102,7 +114,8 @@ fn scene_keys(
     rope: &RotaryRows,
 ) -> SceneKeys {
     let tk = src.tk;
-    let mut kt = vec![0f32; heads * dh * tk];
+    let stride = key_stride(tk);
+    let mut kt = vec![0f32; heads * dh * stride];
     let mut v = vec![0f32; heads * tk * dh];
     let mut buf = vec![0f32; dh];
     for j in 0..tk {
@@ -112,13 +125,13 @@ fn scene_keys(
             buf.copy_from_slice(&src.data[row + src.k_off + h * dh..][..dh]);
             rotate(&mut buf, cos, sin);
             for (d, x) in buf.iter().enumerate() {
-                kt[(h * dh + d) * tk + j] = *x;
+                kt[(h * dh + d) * stride + j] = *x;
             }
             v[(h * tk + j) * dh..][..dh]
                 .copy_from_slice(&src.data[row + src.v_off + h * dh..][..dh]);
         }
     }
-    SceneKeys { kt, v }
+    SceneKeys { kt, v, stride }
 }
 
 /// What one query row needs besides the keys.
@@ -140,6 +153,14 @@ fn attend_row_body(
 ) {
     let dh = out.len() / heads;
     let tk = row.bias.len();
+    match (dh, keys.stride) {
+        (32, 16) => return attend_row_fixed::<32, 16>(row, keys, heads, out),
+        (32, 32) => return attend_row_fixed::<32, 32>(row, keys, heads, out),
+        (32, 48) => return attend_row_fixed::<32, 48>(row, keys, heads, out),
+        (32, 64) => return attend_row_fixed::<32, 64>(row, keys, heads, out),
+        _ => {}
+    }
+    let stride = keys.stride;
     let scale = 1.0 / (dh as f32).sqrt();
     let mut q = [0f32; 256];
     let q = &mut q[..dh];
@@ -148,9 +169,9 @@ fn attend_row_body(
         rotate(q, row.cos, row.sin);
         scores.clear();
         scores.extend_from_slice(row.bias);
-        let kt = &keys.kt[h * dh * tk..(h + 1) * dh * tk];
+        let kt = &keys.kt[h * dh * stride..(h + 1) * dh * stride];
         for (d, &qd) in q.iter().enumerate() {
-            axpy(scores, qd * scale, &kt[d * tk..(d + 1) * tk]);
+            axpy(scores, qd * scale, &kt[d * stride..d * stride + tk]);
         }
         let max = scores.iter().fold(f32::NEG_INFINITY, |m, &x| m.max(x));
         scores.iter_mut().for_each(|x| *x -= max);
@@ -167,6 +188,53 @@ fn attend_row_body(
             w /= 1.0 + (-g[h]).exp();
         }
         o.iter_mut().for_each(|x| *x *= w);
+    }
+}
+
+/// [`attend_row_body`] for `DH` channels per head and keys padded to `TKP`: a head's scores
+/// (`TKP` lanes) and its weighted value sum (`DH` lanes) stay in registers; the same sums in
+/// the same order as the general loop.
+#[inline(always)]
+fn attend_row_fixed<const DH: usize, const TKP: usize>(
+    row: &QueryRow<'_>,
+    keys: &SceneKeys,
+    heads: usize,
+    out: &mut [f32],
+) {
+    let tk = row.bias.len();
+    let scale = 1.0 / (DH as f32).sqrt();
+    for h in 0..heads {
+        let mut q = [0f32; DH];
+        q.copy_from_slice(&row.q[h * DH..(h + 1) * DH]);
+        rotate(&mut q, row.cos, row.sin);
+        let mut sc = [0f32; TKP];
+        sc[..tk].copy_from_slice(row.bias);
+        let kt = &keys.kt[h * DH * TKP..(h + 1) * DH * TKP];
+        for (qd, kr) in q.iter().zip(kt.chunks_exact(TKP)) {
+            let qd = qd * scale;
+            for (s, k) in sc.iter_mut().zip(kr) {
+                *s += qd * *k;
+            }
+        }
+        let sc = &mut sc[..tk];
+        let max = sc.iter().fold(f32::NEG_INFINITY, |m, &x| m.max(x));
+        sc.iter_mut().for_each(|x| *x -= max);
+        exp_slice(sc);
+        let sum: f32 = sc.iter().sum();
+        let mut o = [0f32; DH];
+        let v = &keys.v[h * tk * DH..(h + 1) * tk * DH];
+        for (&p, vr) in sc.iter().zip(v.chunks_exact(DH)) {
+            for (a, x) in o.iter_mut().zip(vr) {
+                *a += p * *x;
+            }
+        }
+        let mut w = 1.0 / sum;
+        if let Some(g) = row.gate {
+            w /= 1.0 + (-g[h]).exp();
+        }
+        for (dst, a) in out[h * DH..(h + 1) * DH].iter_mut().zip(o) {
+            *dst = a * w;
+        }
     }
 }
 
@@ -503,9 +571,10 @@ fn attend_long(
         for _ in 0..rows {
             sc.extend_from_slice(bias);
         }
-        let kt = &keys.kt[h * dh * tk..(h + 1) * dh * tk];
-        // SAFETY: qb is [rows, dh], kt [dh, tk] and sc [rows, tk], all row-major and of
-        // exactly those lengths; sc is read (the bias) and overwritten.
+        let ks = keys.stride;
+        let kt = &keys.kt[h * dh * ks..(h + 1) * dh * ks];
+        // SAFETY: qb is [rows, dh], kt [dh, ks >= tk] (tk columns read) and sc [rows, tk], all
+        // row-major and of exactly those lengths; sc is read (the bias) and overwritten.
         unsafe {
             product(
                 (rows, tk, dh),
@@ -519,7 +588,7 @@ fn attend_long(
                 },
                 Operand {
                     ptr: kt.as_ptr(),
-                    rs: tk,
+                    rs: ks,
                     cs: 1,
                 },
                 scale,
