@@ -39,3 +39,36 @@ fn random_model_steps_saves_and_loads() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// An inference model (constant weights: transposed weight copies, FiLM cached per step size)
+/// steps a batch of mixed step sizes like the same weights as training variables, twice (the
+/// second step reads the caches the first filled).
+#[test]
+fn frozen_model_matches_the_trainable_one_on_mixed_step_sizes() {
+    let config = ModelConfig::tiny();
+    let trainable = RigidFormer::new(config.clone(), 3, &Device::Cpu).unwrap();
+    let frozen = RigidFormer::new_frozen(config, 3, &Device::Cpu).unwrap();
+    let scenes: Vec<_> = (0..3)
+        .map(|i| {
+            let (objects, state) = common::random_scene(20 + i, 3 + i as usize, 48);
+            (trainable.prepare(objects).unwrap(), state)
+        })
+        .collect();
+    let batch: Vec<StepItem<'_>> = scenes
+        .iter()
+        .zip([1u32, 2, 4])
+        .map(|((scene, state), dt_steps)| StepItem {
+            scene,
+            state,
+            dt_steps,
+        })
+        .collect();
+    let want = trainable.step(&batch).unwrap();
+    for _ in 0..2 {
+        let got = frozen.step(&batch).unwrap();
+        assert_eq!(got.len(), want.len());
+        for (g, w) in got.iter().zip(&want) {
+            assert!(common::max_pose_diff(g, w) < 1e-5, "{g:?} vs {w:?}");
+        }
+    }
+}

@@ -2,9 +2,10 @@
 //! `[B, T = M + R, D]` with a key mask for padded slots, through pre-norm blocks (RMSNorm,
 //! gated multi-head self-attention with ARoPE, FiLM on `tau = log2(dt_steps)`, SwiGLU).
 
-use std::sync::Arc;
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
 
-use candle_core::{Device, Tensor};
+use candle_core::{DType, Device, Tensor};
 
 use super::attention::multi_head;
 use super::host_tensor;
@@ -35,6 +36,8 @@ struct PassContext {
     cos: Tensor,
     sin: Tensor,
     tau: Tensor,
+    /// `tau` per scene on the host `[B]`.
+    tau_host: Vec<f32>,
     key_bias: Arc<Vec<f32>>,
     rope_rows: Arc<RotaryRows>,
 }
@@ -50,6 +53,9 @@ struct Block {
     norm2: RmsNorm,
     ffn: SwiGlu,
     heads: usize,
+    /// FiLM `(gamma, beta)` `[2D]` by the bits of `tau`, for constant CPU weights: a step size
+    /// always gives the same modulation, so an inference model computes it once per value.
+    film_cache: Arc<Mutex<HashMap<u32, Arc<Vec<f32>>>>>,
 }
 
 impl Block {
@@ -67,7 +73,63 @@ impl Block {
             norm2: p.rms_norm(&format!("{n}.norm2"), d, eps)?,
             ffn: SwiGlu::new(p, &format!("{n}.ffn"), d, c.ffn_hidden)?,
             heads: c.heads,
+            film_cache: Arc::new(Mutex::new(HashMap::new())),
         })
+    }
+
+    /// FiLM parameters `[B, 2D]` (`gamma - 1` then `beta`) of the pass's `tau`.
+    fn film(&self, tau: &Tensor) -> candle_core::Result<Tensor> {
+        self.film_b.forward(&self.film_a.forward(tau)?.silu()?)
+    }
+
+    /// `(gamma, beta)`, each `[B, 1, D]`, from the per-value cache when the FiLM weights are
+    /// constants on the CPU; `None` otherwise.
+    fn film_cached(
+        &self,
+        ctx: &PassContext,
+        d: usize,
+    ) -> candle_core::Result<Option<(Tensor, Tensor)>> {
+        let w = &self.film_a.w;
+        if w.is_variable() || self.film_b.w.is_variable() || !w.device().is_cpu() {
+            return Ok(None);
+        }
+        let b = ctx.tau_host.len();
+        let (mut gamma, mut beta) = (Vec::with_capacity(b * d), Vec::with_capacity(b * d));
+        for &tau in &ctx.tau_host {
+            let cached = self
+                .film_cache
+                .lock()
+                .map_err(|_| candle_core::Error::Msg("FiLM cache lock poisoned".into()))?
+                .get(&tau.to_bits())
+                .cloned();
+            let fb = match cached {
+                Some(fb) => fb,
+                None => {
+                    let t = Tensor::from_slice(&[tau], (1, 1), w.device())?;
+                    let fb = Arc::new(
+                        self.film(&t)?
+                            .flatten_all()?
+                            .to_dtype(DType::F32)?
+                            .to_vec1()?,
+                    );
+                    self.film_cache
+                        .lock()
+                        .map_err(|_| candle_core::Error::Msg("FiLM cache lock poisoned".into()))?
+                        .insert(tau.to_bits(), fb.clone());
+                    fb
+                }
+            };
+            if fb.len() != 2 * d {
+                candle_core::bail!("FiLM of {} values for width {d}", fb.len());
+            }
+            gamma.extend(fb[..d].iter().map(|g| g + 1.0));
+            beta.extend_from_slice(&fb[d..]);
+        }
+        let dev = w.device();
+        Ok(Some((
+            Tensor::from_vec(gamma, (b, 1, d), dev)?,
+            Tensor::from_vec(beta, (b, 1, d), dev)?,
+        )))
     }
 
     /// `[B, T, D]` -> `[B, T, D]`.
@@ -91,11 +153,14 @@ impl Block {
         };
         let x = (x + self.out.forward(&o)?)?;
         // FiLM on tau = log2(dt_steps): gamma = 1 + .., beta.
-        let fb = self
-            .film_b
-            .forward(&self.film_a.forward(&ctx.tau)?.silu()?)?; // [B, 2D]
-        let gamma = (fb.narrow(1, 0, d)? + 1.0)?.unsqueeze(1)?;
-        let beta = fb.narrow(1, d, d)?.unsqueeze(1)?;
+        let (gamma, beta) = match self.film_cached(ctx, d)? {
+            Some(gb) => gb,
+            None => {
+                let fb = self.film(&ctx.tau)?; // [B, 2D]
+                let gamma = (fb.narrow(1, 0, d)? + 1.0)?.unsqueeze(1)?;
+                (gamma, fb.narrow(1, d, d)?.unsqueeze(1)?)
+            }
+        };
         let x = x.broadcast_mul(&gamma)?.broadcast_add(&beta)?;
         &x + self
             .ffn
@@ -194,6 +259,7 @@ impl Decoder {
             cos: host_tensor(device, &cos, &[b, 1, t, p])?,
             sin: host_tensor(device, &sin, &[b, 1, t, p])?,
             tau: host_tensor(device, &inp.tau, &[b, 1])?,
+            tau_host: inp.tau.clone(),
             key_bias: Arc::new(mask),
             rope_rows: Arc::new(RotaryRows { cos, sin, pairs: p }),
         };
