@@ -387,11 +387,21 @@ fn bench_avp_ab(c: &mut Criterion) {
         let padt = Tensor::from_vec(pad, o * nmax, &dev).expect("pad");
         let inv_sigma2 = 1.0 / (0.05f32 * 0.05);
         let inv = Tensor::new(&[inv_sigma2], &dev).expect("sigma");
+        // Each object's [K, n] distances, as the prepared scenes hold them.
+        let rows: Vec<Vec<f32>> = objects
+            .iter()
+            .enumerate()
+            .map(|(j, &(_, n))| {
+                (0..k)
+                    .flat_map(|kk| d2[(j * k + kk) * nmax..][..n].iter().copied())
+                    .collect()
+            })
+            .collect();
+        let rows: Vec<&[f32]> = rows.iter().map(Vec::as_slice).collect();
         let op = AnchorPooling {
             anchors: k,
             objects: &objects,
-            d2: &d2,
-            nmax,
+            d2: &rows,
             inv_sigma2,
         };
         // The composition on host data, as a step builds it: tensors from the batch inputs.

@@ -21,11 +21,9 @@ pub struct AnchorPooling<'a> {
     pub anchors: usize,
     /// First packed point row and point count of every object, `[O]`.
     pub objects: &'a [(usize, usize)],
-    /// Squared anchor-to-point distances `[O, K, nmax]`, m^2; entries past an object's point
-    /// count are ignored.
-    pub d2: &'a [f32],
-    /// Row length of `d2` (the batch's largest point count).
-    pub nmax: usize,
+    /// Squared anchor-to-point distances of every object, `[K, n]` each (`n` its point count),
+    /// m^2.
+    pub d2: &'a [&'a [f32]],
     /// `1 / sigma^2`, 1/m^2.
     pub inv_sigma2: f32,
 }
@@ -38,7 +36,7 @@ impl AnchorPooling<'_> {
         let k = self.anchors;
         w.clear();
         for kk in 0..k {
-            let row = &self.d2[(o * k + kk) * self.nmax..][..n];
+            let row = &self.d2[o][kk * n..(kk + 1) * n];
             w.extend(row.iter().map(|d| -d * self.inv_sigma2));
         }
         exp_slice(w);
@@ -143,24 +141,24 @@ impl CustomOp1 for AnchorPooling<'_> {
         let (rows, c) = l.shape().dims2()?;
         let o = self.objects.len();
         let k = self.anchors;
-        if let Some(&(first, n)) = self
-            .objects
-            .iter()
-            .find(|(first, n)| first + n > rows || *n > self.nmax)
-        {
+        if let Some(&(first, n)) = self.objects.iter().find(|(first, n)| first + n > rows) {
             candle_core::bail!(
-                "{}: object rows {first}..{} outside the {rows} points (or over nmax {})",
+                "{}: object rows {first}..{} outside the {rows} points",
                 self.name(),
-                first + n,
-                self.nmax
+                first + n
             );
         }
-        if self.d2.len() != o * k * self.nmax {
+        let mismatched = self.d2.len() != o
+            || self
+                .d2
+                .iter()
+                .zip(self.objects)
+                .any(|(d2, (_, n))| d2.len() != k * n);
+        if mismatched {
             candle_core::bail!(
-                "{}: {} distances for {o} objects x {k} anchors x {} points",
+                "{}: distances of {} objects for {o} objects of {k} anchors x their points",
                 self.name(),
-                self.d2.len(),
-                self.nmax
+                self.d2.len()
             );
         }
         let mut out = vec![0f32; o * k * c];
@@ -248,6 +246,19 @@ mod tests {
         .unwrap()
     }
 
+    /// Each object's `[K, n]` distances out of the padded `[O, K, nmax]` layout.
+    fn per_object(d2: &[f32], objects: &[(usize, usize)], k: usize, nmax: usize) -> Vec<Vec<f32>> {
+        objects
+            .iter()
+            .enumerate()
+            .map(|(j, &(_, n))| {
+                (0..k)
+                    .flat_map(|kk| d2[(j * k + kk) * nmax..][..n].iter().copied())
+                    .collect()
+            })
+            .collect()
+    }
+
     #[test]
     fn matches_the_composition_on_ragged_objects() {
         let (k, c, nmax) = (8, 32, 97);
@@ -271,11 +282,12 @@ mod tests {
             }
         }
         let inv_s2 = 1.0 / (0.05f32 * 0.05);
+        let rows = per_object(&d2, &objects, k, nmax);
+        let rows: Vec<&[f32]> = rows.iter().map(Vec::as_slice).collect();
         let op = AnchorPooling {
             anchors: k,
             objects: &objects,
-            d2: &d2,
-            nmax,
+            d2: &rows,
             inv_sigma2: inv_s2,
         };
         let fused = anchor_pooling(&h, &op).unwrap();
@@ -291,13 +303,21 @@ mod tests {
     #[test]
     fn rejects_ranges_outside_the_points() {
         let h = random(&[10, 4], 1, 1.0);
-        let d2 = vec![0.0; 2 * 2 * 8];
+        let d2 = vec![0.0; 2 * 8];
         let objects = [(0, 8), (8, 8)];
         let op = AnchorPooling {
             anchors: 2,
             objects: &objects,
-            d2: &d2,
-            nmax: 8,
+            d2: &[&d2, &d2],
+            inv_sigma2: 1.0,
+        };
+        assert!(anchor_pooling(&h, &op).is_err());
+        // Distances that do not match an object's point count.
+        let objects = [(0, 8), (8, 2)];
+        let op = AnchorPooling {
+            anchors: 2,
+            objects: &objects,
+            d2: &[&d2, &d2],
             inv_sigma2: 1.0,
         };
         assert!(anchor_pooling(&h, &op).is_err());

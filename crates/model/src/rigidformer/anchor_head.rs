@@ -103,7 +103,7 @@ impl AnchorHead {
         exec: Exec,
     ) -> Result<Tensor, ModelError> {
         let device = &self.device;
-        let (b, m, o, n, k, d) = (inp.b, inp.mmax, inp.o, inp.nmax, c.anchors, c.width);
+        let (b, m, o, k, d) = (inp.b, inp.mmax, inp.o, c.anchors, c.width);
         let (c1, p) = (c.point_dim, c.rope_dim / 2);
         let t = m + c.registers;
         // Anchor-vertex pooling with a learned bandwidth: w = exp(-d^2 / sigma^2), normalised.
@@ -112,8 +112,7 @@ impl AnchorHead {
             let op = AnchorPooling {
                 anchors: k,
                 objects: &inp.object_points,
-                d2: &inp.avp_d2,
-                nmax: n,
+                d2: &inp.anchor_d2,
                 inv_sigma2,
             };
             anchor_pooling(point_features, &op)?
@@ -157,7 +156,7 @@ impl AnchorHead {
         let (o, n, k) = (inp.o, inp.nmax, c.anchors);
         Ok(anchor_pooling_composed(
             point_features,
-            &host_tensor(device, &inp.avp_d2, &[o, k, n])?,
+            &host_tensor(device, &inp.avp_d2_padded(k), &[o, k, n])?,
             &host_tensor(device, &inp.point_mask, &[o, 1, n])?,
             &host_index(device, &inp.pad_idx)?,
             &(self.log_sigma.clone() * -2.0)?.exp()?,

@@ -22,7 +22,7 @@ pub(crate) struct SceneRequest<'a> {
 }
 
 /// Everything one batched forward pass needs, as flat host buffers.
-pub(crate) struct BatchInputs {
+pub(crate) struct BatchInputs<'a> {
     /// Scenes.
     pub b: usize,
     /// Largest object count in the batch.
@@ -49,8 +49,9 @@ pub(crate) struct BatchInputs {
     pub group_rel: Vec<f32>,
     /// Centre minus object centroid, world frame, scaled, `[o, S, 3]`.
     pub centre_rel: Vec<f32>,
-    /// Squared anchor-to-point distances `[o, K, nmax]`, m^2 (zero padding).
-    pub avp_d2: Vec<f32>,
+    /// Squared anchor-to-point distances of every object, `[K, n]` each (its point count `n`),
+    /// m^2, borrowed from the prepared scenes (they do not change between steps).
+    pub anchor_d2: Vec<&'a [f32]>,
     /// 1 for a real point, 0 for padding, `[o, 1, nmax]`.
     pub point_mask: Vec<f32>,
     /// Anchor rows into the packed points, `[o, K]`.
@@ -79,6 +80,21 @@ pub(crate) struct BatchInputs {
     pub anchors_ref: Vec<Vec<[f64; 3]>>,
     /// Current rotation per object (for the quaternion sign of the output).
     pub current_rot: Vec<[f32; 4]>,
+}
+
+impl BatchInputs<'_> {
+    /// The AVP distances laid out `[o, K, nmax]` with zero padding (the composition's layout).
+    pub fn avp_d2_padded(&self, k: usize) -> Vec<f32> {
+        let nmax = self.nmax;
+        let mut out = vec![0f32; self.o * k * nmax];
+        for (obj, d2) in self.anchor_d2.iter().enumerate() {
+            let n = d2.len() / k.max(1);
+            for (kk, row) in d2.chunks_exact(n.max(1)).enumerate().take(k) {
+                out[(obj * k + kk) * nmax..][..n].copy_from_slice(row);
+            }
+        }
+        out
+    }
 }
 
 /// ARoPE frequencies (radians per metre): `rope_dim / 6` per axis, log-spaced.
@@ -123,11 +139,10 @@ struct SceneChunk {
     anchors_ref: Vec<Vec<[f64; 3]>>,
 }
 
-/// A scene's rows of the batch's fixed-size buffers: features `[points, F]`, AVP distances
-/// `[m, K, nmax]` and point mask `[m, nmax]`.
+/// A scene's rows of the batch's fixed-size buffers: features `[points, F]` and point mask
+/// `[m, nmax]`.
 struct SceneRows<'b> {
     feats: &'b mut [f32],
-    avp_d2: &'b mut [f32],
     point_mask: &'b mut [f32],
 }
 
@@ -152,10 +167,10 @@ pub(crate) fn verlet_base(
 }
 
 /// Builds the inputs of one batched pass. Checks that every scene was prepared for `cfg`.
-pub(crate) fn build_inputs(
+pub(crate) fn build_inputs<'a>(
     cfg: &ModelConfig,
-    requests: &[SceneRequest<'_>],
-) -> Result<BatchInputs, ModelError> {
+    requests: &[SceneRequest<'a>],
+) -> Result<BatchInputs<'a>, ModelError> {
     let key = cfg.prepared_key();
     if requests.iter().any(|r| r.scene.key != key) {
         return Err(ModelError::Internal(
@@ -192,23 +207,20 @@ pub(crate) fn build_inputs(
     }
     let freqs = rope_frequencies(cfg);
     // The large fixed-size buffers are allocated once and each scene writes its own rows.
-    let (nf, k) = (cfg.point_features(), cfg.anchors);
+    let nf = cfg.point_features();
     let mut feats = vec![0f32; points * nf];
-    let mut avp_d2 = vec![0f32; o * k * nmax];
     let mut point_mask = vec![0f32; o * nmax];
     let mut rows = Vec::with_capacity(b);
-    let (mut f, mut d, mut pm) = (&mut feats[..], &mut avp_d2[..], &mut point_mask[..]);
+    let (mut f, mut pm) = (&mut feats[..], &mut point_mask[..]);
     for r in requests {
         let m = r.scene.len();
         let (f0, f1) = std::mem::take(&mut f).split_at_mut(r.scene.total_points() * nf);
-        let (d0, d1) = std::mem::take(&mut d).split_at_mut(m * k * nmax);
         let (p0, p1) = std::mem::take(&mut pm).split_at_mut(m * nmax);
         rows.push(SceneRows {
             feats: f0,
-            avp_d2: d0,
             point_mask: p0,
         });
-        (f, d, pm) = (f1, d1, p1);
+        (f, pm) = (f1, p1);
     }
     let chunks: Vec<SceneChunk> = requests
         .par_iter()
@@ -232,7 +244,10 @@ pub(crate) fn build_inputs(
         group_idx: Vec::new(),
         group_rel: Vec::new(),
         centre_rel: Vec::new(),
-        avp_d2,
+        anchor_d2: requests
+            .iter()
+            .flat_map(|r| r.scene.objects.iter().map(|obj| obj.anchor_d2.as_slice()))
+            .collect(),
         point_mask,
         anchor_idx: Vec::new(),
         anchor_rel: Vec::new(),
@@ -345,10 +360,6 @@ fn scene_chunk(
             }
         }
         // Anchors.
-        rows.avp_d2[j * k * nmax..(j * k) * nmax + k * nmax]
-            .chunks_mut(nmax)
-            .zip(obj.anchor_d2.chunks(n))
-            .for_each(|(dst, src)| dst[..n].copy_from_slice(src));
         let (rp, pp) = poses_prev[j];
         let now64 = (rc.cast::<f64>(), pc.cast::<f64>());
         let before64 = (rp.cast::<f64>(), pp.cast::<f64>());
