@@ -100,8 +100,22 @@ fn linear_product(
     Ok((CpuStorage::F32(y), Shape::from((m, n))))
 }
 
-/// `x W^T` (no bias).
-struct LinearNoBias;
+/// The gradient of `x W^T + b` with the weight stored as `layout`: all three products for a
+/// parameter (`OutIn`); for a transposed constant (`InOut`) only the input's.
+fn linear_grad(
+    layout: WeightLayout,
+    x: &Tensor,
+    w: &Tensor,
+    grad: &Tensor,
+) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
+    Ok(match layout {
+        WeightLayout::OutIn => (Some(grad.matmul(w)?), Some(grad.t()?.matmul(x)?)),
+        WeightLayout::InOut => (Some(grad.matmul(&w.t()?)?), None),
+    })
+}
+
+/// `x W^T` (no bias), the weight stored as the layout says.
+struct LinearNoBias(WeightLayout);
 
 impl CustomOp2 for LinearNoBias {
     fn name(&self) -> &'static str {
@@ -116,7 +130,7 @@ impl CustomOp2 for LinearNoBias {
         l2: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
         let w = f32_slice(self.name(), s2, l2)?;
-        linear_product(self.name(), s1, l1, (w, l2, WeightLayout::OutIn), None)
+        linear_product(self.name(), s1, l1, (w, l2, self.0), None)
     }
 
     fn bwd(
@@ -126,12 +140,12 @@ impl CustomOp2 for LinearNoBias {
         _res: &Tensor,
         grad: &Tensor,
     ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
-        Ok((Some(grad.matmul(w)?), Some(grad.t()?.matmul(x)?)))
+        linear_grad(self.0, x, w, grad)
     }
 }
 
-/// `x W^T + b`.
-struct LinearBias;
+/// `x W^T + b`, the weight stored as the layout says.
+struct LinearBias(WeightLayout);
 
 impl CustomOp3 for LinearBias {
     fn name(&self) -> &'static str {
@@ -149,7 +163,7 @@ impl CustomOp3 for LinearBias {
     ) -> candle_core::Result<(CpuStorage, Shape)> {
         let w = f32_slice(self.name(), s2, l2)?;
         let b = f32_slice(self.name(), s3, l3)?;
-        linear_product(self.name(), s1, l1, (w, l2, WeightLayout::OutIn), Some(b))
+        linear_product(self.name(), s1, l1, (w, l2, self.0), Some(b))
     }
 
     fn bwd(
@@ -160,23 +174,32 @@ impl CustomOp3 for LinearBias {
         _res: &Tensor,
         grad: &Tensor,
     ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
-        Ok((
-            Some(grad.matmul(w)?),
-            Some(grad.t()?.matmul(x)?),
-            Some(grad.sum(0)?),
-        ))
+        let (dx, dw) = linear_grad(self.0, x, w, grad)?;
+        let db = match self.0 {
+            WeightLayout::OutIn => Some(grad.sum(0)?),
+            WeightLayout::InOut => None,
+        };
+        Ok((dx, dw, db))
     }
 }
 
-/// `x [m, k] W^T + b` for `w [n, k]`, `b [n]` -> `[m, n]`, differentiable in all three. One
-/// `gemm` call on the CPU for f32 tensors; candle's matmul and broadcast add otherwise.
-pub fn linear(x: &Tensor, w: &Tensor, b: Option<&Tensor>) -> candle_core::Result<Tensor> {
+/// `x [m, k] W^T + b` with `w` stored as `layout`: one `gemm` call on the CPU for f32 rank-2
+/// input; candle's matmul and broadcast add otherwise.
+fn apply(
+    x: &Tensor,
+    w: &Tensor,
+    b: Option<&Tensor>,
+    layout: WeightLayout,
+) -> candle_core::Result<Tensor> {
     let cpu_f32 = x.device().is_cpu()
         && x.dtype() == candle_core::DType::F32
         && w.dtype() == candle_core::DType::F32
         && b.is_none_or(|b| b.dtype() == candle_core::DType::F32);
     if !cpu_f32 || x.rank() != 2 {
-        let y = x.matmul(&w.t()?)?;
+        let y = match layout {
+            WeightLayout::OutIn => x.matmul(&w.t()?)?,
+            WeightLayout::InOut => x.matmul(w)?,
+        };
         return match b {
             Some(b) => y.broadcast_add(b),
             None => Ok(y),
@@ -184,70 +207,22 @@ pub fn linear(x: &Tensor, w: &Tensor, b: Option<&Tensor>) -> candle_core::Result
     }
     let w = w.contiguous()?;
     match b {
-        Some(b) => x.apply_op3(&w, &b.contiguous()?, LinearBias),
-        None => x.apply_op2(&w, LinearNoBias),
+        Some(b) => x.apply_op3(&w, &b.contiguous()?, LinearBias(layout)),
+        None => x.apply_op2(&w, LinearNoBias(layout)),
     }
 }
 
-/// `x W^T + b` with the weight given transposed, `[k, n]`; differentiable in `x` only (the
-/// weight of an inference model is a constant).
-struct LinearFrozen {
-    bias: bool,
+/// `x [m, k] W^T + b` for `w [n, k]`, `b [n]` -> `[m, n]`, differentiable in all three. One
+/// `gemm` call on the CPU for f32 tensors; candle's matmul and broadcast add otherwise.
+pub fn linear(x: &Tensor, w: &Tensor, b: Option<&Tensor>) -> candle_core::Result<Tensor> {
+    apply(x, w, b, WeightLayout::OutIn)
 }
 
-impl CustomOp3 for LinearFrozen {
-    fn name(&self) -> &'static str {
-        "linear-frozen"
-    }
-
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-        s3: &CpuStorage,
-        l3: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let wt = f32_slice(self.name(), s2, l2)?;
-        let b = if self.bias {
-            Some(f32_slice(self.name(), s3, l3)?)
-        } else {
-            None
-        };
-        linear_product(self.name(), s1, l1, (wt, l2, WeightLayout::InOut), b)
-    }
-
-    fn bwd(
-        &self,
-        _x: &Tensor,
-        wt: &Tensor,
-        _b: &Tensor,
-        _res: &Tensor,
-        grad: &Tensor,
-    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
-        Ok((Some(grad.matmul(&wt.t()?)?), None, None))
-    }
-}
-
-/// `x [m, k] W^T + b` on the CPU from the transposed weight `wt [k, n]` (contiguous f32) and
-/// `b [n]` -> `[m, n]`; the same values as [`linear`] with `w = wt^T`. For weights that do not
-/// train: the gradient reaches `x` only.
+/// `x [m, k] W^T + b` from the transposed weight `wt [k, n]` and `b [n]` -> `[m, n]`; the same
+/// values as [`linear`] with `w = wt^T`. For weights that do not train: the gradient reaches
+/// `x` only.
 pub fn linear_frozen(x: &Tensor, wt: &Tensor, b: Option<&Tensor>) -> candle_core::Result<Tensor> {
-    if !x.device().is_cpu() || x.rank() != 2 || !wt.is_contiguous() {
-        let y = x.matmul(wt)?;
-        return match b {
-            Some(b) => y.broadcast_add(b),
-            None => Ok(y),
-        };
-    }
-    let op = LinearFrozen { bias: b.is_some() };
-    // The bias slot of a bias-free call holds the weight again (never read).
-    let b = match b {
-        Some(b) => b.contiguous()?,
-        None => wt.clone(),
-    };
-    x.apply_op3(wt, &b, op)
+    apply(x, wt, b, WeightLayout::InOut)
 }
 
 #[cfg(test)]
