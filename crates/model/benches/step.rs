@@ -349,7 +349,9 @@ fn bench_scene_threads_ab(c: &mut Criterion) {
 /// ball (216 objects x 128 points and one of 512, padded to 512 by the composition), `small`
 /// widths; interleaved in one process, medians of 25 calls each.
 fn bench_avp_ab(c: &mut Criterion) {
-    use dynaserve_model::kernels::avp::{AnchorPooling, anchor_pooling, anchor_pooling_composed};
+    use dynaserve_model::kernels::avp::{
+        AnchorPooling, anchor_pooling, anchor_pooling_composed, padded_distances,
+    };
     let cfg = ModelConfig::small();
     let (k, ch) = (cfg.anchors, cfg.point_dim);
     let mut group = c.benchmark_group("avp_ab");
@@ -375,8 +377,10 @@ fn bench_avp_ab(c: &mut Criterion) {
             mask.extend((0..nmax).map(|i| if i < n { 1f32 } else { 0.0 }));
             first += n;
         }
-        let d2: Vec<f32> = (0..o * k * nmax)
-            .map(|_| rng.random_range(0.0f32..0.09))
+        // Each object's [K, n] distances, as the prepared scenes hold them.
+        let rows: Vec<Vec<f32>> = counts
+            .iter()
+            .map(|&n| (0..k * n).map(|_| rng.random_range(0.0f32..0.09)).collect())
             .collect();
         let h: Vec<f32> = (0..p * ch)
             .map(|_| rng.random_range(-1.0f32..1.0))
@@ -387,16 +391,6 @@ fn bench_avp_ab(c: &mut Criterion) {
         let padt = Tensor::from_vec(pad, o * nmax, &dev).expect("pad");
         let inv_sigma2 = 1.0 / (0.05f32 * 0.05);
         let inv = Tensor::new(&[inv_sigma2], &dev).expect("sigma");
-        // Each object's [K, n] distances, as the prepared scenes hold them.
-        let rows: Vec<Vec<f32>> = objects
-            .iter()
-            .enumerate()
-            .map(|(j, &(_, n))| {
-                (0..k)
-                    .flat_map(|kk| d2[(j * k + kk) * nmax..][..n].iter().copied())
-                    .collect()
-            })
-            .collect();
         let rows: Vec<&[f32]> = rows.iter().map(Vec::as_slice).collect();
         let op = AnchorPooling {
             anchors: k,
@@ -404,9 +398,11 @@ fn bench_avp_ab(c: &mut Criterion) {
             d2: &rows,
             inv_sigma2,
         };
-        // The composition on host data, as a step builds it: tensors from the batch inputs.
+        // The composition on host data, as a step builds it: the padded distances and tensors
+        // from the batch inputs.
         let composed = || {
-            let d2t = Tensor::from_slice(&d2, (o, k, nmax), &dev).expect("d2");
+            let d2 = padded_distances(&rows, k, nmax);
+            let d2t = Tensor::from_vec(d2, (o, k, nmax), &dev).expect("d2");
             anchor_pooling_composed(&h, &d2t, &maskt, &padt, &inv, true).expect("composed")
         };
         let (a, b) = interleaved(

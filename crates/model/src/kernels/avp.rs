@@ -172,6 +172,19 @@ impl CustomOp1 for AnchorPooling<'_> {
     }
 }
 
+/// Each object's distances `[K, n]` (as [`AnchorPooling::d2`] takes them) laid out
+/// `[O, K, nmax]` with zero padding, the layout [`anchor_pooling_composed`] takes.
+pub fn padded_distances(rows: &[&[f32]], k: usize, nmax: usize) -> Vec<f32> {
+    let mut out = vec![0f32; rows.len() * k * nmax];
+    for (obj, d2) in rows.iter().enumerate() {
+        let n = d2.len() / k.max(1);
+        for (kk, row) in d2.chunks_exact(n.max(1)).enumerate().take(k) {
+            out[(obj * k + kk) * nmax..][..n].copy_from_slice(row);
+        }
+    }
+    out
+}
+
 /// AVP of the packed point features `h [P, C]` on the CPU: `[O, K, C]`.
 pub fn anchor_pooling(h: &Tensor, op: &AnchorPooling<'_>) -> candle_core::Result<Tensor> {
     h.contiguous()?.apply_op1_no_bwd(op)
@@ -246,19 +259,6 @@ mod tests {
         .unwrap()
     }
 
-    /// Each object's `[K, n]` distances out of the padded `[O, K, nmax]` layout.
-    fn per_object(d2: &[f32], objects: &[(usize, usize)], k: usize, nmax: usize) -> Vec<Vec<f32>> {
-        objects
-            .iter()
-            .enumerate()
-            .map(|(j, &(_, n))| {
-                (0..k)
-                    .flat_map(|kk| d2[(j * k + kk) * nmax..][..n].iter().copied())
-                    .collect()
-            })
-            .collect()
-    }
-
     #[test]
     fn matches_the_composition_on_ragged_objects() {
         let (k, c, nmax) = (8, 32, 97);
@@ -271,19 +271,25 @@ mod tests {
             first += n;
         }
         let h = random(&[first, c], 3, 2.0);
-        let mut d2: Vec<f32> = uniform(counts.len() * k * nmax, 5, 0.08)
-            .into_iter()
-            .map(|x| x * x)
+        // Each object's [K, n] distances; the anchor is one of its object's points (distance
+        // 0 to it).
+        let rows: Vec<Vec<f32>> = counts
+            .iter()
+            .enumerate()
+            .map(|(j, &n)| {
+                let mut d2: Vec<f32> = uniform(k * n, 5 + j as u64, 0.08)
+                    .into_iter()
+                    .map(|x| x * x)
+                    .collect();
+                for kk in 0..k {
+                    d2[kk * n + (kk * 7) % n] = 0.0;
+                }
+                d2
+            })
             .collect();
-        // The anchor is one of its object's points: distance 0 to it.
-        for (j, &n) in counts.iter().enumerate() {
-            for kk in 0..k {
-                d2[(j * k + kk) * nmax + (kk * 7) % n] = 0.0;
-            }
-        }
-        let inv_s2 = 1.0 / (0.05f32 * 0.05);
-        let rows = per_object(&d2, &objects, k, nmax);
         let rows: Vec<&[f32]> = rows.iter().map(Vec::as_slice).collect();
+        let d2 = padded_distances(&rows, k, nmax);
+        let inv_s2 = 1.0 / (0.05f32 * 0.05);
         let op = AnchorPooling {
             anchors: k,
             objects: &objects,

@@ -10,6 +10,7 @@ use rayon::prelude::*;
 
 use super::features::{FeatureFrame, ScenePoints, rotation_translation as rot};
 use crate::api::Pose;
+use crate::kernels::avp::padded_distances;
 use crate::prepare::PreparedScene;
 use crate::{ModelConfig, ModelError};
 
@@ -85,15 +86,7 @@ pub(crate) struct BatchInputs<'a> {
 impl BatchInputs<'_> {
     /// The AVP distances laid out `[o, K, nmax]` with zero padding (the composition's layout).
     pub fn avp_d2_padded(&self, k: usize) -> Vec<f32> {
-        let nmax = self.nmax;
-        let mut out = vec![0f32; self.o * k * nmax];
-        for (obj, d2) in self.anchor_d2.iter().enumerate() {
-            let n = d2.len() / k.max(1);
-            for (kk, row) in d2.chunks_exact(n.max(1)).enumerate().take(k) {
-                out[(obj * k + kk) * nmax..][..n].copy_from_slice(row);
-            }
-        }
-        out
+        padded_distances(&self.anchor_d2, k, self.nmax)
     }
 }
 
