@@ -37,13 +37,17 @@ impl Linear {
         }
     }
 
+    /// True when the layer's parameters are constants on the CPU (a model loaded or built for
+    /// inference): values derived from them may be computed once and kept.
+    pub fn is_constant_cpu(&self) -> bool {
+        self.w.device().is_cpu()
+            && !self.w.is_variable()
+            && self.b.as_ref().is_none_or(|b| !b.is_variable())
+    }
+
     /// The transposed weight for the frozen CPU product, when it applies to `x`.
     fn frozen_weight(&self, x: &Tensor) -> candle_core::Result<Option<&Tensor>> {
-        if self.w.is_variable()
-            || !self.w.device().is_cpu()
-            || self.w.dtype() != DType::F32
-            || x.dtype() != DType::F32
-        {
+        if !self.is_constant_cpu() || self.w.dtype() != DType::F32 || x.dtype() != DType::F32 {
             return Ok(None);
         }
         if let Some(t) = self.frozen.get() {
@@ -133,13 +137,10 @@ impl Mlp {
             &v(&self.b.w)?,
             v(b2)?,
         ));
-        let variable = [&self.a.w, b1, &self.b.w, b2]
-            .iter()
-            .any(|t| t.is_variable());
-        Ok(if variable {
-            h
-        } else {
+        Ok(if self.a.is_constant_cpu() && self.b.is_constant_cpu() {
             self.host.get_or_init(|| h).clone()
+        } else {
+            h
         })
     }
 

@@ -5,7 +5,7 @@
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
-use candle_core::{DType, Device, Tensor};
+use candle_core::{Device, Tensor};
 
 use super::attention::multi_head;
 use super::host_tensor;
@@ -35,9 +35,8 @@ struct PassContext {
     mask: Tensor,
     cos: Tensor,
     sin: Tensor,
-    tau: Tensor,
-    /// `tau` per scene on the host `[B]`.
-    tau_host: Vec<f32>,
+    /// `tau = log2(dt_steps)` per scene `[B]` (host).
+    tau: Vec<f32>,
     key_bias: Arc<Vec<f32>>,
     rope_rows: Arc<RotaryRows>,
 }
@@ -77,9 +76,10 @@ impl Block {
         })
     }
 
-    /// FiLM parameters `[B, 2D]` (`gamma - 1` then `beta`) of the pass's `tau`.
-    fn film(&self, tau: &Tensor) -> candle_core::Result<Tensor> {
-        self.film_b.forward(&self.film_a.forward(tau)?.silu()?)
+    /// FiLM parameters `[B, 2D]` (`gamma - 1` then `beta`) of `tau` (`[B]`, host).
+    fn film(&self, tau: &[f32]) -> candle_core::Result<Tensor> {
+        let t = Tensor::from_slice(tau, (tau.len(), 1), self.film_a.w.device())?;
+        self.film_b.forward(&self.film_a.forward(&t)?.silu()?)
     }
 
     /// `(gamma, beta)`, each `[B, 1, D]`, from the per-value cache when the FiLM weights are
@@ -89,33 +89,21 @@ impl Block {
         ctx: &PassContext,
         d: usize,
     ) -> candle_core::Result<Option<(Tensor, Tensor)>> {
-        let w = &self.film_a.w;
-        if w.is_variable() || self.film_b.w.is_variable() || !w.device().is_cpu() {
+        if !(self.film_a.is_constant_cpu() && self.film_b.is_constant_cpu()) {
             return Ok(None);
         }
-        let b = ctx.tau_host.len();
+        let b = ctx.tau.len();
         let (mut gamma, mut beta) = (Vec::with_capacity(b * d), Vec::with_capacity(b * d));
-        for &tau in &ctx.tau_host {
-            let cached = self
-                .film_cache
-                .lock()
-                .map_err(|_| candle_core::Error::Msg("FiLM cache lock poisoned".into()))?
-                .get(&tau.to_bits())
-                .cloned();
-            let fb = match cached {
-                Some(fb) => fb,
+        let mut cache = self
+            .film_cache
+            .lock()
+            .map_err(|_| candle_core::Error::Msg("FiLM cache lock poisoned".into()))?;
+        for &tau in &ctx.tau {
+            let fb = match cache.get(&tau.to_bits()) {
+                Some(fb) => fb.clone(),
                 None => {
-                    let t = Tensor::from_slice(&[tau], (1, 1), w.device())?;
-                    let fb = Arc::new(
-                        self.film(&t)?
-                            .flatten_all()?
-                            .to_dtype(DType::F32)?
-                            .to_vec1()?,
-                    );
-                    self.film_cache
-                        .lock()
-                        .map_err(|_| candle_core::Error::Msg("FiLM cache lock poisoned".into()))?
-                        .insert(tau.to_bits(), fb.clone());
+                    let fb = Arc::new(self.film(&[tau])?.flatten_all()?.to_vec1::<f32>()?);
+                    cache.insert(tau.to_bits(), fb.clone());
                     fb
                 }
             };
@@ -125,7 +113,7 @@ impl Block {
             gamma.extend(fb[..d].iter().map(|g| g + 1.0));
             beta.extend_from_slice(&fb[d..]);
         }
-        let dev = w.device();
+        let dev = self.film_a.w.device();
         Ok(Some((
             Tensor::from_vec(gamma, (b, 1, d), dev)?,
             Tensor::from_vec(beta, (b, 1, d), dev)?,
@@ -258,8 +246,7 @@ impl Decoder {
             mask: host_tensor(device, &mask, &[b, 1, 1, t])?,
             cos: host_tensor(device, &cos, &[b, 1, t, p])?,
             sin: host_tensor(device, &sin, &[b, 1, t, p])?,
-            tau: host_tensor(device, &inp.tau, &[b, 1])?,
-            tau_host: inp.tau.clone(),
+            tau: inp.tau.clone(),
             key_bias: Arc::new(mask),
             rope_rows: Arc::new(RotaryRows { cos, sin, pairs: p }),
         };
