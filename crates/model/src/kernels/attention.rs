@@ -134,6 +134,26 @@ fn scene_keys(
     SceneKeys { kt, v, stride }
 }
 
+/// `x <- exp(x - max(x))` in place (a softmax before its division); returns the sum.
+#[inline(always)]
+pub(crate) fn exp_shifted(x: &mut [f32]) -> f32 {
+    let max = x.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
+    x.iter_mut().for_each(|v| *v -= max);
+    exp_slice(x);
+    x.iter().sum()
+}
+
+/// The factor on head `h`'s weighted values: the softmax's `1 / sum`, times the sigmoid of the
+/// head's gate logit when the row has gates.
+#[inline(always)]
+fn head_scale(sum: f32, gate: Option<&[f32]>, h: usize) -> f32 {
+    let w = 1.0 / sum;
+    match gate {
+        Some(g) => w / (1.0 + (-g[h]).exp()),
+        None => w,
+    }
+}
+
 /// What one query row needs besides the keys.
 struct QueryRow<'a> {
     q: &'a [f32],
@@ -173,20 +193,14 @@ fn attend_row_body(
         for (d, &qd) in q.iter().enumerate() {
             axpy(scores, qd * scale, &kt[d * stride..d * stride + tk]);
         }
-        let max = scores.iter().fold(f32::NEG_INFINITY, |m, &x| m.max(x));
-        scores.iter_mut().for_each(|x| *x -= max);
-        exp_slice(scores);
-        let sum: f32 = scores.iter().sum();
+        let sum = exp_shifted(scores);
         let o = &mut out[h * dh..(h + 1) * dh];
         o.fill(0.0);
         let v = &keys.v[h * tk * dh..(h + 1) * tk * dh];
         for (j, &p) in scores.iter().enumerate() {
             axpy(o, p, &v[j * dh..(j + 1) * dh]);
         }
-        let mut w = 1.0 / sum;
-        if let Some(g) = row.gate {
-            w /= 1.0 + (-g[h]).exp();
-        }
+        let w = head_scale(sum, row.gate, h);
         o.iter_mut().for_each(|x| *x *= w);
     }
 }
@@ -217,10 +231,7 @@ fn attend_row_fixed<const DH: usize, const TKP: usize>(
             }
         }
         let sc = &mut sc[..tk];
-        let max = sc.iter().fold(f32::NEG_INFINITY, |m, &x| m.max(x));
-        sc.iter_mut().for_each(|x| *x -= max);
-        exp_slice(sc);
-        let sum: f32 = sc.iter().sum();
+        let sum = exp_shifted(sc);
         let mut o = [0f32; DH];
         let v = &keys.v[h * tk * DH..(h + 1) * tk * DH];
         for (&p, vr) in sc.iter().zip(v.chunks_exact(DH)) {
@@ -228,10 +239,7 @@ fn attend_row_fixed<const DH: usize, const TKP: usize>(
                 *a += p * *x;
             }
         }
-        let mut w = 1.0 / sum;
-        if let Some(g) = row.gate {
-            w /= 1.0 + (-g[h]).exp();
-        }
+        let w = head_scale(sum, row.gate, h);
         for (dst, a) in out[h * DH..(h + 1) * DH].iter_mut().zip(o) {
             *dst = a * w;
         }
@@ -596,10 +604,7 @@ fn attend_long(
             )
         };
         for row in sc.chunks_exact_mut(tk) {
-            let max = row.iter().fold(f32::NEG_INFINITY, |m, &x| m.max(x));
-            row.iter_mut().for_each(|x| *x -= max);
-            exp_slice(row);
-            let inv = 1.0 / row.iter().sum::<f32>();
+            let inv = 1.0 / exp_shifted(row);
             row.iter_mut().for_each(|x| *x *= inv);
         }
         let v = &keys.v[h * tk * dh..(h + 1) * tk * dh];

@@ -9,8 +9,8 @@ use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
 use super::activation::f32_slice;
-use super::attention::{CrossAttention, RotaryRows, SelfAttention, rotate};
-use super::simd::{axpy, exp_slice};
+use super::attention::{CrossAttention, RotaryRows, SelfAttention, exp_shifted, rotate};
+use super::simd::axpy;
 
 /// Undoes [`rotate`] (the rotation's transpose) on a gradient.
 fn unrotate(x: &mut [f32], cos: &[f32], sin: &[f32]) {
@@ -59,10 +59,7 @@ fn head_grad(
             let kj = &k[j * dh..(j + 1) * dh];
             *pj = scale * qi.iter().zip(kj).map(|(a, b)| a * b).sum::<f32>() + bias[j];
         }
-        let max = p.iter().fold(f32::NEG_INFINITY, |m, &x| m.max(x));
-        p.iter_mut().for_each(|x| *x -= max);
-        exp_slice(&mut p);
-        let inv: f32 = 1.0 / p.iter().sum::<f32>();
+        let inv: f32 = 1.0 / exp_shifted(&mut p);
         // Masked keys come out of the clamped `exp` as ~1e-38, not 0: flushed, so that their
         // gradients hold no subnormal numbers (which slow every later product down).
         p.iter_mut()
