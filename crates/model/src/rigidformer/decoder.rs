@@ -3,6 +3,7 @@
 //! gated multi-head self-attention with ARoPE, FiLM on `tau = log2(dt_steps)`, SwiGLU).
 
 use std::collections::HashMap;
+use std::collections::hash_map::Entry;
 use std::sync::{Arc, Mutex};
 
 use candle_core::{Device, Tensor};
@@ -54,7 +55,7 @@ struct Block {
     heads: usize,
     /// FiLM `(gamma, beta)` `[2D]` by the bits of `tau`, for constant CPU weights: a step size
     /// always gives the same modulation, so an inference model computes it once per value.
-    film_cache: Arc<Mutex<HashMap<u32, Arc<Vec<f32>>>>>,
+    film_cache: Mutex<HashMap<u32, Vec<f32>>>,
 }
 
 impl Block {
@@ -72,7 +73,7 @@ impl Block {
             norm2: p.rms_norm(&format!("{n}.norm2"), d, eps)?,
             ffn: SwiGlu::new(p, &format!("{n}.ffn"), d, c.ffn_hidden)?,
             heads: c.heads,
-            film_cache: Arc::new(Mutex::new(HashMap::new())),
+            film_cache: Mutex::new(HashMap::new()),
         })
     }
 
@@ -99,13 +100,9 @@ impl Block {
             .lock()
             .map_err(|_| candle_core::Error::Msg("FiLM cache lock poisoned".into()))?;
         for &tau in &ctx.tau {
-            let fb = match cache.get(&tau.to_bits()) {
-                Some(fb) => fb.clone(),
-                None => {
-                    let fb = Arc::new(self.film(&[tau])?.flatten_all()?.to_vec1::<f32>()?);
-                    cache.insert(tau.to_bits(), fb.clone());
-                    fb
-                }
+            let fb = match cache.entry(tau.to_bits()) {
+                Entry::Occupied(e) => e.into_mut(),
+                Entry::Vacant(e) => e.insert(self.film(&[tau])?.flatten_all()?.to_vec1::<f32>()?),
             };
             if fb.len() != 2 * d {
                 candle_core::bail!("FiLM of {} values for width {d}", fb.len());
