@@ -3,7 +3,7 @@
 //! rotary code, plus the object's final token) cross-attends to the decoder tokens of several
 //! depths; an MLP turns it into an acceleration.
 
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 use candle_core::{Device, Tensor};
 
@@ -26,6 +26,8 @@ pub(crate) struct AnchorHead {
     tap_norms: Vec<RmsNorm>,
     depth_embedding: Tensor,
     log_sigma: Tensor,
+    /// `exp(-2 log_sigma)` on the host, kept when `log_sigma` is a constant (inference).
+    inv_sigma2: OnceLock<f32>,
     q_norm: RmsNorm,
     q: Linear,
     kv: Linear,
@@ -54,6 +56,7 @@ impl AnchorHead {
                 .collect::<Result<_, _>>()?,
             depth_embedding: p.get("anchors.depth_embedding", &[taps, d], Init::Uniform(0.1))?,
             log_sigma: p.get("anchors.avp.log_sigma", &[1], Init::Const(c.avp_sigma.ln()))?,
+            inv_sigma2: OnceLock::new(),
             q_norm: p.rms_norm("anchors.q_norm", d, eps)?,
             q: p.linear("anchors.cross.q", d, d, false)?,
             kv: p.linear("anchors.cross.kv", d, 2 * d, false)?,
@@ -62,6 +65,19 @@ impl AnchorHead {
             head: Mlp::new(p, "anchors.head", d, d, 3)?,
             device: device.clone(),
         })
+    }
+
+    /// `1 / sigma^2` of the AVP bandwidth (1/m^2) on the host: read once for a constant
+    /// bandwidth, on every call for a training variable.
+    fn inv_sigma2_host(&self) -> candle_core::Result<f32> {
+        if let Some(&v) = self.inv_sigma2.get() {
+            return Ok(v);
+        }
+        let v = (self.log_sigma.clone() * -2.0)?.exp()?.to_vec1::<f32>()?[0];
+        if !self.log_sigma.is_variable() {
+            let _ = self.inv_sigma2.set(v);
+        }
+        Ok(v)
     }
 
     /// Accelerations `[O, K, 3]` in metres per step^2 from the packed point features `[P, C1]`
@@ -108,7 +124,7 @@ impl AnchorHead {
         let t = m + c.registers;
         // Anchor-vertex pooling with a learned bandwidth: w = exp(-d^2 / sigma^2), normalised.
         let avp = if exec.fused_inference() && device.is_cpu() {
-            let inv_sigma2 = (self.log_sigma.clone() * -2.0)?.exp()?.to_vec1::<f32>()?[0];
+            let inv_sigma2 = self.inv_sigma2_host()?;
             let op = AnchorPooling {
                 anchors: k,
                 objects: &inp.object_points,
