@@ -18,6 +18,7 @@ mod prepare;
 pub mod rigidformer;
 pub mod runtime;
 pub mod scene_threads;
+pub mod team;
 
 pub use api::{ObjectInput, Pose, SceneState, StepItem, WorldModel, rollout};
 pub use batching::PassBudget;

@@ -72,3 +72,33 @@ fn frozen_model_matches_the_trainable_one_on_mixed_step_sizes() {
         }
     }
 }
+
+/// A one-scene step splits its products, point MLPs, attention rows and anchor pooling over
+/// the compute team; the poses agree with the same step on one thread. Uses the `small` widths
+/// so every split is above its size threshold.
+#[test]
+fn one_scene_split_over_the_team_matches_one_thread() {
+    if dynaserve_model::team::parts() < 2 {
+        eprintln!("one compute thread here: nothing to split");
+        return;
+    }
+    let model = RigidFormer::new_frozen(ModelConfig::small(), 5, &Device::Cpu).unwrap();
+    let (objects, state) = common::random_scene(31, 10, 256);
+    let scene = model.prepare(objects).unwrap();
+    let batch = [StepItem {
+        scene: &scene,
+        state: &state,
+        dt_steps: 1,
+    }];
+    dynaserve_model::team::set_enabled(false);
+    let alone = model.step(&batch);
+    dynaserve_model::team::set_enabled(true);
+    let alone = alone.unwrap();
+    for _ in 0..3 {
+        let split = model.step(&batch).unwrap();
+        assert!(
+            common::max_pose_diff(&split[0], &alone[0]) < 1e-5,
+            "{split:?} vs {alone:?}"
+        );
+    }
+}

@@ -18,8 +18,9 @@ use rayon::prelude::*;
 
 use super::activation::f32_slice;
 use super::attention_grad::{cross_attention_grad, self_attention_grad};
-use super::product::{Operand, product};
+use super::product::{Destination, Operand, product};
 use super::simd::{axpy, exp_slice};
+use crate::team;
 
 /// Rows of rotary cosines and sines, each `[rows, P]`.
 #[derive(Clone, Debug, Default)]
@@ -288,6 +289,10 @@ fn attend_row(
     attend_row_body(row, keys, heads, out, scores)
 }
 
+/// Multiply-adds (query rows x keys x width) from which one pass's rows are split over the
+/// compute team ([`team`]).
+const TEAM_MIN_MACS: usize = 1 << 16;
+
 /// Query rows per rayon task: enough multiply-adds (about 256 k) to pay for a task.
 fn rows_per_task(tk: usize, d: usize) -> usize {
     (262_144 / (2 * tk * d).max(1)).max(1)
@@ -311,7 +316,20 @@ fn run_rows<'a>(
             attend_row(&row, &keys[s], heads, o, &mut scores);
         }
     };
-    if nq > chunk && rayon::current_num_threads() > 1 {
+    if nq * tk * d >= TEAM_MIN_MACS && team::parts() > 1 {
+        // One scene's rows split over the compute team, parts writing disjoint rows.
+        let dst = Destination(out.as_mut_ptr());
+        team::run(|part, parts| {
+            let mut scores = Vec::with_capacity(tk);
+            for r in team::part_range(nq, part, parts, 1) {
+                let (s, row) = query(r);
+                // SAFETY: row r's outputs lie inside `out` (nq * d values), no other part
+                // writes them, and `team::run` returns only after every part finished.
+                let o = unsafe { std::slice::from_raw_parts_mut(dst.at(r * d), d) };
+                attend_row(&row, &keys[s], heads, o, &mut scores);
+            }
+        });
+    } else if nq > chunk && rayon::current_num_threads() > 1 {
         out.par_chunks_mut(chunk * d).enumerate().for_each(work);
     } else {
         out.chunks_mut(chunk * d).enumerate().for_each(work);
@@ -364,10 +382,8 @@ impl CustomOp2 for SelfAttention {
             v_off: 2 * d,
             tk: t,
         };
-        let keys: Vec<SceneKeys> = (0..b)
-            .into_par_iter()
-            .map(|s| scene_keys(src, s, h, dh, &self.rope))
-            .collect();
+        let keys: Vec<SceneKeys> =
+            team::map_indices(b, 2, |s| scene_keys(src, s, h, dh, &self.rope));
         if t >= LONG_KEYS {
             let ranges: Vec<_> = (0..b).map(|s| s * t..(s + 1) * t).collect();
             let queries = LongQueries {
@@ -450,10 +466,8 @@ impl CustomOp2 for CrossAttention {
             v_off: d,
             tk,
         };
-        let keys: Vec<SceneKeys> = (0..b)
-            .into_par_iter()
-            .map(|s| scene_keys(src, s, h, dh, &self.k_rope))
-            .collect();
+        let keys: Vec<SceneKeys> =
+            team::map_indices(b, 2, |s| scene_keys(src, s, h, dh, &self.k_rope));
         if tk >= LONG_KEYS
             && let Some(ranges) = scene_ranges(&self.query_scene, b)
         {
@@ -564,7 +578,7 @@ fn attend_long(
             }
         }
     }
-    let out_ptr = SendPtr(out.as_mut_ptr());
+    let out_ptr = Destination(out.as_mut_ptr());
     let task = |&(s, h, first, rows): &(usize, usize, usize, usize)| {
         let keys = &keys[s];
         let mut qb = vec![0f32; rows * dh];
@@ -612,7 +626,7 @@ fn attend_long(
         // at rows first.. (row stride d) and columns h * dh.., a block no other task touches
         // (tasks differ in rows or head columns), inside `out` (nq * d values).
         unsafe {
-            let dst = out_ptr.get().add(first * d + h * dh);
+            let dst = out_ptr.at(first * d + h * dh);
             product(
                 (rows, dh, tk),
                 dst,
@@ -647,21 +661,6 @@ fn attend_long(
         tasks.iter().for_each(task);
     }
     out
-}
-
-/// A raw output pointer shared by tasks that write disjoint blocks.
-#[derive(Clone, Copy)]
-struct SendPtr(*mut f32);
-
-// SAFETY: only used by `attend_long`, whose tasks write disjoint blocks of one
-// buffer that outlives them.
-unsafe impl Send for SendPtr {}
-unsafe impl Sync for SendPtr {}
-
-impl SendPtr {
-    fn get(self) -> *mut f32 {
-        self.0
-    }
 }
 
 /// Applies [`SelfAttention`] (CPU tensors only): `qkv [B, T, 3D]`, `gate [B, T, H]` ->

@@ -10,7 +10,20 @@
 use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Shape, Tensor};
 
 use super::activation::f32_slice;
-use super::product::{Operand, product};
+use super::product::{Destination, Operand, product};
+use crate::team::{self, part_range};
+
+/// Multiply-adds from which a product is split by `gemm` over rayon's pool. Below, splitting
+/// over the pool cost more than it saved (a one-scene step's decoder, products of 18 rows,
+/// ran slower on two threads than on one: the workers sleep between operations), so smaller
+/// products go to the spinning [`team`] instead.
+const PARALLEL_MIN_MACS: usize = 1 << 22;
+
+/// Multiply-adds below which a product is not worth splitting at all (about a microsecond).
+const TEAM_MIN_MACS: usize = 1 << 16;
+
+/// Output columns per part are a multiple of this (`gemm`'s kernel covers 32 per tile).
+const TEAM_COLUMNS: usize = 32;
 
 /// How a contiguous weight matrix is stored.
 #[derive(Clone, Copy, PartialEq)]
@@ -59,41 +72,76 @@ fn linear_product(
         if (m - 1) * rs + (k - 1) * cs >= x.len() {
             candle_core::bail!("{op}: input layout {xl:?} outside its storage");
         }
-        let threads = rayon::current_num_threads();
-        let par = if threads > 1 {
-            gemm::Parallelism::Rayon(threads)
-        } else {
-            gemm::Parallelism::None
-        };
-        let read = b.is_some();
         let (w_rs, w_cs) = match layout {
             WeightLayout::OutIn => (1, k),
             WeightLayout::InOut => (n, 1),
         };
-        // SAFETY: x holds every element (m - 1) * rs + (k - 1) * cs past its start (checked
-        // above); w is contiguous [n, k] (so w^T has column stride k, row stride 1) or [k, n]
-        // (row stride n, column stride 1); y has capacity m * n and is either fully
-        // initialised with the bias rows (read) or written in full by the product (not read;
-        // alpha 0) before its length is set.
-        unsafe {
-            product(
-                (m, n, k),
-                y.as_mut_ptr(),
-                n,
-                read,
-                Operand {
-                    ptr: x.as_ptr(),
-                    rs,
-                    cs,
-                },
-                Operand {
-                    ptr: w.as_ptr(),
+        let x = Operand {
+            ptr: x.as_ptr(),
+            rs,
+            cs,
+        };
+        let read = b.is_some();
+        let dst = Destination(y.as_mut_ptr());
+        let macs = m * n * k;
+        if macs >= PARALLEL_MIN_MACS {
+            let par = match rayon::current_num_threads() {
+                1 => gemm::Parallelism::None,
+                threads => gemm::Parallelism::Rayon(threads),
+            };
+            let w = Operand {
+                ptr: w.as_ptr(),
+                rs: w_rs,
+                cs: w_cs,
+            };
+            // SAFETY: x holds every element (m - 1) * rs + (k - 1) * cs past its start
+            // (checked above); w is contiguous [n, k] (so w^T has column stride k, row stride
+            // 1) or [k, n] (row stride n, column stride 1); y has capacity m * n and is either
+            // fully initialised with the bias rows (read) or written in full by the product
+            // (not read; alpha 0) before its length is set.
+            unsafe { product((m, n, k), dst.0, n, read, x, w, 1.0, par) };
+        } else {
+            // A small product: its output columns split over the compute team (each part
+            // reads only its share of the weight), or all on this thread.
+            let split = macs >= TEAM_MIN_MACS && n >= 2 * TEAM_COLUMNS;
+            let work = |part: usize, parts: usize| {
+                let cols = part_range(n, part, parts, TEAM_COLUMNS);
+                if cols.is_empty() {
+                    return;
+                }
+                let first = match layout {
+                    WeightLayout::OutIn => cols.start * k,
+                    WeightLayout::InOut => cols.start,
+                };
+                let w = Operand {
+                    ptr: w[first..].as_ptr(),
                     rs: w_rs,
                     cs: w_cs,
-                },
-                1.0,
-                par,
-            );
+                };
+                // SAFETY: as above for the columns `cols` of w^T and y (y's row stride stays
+                // n); parts write disjoint columns of y and `team::run` joins them before
+                // y's length is set.
+                unsafe {
+                    product(
+                        (m, cols.len(), k),
+                        dst.at(cols.start),
+                        n,
+                        read,
+                        x,
+                        w,
+                        1.0,
+                        gemm::Parallelism::None,
+                    )
+                };
+            };
+            if split {
+                team::run(work);
+            } else {
+                work(0, 1);
+            }
+        }
+        // SAFETY: every element was written above (see the products' comments).
+        unsafe {
             y.set_len(m * n);
         }
     }

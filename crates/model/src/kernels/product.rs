@@ -12,6 +12,36 @@ pub(crate) struct Operand {
     pub cs: usize,
 }
 
+// SAFETY: an operand is a read-only view; the kernels that share one between threads never
+// write through it, and its storage outlives the product (the callers' contracts).
+unsafe impl Send for Operand {}
+// SAFETY: as above.
+unsafe impl Sync for Operand {}
+
+/// A destination matrix's first element, shared by the threads that write disjoint parts of
+/// it.
+#[derive(Clone, Copy)]
+pub(crate) struct Destination(pub *mut f32);
+
+// SAFETY: every user splits the destination into disjoint column or row ranges per thread and
+// joins the threads before the buffer is read or freed.
+unsafe impl Send for Destination {}
+// SAFETY: as above.
+unsafe impl Sync for Destination {}
+
+impl Destination {
+    /// The element `offset` places past the first (taking `self` whole, so a closure that
+    /// calls this captures the shareable wrapper, not the raw pointer).
+    ///
+    /// # Safety
+    ///
+    /// The offset must stay inside the destination's allocation.
+    pub unsafe fn at(self, offset: usize) -> *mut f32 {
+        // SAFETY: forwarded from the caller's contract.
+        unsafe { self.0.add(offset) }
+    }
+}
+
 /// `dst [m, n] = (read ? dst : 0) + scale * lhs [m, k] x rhs [k, n]`; `dst` has unit column
 /// stride and row stride `dst_rs`. Without `read` the destination is written, never read.
 ///

@@ -215,12 +215,23 @@ pub(crate) fn build_inputs<'a>(
         });
         (f, pm) = (f1, p1);
     }
-    let chunks: Vec<SceneChunk> = requests
-        .par_iter()
-        .zip(scene_offsets.par_iter())
-        .zip(rows.into_par_iter())
-        .map(|((r, &first), rows)| scene_chunk(cfg, r, point_offsets[first], nmax, &freqs, rows))
-        .collect();
+    let chunk = |((r, &first), rows)| scene_chunk(cfg, r, point_offsets[first], nmax, &freqs, rows);
+    // One scene runs here: a parallel iterator would hand it to a pool worker and wait.
+    let chunks: Vec<SceneChunk> = if b > 1 {
+        requests
+            .par_iter()
+            .zip(scene_offsets.par_iter())
+            .zip(rows.into_par_iter())
+            .map(chunk)
+            .collect()
+    } else {
+        requests
+            .iter()
+            .zip(scene_offsets.iter())
+            .zip(rows)
+            .map(chunk)
+            .collect()
+    };
     let mut inp = BatchInputs {
         b,
         mmax,

@@ -3,11 +3,13 @@
 //! extrapolation, `DynamicsConfig::rigid_extrapolation`), then the Kabsch fit per object (f64).
 
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
-use rayon::prelude::*;
 
 use super::inputs::BatchInputs;
 use crate::api::Pose;
-use crate::{ModelConfig, ModelError};
+use crate::{ModelConfig, ModelError, team};
+
+/// Objects from which the Kabsch fits run over rayon's pool (one is a few microseconds).
+const PARALLEL_OBJECTS: usize = 64;
 
 /// Displacement of free fall over one step of `dt_steps` frames that the Verlet base adds
 /// (`g (k dt_frame)^2`, metres), zero unless `dynamics.gravity_residual`.
@@ -20,33 +22,32 @@ pub(crate) fn free_fall(c: &ModelConfig, dt_steps: u32) -> [f64; 3] {
 }
 
 /// New poses of every object of a pass, `[scenes][objects]`, from accelerations
-/// `acc` (`[O * K * 3]`, metres per step^2), objects in parallel.
+/// `acc` (`[O * K * 3]`, metres per step^2), objects in parallel when there are many.
 pub(crate) fn project_poses(
     c: &ModelConfig,
     inp: &BatchInputs,
     acc: &[f32],
 ) -> Result<Vec<Vec<Pose>>, ModelError> {
     let k = c.anchors;
-    let poses: Result<Vec<Pose>, ModelError> = (0..inp.o)
-        .into_par_iter()
-        .map(|obj| {
-            let fall = free_fall(c, inp.object_dt[obj]);
-            let target: Vec<[f64; 3]> = (0..k)
-                .map(|i| {
-                    let base = inp.anchors_base[obj][i];
-                    let a = &acc[(obj * k + i) * 3..(obj * k + i + 1) * 3];
-                    [0, 1, 2].map(|d| base[d] + fall[d] + a[d] as f64)
-                })
-                .collect();
-            let sol = dynaserve_geometry::kabsch(&inp.anchors_ref[obj], &target, None)
-                .map_err(|e| ModelError::Internal(format!("kabsch failed: {e}")))?;
-            Ok(pose_from(
-                &sol.rotation,
-                &sol.translation,
-                inp.current_rot[obj],
-            ))
-        })
-        .collect();
+    let poses: Result<Vec<Pose>, ModelError> = team::map_indices(inp.o, PARALLEL_OBJECTS, |obj| {
+        let fall = free_fall(c, inp.object_dt[obj]);
+        let target: Vec<[f64; 3]> = (0..k)
+            .map(|i| {
+                let base = inp.anchors_base[obj][i];
+                let a = &acc[(obj * k + i) * 3..(obj * k + i + 1) * 3];
+                [0, 1, 2].map(|d| base[d] + fall[d] + a[d] as f64)
+            })
+            .collect();
+        let sol = dynaserve_geometry::kabsch(&inp.anchors_ref[obj], &target, None)
+            .map_err(|e| ModelError::Internal(format!("kabsch failed: {e}")))?;
+        Ok(pose_from(
+            &sol.rotation,
+            &sol.translation,
+            inp.current_rot[obj],
+        ))
+    })
+    .into_iter()
+    .collect();
     let poses = poses?;
     Ok((0..inp.b)
         .map(|s| poses[inp.scene_offsets[s]..inp.scene_offsets[s + 1]].to_vec())
