@@ -290,8 +290,8 @@ fn attend_row(
 }
 
 /// Multiply-adds (query rows x keys x width) from which one pass's rows are split over the
-/// compute team ([`team`]).
-const TEAM_MIN_MACS: usize = 1 << 16;
+/// compute team ([`team`]): one scene's self-attention (18 x 18 x 128) is just above.
+const TEAM_MIN_MACS: usize = 1 << 14;
 
 /// Query rows per rayon task: enough multiply-adds (about 256 k) to pay for a task.
 fn rows_per_task(tk: usize, d: usize) -> usize {

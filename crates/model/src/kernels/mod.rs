@@ -12,7 +12,7 @@ pub mod kabsch;
 pub mod linear;
 pub mod norm;
 pub mod pool;
-mod product;
+pub(crate) mod product;
 pub mod simd;
 #[cfg(test)]
 mod test_data;

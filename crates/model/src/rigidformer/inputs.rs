@@ -11,8 +11,10 @@ use rayon::prelude::*;
 use super::features::{FeatureFrame, ScenePoints, rotation_translation as rot};
 use crate::api::Pose;
 use crate::kernels::avp::padded_distances;
+use crate::kernels::product::Destination;
 use crate::prepare::PreparedScene;
-use crate::{ModelConfig, ModelError};
+use crate::{ModelConfig, ModelError, team};
+use std::sync::Mutex;
 
 /// One scene's request as the network sees it (poses already validated and normalised).
 pub(crate) struct SceneRequest<'a> {
@@ -217,7 +219,7 @@ pub(crate) fn build_inputs<'a>(
     }
     let chunk = |((r, &first), rows)| scene_chunk(cfg, r, point_offsets[first], nmax, &freqs, rows);
     // One scene runs here: a parallel iterator would hand it to a pool worker and wait.
-    let chunks: Vec<SceneChunk> = if b > 1 {
+    let chunks: Vec<Vec<SceneChunk>> = if b > 1 {
         requests
             .par_iter()
             .zip(scene_offsets.par_iter())
@@ -275,7 +277,7 @@ pub(crate) fn build_inputs<'a>(
             .flat_map(|r| r.current.iter().map(|p| p.rotation))
             .collect(),
     };
-    for c in chunks {
+    for c in chunks.into_iter().flatten() {
         inp.group_idx.extend(c.group_idx);
         inp.group_rel.extend(c.group_rel);
         inp.centre_rel.extend(c.centre_rel);
@@ -292,6 +294,12 @@ pub(crate) fn build_inputs<'a>(
     Ok(inp)
 }
 
+/// Objects of a scene from which its feature rows are split over the compute team ([`team`];
+/// a one-scene step): points in total.
+const TEAM_MIN_POINTS: usize = 1024;
+
+/// One scene's inputs: world points and contacts, then every object's rows, objects split over
+/// the compute team for a large scene outside a scene group. Chunks in object order.
 fn scene_chunk(
     cfg: &ModelConfig,
     r: &SceneRequest<'_>,
@@ -299,16 +307,9 @@ fn scene_chunk(
     nmax: usize,
     freqs: &[f32],
     rows: SceneRows<'_>,
-) -> SceneChunk {
+) -> Vec<SceneChunk> {
     let scene = r.scene;
     let m = scene.len();
-    let (k, s, g) = (cfg.anchors, cfg.sa_centres, cfg.sa_neighbours);
-    let p = cfg.rope_dim / 2;
-    let inv_scale = 1.0 / cfg.position_scale;
-    let norm = &cfg.normalization;
-    let nf = cfg.point_features();
-    let with_cv = cfg.dynamics.contact_velocity;
-    let rigid = cfg.dynamics.rigid_extrapolation;
     // World points at t and t-1 and their contacts.
     let points = ScenePoints::new(
         cfg,
@@ -316,102 +317,180 @@ fn scene_chunk(
         &r.current,
         &r.previous,
     );
-    let (world, offsets) = (&points.world, &points.offsets);
-    let poses: Vec<_> = r.current.iter().map(rot).collect();
-    let poses_prev: Vec<_> = r.previous.iter().map(rot).collect();
-    let mut c = SceneChunk {
-        group_idx: Vec::with_capacity(m * s * g),
-        group_rel: Vec::with_capacity(m * s * g * 3),
-        centre_rel: Vec::with_capacity(m * s * 3),
-        anchor_idx: Vec::with_capacity(m * k),
-        anchor_rel: Vec::with_capacity(m * k * 3),
-        anchor_rope: Vec::with_capacity(m * k * 2 * p),
-        anchor_cos: Vec::with_capacity(m * k * p),
-        anchor_sin: Vec::with_capacity(m * k * p),
-        object_cos: Vec::with_capacity(m * p),
-        object_sin: Vec::with_capacity(m * p),
-        anchors_base: Vec::with_capacity(m),
-        anchors_ref: Vec::with_capacity(m),
+    let ctx = ObjectContext {
+        cfg,
+        r,
+        points: &points,
+        poses: r.current.iter().map(rot).collect(),
+        poses_prev: r.previous.iter().map(rot).collect(),
+        first_point,
+        nmax,
+        freqs,
     };
-    let mut ang = Vec::with_capacity(3 * freqs.len());
-    for (j, obj) in scene.objects.iter().enumerate() {
-        let n = obj.reference.len();
-        let base = offsets[j];
-        let (rc, pc) = poses[j];
-        let wc = rc * Vector3::from(obj.centroid) + pc;
-        let frame = FeatureFrame::new(&cfg.dynamics, r.dt_steps, r.current[j].translation);
-        // Per-point features.
-        for i in 0..n {
-            let dst = &mut rows.feats[(base + i) * nf..(base + i + 1) * nf];
-            points.raw_features(base + i, obj.reference[i], obj.params, &frame, with_cv, dst);
-            for (f, v) in dst.iter_mut().enumerate() {
-                *v = (*v - norm.mean[f]) / norm.std[f];
-            }
-            rows.point_mask[j * nmax + i] = 1.0;
+    let nf = cfg.point_features();
+    let offsets = &points.offsets;
+    if m < 2 || scene.total_points() < TEAM_MIN_POINTS || team::parts() < 2 {
+        return vec![ctx.objects(0..m, rows.feats, rows.point_mask)];
+    }
+    let slots: Vec<Mutex<Option<SceneChunk>>> =
+        (0..team::parts()).map(|_| Mutex::new(None)).collect();
+    let feats = Destination(rows.feats.as_mut_ptr());
+    let mask = Destination(rows.point_mask.as_mut_ptr());
+    team::run(|part, parts| {
+        let objs = team::part_range(m, part, parts, 1);
+        let (p0, p1) = (offsets[objs.start], offsets[objs.end]);
+        // SAFETY: objects `objs` own feature rows p0..p1 (`rows.feats` holds the scene's
+        // points x nf values) and mask rows objs (m x nmax values); parts take disjoint
+        // object ranges, and `team::run` returns only after every part finished.
+        let (f, pm) = unsafe {
+            (
+                std::slice::from_raw_parts_mut(feats.at(p0 * nf), (p1 - p0) * nf),
+                std::slice::from_raw_parts_mut(mask.at(objs.start * nmax), objs.len() * nmax),
+            )
+        };
+        let chunk = ctx.objects(objs, f, pm);
+        if let Some(mut slot) = slots.get(part).and_then(|s| s.lock().ok()) {
+            *slot = Some(chunk);
         }
-        // Encoder grouping.
-        for (ci, &centre) in obj.centres.iter().enumerate() {
-            let cw = world[base + centre];
-            for d in 0..3 {
-                c.centre_rel.push((cw[d] - wc[d]) * inv_scale);
+    });
+    slots
+        .into_iter()
+        .filter_map(|s| s.into_inner().ok().flatten())
+        .collect()
+}
+
+/// What every object's rows of one scene read.
+struct ObjectContext<'a> {
+    cfg: &'a ModelConfig,
+    r: &'a SceneRequest<'a>,
+    points: &'a ScenePoints,
+    poses: Vec<(Matrix3<f32>, Vector3<f32>)>,
+    poses_prev: Vec<(Matrix3<f32>, Vector3<f32>)>,
+    first_point: usize,
+    nmax: usize,
+    freqs: &'a [f32],
+}
+
+impl ObjectContext<'_> {
+    /// Rows of objects `objs`: their features (`feats`, from the first object's first point)
+    /// and point mask (`point_mask`, from the first object's row) written in place, the rest
+    /// returned.
+    fn objects(
+        &self,
+        objs: std::ops::Range<usize>,
+        feats: &mut [f32],
+        point_mask: &mut [f32],
+    ) -> SceneChunk {
+        let (cfg, r, freqs) = (self.cfg, self.r, self.freqs);
+        let (first_point, nmax) = (self.first_point, self.nmax);
+        let scene = r.scene;
+        let m = objs.len();
+        let (k, s, g) = (cfg.anchors, cfg.sa_centres, cfg.sa_neighbours);
+        let p = cfg.rope_dim / 2;
+        let inv_scale = 1.0 / cfg.position_scale;
+        let norm = &cfg.normalization;
+        let nf = cfg.point_features();
+        let with_cv = cfg.dynamics.contact_velocity;
+        let rigid = cfg.dynamics.rigid_extrapolation;
+        let points = self.points;
+        let (world, offsets) = (&points.world, &points.offsets);
+        let (row0, mask0) = (offsets[objs.start], objs.start);
+        let mut c = SceneChunk {
+            group_idx: Vec::with_capacity(m * s * g),
+            group_rel: Vec::with_capacity(m * s * g * 3),
+            centre_rel: Vec::with_capacity(m * s * 3),
+            anchor_idx: Vec::with_capacity(m * k),
+            anchor_rel: Vec::with_capacity(m * k * 3),
+            anchor_rope: Vec::with_capacity(m * k * 2 * p),
+            anchor_cos: Vec::with_capacity(m * k * p),
+            anchor_sin: Vec::with_capacity(m * k * p),
+            object_cos: Vec::with_capacity(m * p),
+            object_sin: Vec::with_capacity(m * p),
+            anchors_base: Vec::with_capacity(m),
+            anchors_ref: Vec::with_capacity(m),
+        };
+        let mut ang = Vec::with_capacity(3 * freqs.len());
+        for j in objs {
+            let obj = &scene.objects[j];
+            let n = obj.reference.len();
+            let base = offsets[j];
+            let (rc, pc) = self.poses[j];
+            let wc = rc * Vector3::from(obj.centroid) + pc;
+            let frame = FeatureFrame::new(&cfg.dynamics, r.dt_steps, r.current[j].translation);
+            // Per-point features.
+            for i in 0..n {
+                let row = base + i - row0;
+                let dst = &mut feats[row * nf..(row + 1) * nf];
+                points.raw_features(base + i, obj.reference[i], obj.params, &frame, with_cv, dst);
+                for (f, v) in dst.iter_mut().enumerate() {
+                    *v = (*v - norm.mean[f]) / norm.std[f];
+                }
+                point_mask[(j - mask0) * nmax + i] = 1.0;
             }
-            for &nb in &obj.neighbours[ci * g..(ci + 1) * g] {
-                c.group_idx.push((first_point + base + nb) as u32);
-                let nw = world[base + nb];
+            // Encoder grouping.
+            for (ci, &centre) in obj.centres.iter().enumerate() {
+                let cw = world[base + centre];
                 for d in 0..3 {
-                    c.group_rel.push((nw[d] - cw[d]) * inv_scale);
+                    c.centre_rel.push((cw[d] - wc[d]) * inv_scale);
+                }
+                for &nb in &obj.neighbours[ci * g..(ci + 1) * g] {
+                    c.group_idx.push((first_point + base + nb) as u32);
+                    let nw = world[base + nb];
+                    for d in 0..3 {
+                        c.group_rel.push((nw[d] - cw[d]) * inv_scale);
+                    }
                 }
             }
+            // Anchors.
+            let (rp, pp) = self.poses_prev[j];
+            let now64 = (rc.cast::<f64>(), pc.cast::<f64>());
+            let before64 = (rp.cast::<f64>(), pp.cast::<f64>());
+            let mut ab = Vec::with_capacity(k);
+            let mut ar = Vec::with_capacity(k);
+            let mut mean_cos = vec![0f32; p];
+            let mut mean_sin = vec![0f32; p];
+            for &a in &obj.anchors {
+                c.anchor_idx.push((first_point + base + a) as u32);
+                let w = world[base + a];
+                for d in 0..3 {
+                    c.anchor_rel.push((w[d] - wc[d]) * inv_scale);
+                }
+                angles(&w, freqs, &mut ang);
+                let cos: Vec<f32> = ang.iter().map(|t| t.cos()).collect();
+                let sin: Vec<f32> = ang.iter().map(|t| t.sin()).collect();
+                for i in 0..p {
+                    mean_cos[i] += cos[i] / k as f32;
+                    mean_sin[i] += sin[i] / k as f32;
+                }
+                if cfg.dynamics.translation_invariant {
+                    // The query's own positional features: relative to the object's centroid.
+                    let rel = [w[0] - wc[0], w[1] - wc[1], w[2] - wc[2]];
+                    angles(&rel, freqs, &mut ang);
+                    c.anchor_rope.extend(ang.iter().map(|t| t.cos()));
+                    c.anchor_rope.extend(ang.iter().map(|t| t.sin()));
+                } else {
+                    c.anchor_rope.extend_from_slice(&cos);
+                    c.anchor_rope.extend_from_slice(&sin);
+                }
+                c.anchor_cos.extend_from_slice(&cos);
+                c.anchor_sin.extend_from_slice(&sin);
+                // Anchor kinematics in f64 for Verlet and Kabsch.
+                let x = Vector3::from(obj.reference[a]).cast::<f64>();
+                ab.push(verlet_base(
+                    rigid,
+                    &x,
+                    (&now64.0, &now64.1),
+                    (&before64.0, &before64.1),
+                ));
+                ar.push([x.x, x.y, x.z]);
+            }
+            c.object_cos.extend(mean_cos);
+            c.object_sin.extend(mean_sin);
+            c.anchors_base.push(ab);
+            c.anchors_ref.push(ar);
         }
-        // Anchors.
-        let (rp, pp) = poses_prev[j];
-        let now64 = (rc.cast::<f64>(), pc.cast::<f64>());
-        let before64 = (rp.cast::<f64>(), pp.cast::<f64>());
-        let mut ab = Vec::with_capacity(k);
-        let mut ar = Vec::with_capacity(k);
-        let mut mean_cos = vec![0f32; p];
-        let mut mean_sin = vec![0f32; p];
-        for &a in &obj.anchors {
-            c.anchor_idx.push((first_point + base + a) as u32);
-            let w = world[base + a];
-            for d in 0..3 {
-                c.anchor_rel.push((w[d] - wc[d]) * inv_scale);
-            }
-            angles(&w, freqs, &mut ang);
-            let cos: Vec<f32> = ang.iter().map(|t| t.cos()).collect();
-            let sin: Vec<f32> = ang.iter().map(|t| t.sin()).collect();
-            for i in 0..p {
-                mean_cos[i] += cos[i] / k as f32;
-                mean_sin[i] += sin[i] / k as f32;
-            }
-            if cfg.dynamics.translation_invariant {
-                // The query's own positional features: relative to the object's centroid.
-                let rel = [w[0] - wc[0], w[1] - wc[1], w[2] - wc[2]];
-                angles(&rel, freqs, &mut ang);
-                c.anchor_rope.extend(ang.iter().map(|t| t.cos()));
-                c.anchor_rope.extend(ang.iter().map(|t| t.sin()));
-            } else {
-                c.anchor_rope.extend_from_slice(&cos);
-                c.anchor_rope.extend_from_slice(&sin);
-            }
-            c.anchor_cos.extend_from_slice(&cos);
-            c.anchor_sin.extend_from_slice(&sin);
-            // Anchor kinematics in f64 for Verlet and Kabsch.
-            let x = Vector3::from(obj.reference[a]).cast::<f64>();
-            ab.push(verlet_base(
-                rigid,
-                &x,
-                (&now64.0, &now64.1),
-                (&before64.0, &before64.1),
-            ));
-            ar.push([x.x, x.y, x.z]);
-        }
-        c.object_cos.extend(mean_cos);
-        c.object_sin.extend(mean_sin);
-        c.anchors_base.push(ab);
-        c.anchors_ref.push(ar);
+        c
     }
-    c
 }
 
 #[cfg(test)]
