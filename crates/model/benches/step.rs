@@ -1,7 +1,8 @@
 //! One model step for batches of MOVi-like scenes (10 objects x 512 points) split into phases,
 //! one step of a 216-cube wrecking-ball scene (both for the `small` and `paper` configs), padded
 //! vs block-diagonal decoder batching, the fused CPU kernels against the plain composition
-//! (`fused_ab`, interleaved in one process), the anchor-pooling kernel alone (`avp_ab`), 256
+//! (`fused_ab`, interleaved in one process), one scene split over the compute team against
+//! none (`team_ab`), the anchor-pooling kernel alone (`avp_ab`), 256
 //! against 512 points per object (`points_ab`), the machine's matmul peak (`matmul_peak`), a
 //! training iteration (forward + backward + AdamW) for the `small` and `paper` configs, and
 //! training iterations with and without the fused kernels interleaved (`train_ab`).
@@ -272,11 +273,14 @@ fn bench_steps_for(c: &mut Criterion, name: &str, config: ModelConfig) {
 /// Two models on the same scenes, interleaved in one process (A B A B ..., 15 steps each):
 /// prints both medians and the ratio `b / a` per case, then lets criterion time `a`. Cases
 /// are `batch_N` (N 10-object x 512-point scenes) and `wrecking_ball`.
+/// One side of an A/B: its label, its model, and a setting applied before each of its steps.
+type Side<'a> = (&'a str, &'a RigidFormer, fn());
+
 fn bench_model_ab(
     c: &mut Criterion,
     name: &str,
-    (la, a): (&str, &RigidFormer),
-    (lb, b): (&str, &RigidFormer),
+    (la, a, sa): Side,
+    (lb, b, sb): Side,
     cases: &[&str],
 ) {
     let mut group = c.benchmark_group(name);
@@ -301,8 +305,14 @@ fn bench_model_ab(
                 let batch = items(&scenes);
                 let (ta, tb) = interleaved(
                     15,
-                    || drop(black_box(a.step(&batch).expect("step"))),
-                    || drop(black_box(b.step(&batch).expect("step"))),
+                    || {
+                        sa();
+                        drop(black_box(a.step(&batch).expect("step")))
+                    },
+                    || {
+                        sb();
+                        drop(black_box(b.step(&batch).expect("step")))
+                    },
                 );
                 println!(
                     "{name} {case}: {la} {ta:.2} ms | {lb} {tb:.2} ms | {lb} / {la} {:.2}x",
@@ -311,6 +321,7 @@ fn bench_model_ab(
                 scenes
             });
             let batch = items(scenes);
+            sa();
             bench.iter(|| black_box(a.step(&batch).expect("step")))
         });
     }
@@ -327,8 +338,8 @@ fn bench_fused_ab(c: &mut Criterion) {
     bench_model_ab(
         c,
         "fused_ab",
-        ("fused", &fused),
-        ("composition", &plain),
+        ("fused", &fused, || {}),
+        ("composition", &plain, || {}),
         &cases,
     );
 }
@@ -340,8 +351,27 @@ fn bench_scene_threads_ab(c: &mut Criterion) {
         .expect("model")
         .with_scene_threads(false);
     let cases = ["batch_2", "batch_8", "batch_32"];
-    let (a, b) = (("scene groups", &grouped), ("split operations", &split));
+    let (a, b): (Side, Side) = (
+        ("scene groups", &grouped, || {}),
+        ("split operations", &split, || {}),
+    );
     bench_model_ab(c, "scene_threads_ab", a, b, &cases);
+}
+
+/// One scene's operations split over the compute team against the same step without it
+/// (`dynaserve_model::team::set_enabled(false)`: small operations on the calling thread, large
+/// ones still over rayon's pool).
+fn bench_team_ab(c: &mut Criterion) {
+    let model = RigidFormer::new_frozen(ModelConfig::small(), 1, &Device::Cpu).expect("model");
+    let cases = ["batch_1", "wrecking_ball"];
+    let (a, b): (Side, Side) = (
+        ("team", &model, || dynaserve_model::team::set_enabled(true)),
+        ("one thread", &model, || {
+            dynaserve_model::team::set_enabled(false)
+        }),
+    );
+    bench_model_ab(c, "team_ab", a, b, &cases);
+    dynaserve_model::team::set_enabled(true);
 }
 
 /// The fused anchor-vertex pooling kernel against the candle composition it replaces, on the
@@ -792,6 +822,7 @@ criterion_group!(
     benches,
     bench_packing,
     bench_steps,
+    bench_team_ab,
     bench_wrecking_ball,
     bench_fused_ab,
     bench_avp_ab,
