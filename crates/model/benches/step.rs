@@ -366,7 +366,7 @@ fn bench_team_ab(c: &mut Criterion) {
     let cases = ["batch_1", "wrecking_ball"];
     let (a, b): (Side, Side) = (
         ("team", &model, || dynaserve_model::team::set_enabled(true)),
-        ("one thread", &model, || {
+        ("no team", &model, || {
             dynaserve_model::team::set_enabled(false)
         }),
     );
