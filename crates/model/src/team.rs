@@ -15,7 +15,7 @@
 
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::OnceLock;
-use std::sync::atomic::{AtomicBool, AtomicPtr, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicPtr, AtomicU64, AtomicUsize, Ordering};
 use std::thread::Thread;
 use std::time::{Duration, Instant};
 
@@ -23,7 +23,7 @@ use std::time::{Duration, Instant};
 /// each other within microseconds; steps of a stream are further apart).
 pub const SPIN: Duration = Duration::from_micros(200);
 
-/// A job: called with the part index (helpers run parts 1..).
+/// A job: called with the part index.
 type JobFn<'a> = &'a (dyn Fn(usize) + Sync);
 
 struct Helper {
@@ -31,17 +31,37 @@ struct Helper {
     sleeping: AtomicBool,
 }
 
+/// The claim word: job number (bits 32..64), its part count (16..32) and the next unclaimed
+/// part (0..16), changed together so that a part is only ever claimed for the job it belongs to.
+#[derive(Clone, Copy)]
+struct Claim(u64);
+
+impl Claim {
+    fn new(job: u32, parts: usize) -> Claim {
+        Claim(((job as u64) << 32) | ((parts as u64) << 16))
+    }
+    fn job(self) -> u32 {
+        (self.0 >> 32) as u32
+    }
+    fn parts(self) -> usize {
+        ((self.0 >> 16) & 0xffff) as usize
+    }
+    fn next(self) -> usize {
+        (self.0 & 0xffff) as usize
+    }
+}
+
 struct Team {
     helpers: Vec<Helper>,
     /// Held by the one caller using the team.
     busy: AtomicBool,
-    /// Incremented once per job; a helper runs a job when it sees a new value.
-    epoch: AtomicUsize,
+    /// The current job's [`Claim`] word.
+    claim: AtomicU64,
     /// The current job: a pointer to a [`JobFn`] on the caller's stack.
     job: AtomicPtr<()>,
-    /// Helpers that have not finished the current job.
-    pending: AtomicUsize,
-    /// Set when a helper's part panicked (the caller then panics too).
+    /// Parts of the current job finished.
+    done: AtomicUsize,
+    /// Set when a part panicked (the caller then panics too).
     panicked: AtomicBool,
 }
 
@@ -83,9 +103,9 @@ fn team() -> &'static Team {
                 })
                 .collect(),
             busy: AtomicBool::new(false),
-            epoch: AtomicUsize::new(0),
+            claim: AtomicU64::new(0),
             job: AtomicPtr::new(std::ptr::null_mut()),
-            pending: AtomicUsize::new(0),
+            done: AtomicUsize::new(0),
             panicked: AtomicBool::new(false),
         }));
         for (_, send) in started {
@@ -95,21 +115,19 @@ fn team() -> &'static Team {
     })
 }
 
-/// A helper: wait for a new epoch (spinning, then parked), run its part, report, repeat.
-fn helper_loop(team: &'static Team, part: usize) {
-    let me = &team.helpers[part - 1];
-    let mut seen = 0usize;
+/// A helper: wait for a new job (spinning, then parked), claim and run its parts while any are
+/// left, repeat.
+fn helper_loop(team: &'static Team, index: usize) {
+    let me = &team.helpers[index - 1];
+    let mut seen = 0u32;
     loop {
         let mut since = Instant::now();
         let mut spins = 0u32;
-        loop {
-            if team.epoch.load(Ordering::Acquire) != seen {
-                break;
-            }
+        while Claim(team.claim.load(Ordering::Acquire)).job() == seen {
             spins = spins.wrapping_add(1);
             if spins.is_multiple_of(256) && since.elapsed() > SPIN {
                 me.sleeping.store(true, Ordering::SeqCst);
-                if team.epoch.load(Ordering::SeqCst) == seen {
+                if Claim(team.claim.load(Ordering::SeqCst)).job() == seen {
                     std::thread::park();
                 }
                 me.sleeping.store(false, Ordering::SeqCst);
@@ -118,16 +136,35 @@ fn helper_loop(team: &'static Team, part: usize) {
                 std::hint::spin_loop();
             }
         }
-        seen = team.epoch.load(Ordering::Acquire);
-        let job = team.job.load(Ordering::Acquire) as *const JobFn<'static>;
-        // SAFETY: the caller published a pointer to a live `JobFn` before the epoch changed
-        // and keeps it alive until `pending` reaches zero, which this helper's decrement below
-        // is part of.
-        let ran = catch_unwind(AssertUnwindSafe(|| unsafe { (*job)(part) }));
+        seen = Claim(team.claim.load(Ordering::Acquire)).job();
+        run_parts(team, seen);
+    }
+}
+
+/// Claims and runs parts of job `job` until none is left (or another job replaced it).
+fn run_parts(team: &Team, job: u32) {
+    loop {
+        let c = Claim(team.claim.load(Ordering::Acquire));
+        if c.job() != job || c.next() >= c.parts() {
+            return;
+        }
+        let f = team.job.load(Ordering::Acquire) as *const JobFn<'static>;
+        if team
+            .claim
+            .compare_exchange(c.0, c.0 + 1, Ordering::AcqRel, Ordering::Acquire)
+            .is_err()
+        {
+            continue;
+        }
+        // SAFETY: the claim succeeded with part `c.next()` of `job` unclaimed until now, so
+        // `job` could not have finished (its caller waits for every part) and no later job can
+        // have replaced the pointer, which the caller published before the claim word; the
+        // pointee lives until the caller has seen this part done.
+        let ran = catch_unwind(AssertUnwindSafe(|| unsafe { (*f)(c.next()) }));
         if ran.is_err() {
             team.panicked.store(true, Ordering::SeqCst);
         }
-        team.pending.fetch_sub(1, Ordering::AcqRel);
+        team.done.fetch_add(1, Ordering::AcqRel);
     }
 }
 
@@ -140,26 +177,15 @@ pub fn parts() -> usize {
     1 + team().helpers.len()
 }
 
-/// Releases the team (after the helpers finished) even if the caller's part panics.
-struct Finish<'a>(&'a Team);
-
-impl Drop for Finish<'_> {
-    fn drop(&mut self) {
-        while self.0.pending.load(Ordering::Acquire) != 0 {
-            std::hint::spin_loop();
-        }
-        self.0.busy.store(false, Ordering::Release);
-    }
-}
-
-/// Calls `f(part, parts)` for every `part` in `0..parts`, part 0 on the calling thread and the
-/// others on the team's helpers at the same time, and returns when all are done. `parts` is
-/// [`parts`] when the team is free, else 1 (then `f(0, 1)` runs alone). `f` must split its
-/// work by `(part, parts)` so that parts never write the same memory.
+/// Calls `f(part, parts)` for every `part` in `0..parts` and returns when all are done. The
+/// calling thread and the team's helpers claim parts one at a time, so a helper that is slow
+/// to start (descheduled on a busy machine) leaves its part to the caller instead of stalling
+/// it. `parts` is [`parts`] when the team is free, else 1 (then `f(0, 1)` runs alone). `f`
+/// must split its work by `(part, parts)` so that parts never write the same memory.
 ///
 /// # Panics
 ///
-/// If a part panics (a helper's panic is reported here, after every part finished).
+/// If a part panics (reported here, after every part finished).
 pub fn run(f: impl Fn(usize, usize) + Sync) {
     let parts = parts();
     if parts < 2 {
@@ -176,23 +202,28 @@ pub fn run(f: impl Fn(usize, usize) + Sync) {
     let job = |part: usize| f(part, parts);
     let job_ref: JobFn<'_> = &job;
     team.panicked.store(false, Ordering::Relaxed);
-    team.pending.store(parts - 1, Ordering::Release);
+    team.done.store(0, Ordering::Relaxed);
     team.job
         .store(&job_ref as *const JobFn<'_> as *mut (), Ordering::Release);
-    team.epoch.fetch_add(1, Ordering::SeqCst);
+    let number = Claim(team.claim.load(Ordering::Relaxed))
+        .job()
+        .wrapping_add(1);
+    team.claim
+        .store(Claim::new(number, parts).0, Ordering::SeqCst);
     for h in &team.helpers {
         if h.sleeping.load(Ordering::SeqCst) {
             h.thread.unpark();
         }
     }
-    {
-        // Waits for the helpers (and frees the team) on return or unwind, before `job` and
-        // `job_ref` go out of scope.
-        let _finish = Finish(team);
-        f(0, parts);
+    run_parts(team, number);
+    // Parts run under `catch_unwind`, so this wait is reached before `job` goes out of scope.
+    while team.done.load(Ordering::Acquire) != parts {
+        std::hint::spin_loop();
     }
-    if team.panicked.load(Ordering::SeqCst) {
-        panic!("a compute team helper panicked");
+    let panicked = team.panicked.load(Ordering::SeqCst);
+    team.busy.store(false, Ordering::Release);
+    if panicked {
+        panic!("a part of a compute team job panicked");
     }
 }
 
