@@ -514,7 +514,9 @@ impl CustomOp2 for CrossAttention {
 /// Key count from which [`CrossAttention`] and [`SelfAttention`] run as blocked products
 /// (`gemm`) instead of one query row at a time: the row kernel re-reads its scores for every
 /// channel, which costs more than packing once the key list is long (the wrecking ball's
-/// anchor queries see 675 keys, its decoder tokens 225).
+/// anchor queries see 675 keys, its decoder tokens 225). Lowered to 48 (so that a MOVi-sized
+/// scene's 54 anchor keys take the blocked path) a batch-8 step measured 1.02-1.07x in one
+/// window and 0.99-1.14x in a noisier one: not clearly better, so kept.
 pub const LONG_KEYS: usize = 128;
 
 /// Query rows per block of the blocked path: the block's scores (`rows x Tk`) stay in L2.
@@ -655,7 +657,13 @@ fn attend_long(
             }
         };
     };
-    if tasks.len() > 1 && rayon::current_num_threads() > 1 {
+    if tasks.len() > 1 && team::parts() > 1 {
+        team::run(|part, parts| {
+            tasks[team::part_range(tasks.len(), part, parts, 1)]
+                .iter()
+                .for_each(task)
+        });
+    } else if tasks.len() > 1 && rayon::current_num_threads() > 1 {
         tasks.par_iter().for_each(task);
     } else {
         tasks.iter().for_each(task);
