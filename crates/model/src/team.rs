@@ -9,9 +9,15 @@
 //!
 //! The team's helpers instead keep spinning for [`SPIN`] after each job, so the dozens of
 //! operations of one step reach them within a fraction of a microsecond; after that they park
-//! and cost nothing. One caller uses the team at a time: a second concurrent caller, a call
-//! from inside a job, or a call from a rayon worker (a scene group, or a pool that is already
+//! and cost nothing. The caller and the helpers claim a job's parts from one atomic word, so a
+//! helper that another process keeps off its core leaves its part to the caller rather than
+//! stalling it. One caller uses the team at a time: a second concurrent caller, a call from
+//! inside a job, or a call from a rayon worker (a scene group, or a pool that is already
 //! parallel) runs its work alone on its own thread, so nothing nests or waits on the team.
+//!
+//! rayon (which the rest of the crate uses) has no setting to keep its workers spinning; the
+//! fork-join pools that do (OpenMP-style) would be a second pool library for these few
+//! splits.
 
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::OnceLock;
