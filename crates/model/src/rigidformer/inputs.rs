@@ -294,8 +294,8 @@ pub(crate) fn build_inputs<'a>(
     Ok(inp)
 }
 
-/// Objects of a scene from which its feature rows are split over the compute team ([`team`];
-/// a one-scene step): points in total.
+/// Points of a scene from which its objects' rows are built in parts over the compute team
+/// ([`team`]; a one-scene step).
 const TEAM_MIN_POINTS: usize = 1024;
 
 /// One scene's inputs: world points and contacts, then every object's rows, objects split over
