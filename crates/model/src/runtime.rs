@@ -1,4 +1,5 @@
-//! Process-wide compute settings for CPU inference and training: candle's thread counts.
+//! Process-wide compute settings for CPU inference and training: candle's thread counts and
+//! the compute team's switch.
 //!
 //! candle sizes its CPU kernels from two environment variables: `RAYON_NUM_THREADS` (the
 //! parallelism it hands to every matrix multiplication) and `CANDLE_NUM_THREADS` (its pool for
@@ -20,6 +21,12 @@ pub const RAYON_THREADS_VAR: &str = "RAYON_NUM_THREADS";
 /// Environment variable candle reads for its element-wise kernel pool.
 pub const CANDLE_THREADS_VAR: &str = "CANDLE_NUM_THREADS";
 
+/// Environment variable that switches the compute team ([`crate::team`]) off when set to `0`,
+/// `off` or `false`: a one-scene step then keeps its small operations on the calling thread
+/// and no helper spins between them (for machines shared with other work, or where CPU
+/// utilisation should track the work done).
+pub const TEAM_VAR: &str = "DYNASERVE_COMPUTE_TEAM";
+
 /// Number of threads the process would use by default: the available parallelism (cores
 /// allowed by the CPU affinity mask and cgroup quota), at least 1.
 pub fn default_compute_threads() -> usize {
@@ -29,8 +36,9 @@ pub fn default_compute_threads() -> usize {
 }
 
 /// Sets `RAYON_NUM_THREADS` and `CANDLE_NUM_THREADS` to `threads` (or, when `None`, to
-/// [`default_compute_threads`]) unless the variable is already set to a positive integer, and
-/// returns the matmul parallelism in effect. Explicit environment settings always win, so
+/// [`default_compute_threads`]) unless the variable is already set to a positive integer,
+/// switches the compute team off when [`TEAM_VAR`] says so, and returns the matmul
+/// parallelism in effect. Explicit environment settings always win, so
 /// operators can still tune the two pools separately.
 ///
 /// # Safety
@@ -48,7 +56,20 @@ pub unsafe fn configure_compute(threads: Option<usize>) -> usize {
             unsafe { std::env::set_var(var, wanted.to_string()) };
         }
     }
+    if team_switched_off(std::env::var(TEAM_VAR).ok().as_deref()) {
+        crate::team::set_enabled(false);
+    }
     parse_positive(std::env::var(RAYON_THREADS_VAR).ok().as_deref()).unwrap_or(wanted)
+}
+
+/// Whether a [`TEAM_VAR`] value switches the team off (`0`, `off`, `false`, any case).
+fn team_switched_off(value: Option<&str>) -> bool {
+    value.is_some_and(|v| {
+        matches!(
+            v.trim().to_ascii_lowercase().as_str(),
+            "0" | "off" | "false"
+        )
+    })
 }
 
 /// mimalloc's option number for the purge delay (`mi_option_purge_delay` in `mimalloc.h`; the
@@ -91,6 +112,17 @@ mod tests {
         assert_eq!(parse_positive(Some("many")), None);
         assert_eq!(parse_positive(None), None);
         assert!(default_compute_threads() >= 1);
+    }
+
+    #[test]
+    fn team_switch_reads_off_values_only() {
+        for off in ["0", "off", "OFF", " false "] {
+            assert!(team_switched_off(Some(off)), "{off}");
+        }
+        for on in ["1", "on", "", "yes"] {
+            assert!(!team_switched_off(Some(on)), "{on}");
+        }
+        assert!(!team_switched_off(None));
     }
 
     #[test]
