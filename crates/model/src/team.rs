@@ -240,21 +240,87 @@ pub fn run(f: impl Fn(usize, usize) + Sync) {
     }
 }
 
-/// `(0..n).map(f).collect()`, over rayon's pool when there are at least `parallel_from`
-/// items and the pool has two threads or more, else on the calling thread in order. (A
-/// parallel iterator called from outside the pool hands even a single item to a pool worker
-/// and waits for it: a wake-up and a sleep per call, tens of microseconds.)
+/// Multiply-adds from which a kernel splits one operation over the team (about a microsecond
+/// of work: less is not worth a synchronisation).
+pub const SPLIT_MIN_MACS: usize = 1 << 16;
+
+/// `items.into_iter().map(f).collect()`, over rayon's pool when there are at least
+/// `parallel_from` items and the pool has two threads or more, else on the calling thread in
+/// order. (A parallel iterator called from outside the pool hands even a single item to a pool
+/// worker and waits for it: a wake-up and a sleep per call, tens of microseconds.)
+pub fn map_pooled<T: Send, U: Send>(
+    items: Vec<T>,
+    parallel_from: usize,
+    f: impl Fn(T) -> U + Sync + Send,
+) -> Vec<U> {
+    use rayon::prelude::*;
+    if items.len() < parallel_from.max(2) || rayon::current_num_threads() < 2 {
+        items.into_iter().map(f).collect()
+    } else {
+        items.into_par_iter().map(f).collect()
+    }
+}
+
+/// [`map_pooled`] over the indices `0..n`.
 pub fn map_indices<T: Send>(
     n: usize,
     parallel_from: usize,
     f: impl Fn(usize) -> T + Sync + Send,
 ) -> Vec<T> {
-    use rayon::prelude::*;
-    if n < parallel_from.max(2) || rayon::current_num_threads() < 2 {
-        (0..n).map(f).collect()
-    } else {
-        (0..n).into_par_iter().map(f).collect()
+    map_pooled((0..n).collect(), parallel_from, f)
+}
+
+/// `items.into_iter().map(f).collect()` with the items shared out over the team, contiguous
+/// runs of them per part (all on this thread when the team is busy or off); results in item
+/// order. Items may own disjoint `&mut` pieces of one buffer, which is how the kernels split
+/// their outputs without raw pointers.
+pub fn map_items<T: Send, U: Send>(items: Vec<T>, f: impl Fn(T) -> U + Sync) -> Vec<U> {
+    use std::sync::Mutex;
+    let n = items.len();
+    let items: Vec<Mutex<Option<T>>> = items.into_iter().map(|t| Mutex::new(Some(t))).collect();
+    let out: Vec<Mutex<Option<U>>> = (0..n).map(|_| Mutex::new(None)).collect();
+    run(|part, parts| {
+        for i in part_range(n, part, parts, 1) {
+            // Each index belongs to exactly one part: the locks never wait.
+            let item = items[i].lock().ok().and_then(|mut t| t.take());
+            if let Some(item) = item {
+                let y = f(item);
+                if let Ok(mut slot) = out[i].lock() {
+                    *slot = Some(y);
+                }
+            }
+        }
+    });
+    out.into_iter()
+        .map(|slot| {
+            slot.into_inner()
+                .ok()
+                .flatten()
+                .expect("every item was mapped by exactly one part")
+        })
+        .collect()
+}
+
+/// Calls `f(first_unit, piece)` on consecutive pieces of `out`, one per part of the team, each
+/// a run of whole `unit`-value units (the last unit may be shorter) starting at unit
+/// `first_unit`; the whole of `out` in one call when the team is busy or off.
+pub fn split_mut<T: Send>(out: &mut [T], unit: usize, f: impl Fn(usize, &mut [T]) + Sync) {
+    if out.is_empty() {
+        return;
     }
+    let unit = unit.max(1);
+    let units = out.len().div_ceil(unit);
+    let parts = parts().min(units).max(1);
+    let mut pieces = Vec::with_capacity(parts);
+    let mut rest = out;
+    for part in 0..parts {
+        let r = part_range(units, part, parts, 1);
+        let len = (r.len() * unit).min(rest.len());
+        let (piece, tail) = rest.split_at_mut(len);
+        pieces.push((r.start, piece));
+        rest = tail;
+    }
+    map_items(pieces, |(first, piece)| f(first, piece));
 }
 
 /// The `part`-th of `parts` contiguous ranges covering `0..len`, each (but the last) a
@@ -290,6 +356,25 @@ mod tests {
             assert!(r[..parts - 1].iter().all(|x| x.len() % align == 0));
         }
         assert_eq!(part_range(384, 1, 2, 16), 192..384);
+    }
+
+    #[test]
+    fn items_map_in_order_and_pieces_cover_the_buffer_once() {
+        let squares = map_items((0..37u64).collect(), |x| x * x);
+        assert_eq!(squares, (0..37u64).map(|x| x * x).collect::<Vec<_>>());
+        let pooled = map_indices(9, 2, |i| i + 1);
+        assert_eq!(pooled, (1..10).collect::<Vec<_>>());
+        for (len, unit) in [(100usize, 7usize), (64, 8), (3, 8), (0, 4)] {
+            let mut out = vec![0u32; len];
+            split_mut(&mut out, unit, |first, piece| {
+                assert!(piece.len() <= len);
+                for (j, v) in piece.iter_mut().enumerate() {
+                    // The value each element gets from its own index: misplaced pieces show.
+                    *v += (first * unit + j) as u32 + 1;
+                }
+            });
+            assert_eq!(out, (1..=len as u32).collect::<Vec<_>>(), "{len} / {unit}");
+        }
     }
 
     #[test]

@@ -317,15 +317,11 @@ fn run_rows<'a>(
         }
     };
     if nq * tk * d >= TEAM_MIN_MACS && team::parts() > 1 {
-        // One scene's rows split over the compute team, parts writing disjoint rows.
-        let dst = Destination(out.as_mut_ptr());
-        team::run(|part, parts| {
+        // One scene's rows shared out over the compute team.
+        team::split_mut(&mut out, d, |first, rows| {
             let mut scores = Vec::with_capacity(tk);
-            for r in team::part_range(nq, part, parts, 1) {
-                let (s, row) = query(r);
-                // SAFETY: row r's outputs lie inside `out` (nq * d values), no other part
-                // writes them, and `team::run` returns only after every part finished.
-                let o = unsafe { std::slice::from_raw_parts_mut(dst.at(r * d), d) };
+            for (i, o) in rows.chunks_exact_mut(d).enumerate() {
+                let (s, row) = query(first + i);
                 attend_row(&row, &keys[s], heads, o, &mut scores);
             }
         });

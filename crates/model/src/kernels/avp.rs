@@ -11,14 +11,9 @@
 use candle_core::{CpuStorage, CustomOp1, Layout, Shape, Tensor};
 
 use super::activation::{exp_inference, f32_slice};
-use super::product::Destination;
 use super::simd::{axpy, exp_slice, row_blocks};
 use crate::layers::gather_padded;
 use crate::team;
-
-/// Multiply-adds (points x anchors x channels) from which one pass's objects are split over
-/// the compute team ([`team`]).
-const TEAM_MIN_MACS: usize = 1 << 16;
 
 /// The pooling of one batch: per-object point ranges and distances, host data borrowed from
 /// the batch inputs.
@@ -169,24 +164,9 @@ impl CustomOp1 for AnchorPooling<'_> {
         }
         let mut out = vec![0f32; o * k * c];
         let macs: usize = self.objects.iter().map(|(_, n)| n * k * c).sum();
-        if o > 1 && c > 0 && macs >= TEAM_MIN_MACS && team::parts() > 1 {
-            // One scene's objects split over the compute team, parts writing disjoint rows.
-            let dst = Destination(out.as_mut_ptr());
-            team::run(|part, parts| {
-                let objects = team::part_range(o, part, parts, 1);
-                if objects.is_empty() {
-                    return;
-                }
-                // SAFETY: these objects' rows lie inside `out` (o * k * c values), no other
-                // part writes them, and `team::run` returns only after every part finished.
-                let block = unsafe {
-                    std::slice::from_raw_parts_mut(
-                        dst.at(objects.start * k * c),
-                        objects.len() * k * c,
-                    )
-                };
-                self.block(h, c, objects.start, block);
-            });
+        if o > 1 && c > 0 && macs >= team::SPLIT_MIN_MACS && team::parts() > 1 {
+            // One scene's objects shared out over the compute team.
+            team::split_mut(&mut out, k * c, |first, rows| self.block(h, c, first, rows));
         } else if o > 0 && c > 0 {
             row_blocks(&mut out, k * c, |first, block| {
                 self.block(h, c, first, block);

@@ -15,7 +15,7 @@ use candle_core::{CpuStorage, CustomOp1, Layout, Shape};
 
 use super::activation::f32_slice;
 use super::pool::group_max_value;
-use super::product::{Destination, Operand, product};
+use super::product::{Operand, product};
 use super::simd::silu_slice;
 use crate::team;
 
@@ -25,9 +25,6 @@ pub const BLOCK_ROWS: usize = 256;
 
 /// Below this many multiply-adds a call outside the compute team runs on the calling thread.
 const PARALLEL_MIN_MACS: usize = 1 << 20;
-
-/// Multiply-adds from which a pass is split over the compute team ([`team`]).
-const TEAM_MIN_MACS: usize = 1 << 16;
 
 /// Host copy of a two-layer SiLU MLP's parameters, `out = W2 silu(W1 x + b1) + b2`, with the
 /// weights stored transposed (`[in, out]` per layer), the layout `gemm` packs with vector
@@ -267,22 +264,12 @@ impl CustomOp1 for GroupedMlp<'_> {
         let block_groups = (BLOCK_ROWS / self.group).max(1);
         let chunk = block_groups * n_out;
         let macs = rows * self.mlp.hidden() * (self.mlp.input() + n_out);
-        let chunks = out.len().div_ceil(chunk.max(1));
-        if macs >= TEAM_MIN_MACS && team::parts() > 1 {
-            // Blocks split over the compute team (a one-scene step), parts writing disjoint
-            // blocks of the output.
-            let dst = Destination(out.as_mut_ptr());
-            let len = out.len();
-            team::run(|part, parts| {
-                let blocks = team::part_range(chunks, part, parts, 1);
+        if macs >= team::SPLIT_MIN_MACS && team::parts() > 1 {
+            // Blocks shared out over the compute team (a one-scene step).
+            team::split_mut(&mut out, chunk, |first, piece| {
                 let mut scratch = Scratch::default();
-                for i in blocks {
-                    let range = i * chunk..((i + 1) * chunk).min(len);
-                    // SAFETY: `range` lies inside `out` (len elements), parts own disjoint
-                    // blocks, and `team::run` returns only after every part finished.
-                    let o =
-                        unsafe { std::slice::from_raw_parts_mut(dst.at(range.start), range.len()) };
-                    self.block(src, c, i * block_groups, o, &mut scratch);
+                for (i, o) in piece.chunks_mut(chunk).enumerate() {
+                    self.block(src, c, (first + i) * block_groups, o, &mut scratch);
                 }
             });
         } else if macs < PARALLEL_MIN_MACS || rayon::current_num_threads() < 2 {

@@ -7,6 +7,8 @@
 //! keeps): `gemm` packs the weight panel of each call, and reads a `[n, k]` weight one strided
 //! element at a time where a `[k, n]` one is copied a vector at a time.
 
+use std::ops::Range;
+
 use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Shape, Tensor};
 
 use super::activation::f32_slice;
@@ -18,9 +20,6 @@ use crate::team::{self, part_range};
 /// ran slower on two threads than on one: the workers sleep between operations), so smaller
 /// products go to the spinning [`team`] instead.
 const PARALLEL_MIN_MACS: usize = 1 << 22;
-
-/// Multiply-adds below which a product is not worth splitting at all (about a microsecond).
-const TEAM_MIN_MACS: usize = 1 << 16;
 
 /// Output columns per part are a multiple of this (`gemm`'s kernel covers 32 per tile).
 const TEAM_COLUMNS: usize = 32;
@@ -83,62 +82,59 @@ fn linear_product(
         };
         let read = b.is_some();
         let dst = Destination(y.as_mut_ptr());
+        // Output columns `cols` (all rows): y's row stride stays n, the weight's columns start
+        // at its column `cols.start`.
+        let columns = |cols: Range<usize>, par: gemm::Parallelism| {
+            if cols.is_empty() {
+                return;
+            }
+            let first = match layout {
+                WeightLayout::OutIn => cols.start * k,
+                WeightLayout::InOut => cols.start,
+            };
+            let w = Operand {
+                ptr: w[first..].as_ptr(),
+                rs: w_rs,
+                cs: w_cs,
+            };
+            // SAFETY: x holds every element (m - 1) * rs + (k - 1) * cs past its start
+            // (checked above); w is contiguous [n, k] (so w^T has column stride k, row stride
+            // 1) or [k, n] (row stride n, column stride 1), of which columns `cols` are read;
+            // y has capacity m * n and its columns `cols` are either initialised with the bias
+            // (read) or written in full by the product (not read; alpha 0). Concurrent calls
+            // (the team's parts) write disjoint columns and are joined before y's length is
+            // set.
+            unsafe {
+                product(
+                    (m, cols.len(), k),
+                    dst.at(cols.start),
+                    n,
+                    read,
+                    x,
+                    w,
+                    1.0,
+                    par,
+                )
+            };
+        };
         let macs = m * n * k;
         if macs >= PARALLEL_MIN_MACS {
             let par = match rayon::current_num_threads() {
                 1 => gemm::Parallelism::None,
                 threads => gemm::Parallelism::Rayon(threads),
             };
-            let w = Operand {
-                ptr: w.as_ptr(),
-                rs: w_rs,
-                cs: w_cs,
-            };
-            // SAFETY: x holds every element (m - 1) * rs + (k - 1) * cs past its start
-            // (checked above); w is contiguous [n, k] (so w^T has column stride k, row stride
-            // 1) or [k, n] (row stride n, column stride 1); y has capacity m * n and is either
-            // fully initialised with the bias rows (read) or written in full by the product
-            // (not read; alpha 0) before its length is set.
-            unsafe { product((m, n, k), dst.0, n, read, x, w, 1.0, par) };
+            columns(0..n, par);
+        } else if macs >= team::SPLIT_MIN_MACS && n >= 2 * TEAM_COLUMNS {
+            // A small product: its output columns split over the compute team, each part
+            // reading only its share of the weight.
+            team::run(|part, parts| {
+                columns(
+                    part_range(n, part, parts, TEAM_COLUMNS),
+                    gemm::Parallelism::None,
+                )
+            });
         } else {
-            // A small product: its output columns split over the compute team (each part
-            // reads only its share of the weight), or all on this thread.
-            let split = macs >= TEAM_MIN_MACS && n >= 2 * TEAM_COLUMNS;
-            let work = |part: usize, parts: usize| {
-                let cols = part_range(n, part, parts, TEAM_COLUMNS);
-                if cols.is_empty() {
-                    return;
-                }
-                let first = match layout {
-                    WeightLayout::OutIn => cols.start * k,
-                    WeightLayout::InOut => cols.start,
-                };
-                let w = Operand {
-                    ptr: w[first..].as_ptr(),
-                    rs: w_rs,
-                    cs: w_cs,
-                };
-                // SAFETY: as above for the columns `cols` of w^T and y (y's row stride stays
-                // n); parts write disjoint columns of y and `team::run` joins them before
-                // y's length is set.
-                unsafe {
-                    product(
-                        (m, cols.len(), k),
-                        dst.at(cols.start),
-                        n,
-                        read,
-                        x,
-                        w,
-                        1.0,
-                        gemm::Parallelism::None,
-                    )
-                };
-            };
-            if split {
-                team::run(work);
-            } else {
-                work(0, 1);
-            }
+            columns(0..n, gemm::Parallelism::None);
         }
         // SAFETY: every element was written above (see the products' comments).
         unsafe {

@@ -6,15 +6,12 @@
 //! per-point rows are packed without padding (the point MLP never sees a padding row).
 
 use nalgebra::{Matrix3, Vector3};
-use rayon::prelude::*;
 
 use super::features::{FeatureFrame, ScenePoints, rotation_translation as rot};
 use crate::api::Pose;
 use crate::kernels::avp::padded_distances;
-use crate::kernels::product::Destination;
 use crate::prepare::PreparedScene;
 use crate::{ModelConfig, ModelError, team};
-use std::sync::Mutex;
 
 /// One scene's request as the network sees it (poses already validated and normalised).
 pub(crate) struct SceneRequest<'a> {
@@ -217,23 +214,11 @@ pub(crate) fn build_inputs<'a>(
         });
         (f, pm) = (f1, p1);
     }
-    let chunk = |((r, &first), rows)| scene_chunk(cfg, r, point_offsets[first], nmax, &freqs, rows);
-    // One scene runs here: a parallel iterator would hand it to a pool worker and wait.
-    let chunks: Vec<Vec<SceneChunk>> = if b > 1 {
-        requests
-            .par_iter()
-            .zip(scene_offsets.par_iter())
-            .zip(rows.into_par_iter())
-            .map(chunk)
-            .collect()
-    } else {
-        requests
-            .iter()
-            .zip(scene_offsets.iter())
-            .zip(rows)
-            .map(chunk)
-            .collect()
-    };
+    // Scenes over rayon's pool; one scene runs here (`team::map_pooled`).
+    let scenes: Vec<_> = requests.iter().zip(&scene_offsets).zip(rows).collect();
+    let chunks = team::map_pooled(scenes, 2, |((r, &first), rows)| {
+        scene_chunk(cfg, r, point_offsets[first], nmax, &freqs, rows)
+    });
     let mut inp = BatchInputs {
         b,
         mmax,
@@ -327,36 +312,21 @@ fn scene_chunk(
         nmax,
         freqs,
     };
-    let nf = cfg.point_features();
-    let offsets = &points.offsets;
     if m < 2 || scene.total_points() < TEAM_MIN_POINTS || team::parts() < 2 {
         return vec![ctx.objects(0..m, rows.feats, rows.point_mask)];
     }
-    let slots: Vec<Mutex<Option<SceneChunk>>> =
-        (0..team::parts()).map(|_| Mutex::new(None)).collect();
-    let feats = Destination(rows.feats.as_mut_ptr());
-    let mask = Destination(rows.point_mask.as_mut_ptr());
-    team::run(|part, parts| {
+    // One run of objects per part of the team, each with its own rows of both buffers.
+    let (nf, offsets, parts) = (cfg.point_features(), &points.offsets, team::parts());
+    let mut pieces = Vec::with_capacity(parts);
+    let (mut feats, mut mask) = (rows.feats, rows.point_mask);
+    for part in 0..parts {
         let objs = team::part_range(m, part, parts, 1);
-        let (p0, p1) = (offsets[objs.start], offsets[objs.end]);
-        // SAFETY: objects `objs` own feature rows p0..p1 (`rows.feats` holds the scene's
-        // points x nf values) and mask rows objs (m x nmax values); parts take disjoint
-        // object ranges, and `team::run` returns only after every part finished.
-        let (f, pm) = unsafe {
-            (
-                std::slice::from_raw_parts_mut(feats.at(p0 * nf), (p1 - p0) * nf),
-                std::slice::from_raw_parts_mut(mask.at(objs.start * nmax), objs.len() * nmax),
-            )
-        };
-        let chunk = ctx.objects(objs, f, pm);
-        if let Some(mut slot) = slots.get(part).and_then(|s| s.lock().ok()) {
-            *slot = Some(chunk);
-        }
-    });
-    slots
-        .into_iter()
-        .filter_map(|s| s.into_inner().ok().flatten())
-        .collect()
+        let (f, f_rest) = feats.split_at_mut((offsets[objs.end] - offsets[objs.start]) * nf);
+        let (pm, pm_rest) = mask.split_at_mut(objs.len() * nmax);
+        pieces.push((objs, f, pm));
+        (feats, mask) = (f_rest, pm_rest);
+    }
+    team::map_items(pieces, |(objs, f, pm)| ctx.objects(objs, f, pm))
 }
 
 /// What every object's rows of one scene read.
