@@ -53,8 +53,9 @@ struct Block {
     norm2: RmsNorm,
     ffn: SwiGlu,
     heads: usize,
-    /// FiLM `(gamma, beta)` `[2D]` by the bits of `tau`, for constant CPU weights: a step size
-    /// always gives the same modulation, so an inference model computes it once per value.
+    /// FiLM `(gamma, beta)` `[2D]` (gamma with its 1 added) by the bits of `tau`, for constant
+    /// CPU weights: a step size always gives the same modulation, so an inference model
+    /// computes it once per value.
     film_cache: Mutex<HashMap<u32, Vec<f32>>>,
 }
 
@@ -100,15 +101,19 @@ impl Block {
             .lock()
             .map_err(|_| candle_core::Error::Msg("FiLM cache lock poisoned".into()))?;
         for &tau in &ctx.tau {
-            let fb = match cache.entry(tau.to_bits()) {
+            let gb = match cache.entry(tau.to_bits()) {
                 Entry::Occupied(e) => e.into_mut(),
-                Entry::Vacant(e) => e.insert(self.film(&[tau])?.flatten_all()?.to_vec1::<f32>()?),
+                Entry::Vacant(e) => {
+                    let mut gb = self.film(&[tau])?.flatten_all()?.to_vec1::<f32>()?;
+                    gb.iter_mut().take(d).for_each(|g| *g += 1.0);
+                    e.insert(gb)
+                }
             };
-            if fb.len() != 2 * d {
-                candle_core::bail!("FiLM of {} values for width {d}", fb.len());
+            if gb.len() != 2 * d {
+                candle_core::bail!("FiLM of {} values for width {d}", gb.len());
             }
-            gamma.extend(fb[..d].iter().map(|g| g + 1.0));
-            beta.extend_from_slice(&fb[d..]);
+            gamma.extend_from_slice(&gb[..d]);
+            beta.extend_from_slice(&gb[d..]);
         }
         let dev = self.film_a.w.device();
         Ok(Some((
