@@ -7,7 +7,8 @@ points and on the 217-object wrecking ball (216 cubes of 128 points and a ball o
 are random tensors of the right shapes: contact features, grouping and anchors are computed
 by our step but not here, so the comparison favours PyTorch by our features phase (printed).
 
-Run (CPU wheel in a virtualenv outside the repository):
+Run (in a virtualenv outside the repository; PyPI's Linux wheel carries the CUDA libraries
+and runs on the CPU, the smaller CPU-only wheel is on https://download.pytorch.org/whl/cpu):
 
     python3 -m venv /tmp/torchenv && /tmp/torchenv/bin/pip install torch
     /tmp/torchenv/bin/python crates/model/benches/torch_reference.py --threads 2
