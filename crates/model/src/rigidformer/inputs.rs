@@ -380,6 +380,12 @@ impl ObjectContext<'_> {
             anchors_ref: Vec::with_capacity(m),
         };
         let mut ang = Vec::with_capacity(3 * freqs.len());
+        // Normalisation as a multiply by the inverse deviation over fixed-length slices: the
+        // compiler vectorises it (a division per feature was 2% of a batch-8 step).
+        let (mean, inv_std): (&[f32], Vec<f32>) = (
+            &norm.mean[..nf],
+            norm.std[..nf].iter().map(|s| 1.0 / s).collect(),
+        );
         for j in objs {
             let obj = &scene.objects[j];
             let n = obj.reference.len();
@@ -392,8 +398,8 @@ impl ObjectContext<'_> {
                 let row = base + i - row0;
                 let dst = &mut feats[row * nf..(row + 1) * nf];
                 points.raw_features(base + i, obj.reference[i], obj.params, &frame, with_cv, dst);
-                for (f, v) in dst.iter_mut().enumerate() {
-                    *v = (*v - norm.mean[f]) / norm.std[f];
+                for ((v, m), is) in dst.iter_mut().zip(mean).zip(&inv_std) {
+                    *v = (*v - m) * is;
                 }
                 point_mask[(j - mask0) * nmax + i] = 1.0;
             }
