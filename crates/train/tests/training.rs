@@ -232,7 +232,14 @@ fn pushforward_keeps_the_window_stream_and_resumes_exactly() {
     for seed in 0..24 {
         let window = |c| {
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-            sample_window(&scenes[seed as usize % scenes.len()], c, &mut rng, true).unwrap()
+            sample_window(
+                &scenes[seed as usize % scenes.len()],
+                c,
+                &mut rng,
+                true,
+                seed,
+            )
+            .unwrap()
         };
         let (a, b) = (window(&plain), window(&pushed));
         assert!(a.pushforward.is_none());
@@ -271,7 +278,14 @@ fn pushforward_keeps_the_window_stream_and_resumes_exactly() {
     let mut checked = 0;
     for seed in 0..24 {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-        let w = sample_window(&scenes[seed as usize % scenes.len()], &two, &mut rng, true).unwrap();
+        let w = sample_window(
+            &scenes[seed as usize % scenes.len()],
+            &two,
+            &mut rng,
+            true,
+            seed,
+        )
+        .unwrap();
         let Some(frames) = w.pushforward.clone() else {
             continue;
         };
@@ -327,5 +341,41 @@ fn pushforward_keeps_the_window_stream_and_resumes_exactly() {
         let b = std::fs::read(dir.join("split/checkpoint").join(f)).unwrap();
         assert!(a == b, "{f} differs between a straight and a resumed run");
     }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `data.points_per_scene` draws each object's cloud once per scene: two windows of one scene
+/// (different window draws) show the same points, another scene key gives another subset, and
+/// without the option the windows' clouds differ.
+#[test]
+fn point_subsets_can_be_fixed_per_scene() {
+    use dynaserve_train::train::data::sample_window;
+    use rand::SeedableRng;
+
+    let dir = scratch("points-per-scene");
+    let data = tiny_dataset(&dir);
+    let scenes = dynaserve_sim::DatasetReader::open(&data)
+        .unwrap()
+        .read_shard(0)
+        .unwrap();
+    let mut c = tiny_config(&data, &dir.join("unused"), 1).data;
+    c.shuffle_objects = false;
+    c.point_drop_prob = 0.0;
+    let clouds = |c: &dynaserve_train::train::config::DataConfig, window: u64, key: u64| {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(window);
+        let w = sample_window(&scenes[0], c, &mut rng, true, key).unwrap();
+        w.objects
+            .into_iter()
+            .map(|o| o.reference)
+            .collect::<Vec<_>>()
+    };
+    assert_ne!(
+        clouds(&c, 1, 7),
+        clouds(&c, 2, 7),
+        "per-window subsets by default"
+    );
+    c.points_per_scene = true;
+    assert_eq!(clouds(&c, 1, 7), clouds(&c, 2, 7));
+    assert_ne!(clouds(&c, 1, 7), clouds(&c, 1, 8));
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -40,6 +40,11 @@ pub struct DataConfig {
     pub points_min: usize,
     /// Most surface points per object in a training sample (inclusive).
     pub points_max: usize,
+    /// Draw each object's point subset (its size in `points_min..=points_max` and its points)
+    /// once per scene instead of once per window: every window of a scene then shows the same
+    /// cloud, as every step of a rollout does. Rotation, order, noise and the patch cut
+    /// below still vary per window.
+    pub points_per_scene: bool,
     /// Probability that an object additionally loses a contiguous patch of its points
     /// (a half-space cut, like an occluded view).
     pub point_drop_prob: f32,
@@ -89,6 +94,7 @@ impl Default for DataConfig {
             step_sizes: vec![1, 2, 4],
             points_min: 128,
             points_max: 384,
+            points_per_scene: false,
             point_drop_prob: 0.1,
             point_drop_max: 0.3,
             rotate_z: true,

@@ -105,12 +105,15 @@ fn quat(q: [f32; 4]) -> UnitQuaternion<f32> {
 }
 
 /// Draws one window from `scene` with the augmentation of `c` (input noise and pushforward
-/// poses only if `noise`, i.e. for training batches).
+/// poses only if `noise`, i.e. for training batches). `scene_key` identifies the scene in its
+/// dataset: with [`DataConfig::points_per_scene`] it seeds each object's point subset, so every
+/// window of one scene shows the same clouds.
 pub fn sample_window(
     scene: &SceneRecord,
     c: &DataConfig,
     rng: &mut ChaCha8Rng,
     noise: bool,
+    scene_key: u64,
 ) -> Result<Window, TrainError> {
     let frames = scene
         .objects
@@ -181,11 +184,17 @@ pub fn sample_window(
                 "object {j} has no reference points"
             )));
         }
-        let n = rng.random_range(c.points_min..=c.points_max).min(p);
+        // The subset's own generator when it is fixed per scene; the window's otherwise (so
+        // configurations without the option keep their sample streams).
+        let mut scene_rng = c
+            .points_per_scene
+            .then(|| rng_for(mix(scene_key), 5, j as u64));
+        let prng: &mut ChaCha8Rng = scene_rng.as_mut().unwrap_or(rng);
+        let n = prng.random_range(c.points_min..=c.points_max).min(p);
         // Partial Fisher-Yates: a uniform subset of n points.
         let mut idx: Vec<usize> = (0..p).collect();
         for i in 0..n {
-            let r = rng.random_range(i..p);
+            let r = prng.random_range(i..p);
             idx.swap(i, r);
         }
         idx.truncate(n);
@@ -448,7 +457,13 @@ fn worker(
                     TrainError::Data(format!("shard {shard} has no scene {local}"))
                 })?;
                 let mut rng = rng_for(seed, 3, g);
-                let w = sample_window(rec, &cfg, &mut rng, true)?;
+                let w = sample_window(
+                    rec,
+                    &cfg,
+                    &mut rng,
+                    true,
+                    ((shard as u64) << 32) | local as u64,
+                )?;
                 let scene = model.prepare(w.objects)?;
                 samples.push(Sample {
                     scene,
@@ -513,7 +528,7 @@ pub fn fit_normalization(
         let i = if r == 0 { i } else { i + 1_000_000 * r };
         for w in 0..c.norm_windows {
             let mut rng = rng_for(seed, 4, (i * 1000 + w) as u64);
-            let win = sample_window(&rec, c, &mut rng, false)?;
+            let win = sample_window(&rec, c, &mut rng, false, i as u64)?;
             let points = ScenePoints::new(
                 model,
                 win.objects.iter().map(|o| o.reference.as_slice()),
