@@ -26,6 +26,16 @@ fn tiny_dataset(dir: &Path) -> PathBuf {
     out
 }
 
+/// [`tiny_dataset`] and its first shard's scenes (two), for tests that draw windows directly.
+fn tiny_scenes(dir: &Path) -> (PathBuf, Vec<dynaserve_sim::SceneRecord>) {
+    let data = tiny_dataset(dir);
+    let scenes = dynaserve_sim::DatasetReader::open(&data)
+        .unwrap()
+        .read_shard(0)
+        .unwrap();
+    (data, scenes)
+}
+
 fn tiny_config(data: &Path, out: &Path, iterations: u64) -> TrainConfig {
     let mut c = TrainConfig::default();
     c.data.train = data.to_path_buf();
@@ -217,11 +227,7 @@ fn pushforward_keeps_the_window_stream_and_resumes_exactly() {
     use rand::SeedableRng;
 
     let dir = scratch("pushforward");
-    let data = tiny_dataset(&dir);
-    let scenes = dynaserve_sim::DatasetReader::open(&data)
-        .unwrap()
-        .read_shard(0)
-        .unwrap();
+    let (data, scenes) = tiny_scenes(&dir);
     let mut plain = tiny_config(&data, &dir.join("unused"), 1).data;
     plain.step_sizes = vec![1, 2, 4];
     let pushed = dynaserve_train::train::config::DataConfig {
@@ -353,11 +359,7 @@ fn point_subsets_can_be_fixed_per_scene() {
     use rand::SeedableRng;
 
     let dir = scratch("points-per-scene");
-    let data = tiny_dataset(&dir);
-    let scenes = dynaserve_sim::DatasetReader::open(&data)
-        .unwrap()
-        .read_shard(0)
-        .unwrap();
+    let (data, scenes) = tiny_scenes(&dir);
     let mut c = tiny_config(&data, &dir.join("unused"), 1).data;
     c.shuffle_objects = false;
     c.point_drop_prob = 0.0;
