@@ -19,6 +19,9 @@ pub const BASE_POINT_FEATURES: usize = 12;
 /// contact surface's increment relative to the point's own (3).
 pub const CONTACT_VELOCITY_FEATURES: usize = 3;
 
+/// Numbers per object in the object state summary ([`DynamicsConfig::object_summary`]).
+pub const OBJECT_SUMMARY_FEATURES: usize = 11;
+
 /// Affine normalisation of the per-point input features: `(raw - mean) / std`, one value per
 /// feature ([`DynamicsConfig::point_features`]: 12, or 15 with the contact velocity).
 ///
@@ -156,6 +159,12 @@ pub struct DynamicsConfig {
     /// (18 degrees at 0.83 rad per step). A body spinning in free flight then needs a zero
     /// output, as one flying straight does with `gravity_residual`.
     pub rigid_extrapolation: bool,
+    /// Object state summary: [`OBJECT_SUMMARY_FEATURES`] numbers per object (the lowest
+    /// point's height above the ground and increment, the centre's height and increment, the
+    /// rotation increment), added to the object's token through a small MLP whose last layer
+    /// starts at zero, so the floor reaches the decoder without passing through the encoder's
+    /// max-pools. Absent in older `config.json` files, which means off.
+    pub object_summary: bool,
 }
 
 impl DynamicsConfig {
@@ -167,6 +176,7 @@ impl DynamicsConfig {
             translation_invariant: true,
             contact_velocity: true,
             rigid_extrapolation: true,
+            object_summary: false,
         }
     }
 

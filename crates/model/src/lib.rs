@@ -25,7 +25,7 @@ pub use batching::PassBudget;
 pub use checkpoint::{load_model, load_rigidformer, read_config};
 pub use config::{
     BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig, FeatureNormalization,
-    LossConfig, ModelConfig, PreparedKey,
+    LossConfig, ModelConfig, OBJECT_SUMMARY_FEATURES, PreparedKey,
 };
 pub use error::ModelError;
 pub use kernels::kabsch::{self as kabsch_op, KabschOp};
@@ -33,7 +33,7 @@ pub use layers::Mode;
 pub use physiformer::PhysiFormer;
 pub use prepare::{MAX_BODY_EXTENT, MAX_DT_STEPS, MAX_WORLD_EXTENT, PreparedScene, normalise_pose};
 pub use rigidformer::features::{
-    FeatureFrame, ScenePoints, contact_velocity, object_params, raw_point_features,
+    FeatureFrame, ScenePoints, contact_velocity, object_params, object_summary, raw_point_features,
 };
 pub use rigidformer::{RigidFormer, StepProfile, TrainItem, TrainOutput};
 pub use runtime::{configure_compute, keep_freed_memory};

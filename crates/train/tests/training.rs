@@ -216,6 +216,51 @@ fn init_widens_a_model_for_the_contact_velocity() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// `model.object_summary = true` on a `model.init` without the summary widens it (the run's
+/// checkpoint reads the summary and holds its parameters); `false` on one that has it is refused.
+#[test]
+fn init_widens_a_model_for_the_object_summary() {
+    let dir = scratch("summary");
+    let data = tiny_dataset(&dir);
+    let base = tiny_config(&data, &dir.join("base"), 2);
+    train(&base, &TrainOptions::default()).unwrap();
+    assert!(
+        !dynaserve_model::read_config(&dir.join("base/checkpoint"))
+            .unwrap()
+            .dynamics
+            .object_summary
+    );
+    let mut wide = tiny_config(&data, &dir.join("wide"), 2);
+    wide.model.init = Some(dir.join("base/checkpoint"));
+    wide.model.object_summary = Some(true);
+    train(&wide, &TrainOptions::default()).unwrap();
+    let m = dynaserve_model::load_rigidformer(
+        &dir.join("wide/checkpoint"),
+        &dynaserve_model::Device::Cpu,
+        false,
+    )
+    .unwrap();
+    assert!(
+        dynaserve_model::WorldModel::config(&m)
+            .dynamics
+            .object_summary
+    );
+    assert!(
+        m.varmap()
+            .data()
+            .lock()
+            .unwrap()
+            .contains_key("summary.1.weight")
+    );
+
+    let mut narrow = tiny_config(&data, &dir.join("narrow"), 2);
+    narrow.model.init = Some(dir.join("wide/checkpoint"));
+    narrow.model.object_summary = Some(false);
+    let err = train(&narrow, &TrainOptions::default()).unwrap_err();
+    assert!(err.to_string().contains("cannot be removed"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// Pushforward (`data.pushforward`) draws its choice after everything else, so a window's
 /// inputs and target are those it has without it, and its extra poses are the recorded ones
 /// at `t - 2k` and `t - k` (with two steps also `t - 3k`, and both observed poses become the

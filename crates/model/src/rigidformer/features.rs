@@ -7,7 +7,10 @@ use dynaserve_geometry::{ContactConfig, ContactHit, ContactSource, Point, contac
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 use crate::api::Pose;
-use crate::config::{BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig, ModelConfig};
+use crate::config::{
+    BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig, ModelConfig,
+    OBJECT_SUMMARY_FEATURES,
+};
 
 /// Physical parameters as the model sees them: `[ln(mass / kg), friction, restitution]`.
 pub fn object_params(mass: f32, friction: f32, restitution: f32) -> [f32; 3] {
@@ -93,6 +96,66 @@ pub fn contact_velocity(
         ContactSource::Ground => increment(q).map(|v| -v),
         ContactSource::Free => [0.0; 3],
     }
+}
+
+/// Heights in the object summary are divided by this, metres.
+pub const SUMMARY_HEIGHT_SCALE: f32 = 0.5;
+/// Heights in the object summary are clamped to this before scaling, metres: a body far above
+/// the floor (or a scene without one) reads as this high.
+pub const SUMMARY_HEIGHT_MAX: f32 = 4.0;
+/// Increments in the object summary (per frame with per-frame units) are divided by this,
+/// metres.
+pub const SUMMARY_INCREMENT_SCALE: f32 = 0.1;
+/// The rotation increment in the object summary (per frame with per-frame units) is divided
+/// by this, radians.
+pub const SUMMARY_ROTATION_SCALE: f32 = 0.2;
+
+/// The object state summary of one object ([`DynamicsConfig::object_summary`]), scaled to O(1):
+/// `[h_low, inc_low (3), h_centre, inc_centre (3), rotation (3)]`. `h_low` is the height of
+/// its lowest point above `ground_z` and `h_centre` its centre's (metres, clamped to
+/// [`SUMMARY_HEIGHT_MAX`], divided by [`SUMMARY_HEIGHT_SCALE`]; without a ground both read as
+/// the maximum); `inc_low` and `inc_centre` the increments of that point and of the centre over
+/// the last step divided by `frame.increment_divisor` (divided by
+/// [`SUMMARY_INCREMENT_SCALE`]); `rotation` the scaled axis of `R_t R_{t-k}^T` divided by the
+/// same divisor (divided by [`SUMMARY_ROTATION_SCALE`]).
+/// `world` and `world_prev`: the object's points at t and t-1 (`[n, 3]` metres, `n >= 1`).
+pub fn object_summary(
+    world: &[Point],
+    world_prev: &[Point],
+    current: &Pose,
+    previous: &Pose,
+    ground_z: Option<f32>,
+    frame: &FeatureFrame,
+) -> [f32; OBJECT_SUMMARY_FEATURES] {
+    let inc = 1.0 / frame.increment_divisor;
+    let height = |z: f32| match ground_z {
+        Some(g) => (z - g).min(SUMMARY_HEIGHT_MAX),
+        None => SUMMARY_HEIGHT_MAX,
+    } / SUMMARY_HEIGHT_SCALE;
+    let low = (0..world.len())
+        .min_by(|&a, &b| world[a][2].total_cmp(&world[b][2]))
+        .unwrap_or(0);
+    let (now, before) = (current.translation, previous.translation);
+    let quat = |p: &Pose| {
+        let [x, y, z, w] = p.rotation;
+        UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z))
+    };
+    let turn = (quat(current) * quat(previous).inverse()).scaled_axis();
+    let mut out = [0f32; OBJECT_SUMMARY_FEATURES];
+    out[0] = world
+        .get(low)
+        .map_or(SUMMARY_HEIGHT_MAX / SUMMARY_HEIGHT_SCALE, |p| height(p[2]));
+    for d in 0..3 {
+        let low_inc = world
+            .get(low)
+            .zip(world_prev.get(low))
+            .map_or(0.0, |(a, b)| a[d] - b[d]);
+        out[1 + d] = low_inc * inc / SUMMARY_INCREMENT_SCALE;
+        out[5 + d] = (now[d] - before[d]) * inc / SUMMARY_INCREMENT_SCALE;
+        out[8 + d] = turn[d] * inc / SUMMARY_ROTATION_SCALE;
+    }
+    out[4] = height(now[2]);
+    out
 }
 
 /// A pose as the rotation matrix and translation (metres) points are moved with.

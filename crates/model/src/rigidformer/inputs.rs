@@ -7,7 +7,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::features::{FeatureFrame, ScenePoints, rotation_translation as rot};
+use super::features::{FeatureFrame, ScenePoints, object_summary, rotation_translation as rot};
 use crate::api::Pose;
 use crate::kernels::avp::padded_distances;
 use crate::prepare::PreparedScene;
@@ -72,6 +72,9 @@ pub(crate) struct BatchInputs<'a> {
     pub tau: Vec<f32>,
     /// Step size in frames per object `[o]`.
     pub object_dt: Vec<u32>,
+    /// Object state summaries `[o, OBJECT_SUMMARY_FEATURES]` ([`object_summary`]); empty when
+    /// the model has none.
+    pub object_summary: Vec<f32>,
     /// The Verlet base of every anchor before free fall, per object `[K]`, world frame,
     /// metres (f64): where the anchor goes at constant velocity
     /// ([`verlet_base`]).
@@ -127,6 +130,7 @@ struct SceneChunk {
     anchor_sin: Vec<f32>,
     object_cos: Vec<f32>,
     object_sin: Vec<f32>,
+    object_summary: Vec<f32>,
     anchors_base: Vec<Vec<[f64; 3]>>,
     anchors_ref: Vec<Vec<[f64; 3]>>,
 }
@@ -255,6 +259,7 @@ pub(crate) fn build_inputs<'a>(
             .iter()
             .flat_map(|r| std::iter::repeat_n(r.dt_steps, r.scene.len()))
             .collect(),
+        object_summary: Vec::new(),
         anchors_base: Vec::with_capacity(o),
         anchors_ref: Vec::with_capacity(o),
         current_rot: requests
@@ -273,6 +278,7 @@ pub(crate) fn build_inputs<'a>(
         inp.anchor_sin.extend(c.anchor_sin);
         inp.object_cos.extend(c.object_cos);
         inp.object_sin.extend(c.object_sin);
+        inp.object_summary.extend(c.object_summary);
         inp.anchors_base.extend(c.anchors_base);
         inp.anchors_ref.extend(c.anchors_ref);
     }
@@ -376,6 +382,7 @@ impl ObjectContext<'_> {
             anchor_sin: Vec::with_capacity(m * k * p),
             object_cos: Vec::with_capacity(m * p),
             object_sin: Vec::with_capacity(m * p),
+            object_summary: Vec::new(),
             anchors_base: Vec::with_capacity(m),
             anchors_ref: Vec::with_capacity(m),
         };
@@ -393,6 +400,16 @@ impl ObjectContext<'_> {
             let (rc, pc) = self.poses[j];
             let wc = rc * Vector3::from(obj.centroid) + pc;
             let frame = FeatureFrame::new(&cfg.dynamics, r.dt_steps, r.current[j].translation);
+            if cfg.dynamics.object_summary {
+                c.object_summary.extend(object_summary(
+                    &world[base..base + n],
+                    &points.world_prev[base..base + n],
+                    &r.current[j],
+                    &r.previous[j],
+                    cfg.ground_z,
+                    &frame,
+                ));
+            }
             // Per-point features.
             for i in 0..n {
                 let row = base + i - row0;

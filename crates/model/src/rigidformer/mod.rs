@@ -19,6 +19,7 @@ pub(crate) mod encoder;
 pub mod features;
 pub(crate) mod inputs;
 pub(crate) mod projection;
+pub(crate) mod summary;
 pub mod train;
 mod widen;
 
@@ -31,6 +32,7 @@ use self::anchor_head::AnchorHead;
 use self::decoder::Decoder;
 use self::encoder::Encoder;
 use self::inputs::{BatchInputs, SceneRequest, build_inputs};
+use self::summary::SummaryMlp;
 use crate::api::{Pose, StepItem, WorldModel};
 use crate::batching::PassBudget;
 use crate::layers::{Exec, Mode, ParamStore};
@@ -79,6 +81,7 @@ pub struct RigidFormer {
     encoder: Encoder,
     decoder: Decoder,
     anchors: AnchorHead,
+    summary: Option<SummaryMlp>,
     max_pass_objects: usize,
     fused_kernels: bool,
     scene_threads: bool,
@@ -120,7 +123,8 @@ impl RigidFormer {
     }
 
     /// Builds the network from a parameter store (random or loaded). Parameters are created in
-    /// a fixed order (encoder, decoder, anchor head) so a seed always gives the same weights.
+    /// a fixed order (encoder, decoder, anchor head, then the optional object summary) so a
+    /// seed always gives the same weights, with or without the summary.
     pub(crate) fn from_store(
         name: String,
         config: ModelConfig,
@@ -131,6 +135,7 @@ impl RigidFormer {
         let encoder = Encoder::new(&mut p, &config)?;
         let decoder = Decoder::new(&mut p, &config)?;
         let anchors = AnchorHead::new(&mut p, &config, device)?;
+        let summary = SummaryMlp::new(&mut p, &config)?;
         Ok(RigidFormer {
             name,
             config,
@@ -139,6 +144,7 @@ impl RigidFormer {
             encoder,
             decoder,
             anchors,
+            summary,
             max_pass_objects: DEFAULT_MAX_PASS_OBJECTS,
             fused_kernels: true,
             scene_threads: true,
@@ -236,6 +242,10 @@ impl RigidFormer {
         };
         let t0 = Instant::now();
         let (h, tokens) = self.encoder.forward(inp, &self.device, exec)?;
+        let tokens = match &self.summary {
+            Some(s) => s.add_to(inp, &tokens, &self.device, exec)?,
+            None => tokens,
+        };
         let t1 = Instant::now();
         let decoded = self.decoder.forward(inp, &tokens, exec, &self.device)?;
         let t2 = Instant::now();

@@ -1,5 +1,6 @@
 //! Widening a trained model's inputs: a 12-feature model becomes one that also reads the
-//! contact velocity, computing exactly the same function until training moves the new weights.
+//! contact velocity, and a model without the object state summary one that reads it; each
+//! computes exactly the same function until training moves the new weights.
 
 use std::collections::HashMap;
 
@@ -7,6 +8,7 @@ use candle_core::Tensor;
 
 use super::RigidFormer;
 use super::encoder::POINT_INPUT_WEIGHT;
+use super::summary::SUMMARY_PARAMETERS;
 use crate::config::CONTACT_VELOCITY_FEATURES;
 use crate::layers::ParamStore;
 use crate::{FeatureNormalization, ModelError};
@@ -45,18 +47,7 @@ impl RigidFormer {
         config.normalization.mean.extend_from_slice(&extra.mean);
         config.normalization.std.extend_from_slice(&extra.std);
         config.validate()?;
-        let mut tensors = HashMap::new();
-        {
-            let vars = self
-                .varmap
-                .data()
-                .lock()
-                .map_err(|_| ModelError::Internal("parameter map lock poisoned".into()))?;
-            for (name, var) in vars.iter() {
-                // A copy: the new model's weights never share storage with this one's.
-                tensors.insert(name.clone(), var.as_tensor().detach().copy()?);
-            }
-        }
+        let mut tensors = self.weight_copies()?;
         let w = tensors.remove(POINT_INPUT_WEIGHT).ok_or_else(|| {
             ModelError::Internal(format!("the model has no parameter {POINT_INPUT_WEIGHT}"))
         })?;
@@ -69,11 +60,66 @@ impl RigidFormer {
             POINT_INPUT_WEIGHT.to_string(),
             Tensor::cat(&[&w, &zeros], 1)?,
         );
+        self.rebuilt(config, tensors, trainable)
+    }
+
+    /// A copy of this model that also reads the object state summary
+    /// ([`crate::DynamicsConfig::object_summary`]): the summary MLP's first layer is drawn
+    /// from `seed`, its last layer is zero, so the copy's outputs equal this model's; every
+    /// other weight is copied. `trainable` keeps gradient tracking on the copy's weights.
+    ///
+    /// Errors if the model already reads the summary.
+    pub fn widened_with_object_summary(
+        &self,
+        seed: u64,
+        trainable: bool,
+    ) -> Result<RigidFormer, ModelError> {
+        if self.config.dynamics.object_summary {
+            return Err(ModelError::InvalidInput(
+                "the model already reads the object state summary".into(),
+            ));
+        }
+        let mut config = self.config.clone();
+        config.dynamics.object_summary = true;
+        let fresh = RigidFormer::new_frozen(config.clone(), seed, &self.device)?.weight_copies()?;
+        let mut tensors = self.weight_copies()?;
+        for name in SUMMARY_PARAMETERS {
+            let t = fresh.get(name).ok_or_else(|| {
+                ModelError::Internal(format!("a summary model has no parameter {name}"))
+            })?;
+            tensors.insert(name.to_string(), t.clone());
+        }
+        self.rebuilt(config, tensors, trainable)
+    }
+
+    /// Copies of every weight, by name: the new model's weights never share storage with this
+    /// one's.
+    fn weight_copies(&self) -> Result<HashMap<String, Tensor>, ModelError> {
+        let vars = self
+            .varmap
+            .data()
+            .lock()
+            .map_err(|_| ModelError::Internal("parameter map lock poisoned".into()))?;
+        let mut tensors = HashMap::new();
+        for (name, var) in vars.iter() {
+            tensors.insert(name.clone(), var.as_tensor().detach().copy()?);
+        }
+        Ok(tensors)
+    }
+
+    /// A model of `config` from `tensors`, with this one's name and execution settings.
+    fn rebuilt(
+        &self,
+        config: crate::ModelConfig,
+        tensors: HashMap<String, Tensor>,
+        trainable: bool,
+    ) -> Result<RigidFormer, ModelError> {
         let store = ParamStore::loaded(tensors, &self.device, trainable);
         Ok(
             RigidFormer::from_store(self.name.clone(), config, store, &self.device)?
                 .with_max_pass_objects(self.max_pass_objects)
-                .with_fused_kernels(self.fused_kernels),
+                .with_fused_kernels(self.fused_kernels)
+                .with_scene_threads(self.scene_threads),
         )
     }
 }

@@ -136,6 +136,11 @@ pub struct ModelSection {
     /// normalisation constants are kept and the 3 new ones fitted from the training data).
     /// `false` on an `init` model that has them is an error.
     pub contact_velocity: Option<bool>,
+    /// The object state summary (`DynamicsConfig::object_summary`): unset keeps what the
+    /// preset, config or `init` model has. `true` on an `init` model without it widens it
+    /// (the summary MLP's last layer zero, so it starts as the same function; its first layer
+    /// drawn from `seed`). `false` on an `init` model that has it is an error.
+    pub object_summary: Option<bool>,
     /// The rigid Verlet base (`DynamicsConfig::rigid_extrapolation`): unset keeps what the
     /// preset, config or `init` model has; set, it switches the base of any of them (an `init`
     /// model keeps its weights and learns the new base's residual).
@@ -161,6 +166,7 @@ impl Default for ModelSection {
             fit_normalization: true,
             init: None,
             contact_velocity: None,
+            object_summary: None,
             rigid_extrapolation: None,
             loss_beta: None,
             rest_weight: None,
@@ -170,8 +176,8 @@ impl Default for ModelSection {
 
 impl ModelSection {
     /// The model configuration this section names (before normalisation fitting), with
-    /// `contact_velocity` (the normalisation then resized to its defaults) and
-    /// `rigid_extrapolation` and `loss_beta` applied.
+    /// `contact_velocity` (the normalisation then resized to its defaults),
+    /// `object_summary`, `rigid_extrapolation`, `loss_beta` and `rest_weight` applied.
     pub fn model_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {
         let mut c = self.named_config(base)?;
         if let Some(on) = self.rigid_extrapolation {
@@ -182,6 +188,9 @@ impl ModelSection {
         }
         if let Some(w) = self.rest_weight {
             c.loss.rest_weight = w;
+        }
+        if let Some(on) = self.object_summary {
+            c.dynamics.object_summary = on;
         }
         if let Some(cv) = self.contact_velocity
             && cv != c.dynamics.contact_velocity

@@ -181,6 +181,22 @@ fn init_contact_velocity(
     }
 }
 
+/// Applies `model.object_summary` to a model loaded from `model.init`: widens a model without
+/// the summary when asked (zero last layer, so it starts as the same function).
+fn init_object_summary(m: RigidFormer, cfg: &TrainConfig) -> Result<RigidFormer, TrainError> {
+    let has = m.config().dynamics.object_summary;
+    match cfg.model.object_summary {
+        Some(true) if !has => {
+            eprintln!("widened for the object state summary (its last layer starts at zero)");
+            Ok(m.widened_with_object_summary(cfg.model.seed, true)?)
+        }
+        Some(false) if has => Err(TrainError::Config(
+            "model.object_summary = false, but the model.init model reads the object state summary (inputs cannot be removed)".into(),
+        )),
+        _ => Ok(m),
+    }
+}
+
 /// Trains (or resumes) the run described by `cfg`; see the module docs for the outputs.
 pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, TrainError> {
     cfg.validate()?;
@@ -243,7 +259,8 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                 Some(w) => m.with_rest_weight(w),
                 None => m,
             };
-            init_contact_velocity(m, cfg, &reader)?
+            let m = init_contact_velocity(m, cfg, &reader)?;
+            init_object_summary(m, cfg)?
         } else {
             let mut mc = cfg.model.model_config(Path::new("."))?;
             mc.dt_frame = reader.primary().manifest().dt_frame;

@@ -1,0 +1,168 @@
+//! The object state summary: its numbers for a known motion, a model that gains it (random or
+//! widened) computes the same steps as one without, and its layers learn and save.
+mod common;
+
+use common::{max_pose_diff, random_scene};
+use dynaserve_model::{
+    Device, DynamicsConfig, FeatureFrame, ModelConfig, Pose, RigidFormer, SceneState, StepItem,
+    TrainItem, WorldModel, load_rigidformer, object_summary,
+};
+use nalgebra::{UnitQuaternion, Vector3};
+
+fn step(model: &dyn WorldModel, seed: u64, dt_steps: u32) -> Vec<Pose> {
+    let (objects, state): (_, SceneState) = random_scene(seed, 4, 96);
+    let scene = model.prepare(objects).unwrap();
+    model
+        .step(&[StepItem {
+            scene: &scene,
+            state: &state,
+            dt_steps,
+        }])
+        .unwrap()
+        .remove(0)
+}
+
+/// The eight corners of a cube of half extent 0.1 m placed at `pose`.
+fn corners(pose: &Pose) -> Vec<[f32; 3]> {
+    let [x, y, z, w] = pose.rotation;
+    let q = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z));
+    let t = Vector3::from(pose.translation);
+    (0..8)
+        .map(|i| {
+            let c = Vector3::new(
+                if i & 1 == 0 { -0.1 } else { 0.1 },
+                if i & 2 == 0 { -0.1 } else { 0.1 },
+                if i & 4 == 0 { -0.1 } else { 0.1 },
+            );
+            let p = q * c + t;
+            [p.x, p.y, p.z]
+        })
+        .collect()
+}
+
+/// A cube 1 m up, turned 0.2 rad about z and moved by (0.02, 0, -0.04) m over a step of two
+/// frames: heights of its lowest corner (0.9 m) and centre, per-frame increments and the
+/// per-frame turn, each divided by its documented scale; without a ground, or far above it,
+/// both heights read as the 4 m maximum.
+#[test]
+fn summary_reads_heights_increments_and_the_turn() {
+    let previous = Pose::from_parts(
+        Vector3::new(0.5, -0.3, 1.04),
+        UnitQuaternion::from_euler_angles(0.0, 0.0, 0.1),
+    );
+    let current = Pose::from_parts(
+        Vector3::new(0.52, -0.3, 1.0),
+        UnitQuaternion::from_euler_angles(0.0, 0.0, 0.3),
+    );
+    let frame = FeatureFrame::new(&DynamicsConfig::residual(), 2, current.translation);
+    let (world, world_prev) = (corners(&current), corners(&previous));
+    let s = object_summary(&world, &world_prev, &current, &previous, Some(0.0), &frame);
+    let want = [
+        0.9 / 0.5,
+        f32::NAN, // the lowest corner's horizontal increment includes the turn
+        f32::NAN,
+        -0.02 / 0.1,
+        1.0 / 0.5,
+        0.01 / 0.1,
+        0.0,
+        -0.02 / 0.1,
+        0.0,
+        0.0,
+        0.1 / 0.2,
+    ];
+    for (i, (got, want)) in s.iter().zip(want).enumerate() {
+        if want.is_finite() {
+            assert!(
+                (got - want).abs() < 1e-4,
+                "summary[{i}] = {got}, expected {want}"
+            );
+        }
+    }
+    let none = object_summary(&world, &world_prev, &current, &previous, None, &frame);
+    assert_eq!((none[0], none[4]), (8.0, 8.0));
+    let under = object_summary(&world, &world_prev, &current, &previous, Some(-9.0), &frame);
+    assert_eq!((under[0], under[4]), (8.0, 8.0));
+    assert_eq!(none[5..], s[5..]);
+}
+
+/// The summary's parameters are created last and its last layer starts at zero: a random
+/// model with the summary steps exactly as the one without from the same seed, and so does a
+/// model widened with it; widening twice is refused.
+#[test]
+fn a_model_gains_the_summary_as_the_same_function() {
+    let plain = ModelConfig::small();
+    assert!(!plain.dynamics.object_summary);
+    let mut with = plain.clone();
+    with.dynamics.object_summary = true;
+    let a = RigidFormer::new_frozen(plain, 5, &Device::Cpu).unwrap();
+    let b = RigidFormer::new_frozen(with, 5, &Device::Cpu).unwrap();
+    let wide = a.widened_with_object_summary(7, false).unwrap();
+    assert!(wide.config().dynamics.object_summary);
+    assert_eq!(
+        wide.parameter_count(),
+        b.parameter_count(),
+        "the widened model has the summary's parameters"
+    );
+    for (seed, k) in [(1, 1), (2, 4)] {
+        let reference = step(&a, seed, k);
+        for (name, model) in [("random", &b), ("widened", &wide)] {
+            let diff = max_pose_diff(&reference, &step(model, seed, k));
+            assert!(diff < 1e-5, "{name}, seed {seed}, k {k}: differs by {diff}");
+        }
+    }
+    let twice = wide.widened_with_object_summary(7, false);
+    assert!(twice.err().unwrap().to_string().contains("already"));
+}
+
+/// A trainable model with the summary: the summary's last layer receives a gradient from the
+/// first backward pass, and the model round-trips through a checkpoint with the summary on.
+#[test]
+fn summary_layers_learn_and_save() {
+    let mut cfg = ModelConfig::tiny();
+    cfg.dynamics.object_summary = true;
+    let model = RigidFormer::new(cfg, 3, &Device::Cpu).unwrap();
+    let (objects, state) = random_scene(4, 3, 64);
+    let scene = model.prepare(objects).unwrap();
+    // Targets 5 cm below constant velocity (any target gives a gradient).
+    let target: Vec<Pose> = state
+        .previous
+        .iter()
+        .zip(&state.current)
+        .map(|(p, c)| {
+            let mut t = *c;
+            for d in 0..3 {
+                t.translation[d] = 2.0 * c.translation[d] - p.translation[d];
+            }
+            t.translation[2] -= 0.05;
+            t
+        })
+        .collect();
+    let out = model
+        .train_forward(&[TrainItem {
+            scene: &scene,
+            state: &state,
+            target: &target,
+            dt_steps: 1,
+            kinematic: &[],
+        }])
+        .unwrap();
+    let grads = out.loss.backward().unwrap();
+    let vars = model.varmap().data().lock().unwrap().clone();
+    let g = grads.get(vars["summary.1.weight"].as_tensor()).unwrap();
+    let norm = g
+        .sqr()
+        .unwrap()
+        .sum_all()
+        .unwrap()
+        .to_scalar::<f32>()
+        .unwrap();
+    assert!(norm > 0.0 && norm.is_finite(), "summary.1 gradient {norm}");
+
+    let dir = std::env::temp_dir().join(format!("dynaserve-summary-{}", std::process::id()));
+    model.save(&dir).unwrap();
+    let back = load_rigidformer(&dir, &Device::Cpu, false).unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+    assert!(back.config().dynamics.object_summary);
+    let diff = max_pose_diff(&step(&model, 6, 2), &step(&back, 6, 2));
+    assert!(diff < 1e-6, "reloaded model differs by {diff}");
+}
