@@ -284,6 +284,12 @@ pub struct ModelConfig {
     pub anchor_taps: Vec<usize>,
     /// Acceleration output scale, metres per step^2: the head predicts `a / accel_scale`.
     pub accel_scale: f32,
+    /// A second, coarse output unit, metres per step^2 like `accel_scale`: the head predicts
+    /// three more numbers per anchor in this unit and adds them to the fine ones, so a
+    /// bounce's correction (tenths of a metre) and a resting body's (tenths of a millimetre)
+    /// are each O(1) in one of the two. `None` (absent in older `config.json` files): one unit.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub accel_coarse_scale: Option<f32>,
 
     /// Training loss settings.
     pub loss: LossConfig,
@@ -337,6 +343,7 @@ impl ModelConfig {
             avp_sigma: 0.2,
             anchor_taps: vec![1, 3, 5],
             accel_scale: 0.02,
+            accel_coarse_scale: None,
             loss: LossConfig::default(),
             dynamics: DynamicsConfig::residual(),
         }
@@ -454,6 +461,10 @@ impl ModelConfig {
             ("norm_eps", self.norm_eps),
             ("avp_sigma", self.avp_sigma),
             ("accel_scale", self.accel_scale),
+            (
+                "accel_coarse_scale",
+                self.accel_coarse_scale.unwrap_or(self.accel_scale),
+            ),
             ("loss.beta", self.loss.beta),
             ("loss.scale", self.loss.scale),
             ("loss.rest_weight", self.loss.rest_weight),

@@ -120,6 +120,22 @@ impl Mlp {
         })
     }
 
+    /// [`Mlp::new`] with the output layer's weights initialised to zero: the MLP starts as the
+    /// zero function and its first layer learns once the output layer has moved.
+    pub fn with_zero_output(
+        p: &mut ParamStore,
+        name: &str,
+        input: usize,
+        hidden: usize,
+        output: usize,
+    ) -> Result<Mlp, ModelError> {
+        Ok(Mlp {
+            a: p.linear(&format!("{name}.0"), input, hidden, true)?,
+            b: p.linear_init(&format!("{name}.1"), hidden, output, true, 0.0)?,
+            host: Arc::new(OnceLock::new()),
+        })
+    }
+
     /// Host copy of the parameters for the CPU kernel of
     /// [`crate::kernels::grouped_mlp`] (both layers must have biases). Built once for
     /// constant weights, on every call for training variables (which change between calls).

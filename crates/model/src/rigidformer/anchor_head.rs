@@ -34,6 +34,9 @@ pub(crate) struct AnchorHead {
     out: Linear,
     head_norm: RmsNorm,
     head: Mlp,
+    /// The coarse output MLP (`anchors.coarse.*`, D -> D -> 3, last layer initialised to
+    /// zero) when the configuration has a coarse unit.
+    coarse: Option<Mlp>,
     device: Device,
 }
 
@@ -63,6 +66,10 @@ impl AnchorHead {
             out: p.linear("anchors.cross.out", d, d, false)?,
             head_norm: p.rms_norm("anchors.head_norm", d, eps)?,
             head: Mlp::new(p, "anchors.head", d, d, 3)?,
+            coarse: match c.accel_coarse_scale {
+                Some(_) => Some(Mlp::with_zero_output(p, "anchors.coarse", d, d, 3)?),
+                None => None,
+            },
             device: device.clone(),
         })
     }
@@ -93,11 +100,18 @@ impl AnchorHead {
         let (o, k) = (inp.o, config.anchors);
         let query = self.queries(config, inp, point_features, dec, exec)?; // [O, K, D]
         let kv = self.keys_values(dec, exec)?; // [B, nT*T, 2D]
-        let acc = if exec.fused {
+        let y = if exec.fused {
             self.cross_fused(config, inp, dec, &query, &kv, exec)?
         } else {
             self.cross_composed(config, inp, dec, &query, &kv, exec)?
         };
+        // The acceleration MLP (D -> D -> 3, SiLU), plus the coarse one in its own unit.
+        let x = self.head_norm.forward_exec(&y, exec)?;
+        let mut acc = self.head.forward(&x, exec.fused)?; // [O * K, 3]
+        if let (Some(coarse), Some(unit)) = (&self.coarse, config.accel_coarse_scale) {
+            let ratio = (unit / config.accel_scale) as f64;
+            acc = (acc + (coarse.forward(&x, exec.fused)? * ratio)?)?;
+        }
         let acc = acc.reshape((o, k, 3))?;
         // Head units (accel_scale per frame^2 or per step^2) to metres per step^2.
         let factor: Vec<f32> = inp
@@ -191,9 +205,9 @@ impl AnchorHead {
         Ok(self.kv.forward(&Tensor::cat(&kv_in, 1)?)?)
     }
 
-    /// Cross-attention and acceleration MLP with the fused kernel (with its gradient in
-    /// training): queries stay packed `[O * K, D]`, each attending to its own scene's keys.
-    /// Returns `[O * K, 3]`.
+    /// Cross-attention with the fused kernel (with its gradient in training): queries stay
+    /// packed `[O * K, D]`, each attending to its own scene's keys. Returns the updated queries
+    /// `[O * K, D]` (the acceleration MLP's input before its norm).
     fn cross_fused(
         &self,
         c: &ModelConfig,
@@ -246,14 +260,12 @@ impl AnchorHead {
             Mode::Inference => cross_attention(op, &qx, kv)?,
             Mode::Training => cross_attention_train(op, &qx, kv)?,
         };
-        let y = (query + self.out.forward(&att)?)?;
-        Ok(self
-            .head
-            .forward(&self.head_norm.forward_exec(&y, exec)?, exec.fused)?)
+        Ok((query + self.out.forward(&att)?)?)
     }
 
-    /// Cross-attention and acceleration MLP as a composition of candle ops: queries laid out
-    /// per scene `[B, M*K, D]` (zero rows for padding) and gathered back. Returns `[O * K, 3]`.
+    /// Cross-attention as a composition of candle ops: queries laid out per scene
+    /// `[B, M*K, D]` (zero rows for padding) and gathered back. Returns the updated queries
+    /// `[O * K, D]`, as [`AnchorHead::cross_fused`].
     fn cross_composed(
         &self,
         c: &ModelConfig,
@@ -305,13 +317,8 @@ impl AnchorHead {
             mode,
         )?;
         let att = att.transpose(1, 2)?.reshape((b, m * k, d))?;
-        let y = (query + self.out.forward(&att)?)?;
-        // The acceleration MLP (D -> D -> 3, SiLU).
-        let acc = self
-            .head
-            .forward(&self.head_norm.forward_exec(&y, exec)?, exec.fused)?; // [B, M*K, 3]
-        Ok(acc
-            .reshape((b * m * k, 3))?
+        let y = (query + self.out.forward(&att)?)?; // [B, M*K, D]
+        Ok(y.reshape((b * m * k, d))?
             .index_select(&host_index(device, &back)?, 0)?)
     }
 }

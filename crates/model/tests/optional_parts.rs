@@ -1,5 +1,6 @@
-//! The object state summary: its numbers for a known motion, a model that gains it (random or
-//! widened) computes the same steps as one without, and its layers learn and save.
+//! The optional parts of a RigidFormer that start as the zero function: the object state
+//! summary (its numbers for a known motion; a model that gains it, random or widened, computes
+//! the same steps as one without; its layers learn and save) and the coarse output unit.
 mod common;
 
 use common::{max_pose_diff, random_scene};
@@ -165,4 +166,55 @@ fn summary_layers_learn_and_save() {
     assert!(back.config().dynamics.object_summary);
     let diff = max_pose_diff(&step(&model, 6, 2), &step(&back, 6, 2));
     assert!(diff < 1e-6, "reloaded model differs by {diff}");
+}
+
+/// A coarse output unit starts at zero (its MLP's last layer), so a random model with one
+/// steps exactly as the one without from the same seed; its last layer receives a gradient; the
+/// unit survives a checkpoint; a non-positive unit is refused.
+#[test]
+fn a_coarse_output_unit_starts_at_zero_and_learns() {
+    let plain = ModelConfig::tiny();
+    let mut with = plain.clone();
+    with.accel_coarse_scale = Some(0.2);
+    let a = RigidFormer::new_frozen(plain, 8, &Device::Cpu).unwrap();
+    let b = RigidFormer::new(with.clone(), 8, &Device::Cpu).unwrap();
+    for (seed, k) in [(1, 1), (2, 3)] {
+        let diff = max_pose_diff(&step(&a, seed, k), &step(&b, seed, k));
+        assert!(diff < 1e-5, "seed {seed}, k {k}: differs by {diff}");
+    }
+    let (objects, state) = random_scene(4, 3, 64);
+    let scene = b.prepare(objects).unwrap();
+    let target: Vec<Pose> = state.current.clone();
+    let out = b
+        .train_forward(&[TrainItem {
+            scene: &scene,
+            state: &state,
+            target: &target,
+            dt_steps: 1,
+            kinematic: &[],
+        }])
+        .unwrap();
+    let grads = out.loss.backward().unwrap();
+    let vars = b.varmap().data().lock().unwrap().clone();
+    let g = grads
+        .get(vars["anchors.coarse.1.weight"].as_tensor())
+        .unwrap();
+    let norm = g
+        .sqr()
+        .unwrap()
+        .sum_all()
+        .unwrap()
+        .to_scalar::<f32>()
+        .unwrap();
+    assert!(norm > 0.0 && norm.is_finite(), "coarse gradient {norm}");
+
+    let dir = std::env::temp_dir().join(format!("dynaserve-coarse-{}", std::process::id()));
+    b.save(&dir).unwrap();
+    let back = load_rigidformer(&dir, &Device::Cpu, false).unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+    assert_eq!(back.config().accel_coarse_scale, Some(0.2));
+
+    with.accel_coarse_scale = Some(0.0);
+    let err = RigidFormer::new(with, 8, &Device::Cpu).err().unwrap();
+    assert!(err.to_string().contains("accel_coarse_scale"), "{err}");
 }
