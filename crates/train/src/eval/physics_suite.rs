@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 use super::driven::{driven_rollout_batch, has_kinematic};
 use super::regimes::{
     CONTACT_DISTANCE_M, ContactFlags, RESTING_ANGULAR_DEG_S, RESTING_SPEED_M_S, Regime,
-    RegimeErrors, contact_flags, regime, windows,
+    RegimeErrors, contact_flags, floor_impact, regime, windows,
 };
 use super::scenario_figures::{Sample, scene_samples};
 use super::{DEFAULT_START_FRAME, EvalError, Predictor, RolloutRequest, observed_state};
@@ -401,6 +401,9 @@ fn run_predictor(
                     }
                     let r = regime(&sc.scene, &flags[i], j, t, k as usize);
                     errors.add(ki, r, dt, da);
+                    if r == Regime::FloorContact && floor_impact(&flags[i], j, t, k as usize) {
+                        errors.add(ki, Regime::FloorImpact, dt, da);
+                    }
                 }
             }
         }
@@ -483,7 +486,7 @@ fn regime_rows(
     let model = labels.iter().position(|l| l == "model");
     let ballistic = labels.iter().position(|l| l == "ballistic");
     let mut rows = Vec::new();
-    for regime in Regime::ALL {
+    for regime in Regime::REPORTED {
         for (ki, &k) in step_sizes.iter().enumerate() {
             let cells: Vec<RegimeCell> = results
                 .iter()
