@@ -165,6 +165,13 @@ pub struct DynamicsConfig {
     /// starts at zero, so the floor reaches the decoder without passing through the encoder's
     /// max-pools. Absent in older `config.json` files, which means off.
     pub object_summary: bool,
+    /// A Verlet base that respects the floor: after the constant-velocity extrapolation and
+    /// free fall, the object is raised just enough that no point of its reference cloud is
+    /// below `ground_z` (the ballistic-with-floor baseline's inelastic floor). A body at rest on
+    /// the floor or landing then needs a small output (the rebound) instead of cancelling a
+    /// free fall or a penetration of up to a step's travel. Absent in older `config.json`
+    /// files, which means off.
+    pub floor_base: bool,
 }
 
 impl DynamicsConfig {
@@ -177,6 +184,7 @@ impl DynamicsConfig {
             contact_velocity: true,
             rigid_extrapolation: true,
             object_summary: false,
+            floor_base: false,
         }
     }
 

@@ -334,6 +334,67 @@ fn free_fall_is_the_zero_output_with_a_gravity_residual() {
     }
 }
 
+/// With the floor-aware base a box at rest on the floor needs a zero output (without it, the
+/// base lets it fall `g (k dt)^2` into the floor), a box that would land within the step is
+/// based with its lowest point on the floor, and a box far above the floor is not lifted.
+#[test]
+fn floor_base_holds_a_resting_body_and_stops_a_landing_one_on_the_floor() {
+    let h = 0.15f32; // half extent, metres
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let cube = dynaserve_model::ObjectInput {
+        reference: common::box_cloud(&mut rng, 64, [h; 3]),
+        mass: 1.0,
+        friction: 0.5,
+        restitution: 0.5,
+    };
+    let at = |z: f32| Pose::from_parts(Vector3::new(0.3, -0.2, z), UnitQuaternion::identity());
+    for floor_base in [true, false] {
+        let mut cfg = ModelConfig::tiny();
+        cfg.dynamics.floor_base = floor_base;
+        let model = RigidFormer::new(cfg.clone(), 4, &Device::Cpu).unwrap();
+        let sc = model.prepare(vec![cube.clone()]).unwrap();
+        for k in [1u32, 4] {
+            let fall = cfg.gravity[2] * (k as f32 * cfg.dt_frame).powi(2);
+            // (previous z, current z, where the base puts the centre).
+            let landing = h + 0.01;
+            let cases = [
+                (h, h, if floor_base { h } else { h + fall }),
+                (
+                    landing + 0.1,
+                    landing,
+                    if floor_base { h } else { landing - 0.1 + fall },
+                ),
+                (3.0, 2.9, 2.8 + fall),
+            ];
+            for (before, now, base_z) in cases {
+                let state = SceneState {
+                    previous: vec![at(before)],
+                    current: vec![at(now)],
+                };
+                let target = vec![at(now)];
+                let out = model
+                    .train_forward(&[TrainItem {
+                        scene: &sc,
+                        state: &state,
+                        target: &target,
+                        dt_steps: k,
+                        kinematic: &[],
+                    }])
+                    .unwrap();
+                let acc: Vec<f32> = out.target_accel.flatten_all().unwrap().to_vec1().unwrap();
+                // The base centre is the target centre minus the target acceleration.
+                for a in acc.chunks(3) {
+                    let got = now - a[2];
+                    assert!(
+                        (got - base_z).abs() < 1e-4 && a[0].abs() < 1e-5 && a[1].abs() < 1e-5,
+                        "floor_base {floor_base}, k {k}, z {before} -> {now}: base centre {got}, expected {base_z}"
+                    );
+                }
+            }
+        }
+    }
+}
+
 /// A kinematic object's target does not reach the loss: moving it changes nothing when the
 /// object is flagged kinematic and raises the loss when it is not; a flag list of the wrong
 /// length is refused.

@@ -8,6 +8,7 @@
 use nalgebra::{Matrix3, Vector3};
 
 use super::features::{FeatureFrame, ScenePoints, object_summary, rotation_translation as rot};
+use super::projection::free_fall;
 use crate::api::Pose;
 use crate::kernels::avp::padded_distances;
 use crate::prepare::PreparedScene;
@@ -81,6 +82,9 @@ pub(crate) struct BatchInputs<'a> {
     pub anchors_base: Vec<Vec<[f64; 3]>>,
     /// Anchors in the reference (body) frame, per object `[K]`, metres (f64).
     pub anchors_ref: Vec<Vec<[f64; 3]>>,
+    /// How far the Verlet base raises each object so no point is below the floor, `[o]`
+    /// metres (>= 0; empty without `dynamics.floor_base`).
+    pub floor_lift: Vec<f64>,
     /// Current rotation per object (for the quaternion sign of the output).
     pub current_rot: Vec<[f32; 4]>,
 }
@@ -133,6 +137,7 @@ struct SceneChunk {
     object_summary: Vec<f32>,
     anchors_base: Vec<Vec<[f64; 3]>>,
     anchors_ref: Vec<Vec<[f64; 3]>>,
+    floor_lift: Vec<f64>,
 }
 
 /// A scene's rows of the batch's fixed-size buffers: features `[points, F]` and point mask
@@ -160,6 +165,30 @@ pub(crate) fn verlet_base(
         (r * x + p) * 2.0 - (r_prev * x + p_prev)
     };
     [y.x, y.y, y.z]
+}
+
+/// How far an object must be raised (metres, >= 0) so that none of its `reference` points
+/// (body frame, metres) is below z = 0 at its rigid constant-velocity pose one step ahead,
+/// `R_t R_{t-k}^T R_t` and `2 p_t - p_{t-k}`, shifted down by `-drop_z` metres (the free fall
+/// of the step minus the floor's height: `drop_z` is the free-fall z plus `-ground_z`).
+pub(crate) fn floor_lift(
+    reference: &[[f32; 3]],
+    (r, p): (&Matrix3<f64>, &Vector3<f64>),
+    (r_prev, p_prev): (&Matrix3<f64>, &Vector3<f64>),
+    drop_z: f64,
+) -> f64 {
+    let rb = r * r_prev.transpose() * r;
+    let z0 = 2.0 * p.z - p_prev.z + drop_z;
+    let row = rb.row(2);
+    let lowest = reference
+        .iter()
+        .map(|x| row[0] * f64::from(x[0]) + row[1] * f64::from(x[1]) + row[2] * f64::from(x[2]))
+        .fold(f64::INFINITY, f64::min);
+    if lowest.is_finite() {
+        (-(z0 + lowest)).max(0.0)
+    } else {
+        0.0
+    }
 }
 
 /// Builds the inputs of one batched pass. Checks that every scene was prepared for `cfg`.
@@ -262,6 +291,7 @@ pub(crate) fn build_inputs<'a>(
         object_summary: Vec::new(),
         anchors_base: Vec::with_capacity(o),
         anchors_ref: Vec::with_capacity(o),
+        floor_lift: Vec::new(),
         current_rot: requests
             .iter()
             .flat_map(|r| r.current.iter().map(|p| p.rotation))
@@ -281,6 +311,7 @@ pub(crate) fn build_inputs<'a>(
         inp.object_summary.extend(c.object_summary);
         inp.anchors_base.extend(c.anchors_base);
         inp.anchors_ref.extend(c.anchors_ref);
+        inp.floor_lift.extend(c.floor_lift);
     }
     Ok(inp)
 }
@@ -385,6 +416,7 @@ impl ObjectContext<'_> {
             object_summary: Vec::new(),
             anchors_base: Vec::with_capacity(m),
             anchors_ref: Vec::with_capacity(m),
+            floor_lift: Vec::new(),
         };
         let mut ang = Vec::with_capacity(3 * freqs.len());
         // Normalisation as a multiply by the inverse deviation over fixed-length slices: the
@@ -476,6 +508,15 @@ impl ObjectContext<'_> {
                     (&before64.0, &before64.1),
                 ));
                 ar.push([x.x, x.y, x.z]);
+            }
+            if let (true, Some(ground)) = (cfg.dynamics.floor_base, cfg.ground_z) {
+                let fall = free_fall(cfg, r.dt_steps);
+                c.floor_lift.push(floor_lift(
+                    &obj.reference,
+                    (&now64.0, &now64.1),
+                    (&before64.0, &before64.1),
+                    fall[2] + f64::from(-ground),
+                ));
             }
             c.object_cos.extend(mean_cos);
             c.object_sin.extend(mean_sin);

@@ -183,6 +183,14 @@ impl RigidFormer {
         self
     }
 
+    /// Switches the floor-aware Verlet base ([`crate::DynamicsConfig::floor_base`]) on or off.
+    /// No weight changes; a model trained with the other base needs fine-tuning where the two
+    /// differ (bodies touching or landing on the floor).
+    pub fn with_floor_base(mut self, on: bool) -> RigidFormer {
+        self.config.dynamics.floor_base = on;
+        self
+    }
+
     /// Sets the Smooth L1 transition point of the training loss ([`crate::LossConfig::beta`],
     /// in units of the loss scale). Inference is unaffected; fine-tuning then weighs errors
     /// below the new point linearly instead of quadratically (or the reverse).

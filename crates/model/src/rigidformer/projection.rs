@@ -21,6 +21,15 @@ pub(crate) fn free_fall(c: &ModelConfig, dt_steps: u32) -> [f64; 3] {
     c.gravity.map(|g| g as f64 * h * h)
 }
 
+/// What the Verlet base adds to every anchor of object `obj` of a pass after the
+/// constant-velocity extrapolation, metres: the [`free_fall`] of its step size and the
+/// object's floor lift (`dynamics.floor_base`, zero otherwise).
+pub(crate) fn base_shift(c: &ModelConfig, inp: &BatchInputs, obj: usize) -> [f64; 3] {
+    let mut shift = free_fall(c, inp.object_dt[obj]);
+    shift[2] += inp.floor_lift.get(obj).copied().unwrap_or(0.0);
+    shift
+}
+
 /// New poses of every object of a pass, `[scenes][objects]`, from accelerations
 /// `acc` (`[O * K * 3]`, metres per step^2), objects in parallel when there are many.
 pub(crate) fn project_poses(
@@ -30,7 +39,7 @@ pub(crate) fn project_poses(
 ) -> Result<Vec<Vec<Pose>>, ModelError> {
     let k = c.anchors;
     let poses: Result<Vec<Pose>, ModelError> = team::map_indices(inp.o, PARALLEL_OBJECTS, |obj| {
-        let fall = free_fall(c, inp.object_dt[obj]);
+        let fall = base_shift(c, inp, obj);
         let target: Vec<[f64; 3]> = (0..k)
             .map(|i| {
                 let base = inp.anchors_base[obj][i];

@@ -6,7 +6,7 @@ use candle_core::Tensor;
 use super::RigidFormer;
 use super::host_tensor;
 use super::inputs::{SceneRequest, build_inputs};
-use super::projection::{free_fall, pose_f64};
+use super::projection::{base_shift, pose_f64};
 use crate::ModelError;
 use crate::api::{Pose, SceneState};
 use crate::kernels::kabsch::KabschOp;
@@ -113,11 +113,9 @@ impl RigidFormer {
             }
         }
         let target_positions = host_tensor(&self.device, &tgt, &[o, k, 3])?;
-        // The Verlet base (+ free fall with a gravity residual), per object.
-        let fall: Vec<f32> = inp
-            .object_dt
-            .iter()
-            .flat_map(|&dt| free_fall(&self.config, dt).map(|v| v as f32))
+        // The Verlet base (+ free fall with a gravity residual, + the floor lift), per object.
+        let fall: Vec<f32> = (0..o)
+            .flat_map(|obj| base_shift(&self.config, &inp, obj).map(|v| v as f32))
             .collect();
         let base = a_base.broadcast_add(&host_tensor(&self.device, &fall, &[o, 1, 3])?)?;
         let target_accel = (&target_positions - &base)?;

@@ -145,6 +145,10 @@ pub struct ModelSection {
     /// preset, config or `init` model has; set, it switches the base of any of them (an `init`
     /// model keeps its weights and learns the new base's residual).
     pub rigid_extrapolation: Option<bool>,
+    /// The floor-aware Verlet base (`DynamicsConfig::floor_base`): unset keeps what the preset,
+    /// config or `init` model has; set, it switches the base of any of them (an `init` model
+    /// keeps its weights and learns the new base's residual).
+    pub floor_base: Option<bool>,
     /// The Smooth L1 transition point of the loss (`LossConfig::beta`, in units of its
     /// 1 mm scale): unset keeps what the preset, config or `init` model has. Errors below it
     /// pull quadratically (weakly), errors above it linearly; a smaller value gives the
@@ -168,6 +172,7 @@ impl Default for ModelSection {
             contact_velocity: None,
             object_summary: None,
             rigid_extrapolation: None,
+            floor_base: None,
             loss_beta: None,
             rest_weight: None,
         }
@@ -177,11 +182,15 @@ impl Default for ModelSection {
 impl ModelSection {
     /// The model configuration this section names (before normalisation fitting), with
     /// `contact_velocity` (the normalisation then resized to its defaults),
-    /// `object_summary`, `rigid_extrapolation`, `loss_beta` and `rest_weight` applied.
+    /// `object_summary`, `rigid_extrapolation`, `floor_base`, `loss_beta` and `rest_weight`
+    /// applied.
     pub fn model_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {
         let mut c = self.named_config(base)?;
         if let Some(on) = self.rigid_extrapolation {
             c.dynamics.rigid_extrapolation = on;
+        }
+        if let Some(on) = self.floor_base {
+            c.dynamics.floor_base = on;
         }
         if let Some(beta) = self.loss_beta {
             c.loss.beta = beta;
