@@ -217,6 +217,25 @@ fn replaying_the_ground_truth_reproduces_rapier_figures_with_zero_error() {
         .map(|s| s.scene.objects.len() * windows(101, 1, 3).len())
         .sum();
     assert_eq!(counted, expected as u64);
+    // Every window is listed once, with its regime; the impacts agree with the table's row.
+    let k1: Vec<_> = report.windows.iter().filter(|w| w.k == 1).collect();
+    assert_eq!(k1.len(), expected);
+    let impact_row = report
+        .regimes
+        .iter()
+        .find(|r| r.k == 1 && r.regime == Regime::FloorImpact)
+        .unwrap();
+    assert_eq!(
+        k1.iter().filter(|w| w.impact).count() as u64,
+        impact_row.count
+    );
+    assert!(
+        k1.iter()
+            .all(|w| w.translation_m < 1e-9 && w.floor.len() == 3)
+    );
+    let csv = dynaserve_train::eval::physics_suite::window_csv(&report);
+    assert_eq!(csv.lines().count(), report.windows.len() + 1);
+    assert!(csv.starts_with("predictor,scene,object,t,k,regime,impact"));
 }
 
 #[test]

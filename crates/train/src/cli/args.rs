@@ -107,6 +107,10 @@ pub struct EvalArgs {
     /// Write the Markdown tables to this file.
     #[arg(long)]
     pub markdown: Option<PathBuf>,
+    /// Physics suite: write every scored one-step window (predictor, scene, object, frame,
+    /// step size, regime, impact, contact flags, errors) to this CSV file.
+    #[arg(long)]
+    pub windows: Option<PathBuf>,
     /// Write the error-against-time PNG to this file (default: next to --json, with .png).
     #[arg(long)]
     pub plot: Option<PathBuf>,

@@ -8,7 +8,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use super::args::{BaselineKind, EvalArgs};
 use crate::eval::physics_report::{format_physics_markdown, format_physics_text};
-use crate::eval::physics_suite::{SuiteOptions, generate_suite, load_suite, run_suite};
+use crate::eval::physics_suite::{SuiteOptions, generate_suite, load_suite, run_suite, window_csv};
 use crate::eval::{Ballistic, ModelPredictor, PointSelection, Predictor, Static, driven};
 
 /// Reference points per object of generated suite scenes (as in the datasets).
@@ -105,6 +105,15 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         std::fs::write(path, format_physics_markdown(&report))
             .with_context(|| format!("writing {}", path.display()))?;
         println!("wrote {}", path.display());
+    }
+    if let Some(path) = &args.windows {
+        std::fs::write(path, window_csv(&report))
+            .with_context(|| format!("writing {}", path.display()))?;
+        println!(
+            "wrote {} ({} windows)",
+            path.display(),
+            report.windows.len()
+        );
     }
     Ok(())
 }

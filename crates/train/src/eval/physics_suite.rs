@@ -269,12 +269,68 @@ pub struct PhysicsSuiteReport {
     pub regimes: Vec<RegimeRow>,
     /// Wall time, seconds.
     pub elapsed_s: f64,
+    /// Every scored one-step window of every predictor (not in the JSON: written by
+    /// [`window_csv`] when asked for).
+    #[serde(skip)]
+    pub windows: Vec<WindowRecord>,
+}
+
+/// One object-window of the regime table, for looking at individual errors.
+#[derive(Clone, Debug, PartialEq)]
+pub struct WindowRecord {
+    /// Predictor label.
+    pub predictor: String,
+    /// Scene index in the suite.
+    pub scene: usize,
+    /// Object index in the scene.
+    pub object: usize,
+    /// Observed frame `t` (the window is `t - k, t -> t + k`).
+    pub t: usize,
+    /// Step size, frames.
+    pub k: u32,
+    /// Ground-truth regime.
+    pub regime: Regime,
+    /// A floor-contact window with a landing, bounce or lift-off ([`Regime::FloorImpact`]).
+    pub impact: bool,
+    /// Floor-contact flags of frames `t - k ..= t + k`, `1` or `0` each.
+    pub floor: String,
+    /// Impulse flags (acceleration off gravity) of the same frames.
+    pub impulse: String,
+    /// Translation error, m.
+    pub translation_m: f64,
+    /// Orientation error, degrees.
+    pub orientation_deg: f64,
+}
+
+/// The windows of a report as CSV (header and one line per record).
+pub fn window_csv(report: &PhysicsSuiteReport) -> String {
+    let mut out = String::from(
+        "predictor,scene,object,t,k,regime,impact,floor,impulse,translation_m,orientation_deg\n",
+    );
+    for w in &report.windows {
+        out.push_str(&format!(
+            "{},{},{},{},{},{},{},{},{},{:.6},{:.4}\n",
+            w.predictor,
+            w.scene,
+            w.object,
+            w.t,
+            w.k,
+            w.regime.name(),
+            w.impact,
+            w.floor,
+            w.impulse,
+            w.translation_m,
+            w.orientation_deg
+        ));
+    }
+    out
 }
 
 /// What one predictor produced.
 struct PredictorResult {
     samples: Vec<Sample>,
     errors: RegimeErrors,
+    windows: Vec<WindowRecord>,
 }
 
 fn check_scenes(scenes: &[SuiteScene], opts: &SuiteOptions) -> Result<usize, EvalError> {
@@ -310,6 +366,7 @@ fn check_scenes(scenes: &[SuiteScene], opts: &SuiteOptions) -> Result<usize, Eva
 }
 
 fn run_predictor(
+    label: &str,
     predictor: &dyn Predictor,
     scenes: &[SuiteScene],
     flags: &[ContactFlags],
@@ -355,6 +412,7 @@ fn run_predictor(
         }
     }
     let mut errors = RegimeErrors::new(&opts.step_sizes);
+    let mut records = Vec::new();
     for (i, sc) in scenes.iter().enumerate() {
         let mut jobs = Vec::new();
         for (ki, &k) in opts.step_sizes.iter().enumerate() {
@@ -401,15 +459,40 @@ fn run_predictor(
                     }
                     let r = regime(&sc.scene, &flags[i], j, t, k as usize);
                     errors.add(ki, r, dt, da);
-                    if r == Regime::FloorContact && floor_impact(&flags[i], j, t, k as usize) {
+                    let impact =
+                        r == Regime::FloorContact && floor_impact(&flags[i], j, t, k as usize);
+                    if impact {
                         errors.add(ki, Regime::FloorImpact, dt, da);
                     }
+                    let f = &flags[i];
+                    let bits = |v: &Vec<Vec<bool>>| -> String {
+                        (t - k as usize..=target)
+                            .map(|x| if v[x][j] { '1' } else { '0' })
+                            .collect()
+                    };
+                    records.push(WindowRecord {
+                        predictor: label.to_string(),
+                        scene: i,
+                        object: j,
+                        t,
+                        k,
+                        regime: r,
+                        impact,
+                        floor: bits(&f.floor),
+                        impulse: bits(&f.impulse),
+                        translation_m: dt,
+                        orientation_deg: da,
+                    });
                 }
             }
         }
         progress(i + 1);
     }
-    Ok(PredictorResult { samples, errors })
+    Ok(PredictorResult {
+        samples,
+        errors,
+        windows: records,
+    })
 }
 
 fn stat(values: impl Iterator<Item = f64>, met: Option<u64>) -> FigureStat {
@@ -568,7 +651,9 @@ pub fn run_suite(
     let results = predictors
         .iter()
         .enumerate()
-        .map(|(pi, (_, p))| run_predictor(*p, scenes, &flags, frames, opts, &|n| progress(pi, n)))
+        .map(|(pi, (l, p))| {
+            run_predictor(l, *p, scenes, &flags, frames, opts, &|n| progress(pi, n))
+        })
         .collect::<Result<Vec<_>, _>>()?;
     let labels: Vec<String> = predictors.iter().map(|(l, _)| l.to_string()).collect();
     Ok(PhysicsSuiteReport {
@@ -587,5 +672,6 @@ pub fn run_suite(
         figures: figure_rows(&results),
         regimes: regime_rows(&results, &labels, &opts.step_sizes),
         elapsed_s: started.elapsed().as_secs_f64(),
+        windows: results.into_iter().flat_map(|r| r.windows).collect(),
     })
 }
