@@ -20,7 +20,7 @@ pub const BASE_POINT_FEATURES: usize = 12;
 pub const CONTACT_VELOCITY_FEATURES: usize = 3;
 
 /// Numbers per object in the object state summary ([`DynamicsConfig::object_summary`]).
-pub const OBJECT_SUMMARY_FEATURES: usize = 11;
+pub const OBJECT_SUMMARY_FEATURES: usize = 14;
 
 /// Affine normalisation of the per-point input features: `(raw - mean) / std`, one value per
 /// feature ([`DynamicsConfig::point_features`]: 12, or 15 with the contact velocity).
@@ -161,7 +161,7 @@ pub struct DynamicsConfig {
     pub rigid_extrapolation: bool,
     /// Object state summary: [`OBJECT_SUMMARY_FEATURES`] numbers per object (the lowest
     /// point's height above the ground and increment, the centre's height and increment, the
-    /// rotation increment), added to the object's token through a small MLP whose last layer
+    /// rotation increment, the lowest point's offset from the centre), added to the object's token through a small MLP whose last layer
     /// starts at zero, so the floor reaches the decoder without passing through the encoder's
     /// max-pools. Absent in older `config.json` files, which means off.
     pub object_summary: bool,

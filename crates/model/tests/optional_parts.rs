@@ -42,8 +42,9 @@ fn corners(pose: &Pose) -> Vec<[f32; 3]> {
 }
 
 /// A cube 1 m up, turned 0.2 rad about z and moved by (0.02, 0, -0.04) m over a step of two
-/// frames: heights of its lowest corner (0.9 m) and centre, per-frame increments and the
-/// per-frame turn, each divided by its documented scale; without a ground, or far above it,
+/// frames: heights of its lowest corner (0.9 m) and centre, per-frame increments, the
+/// per-frame turn and the lowest corner's offset from the centre (0.1 m below it), each divided
+/// by its documented scale; without a ground, or far above it,
 /// both heights read as the 4 m maximum.
 #[test]
 fn summary_reads_heights_increments_and_the_turn() {
@@ -70,6 +71,9 @@ fn summary_reads_heights_increments_and_the_turn() {
         0.0,
         0.0,
         0.1 / 0.2,
+        f32::NAN, // the lowest corner's horizontal offset depends on the turn
+        f32::NAN,
+        -0.1 / 0.2,
     ];
     for (i, (got, want)) in s.iter().zip(want).enumerate() {
         if want.is_finite() {

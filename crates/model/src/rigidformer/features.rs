@@ -109,15 +109,19 @@ pub const SUMMARY_INCREMENT_SCALE: f32 = 0.1;
 /// The rotation increment in the object summary (per frame with per-frame units) is divided
 /// by this, radians.
 pub const SUMMARY_ROTATION_SCALE: f32 = 0.2;
+/// The lowest point's offset from the centre in the object summary is divided by this, metres.
+pub const SUMMARY_LEVER_SCALE: f32 = 0.2;
 
 /// The object state summary of one object ([`DynamicsConfig::object_summary`]), scaled to O(1):
-/// `[h_low, inc_low (3), h_centre, inc_centre (3), rotation (3)]`. `h_low` is the height of
+/// `[h_low, inc_low (3), h_centre, inc_centre (3), rotation (3), lever (3)]`. `h_low` is the height of
 /// its lowest point above `ground_z` and `h_centre` its centre's (metres, clamped to
 /// [`SUMMARY_HEIGHT_MAX`], divided by [`SUMMARY_HEIGHT_SCALE`]; without a ground both read as
 /// the maximum); `inc_low` and `inc_centre` the increments of that point and of the centre over
 /// the last step divided by `frame.increment_divisor` (divided by
 /// [`SUMMARY_INCREMENT_SCALE`]); `rotation` the scaled axis of `R_t R_{t-k}^T` divided by the
-/// same divisor (divided by [`SUMMARY_ROTATION_SCALE`]).
+/// same divisor (divided by [`SUMMARY_ROTATION_SCALE`]); `lever` the lowest point minus the
+/// centre, world frame (divided by [`SUMMARY_LEVER_SCALE`]): where a landing body touches
+/// relative to its centre of mass, which decides how the impact turns it.
 /// `world` and `world_prev`: the object's points at t and t-1 (`[n, 3]` metres, `n >= 1`).
 pub fn object_summary(
     world: &[Point],
@@ -153,6 +157,7 @@ pub fn object_summary(
         out[1 + d] = low_inc * inc / SUMMARY_INCREMENT_SCALE;
         out[5 + d] = (now[d] - before[d]) * inc / SUMMARY_INCREMENT_SCALE;
         out[8 + d] = turn[d] * inc / SUMMARY_ROTATION_SCALE;
+        out[11 + d] = world.get(low).map_or(0.0, |p| p[d] - now[d]) / SUMMARY_LEVER_SCALE;
     }
     out[4] = height(now[2]);
     out
