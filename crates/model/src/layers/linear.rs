@@ -113,11 +113,7 @@ impl Mlp {
         hidden: usize,
         output: usize,
     ) -> Result<Mlp, ModelError> {
-        Ok(Mlp {
-            a: p.linear(&format!("{name}.0"), input, hidden, true)?,
-            b: p.linear(&format!("{name}.1"), hidden, output, true)?,
-            host: Arc::new(OnceLock::new()),
-        })
+        Self::with_output_bound(p, name, input, hidden, output, 1.0 / (hidden as f32).sqrt())
     }
 
     /// [`Mlp::new`] with the output layer's weights initialised to zero: the MLP starts as the
@@ -129,9 +125,21 @@ impl Mlp {
         hidden: usize,
         output: usize,
     ) -> Result<Mlp, ModelError> {
+        Self::with_output_bound(p, name, input, hidden, output, 0.0)
+    }
+
+    /// The MLP with output-layer weights uniform in `+-bound` (biases zero).
+    fn with_output_bound(
+        p: &mut ParamStore,
+        name: &str,
+        input: usize,
+        hidden: usize,
+        output: usize,
+        bound: f32,
+    ) -> Result<Mlp, ModelError> {
         Ok(Mlp {
             a: p.linear(&format!("{name}.0"), input, hidden, true)?,
-            b: p.linear_init(&format!("{name}.1"), hidden, output, true, 0.0)?,
+            b: p.linear_init(&format!("{name}.1"), hidden, output, true, bound)?,
             host: Arc::new(OnceLock::new()),
         })
     }

@@ -113,8 +113,8 @@ pub const SUMMARY_ROTATION_SCALE: f32 = 0.2;
 pub const SUMMARY_LEVER_SCALE: f32 = 0.2;
 
 /// The object state summary of one object ([`DynamicsConfig::object_summary`]), scaled to O(1):
-/// `[h_low, inc_low (3), h_centre, inc_centre (3), rotation (3), lever (3)]`. `h_low` is the height of
-/// its lowest point above `ground_z` and `h_centre` its centre's (metres, clamped to
+/// `[h_low, inc_low (3), h_centre, inc_centre (3), rotation (3), lever (3)]`. `h_low` is the
+/// height of its lowest point above `ground_z` and `h_centre` its centre's (metres, clamped to
 /// [`SUMMARY_HEIGHT_MAX`], divided by [`SUMMARY_HEIGHT_SCALE`]; without a ground both read as
 /// the maximum); `inc_low` and `inc_centre` the increments of that point and of the centre over
 /// the last step divided by `frame.increment_divisor` (divided by
@@ -136,28 +136,21 @@ pub fn object_summary(
         Some(g) => (z - g).min(SUMMARY_HEIGHT_MAX),
         None => SUMMARY_HEIGHT_MAX,
     } / SUMMARY_HEIGHT_SCALE;
-    let low = (0..world.len())
-        .min_by(|&a, &b| world[a][2].total_cmp(&world[b][2]))
-        .unwrap_or(0);
     let (now, before) = (current.translation, previous.translation);
-    let quat = |p: &Pose| {
-        let [x, y, z, w] = p.rotation;
-        UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z))
-    };
-    let turn = (quat(current) * quat(previous).inverse()).scaled_axis();
+    let turn = (current.unit_quaternion() * previous.unit_quaternion().inverse()).scaled_axis();
     let mut out = [0f32; OBJECT_SUMMARY_FEATURES];
-    out[0] = world
-        .get(low)
-        .map_or(SUMMARY_HEIGHT_MAX / SUMMARY_HEIGHT_SCALE, |p| height(p[2]));
+    let low =
+        (0..world.len().min(world_prev.len())).min_by(|&a, &b| world[a][2].total_cmp(&world[b][2]));
+    out[0] = low.map_or(SUMMARY_HEIGHT_MAX / SUMMARY_HEIGHT_SCALE, |i| {
+        height(world[i][2])
+    });
     for d in 0..3 {
-        let low_inc = world
-            .get(low)
-            .zip(world_prev.get(low))
-            .map_or(0.0, |(a, b)| a[d] - b[d]);
-        out[1 + d] = low_inc * inc / SUMMARY_INCREMENT_SCALE;
+        if let Some(i) = low {
+            out[1 + d] = (world[i][d] - world_prev[i][d]) * inc / SUMMARY_INCREMENT_SCALE;
+            out[11 + d] = (world[i][d] - now[d]) / SUMMARY_LEVER_SCALE;
+        }
         out[5 + d] = (now[d] - before[d]) * inc / SUMMARY_INCREMENT_SCALE;
         out[8 + d] = turn[d] * inc / SUMMARY_ROTATION_SCALE;
-        out[11 + d] = world.get(low).map_or(0.0, |p| p[d] - now[d]) / SUMMARY_LEVER_SCALE;
     }
     out[4] = height(now[2]);
     out
