@@ -426,3 +426,87 @@ fn point_subsets_can_be_fixed_per_scene() {
     assert_ne!(clouds(&c, 1, 7), clouds(&c, 1, 8));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `data.mix` draws each directory at its share, interleaves the directories within batches,
+/// visits each directory's scenes evenly, and gives every sample the same scene however the
+/// stream is entered (fresh, going back), which keeps `--resume` exact; a run with a mix
+/// resumes bit for bit.
+#[test]
+fn mix_draws_directories_at_their_shares() {
+    use dynaserve_train::train::data::{SampleOrder, Sources};
+
+    let dir = scratch("mix");
+    let movi = tiny_dataset(&dir);
+    let drops = dir.join("drops");
+    let mut opts = GenerateOptions::new(
+        Generator::scenario(dynaserve_sim::scenarios::Scenario::Drop),
+        8,
+        "train",
+        4,
+    );
+    opts.points = 64;
+    opts.scenes_per_shard = 2;
+    opts.sim.frames = 25;
+    generate_dataset(&opts, &drops, false, &|| {}).unwrap();
+
+    let sources = Sources::open(&[movi.clone(), drops.clone()]).unwrap();
+    let n = 4000u64;
+    let mut order = SampleOrder::new(&sources, &[3.0, 1.0], 5);
+    let drawn: Vec<(usize, usize)> = (0..n).map(|g| order.locate(g)).collect();
+    let directory = |s: &(usize, usize)| sources.directory_of(s.0);
+    let from_drops = drawn.iter().filter(|s| directory(s) == 1).count();
+    assert!(
+        (from_drops as f64 / n as f64 - 0.25).abs() < 0.03,
+        "{from_drops} of {n} from the second directory"
+    );
+    let batches_with_both = drawn
+        .chunks(8)
+        .filter(|b| b.iter().any(|s| directory(s) == 0) && b.iter().any(|s| directory(s) == 1))
+        .count();
+    assert!(
+        batches_with_both * 2 > drawn.len() / 8,
+        "{batches_with_both}"
+    );
+    let mut visits = std::collections::HashMap::new();
+    for s in drawn.iter().filter(|s| directory(s) == 1) {
+        *visits.entry(*s).or_insert(0usize) += 1;
+    }
+    assert_eq!(visits.len(), 4, "every drop scene is visited");
+    let (lo, hi) = (
+        visits.values().min().unwrap(),
+        visits.values().max().unwrap(),
+    );
+    assert!(hi - lo <= 1, "uneven visits {visits:?}");
+    assert_eq!(
+        SampleOrder::new(&sources, &[3.0, 1.0], 5).locate(2500),
+        drawn[2500]
+    );
+    assert_eq!(order.locate(10), drawn[10]);
+    let mut only_movi = SampleOrder::new(&sources, &[1.0, 0.0], 5);
+    assert!((0..500).all(|g| sources.directory_of(only_movi.locate(g).0) == 0));
+
+    let mixed = |name: &str| {
+        let mut c = tiny_config(&movi, &dir.join(name), 4);
+        c.data.extra = vec![drops.clone()];
+        c.data.mix = vec![1.0, 1.0];
+        c
+    };
+    train(&mixed("straight"), &TrainOptions::default()).unwrap();
+    let split = mixed("split");
+    let stop = TrainOptions {
+        stop_after: Some(2),
+        ..TrainOptions::default()
+    };
+    assert_eq!(train(&split, &stop).unwrap().step, 2);
+    let resume = TrainOptions {
+        resume: true,
+        ..TrainOptions::default()
+    };
+    assert_eq!(train(&split, &resume).unwrap().step, 4);
+    for f in ["model.safetensors", "optimizer.safetensors"] {
+        let a = std::fs::read(dir.join("straight/checkpoint").join(f)).unwrap();
+        let b = std::fs::read(dir.join("split/checkpoint").join(f)).unwrap();
+        assert!(a == b, "{f} differs between a straight and a resumed run");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -31,9 +31,16 @@ pub struct DataConfig {
     /// Training split directory (`manifest.json` + shards), relative to the working directory.
     pub train: PathBuf,
     /// Further split directories whose scenes join the training stream (e.g. the physics
-    /// scenario mix beside MOVi-B); every scene of every directory is drawn equally often.
-    /// They must share the first directory's frame interval and gravity.
+    /// scenario mix beside MOVi-B); unless [`DataConfig::mix`] says otherwise, every scene
+    /// of every directory is drawn equally often. They must share the first directory's frame
+    /// interval and gravity.
     pub extra: Vec<PathBuf>,
+    /// The share of the training samples drawn from each directory (`train`, then `extra` in
+    /// order; relative weights, normalised to sum 1). Each sample draws its directory from
+    /// these shares and takes that directory's next scene, so every batch mixes the
+    /// directories. Empty (the default) keeps the pooled stream: all scenes in one epoch,
+    /// shard after shard, each directory's share its share of the scenes.
+    pub mix: Vec<f32>,
     /// Step sizes in frames, one drawn uniformly per sample (default {1, 2, 4}).
     pub step_sizes: Vec<u32>,
     /// Fewest surface points per object in a training sample (drawn uniformly per object).
@@ -91,6 +98,7 @@ impl Default for DataConfig {
         DataConfig {
             train: PathBuf::from("data/movi-b/train"),
             extra: Vec::new(),
+            mix: Vec::new(),
             step_sizes: vec![1, 2, 4],
             points_min: 128,
             points_max: 384,
@@ -364,6 +372,15 @@ impl TrainConfig {
         if !(0.0..=1.0).contains(&d.event_share) {
             return bad("data.event_share must be a fraction in [0, 1]");
         }
+        if !d.mix.is_empty()
+            && (d.mix.len() != 1 + d.extra.len()
+                || d.mix.iter().any(|w| !(w.is_finite() && *w >= 0.0))
+                || d.mix.iter().all(|&w| w == 0.0))
+        {
+            return bad(
+                "data.mix must hold one share per directory (train, then each extra), each finite and >= 0, not all 0",
+            );
+        }
         if d.prefetch == 0 {
             return bad("data.prefetch must be >= 1");
         }
@@ -463,5 +480,23 @@ mod tests {
         let mut c = TrainConfig::default();
         c.data.points_max = 1;
         assert!(c.validate().unwrap_err().to_string().contains("points_min"));
+    }
+
+    #[test]
+    fn mix_needs_one_share_per_directory() {
+        let ok: TrainConfig =
+            toml::from_str("[data]\nextra = [\"a\", \"b\"]\nmix = [0.5, 0.25, 0.0]\n").unwrap();
+        ok.validate().unwrap();
+        for bad in [
+            "mix = [0.5, 0.5]",
+            "mix = [0.5, -0.25, 1.0]",
+            "mix = [0.0, 0.0, 0.0]",
+            "mix = [0.5, nan, 1.0]",
+        ] {
+            let c: TrainConfig =
+                toml::from_str(&format!("[data]\nextra = [\"a\", \"b\"]\n{bad}\n")).unwrap();
+            let err = c.validate().unwrap_err().to_string();
+            assert!(err.contains("data.mix"), "{bad}: {err}");
+        }
     }
 }

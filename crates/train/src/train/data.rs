@@ -5,6 +5,9 @@
 //! The sample stream is a pure function of `(run seed, global sample index)`: epoch `e` visits
 //! the shards in a seeded random order and the scenes of each shard in a seeded random order,
 //! and sample `g` draws its window and augmentation from a generator seeded with `(seed, g)`.
+//! With [`DataConfig::mix`] set, sample `g` first draws its directory from the shares (a
+//! generator seeded with `(seed, g)`) and then takes that directory's next scene in the
+//! directory's own epoch order, so batches mix the directories.
 //! Resuming at iteration `s` therefore restarts the stream at sample `s * batch_size` and
 //! reproduces exactly the batches an uninterrupted run would have seen.
 
@@ -306,6 +309,11 @@ impl Sources {
         &self.readers
     }
 
+    /// The directory (0 = `train`, then each extra) that global shard `shard` belongs to.
+    pub fn directory_of(&self, shard: usize) -> usize {
+        self.shards[shard].0
+    }
+
     /// Scenes per global shard.
     fn shard_sizes(&self) -> Vec<usize> {
         self.shards
@@ -320,7 +328,74 @@ impl Sources {
     }
 }
 
-/// Where the stream's global sample `g` comes from: `(shard, scene within the shard)`.
+/// Where the stream's global sample `g` comes from: `(global shard, scene within the shard)`,
+/// for [`DataConfig::mix`] unset (pooled) or set (mixed).
+pub struct SampleOrder {
+    kind: OrderKind,
+}
+
+enum OrderKind {
+    Pooled(Order),
+    Mixed(MixedOrder),
+}
+
+impl SampleOrder {
+    /// The order of `sources` for `shares` ([`DataConfig::mix`]: one per directory, or empty for the pooled
+    /// stream) and the run's `seed`.
+    pub fn new(sources: &Sources, shares: &[f32], seed: u64) -> SampleOrder {
+        let sizes = sources.shard_sizes();
+        if shares.is_empty() {
+            return SampleOrder {
+                kind: OrderKind::Pooled(Order::new(sizes, seed)),
+            };
+        }
+        let total: f64 = shares.iter().map(|&w| w as f64).sum();
+        let mut acc = 0.0;
+        let cdf = shares
+            .iter()
+            .map(|&w| {
+                acc += w as f64 / total;
+                acc
+            })
+            .collect();
+        let mut first = 0;
+        let directories = (0..sources.readers.len())
+            .map(|d| {
+                let n = sources.readers[d].manifest().shards.len();
+                let own = Order::new(
+                    sizes[first..first + n].to_vec(),
+                    mix(seed ^ mix(1000 + d as u64)),
+                );
+                let entry = (own, first);
+                first += n;
+                entry
+            })
+            .collect();
+        SampleOrder {
+            kind: OrderKind::Mixed(MixedOrder {
+                last: shares.iter().rposition(|&w| w > 0.0).unwrap_or(0),
+                cdf,
+                directories,
+                drawn: vec![0; shares.len()],
+                next: 0,
+                seed,
+            }),
+        }
+    }
+
+    /// `(global shard, scene within the shard)` of sample `g`. Mixed orders count the samples
+    /// each directory has given, so they are cheapest called with increasing `g`; any `g`
+    /// gives the same answer.
+    pub fn locate(&mut self, g: u64) -> (usize, usize) {
+        match &mut self.kind {
+            OrderKind::Pooled(o) => o.locate(g),
+            OrderKind::Mixed(m) => m.locate(g),
+        }
+    }
+}
+
+/// The pooled order: epoch `e` visits all shards in a seeded order and each shard's scenes in
+/// a seeded order.
 struct Order {
     /// Scene count per shard.
     shard_sizes: Vec<usize>,
@@ -331,6 +406,15 @@ struct Order {
 }
 
 impl Order {
+    fn new(shard_sizes: Vec<usize>, seed: u64) -> Order {
+        Order {
+            total: shard_sizes.iter().sum(),
+            shard_sizes,
+            seed,
+            cached: None,
+        }
+    }
+
     fn locate(&mut self, g: u64) -> (usize, usize) {
         let epoch = g / self.total as u64;
         let pos = (g % self.total as u64) as usize;
@@ -352,6 +436,47 @@ impl Order {
         let mut scenes: Vec<usize> = (0..self.shard_sizes[shard]).collect();
         scenes.shuffle(&mut rng_for(self.seed, 2, epoch * 1_000_003 + shard as u64));
         (shard, scenes[pos - starts[i]])
+    }
+}
+
+/// The mixed order: sample `g` draws its directory from the shares, then takes that
+/// directory's next scene in the directory's own pooled order.
+struct MixedOrder {
+    /// Cumulative normalised shares, one per directory.
+    cdf: Vec<f64>,
+    /// The last directory with a positive share (where rounding at the top of `cdf` goes).
+    last: usize,
+    /// Each directory's own order and its first global shard.
+    directories: Vec<(Order, usize)>,
+    /// Samples each directory has given before sample `next`.
+    drawn: Vec<u64>,
+    next: u64,
+    seed: u64,
+}
+
+impl MixedOrder {
+    fn directory_of(&self, g: u64) -> usize {
+        let u: f64 = rng_for(self.seed, 4, g).random();
+        self.cdf.partition_point(|&c| c <= u).min(self.last)
+    }
+
+    fn locate(&mut self, g: u64) -> (usize, usize) {
+        if g < self.next {
+            self.drawn.iter_mut().for_each(|n| *n = 0);
+            self.next = 0;
+        }
+        while self.next < g {
+            let d = self.directory_of(self.next);
+            self.drawn[d] += 1;
+            self.next += 1;
+        }
+        let d = self.directory_of(g);
+        let k = self.drawn[d];
+        self.drawn[d] += 1;
+        self.next = g + 1;
+        let (order, first) = &mut self.directories[d];
+        let (shard, scene) = order.locate(k);
+        (*first + shard, scene)
     }
 }
 
@@ -378,19 +503,13 @@ impl Loader {
                 empty.dir().display()
             )));
         }
-        let shard_sizes = reader.shard_sizes();
+        let order = SampleOrder::new(&reader, &cfg.mix, seed);
         let (tx, rx) = sync_channel(cfg.prefetch);
         let stop = Arc::new(AtomicBool::new(false));
         let stop2 = stop.clone();
         let handle = std::thread::Builder::new()
             .name("train-loader".into())
             .spawn(move || {
-                let order = Order {
-                    total: shard_sizes.iter().sum(),
-                    shard_sizes,
-                    seed,
-                    cached: None,
-                };
                 worker(
                     reader, cfg, batch_size, seed, start, model, order, tx, stop2,
                 )
@@ -434,11 +553,14 @@ fn worker(
     seed: u64,
     start: u64,
     model: Arc<dyn WorldModel>,
-    mut order: Order,
+    mut order: SampleOrder,
     tx: SyncSender<Result<Batch, TrainError>>,
     stop: Arc<AtomicBool>,
 ) {
-    let mut cache: HashMap<usize, Arc<Vec<SceneRecord>>> = HashMap::new();
+    // Decoded shards by global index with the sample that last used them: two per
+    // directory, so a mixed stream keeps each directory's current and next shard.
+    let capacity = 2 * reader.readers().len();
+    let mut cache: HashMap<usize, (Arc<Vec<SceneRecord>>, u64)> = HashMap::new();
     let mut step = start;
     while !stop.load(Ordering::Relaxed) {
         let mut make = || -> Result<Batch, TrainError> {
@@ -447,12 +569,16 @@ fn worker(
                 let g = step * batch_size as u64 + j as u64;
                 let (shard, local) = order.locate(g);
                 if !cache.contains_key(&shard) {
-                    if cache.len() >= 2 {
-                        cache.clear();
+                    if cache.len() >= capacity
+                        && let Some(&oldest) = cache.iter().min_by_key(|e| e.1.1).map(|e| e.0)
+                    {
+                        cache.remove(&oldest);
                     }
-                    cache.insert(shard, Arc::new(reader.read_shard(shard)?));
+                    cache.insert(shard, (Arc::new(reader.read_shard(shard)?), g));
                 }
-                let scenes = &cache[&shard];
+                let entry = cache.get_mut(&shard).expect("inserted above");
+                entry.1 = g;
+                let scenes = &entry.0;
                 let rec = scenes.get(local).ok_or_else(|| {
                     TrainError::Data(format!("shard {shard} has no scene {local}"))
                 })?;
