@@ -4,7 +4,7 @@ those of a test split, next to the clamp of ballistic-with-floor.
 
     python3 crates/sim/python/landing_regressor.py data/diag/drop-train-20k data/diag/drop-test
 
-Landing windows are those of `landing_windows.py`. The inputs are what frames t-1 and t show
+Landing windows and the clamp are those of `landings.py`. The inputs are what frames t-1 and t show
 (no later frame): the attitude at t (rotation matrix, 9), the rotation over the last frame
 (scaled axis, 3), the centre's increment (3), the height of the lowest reference point and the
 clamp's lift (2), that point in the body frame (3), the cloud's extents (3), restitution,
@@ -16,25 +16,12 @@ windows held out).
 """
 
 import argparse
-import glob
-import json
+import argparse
 
 import numpy as np
 import torch
-from safetensors.numpy import load_file
 
-from landing_windows import spacing
-
-
-def rotation_matrices(q):
-    """Rotation matrices `[..., 3, 3]` of unit quaternions `[..., 4]` ([x, y, z, w])."""
-    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    r = np.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
-        2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
-        2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y),
-    ], -1)
-    return r.reshape(q.shape[:-1] + (3, 3))
+from landings import landings
 
 
 def rotation_vector(r):
@@ -46,44 +33,20 @@ def rotation_vector(r):
 
 def landing_data(split, lever):
     """Inputs `[n, F]`, targets `[n, 3]` (m) and the clamp's error `[n]` (m) of a split."""
-    manifest = json.load(open(f"{split}/manifest.json"))
-    dt, g = manifest["dt_frame"], np.array(manifest["gravity"], dtype=np.float64)
     xs, ys, clamp_err = [], [], []
-    for path in sorted(glob.glob(f"{split}/shard-*.safetensors")):
-        shard = load_file(path)
-        offsets = shard["scene_object_offsets"]
-        for s in range(len(offsets) - 1):
-            if offsets[s + 1] - offsets[s] != 1:
-                continue
-            j = offsets[s]
-            p = shard["positions"][j].astype(np.float64)
-            rot = rotation_matrices(shard["rotations"][j].astype(np.float64))
-            cloud = shard["reference_points"][j].astype(np.float64)
-            posed = np.einsum("fij,nj->fni", rot, cloud)
-            low = posed[:, :, 2].min(1) + p[:, 2]
-            floor = low < 0.01 + 0.5 * spacing(cloud)
-            frames = len(p)
-            impulse = np.zeros(frames, bool)
-            acc = (p[2:] - 2 * p[1:-1] + p[:-2]) / dt ** 2
-            impulse[1:-1] = np.linalg.norm(acc - g, axis=1) > 1.0
-            extents = cloud.max(0) - cloud.min(0)
-            material = [shard["restitution"][j], shard["friction"][j], np.log(shard["mass"][j])]
-            shape = np.eye(10)[shard["shape_id"][j]]
-            for t in range(1, frames - 1):
-                if floor[t - 1] or floor[t] or impulse[t - 1] or not (impulse[t] or floor[t + 1]):
-                    continue
-                base_rot = rot[t] @ rot[t - 1].T @ rot[t]
-                base = 2 * p[t] - p[t - 1] + g * dt * dt
-                lift = max(0.0, -(base[2] + (cloud @ base_rot.T)[:, 2].min()))
-                clamp = base + np.array([0.0, 0.0, lift])
-                lowest = posed[t, :, 2].argmin()
-                x = [rot[t].ravel(), rotation_vector(rot[t] @ rot[t - 1].T), p[t] - p[t - 1],
-                     [low[t], lift], cloud[lowest], extents, material, shape]
-                if lever:
-                    x.append(posed[t, lowest])
-                xs.append(np.concatenate(x))
-                ys.append(p[t + 1] - clamp)
-                clamp_err.append(np.linalg.norm(p[t + 1] - clamp))
+    for _, w in landings(split):
+        shard, j, t, p, rot, posed = w.shard, w.j, w.t, w.p, w.rot, w.posed
+        extents = w.cloud.max(0) - w.cloud.min(0)
+        material = [shard["restitution"][j], shard["friction"][j], np.log(shard["mass"][j])]
+        shape = np.eye(10)[shard["shape_id"][j]]
+        lowest = posed[t, :, 2].argmin()
+        x = [rot[t].ravel(), rotation_vector(rot[t] @ rot[t - 1].T), p[t] - p[t - 1],
+             [w.low[t], w.lift], w.cloud[lowest], extents, material, shape]
+        if lever:
+            x.append(posed[t, lowest])
+        xs.append(np.concatenate(x))
+        ys.append(p[t + 1] - w.clamp)
+        clamp_err.append(np.linalg.norm(p[t + 1] - w.clamp))
     return np.array(xs, np.float32), np.array(ys, np.float32), np.array(clamp_err)
 
 
