@@ -5,10 +5,12 @@ mod common;
 
 use std::path::Path;
 
-use common::{max_pose_diff, random_scene};
+use common::{
+    constant_velocity_targets, max_pose_diff, one_step_gradient, random_scene, squared_norm,
+};
 use dynaserve_model::{
-    Device, FeatureNormalization, ModelConfig, RigidFormer, SceneState, StepItem, TrainItem,
-    WorldModel, load_rigidformer,
+    Device, FeatureNormalization, ModelConfig, RigidFormer, SceneState, StepItem, WorldModel,
+    load_rigidformer,
 };
 
 const FIRST_LAYER: &str = "encoder.point.0.weight";
@@ -103,40 +105,10 @@ fn widened_model_trains_its_new_columns_and_saves_as_fifteen_features() {
     assert!(diff < 1e-5, "widened model differs by {diff}");
 
     let (objects, state) = random_scene(4, 5, 64);
-    let scene = wide.prepare(objects).unwrap();
     // Targets: constant velocity (any pose works for a gradient).
-    let target: Vec<_> = state
-        .previous
-        .iter()
-        .zip(&state.current)
-        .map(|(p, c)| {
-            let mut t = *c;
-            for d in 0..3 {
-                t.translation[d] = 2.0 * c.translation[d] - p.translation[d];
-            }
-            t
-        })
-        .collect();
-    let out = wide
-        .train_forward(&[TrainItem {
-            scene: &scene,
-            state: &state,
-            target: &target,
-            dt_steps: 2,
-            kinematic: &[],
-        }])
-        .unwrap();
-    let grads = out.loss.backward().unwrap();
-    let vars = wide.varmap().data().lock().unwrap().clone();
-    let g = grads.get(vars[FIRST_LAYER].as_tensor()).unwrap();
-    let new_cols = g
-        .narrow(1, 12, 3)
-        .unwrap()
-        .sqr()
-        .unwrap()
-        .sum_all()
-        .unwrap();
-    let norm = new_cols.to_scalar::<f32>().unwrap();
+    let target = constant_velocity_targets(&state, 0.0);
+    let (g, grads) = one_step_gradient(&wide, objects, &state, &target, 2, FIRST_LAYER);
+    let norm = squared_norm(&g.narrow(1, 12, 3).unwrap());
     assert!(
         norm > 0.0 && norm.is_finite(),
         "new columns' gradient {norm}"

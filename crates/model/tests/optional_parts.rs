@@ -3,10 +3,12 @@
 //! the same steps as one without; its layers learn and save) and the coarse output unit.
 mod common;
 
-use common::{max_pose_diff, random_scene};
+use common::{
+    constant_velocity_targets, max_pose_diff, one_step_gradient, random_scene, squared_norm,
+};
 use dynaserve_model::{
     Device, DynamicsConfig, FeatureFrame, ModelConfig, Pose, RigidFormer, SceneState, StepItem,
-    TrainItem, WorldModel, load_rigidformer, object_summary,
+    WorldModel, load_rigidformer, object_summary,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 
@@ -127,40 +129,10 @@ fn summary_layers_learn_and_save() {
     cfg.dynamics.object_summary = true;
     let model = RigidFormer::new(cfg, 3, &Device::Cpu).unwrap();
     let (objects, state) = random_scene(4, 3, 64);
-    let scene = model.prepare(objects).unwrap();
     // Targets 5 cm below constant velocity (any target gives a gradient).
-    let target: Vec<Pose> = state
-        .previous
-        .iter()
-        .zip(&state.current)
-        .map(|(p, c)| {
-            let mut t = *c;
-            for d in 0..3 {
-                t.translation[d] = 2.0 * c.translation[d] - p.translation[d];
-            }
-            t.translation[2] -= 0.05;
-            t
-        })
-        .collect();
-    let out = model
-        .train_forward(&[TrainItem {
-            scene: &scene,
-            state: &state,
-            target: &target,
-            dt_steps: 1,
-            kinematic: &[],
-        }])
-        .unwrap();
-    let grads = out.loss.backward().unwrap();
-    let vars = model.varmap().data().lock().unwrap().clone();
-    let g = grads.get(vars["summary.1.weight"].as_tensor()).unwrap();
-    let norm = g
-        .sqr()
-        .unwrap()
-        .sum_all()
-        .unwrap()
-        .to_scalar::<f32>()
-        .unwrap();
+    let target = constant_velocity_targets(&state, 0.05);
+    let (g, _) = one_step_gradient(&model, objects, &state, &target, 1, "summary.1.weight");
+    let norm = squared_norm(&g);
     assert!(norm > 0.0 && norm.is_finite(), "summary.1 gradient {norm}");
 
     let dir = std::env::temp_dir().join(format!("dynaserve-summary-{}", std::process::id()));
@@ -187,29 +159,9 @@ fn a_coarse_output_unit_starts_at_zero_and_learns() {
         assert!(diff < 1e-5, "seed {seed}, k {k}: differs by {diff}");
     }
     let (objects, state) = random_scene(4, 3, 64);
-    let scene = b.prepare(objects).unwrap();
     let target: Vec<Pose> = state.current.clone();
-    let out = b
-        .train_forward(&[TrainItem {
-            scene: &scene,
-            state: &state,
-            target: &target,
-            dt_steps: 1,
-            kinematic: &[],
-        }])
-        .unwrap();
-    let grads = out.loss.backward().unwrap();
-    let vars = b.varmap().data().lock().unwrap().clone();
-    let g = grads
-        .get(vars["anchors.coarse.1.weight"].as_tensor())
-        .unwrap();
-    let norm = g
-        .sqr()
-        .unwrap()
-        .sum_all()
-        .unwrap()
-        .to_scalar::<f32>()
-        .unwrap();
+    let (g, _) = one_step_gradient(&b, objects, &state, &target, 1, "anchors.coarse.1.weight");
+    let norm = squared_norm(&g);
     assert!(norm > 0.0 && norm.is_finite(), "coarse gradient {norm}");
 
     let dir = std::env::temp_dir().join(format!("dynaserve-coarse-{}", std::process::id()));

@@ -113,19 +113,68 @@ pub fn params_without_gradient(
 ) -> Vec<String> {
     vars.iter()
         .filter(|(_, var)| {
-            let norm = grads
-                .get(var.as_tensor())
-                .map(|g| {
-                    g.sqr()
-                        .unwrap()
-                        .sum_all()
-                        .unwrap()
-                        .to_scalar::<f32>()
-                        .unwrap()
-                })
-                .unwrap_or(0.0);
+            let norm = grads.get(var.as_tensor()).map_or(0.0, squared_norm);
             !(norm > 0.0 && norm.is_finite())
         })
         .map(|(name, _)| name.clone())
         .collect()
+}
+
+/// Sum of the squares of a tensor's elements.
+pub fn squared_norm(t: &candle_core::Tensor) -> f32 {
+    t.sqr()
+        .unwrap()
+        .sum_all()
+        .unwrap()
+        .to_scalar::<f32>()
+        .unwrap()
+}
+
+/// Targets that continue each object's last increment (constant velocity), lowered by
+/// `lower` metres: any such target gives every trainable parameter a gradient.
+pub fn constant_velocity_targets(state: &SceneState, lower: f32) -> Vec<Pose> {
+    state
+        .previous
+        .iter()
+        .zip(&state.current)
+        .map(|(p, c)| {
+            let mut t = *c;
+            for d in 0..3 {
+                t.translation[d] = 2.0 * c.translation[d] - p.translation[d];
+            }
+            t.translation[2] -= lower;
+            t
+        })
+        .collect()
+}
+
+/// The gradient of parameter `name` of `model` after one training forward and backward pass
+/// on `objects` in `state` toward `target` at step size `dt_steps`, and all the pass's
+/// gradients (to check that another model's variables received none).
+pub fn one_step_gradient(
+    model: &dynaserve_model::RigidFormer,
+    objects: Vec<ObjectInput>,
+    state: &SceneState,
+    target: &[Pose],
+    dt_steps: u32,
+    name: &str,
+) -> (candle_core::Tensor, candle_core::backprop::GradStore) {
+    use dynaserve_model::WorldModel;
+    let scene = model.prepare(objects).unwrap();
+    let out = model
+        .train_forward(&[dynaserve_model::TrainItem {
+            scene: &scene,
+            state,
+            target,
+            dt_steps,
+            kinematic: &[],
+        }])
+        .unwrap();
+    let grads = out.loss.backward().unwrap();
+    let vars = model.varmap().data().lock().unwrap().clone();
+    let g = grads
+        .get(vars[name].as_tensor())
+        .unwrap_or_else(|| panic!("{name} received no gradient"))
+        .clone();
+    (g, grads)
 }
