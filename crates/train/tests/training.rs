@@ -451,7 +451,7 @@ fn mix_draws_directories_at_their_shares() {
 
     let sources = Sources::open(&[movi.clone(), drops.clone()]).unwrap();
     let n = 4000u64;
-    let mut order = SampleOrder::new(&sources, &[3.0, 1.0], 5);
+    let mut order = SampleOrder::new(&sources, &[3.0, 1.0], 5).unwrap();
     let drawn: Vec<(usize, usize)> = (0..n).map(|g| order.locate(g)).collect();
     let directory = |s: &(usize, usize)| sources.directory_of(s.0);
     let from_drops = drawn.iter().filter(|s| directory(s) == 1).count();
@@ -477,13 +477,12 @@ fn mix_draws_directories_at_their_shares() {
         visits.values().max().unwrap(),
     );
     assert!(hi - lo <= 1, "uneven visits {visits:?}");
-    assert_eq!(
-        SampleOrder::new(&sources, &[3.0, 1.0], 5).locate(2500),
-        drawn[2500]
-    );
+    let mut fresh = SampleOrder::new(&sources, &[3.0, 1.0], 5).unwrap();
+    assert_eq!(fresh.locate(2500), drawn[2500]);
     assert_eq!(order.locate(10), drawn[10]);
-    let mut only_movi = SampleOrder::new(&sources, &[1.0, 0.0], 5);
+    let mut only_movi = SampleOrder::new(&sources, &[1.0, 0.0], 5).unwrap();
     assert!((0..500).all(|g| sources.directory_of(only_movi.locate(g).0) == 0));
+    assert!(SampleOrder::new(&sources, &[1.0], 5).is_err());
 
     let mixed = |name: &str| {
         let mut c = tiny_config(&movi, &dir.join(name), 4);

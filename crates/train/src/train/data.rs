@@ -340,14 +340,24 @@ enum OrderKind {
 }
 
 impl SampleOrder {
-    /// The order of `sources` for `shares` ([`DataConfig::mix`]: one per directory, or empty for the pooled
-    /// stream) and the run's `seed`.
-    pub fn new(sources: &Sources, shares: &[f32], seed: u64) -> SampleOrder {
+    /// The order of `sources` for `shares` ([`DataConfig::mix`]: one per directory, or empty
+    /// for the pooled stream) and the run's `seed`. Shares that do not match the directories
+    /// (count, sign, all zero) are an error.
+    pub fn new(sources: &Sources, shares: &[f32], seed: u64) -> Result<SampleOrder, TrainError> {
         let sizes = sources.shard_sizes();
         if shares.is_empty() {
-            return SampleOrder {
+            return Ok(SampleOrder {
                 kind: OrderKind::Pooled(Order::new(sizes, seed)),
-            };
+            });
+        }
+        if shares.len() != sources.readers.len()
+            || shares.iter().any(|w| !(w.is_finite() && *w >= 0.0))
+            || shares.iter().all(|&w| w == 0.0)
+        {
+            return Err(TrainError::Config(format!(
+                "data.mix {shares:?}: one finite share >= 0 per directory ({} directories), not all 0",
+                sources.readers.len()
+            )));
         }
         let total: f64 = shares.iter().map(|&w| w as f64).sum();
         let mut acc = 0.0;
@@ -371,7 +381,7 @@ impl SampleOrder {
                 entry
             })
             .collect();
-        SampleOrder {
+        Ok(SampleOrder {
             kind: OrderKind::Mixed(MixedOrder {
                 last: shares.iter().rposition(|&w| w > 0.0).unwrap_or(0),
                 cdf,
@@ -380,7 +390,7 @@ impl SampleOrder {
                 next: 0,
                 seed,
             }),
-        }
+        })
     }
 
     /// `(global shard, scene within the shard)` of sample `g`. Mixed orders count the samples
@@ -503,7 +513,7 @@ impl Loader {
                 empty.dir().display()
             )));
         }
-        let order = SampleOrder::new(&reader, &cfg.mix, seed);
+        let order = SampleOrder::new(&reader, &cfg.mix, seed)?;
         let (tx, rx) = sync_channel(cfg.prefetch);
         let stop = Arc::new(AtomicBool::new(false));
         let stop2 = stop.clone();
