@@ -58,6 +58,21 @@ fn tiny_config(data: &Path, out: &Path, iterations: u64) -> TrainConfig {
     c
 }
 
+/// Trains two iterations of the tiny configuration into `dir/name`, starting from the
+/// checkpoint of the run `dir/init` when given, with `edit` applied to the configuration.
+fn train_tiny_from(
+    data: &Path,
+    dir: &Path,
+    name: &str,
+    init: Option<&str>,
+    edit: impl FnOnce(&mut TrainConfig),
+) -> Result<dynaserve_train::train::TrainSummary, dynaserve_train::train::TrainError> {
+    let mut c = tiny_config(data, &dir.join(name), 2);
+    c.model.init = init.map(|run| dir.join(run).join("checkpoint"));
+    edit(&mut c);
+    train(&c, &TrainOptions::default())
+}
+
 /// The first frames of a few MOVi-B scenes (objects spawned 1-5 m up: mostly free flight, the
 /// lowest objects land), 64 points per object, one shard.
 fn overfit_dataset(dir: &Path) -> PathBuf {
@@ -185,16 +200,17 @@ fn resume_is_exact() {
 fn init_widens_a_model_for_the_contact_velocity() {
     let dir = scratch("widen");
     let data = tiny_dataset(&dir);
-    let mut base = tiny_config(&data, &dir.join("base"), 2);
-    base.model.contact_velocity = Some(false);
-    train(&base, &TrainOptions::default()).unwrap();
+    train_tiny_from(&data, &dir, "base", None, |c| {
+        c.model.contact_velocity = Some(false)
+    })
+    .unwrap();
     let base_cfg = dynaserve_model::read_config(&dir.join("base/checkpoint")).unwrap();
     assert_eq!(base_cfg.point_features(), 12);
 
-    let mut wide = tiny_config(&data, &dir.join("wide"), 2);
-    wide.model.init = Some(dir.join("base/checkpoint"));
-    wide.model.contact_velocity = Some(true);
-    train(&wide, &TrainOptions::default()).unwrap();
+    train_tiny_from(&data, &dir, "wide", Some("base"), |c| {
+        c.model.contact_velocity = Some(true)
+    })
+    .unwrap();
     let wide_cfg = dynaserve_model::read_config(&dir.join("wide/checkpoint")).unwrap();
     assert!(wide_cfg.dynamics.contact_velocity);
     let (n, b) = (&wide_cfg.normalization, &base_cfg.normalization);
@@ -208,10 +224,10 @@ fn init_widens_a_model_for_the_contact_velocity() {
     );
     assert!(n.std[12..].iter().all(|s| s.is_finite() && *s >= 0.01));
 
-    let mut narrow = tiny_config(&data, &dir.join("narrow"), 2);
-    narrow.model.init = Some(dir.join("wide/checkpoint"));
-    narrow.model.contact_velocity = Some(false);
-    let err = train(&narrow, &TrainOptions::default()).unwrap_err();
+    let err = train_tiny_from(&data, &dir, "narrow", Some("wide"), |c| {
+        c.model.contact_velocity = Some(false)
+    })
+    .unwrap_err();
     assert!(err.to_string().contains("cannot be removed"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -222,18 +238,17 @@ fn init_widens_a_model_for_the_contact_velocity() {
 fn init_widens_a_model_for_the_object_summary() {
     let dir = scratch("summary");
     let data = tiny_dataset(&dir);
-    let base = tiny_config(&data, &dir.join("base"), 2);
-    train(&base, &TrainOptions::default()).unwrap();
+    train_tiny_from(&data, &dir, "base", None, |_| {}).unwrap();
     assert!(
         !dynaserve_model::read_config(&dir.join("base/checkpoint"))
             .unwrap()
             .dynamics
             .object_summary
     );
-    let mut wide = tiny_config(&data, &dir.join("wide"), 2);
-    wide.model.init = Some(dir.join("base/checkpoint"));
-    wide.model.object_summary = Some(true);
-    train(&wide, &TrainOptions::default()).unwrap();
+    train_tiny_from(&data, &dir, "wide", Some("base"), |c| {
+        c.model.object_summary = Some(true)
+    })
+    .unwrap();
     let m = dynaserve_model::load_rigidformer(
         &dir.join("wide/checkpoint"),
         &dynaserve_model::Device::Cpu,
@@ -253,10 +268,10 @@ fn init_widens_a_model_for_the_object_summary() {
             .contains_key("summary.1.weight")
     );
 
-    let mut narrow = tiny_config(&data, &dir.join("narrow"), 2);
-    narrow.model.init = Some(dir.join("wide/checkpoint"));
-    narrow.model.object_summary = Some(false);
-    let err = train(&narrow, &TrainOptions::default()).unwrap_err();
+    let err = train_tiny_from(&data, &dir, "narrow", Some("wide"), |c| {
+        c.model.object_summary = Some(false)
+    })
+    .unwrap_err();
     assert!(err.to_string().contains("cannot be removed"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
