@@ -163,7 +163,8 @@ pub struct DynamicsConfig {
     /// point's height above the ground and increment, the centre's height and increment, the
     /// rotation increment, the lowest point's offset from the centre), added to the object's
     /// token through a small MLP whose last layer starts at zero, so the floor reaches the
-    /// decoder without passing through the encoder's max-pools. Absent in older `config.json` files, which means off.
+    /// decoder without passing through the encoder's max-pools. Absent in older `config.json`
+    /// files, which means off.
     pub object_summary: bool,
     /// A Verlet base that respects the floor: after the constant-velocity extrapolation and
     /// free fall, the object is raised just enough that no point of its reference cloud is

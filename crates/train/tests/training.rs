@@ -58,6 +58,35 @@ fn tiny_config(data: &Path, out: &Path, iterations: u64) -> TrainConfig {
     c
 }
 
+/// Trains `config("straight")` in one call and `config("split")` in two (stopped after
+/// `stop_after` iterations, then resumed), and asserts that both end at the configured
+/// iteration count with bit-identical weights and optimizer state. Returns the split run's
+/// configuration.
+fn assert_resume_is_exact(
+    dir: &Path,
+    config: impl Fn(&str) -> TrainConfig,
+    stop_after: u64,
+) -> TrainConfig {
+    train(&config("straight"), &TrainOptions::default()).unwrap();
+    let split = config("split");
+    let stop = TrainOptions {
+        stop_after: Some(stop_after),
+        ..TrainOptions::default()
+    };
+    assert_eq!(train(&split, &stop).unwrap().step, stop_after);
+    let resume = TrainOptions {
+        resume: true,
+        ..TrainOptions::default()
+    };
+    assert_eq!(train(&split, &resume).unwrap().step, split.optim.iterations);
+    for f in ["model.safetensors", "optimizer.safetensors"] {
+        let a = std::fs::read(dir.join("straight/checkpoint").join(f)).unwrap();
+        let b = std::fs::read(dir.join("split/checkpoint").join(f)).unwrap();
+        assert!(a == b, "{f} differs between a straight and a resumed run");
+    }
+    split
+}
+
 /// Trains two iterations of the tiny configuration into `dir/name`, starting from the
 /// checkpoint of the run `dir/init` when given, with `edit` applied to the configuration.
 fn train_tiny_from(
@@ -141,32 +170,7 @@ fn resume_is_exact() {
     assert!(train(&cfg, &TrainOptions::default()).is_err());
 
     // 6 iterations at once equal 3 + resume 3, bit for bit (weights and optimizer state).
-    let straight = tiny_config(&data, &dir.join("straight"), 6);
-    train(&straight, &TrainOptions::default()).unwrap();
-    let split = tiny_config(&data, &dir.join("split"), 6);
-    let first = train(
-        &split,
-        &TrainOptions {
-            stop_after: Some(3),
-            ..TrainOptions::default()
-        },
-    )
-    .unwrap();
-    assert_eq!(first.step, 3);
-    let second = train(
-        &split,
-        &TrainOptions {
-            resume: true,
-            ..TrainOptions::default()
-        },
-    )
-    .unwrap();
-    assert_eq!(second.step, 6);
-    for f in ["model.safetensors", "optimizer.safetensors"] {
-        let a = std::fs::read(dir.join("straight/checkpoint").join(f)).unwrap();
-        let b = std::fs::read(dir.join("split/checkpoint").join(f)).unwrap();
-        assert!(a == b, "{f} differs between a straight and a resumed run");
-    }
+    let split = assert_resume_is_exact(&dir, |name| tiny_config(&data, &dir.join(name), 6), 3);
     // Resuming with a different optimiser section is refused.
     let mut changed = split.clone();
     changed.optim.lr *= 2.0;
@@ -390,23 +394,7 @@ fn pushforward_keeps_the_window_stream_and_resumes_exactly() {
         c.data.pushforward_steps = 2;
         c
     };
-    train(&config("straight"), &TrainOptions::default()).unwrap();
-    let split = config("split");
-    let stop = TrainOptions {
-        stop_after: Some(2),
-        ..TrainOptions::default()
-    };
-    assert_eq!(train(&split, &stop).unwrap().step, 2);
-    let resume = TrainOptions {
-        resume: true,
-        ..TrainOptions::default()
-    };
-    assert_eq!(train(&split, &resume).unwrap().step, 4);
-    for f in ["model.safetensors", "optimizer.safetensors"] {
-        let a = std::fs::read(dir.join("straight/checkpoint").join(f)).unwrap();
-        let b = std::fs::read(dir.join("split/checkpoint").join(f)).unwrap();
-        assert!(a == b, "{f} differs between a straight and a resumed run");
-    }
+    assert_resume_is_exact(&dir, config, 2);
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -505,22 +493,6 @@ fn mix_draws_directories_at_their_shares() {
         c.data.mix = vec![1.0, 1.0];
         c
     };
-    train(&mixed("straight"), &TrainOptions::default()).unwrap();
-    let split = mixed("split");
-    let stop = TrainOptions {
-        stop_after: Some(2),
-        ..TrainOptions::default()
-    };
-    assert_eq!(train(&split, &stop).unwrap().step, 2);
-    let resume = TrainOptions {
-        resume: true,
-        ..TrainOptions::default()
-    };
-    assert_eq!(train(&split, &resume).unwrap().step, 4);
-    for f in ["model.safetensors", "optimizer.safetensors"] {
-        let a = std::fs::read(dir.join("straight/checkpoint").join(f)).unwrap();
-        let b = std::fs::read(dir.join("split/checkpoint").join(f)).unwrap();
-        assert!(a == b, "{f} differs between a straight and a resumed run");
-    }
+    assert_resume_is_exact(&dir, mixed, 2);
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -93,6 +93,23 @@ pub struct DataConfig {
     pub norm_windows: usize,
 }
 
+impl DataConfig {
+    /// Checks shares for [`DataConfig::mix`] over `directories` directories: empty (the pooled
+    /// stream), or one finite share >= 0 per directory, not all zero.
+    pub fn check_mix(shares: &[f32], directories: usize) -> Result<(), TrainError> {
+        if !shares.is_empty()
+            && (shares.len() != directories
+                || shares.iter().any(|w| !(w.is_finite() && *w >= 0.0))
+                || shares.iter().all(|&w| w == 0.0))
+        {
+            return Err(TrainError::Config(format!(
+                "data.mix {shares:?} must hold one share per directory ({directories}: train, then each extra), each finite and >= 0, not all 0"
+            )));
+        }
+        Ok(())
+    }
+}
+
 impl Default for DataConfig {
     fn default() -> Self {
         DataConfig {
@@ -372,15 +389,7 @@ impl TrainConfig {
         if !(0.0..=1.0).contains(&d.event_share) {
             return bad("data.event_share must be a fraction in [0, 1]");
         }
-        if !d.mix.is_empty()
-            && (d.mix.len() != 1 + d.extra.len()
-                || d.mix.iter().any(|w| !(w.is_finite() && *w >= 0.0))
-                || d.mix.iter().all(|&w| w == 0.0))
-        {
-            return bad(
-                "data.mix must hold one share per directory (train, then each extra), each finite and >= 0, not all 0",
-            );
-        }
+        DataConfig::check_mix(&d.mix, 1 + d.extra.len())?;
         if d.prefetch == 0 {
             return bad("data.prefetch must be >= 1");
         }

@@ -342,7 +342,7 @@ enum OrderKind {
 impl SampleOrder {
     /// The order of `sources` for `shares` ([`DataConfig::mix`]: one per directory, or empty
     /// for the pooled stream) and the run's `seed`. Shares that do not match the directories
-    /// (count, sign, all zero) are an error.
+    /// are an error ([`DataConfig::check_mix`]).
     pub fn new(sources: &Sources, shares: &[f32], seed: u64) -> Result<SampleOrder, TrainError> {
         let sizes = sources.shard_sizes();
         if shares.is_empty() {
@@ -350,15 +350,7 @@ impl SampleOrder {
                 kind: OrderKind::Pooled(Order::new(sizes, seed)),
             });
         }
-        if shares.len() != sources.readers.len()
-            || shares.iter().any(|w| !(w.is_finite() && *w >= 0.0))
-            || shares.iter().all(|&w| w == 0.0)
-        {
-            return Err(TrainError::Config(format!(
-                "data.mix {shares:?}: one finite share >= 0 per directory ({} directories), not all 0",
-                sources.readers.len()
-            )));
-        }
+        DataConfig::check_mix(shares, sources.readers.len())?;
         let total: f64 = shares.iter().map(|&w| w as f64).sum();
         let mut acc = 0.0;
         let cdf = shares
@@ -413,6 +405,8 @@ struct Order {
     seed: u64,
     /// Cached epoch layout: `(epoch, shard order, cumulative starts)`.
     cached: Option<(u64, Vec<usize>, Vec<usize>)>,
+    /// Cached scene order of the shard in use: `(epoch, shard, scene order)`.
+    scenes: Option<(u64, usize, Vec<usize>)>,
 }
 
 impl Order {
@@ -422,6 +416,7 @@ impl Order {
             shard_sizes,
             seed,
             cached: None,
+            scenes: None,
         }
     }
 
@@ -443,9 +438,18 @@ impl Order {
         let (_, perm, starts) = self.cached.as_ref().expect("layout cached above");
         let i = starts.partition_point(|&s| s <= pos) - 1;
         let shard = perm[i];
-        let mut scenes: Vec<usize> = (0..self.shard_sizes[shard]).collect();
-        scenes.shuffle(&mut rng_for(self.seed, 2, epoch * 1_000_003 + shard as u64));
-        (shard, scenes[pos - starts[i]])
+        let start = starts[i];
+        if self
+            .scenes
+            .as_ref()
+            .is_none_or(|c| (c.0, c.1) != (epoch, shard))
+        {
+            let mut order: Vec<usize> = (0..self.shard_sizes[shard]).collect();
+            order.shuffle(&mut rng_for(self.seed, 2, epoch * 1_000_003 + shard as u64));
+            self.scenes = Some((epoch, shard, order));
+        }
+        let (_, _, order) = self.scenes.as_ref().expect("scene order cached above");
+        (shard, order[pos - start])
     }
 }
 
