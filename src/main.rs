@@ -43,6 +43,9 @@ fn main() -> anyhow::Result<()> {
     unsafe { dynaserve_model::configure_compute(None) };
     dynaserve_model::keep_freed_memory();
     let cli = Cli::parse();
+    if !matches!(cli.command, Command::Serve(_) | Command::View(_)) {
+        default_sigpipe();
+    }
     match cli.command {
         Command::Version => {
             println!("dynaserve {}", env!("CARGO_PKG_VERSION"));
@@ -54,5 +57,17 @@ fn main() -> anyhow::Result<()> {
         Command::Train(args) => dynaserve_train::train::run_cli(args),
         Command::Eval(args) => dynaserve_train::cli::run_eval(args),
         Command::Sim(args) => dynaserve_sim::cli::run(args),
+    }
+}
+
+/// Lets a printing subcommand end quietly when its reader goes away (`dynaserve sim inspect
+/// DIR | head`), as Unix tools do, instead of panicking on a broken pipe. The servers keep
+/// Rust's default (SIGPIPE ignored): a client closing its socket is an error they handle.
+fn default_sigpipe() {
+    #[cfg(unix)]
+    // SAFETY: called on the main thread before any other thread is started by the command;
+    // SIG_DFL is a valid disposition for SIGPIPE.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
 }

@@ -44,7 +44,7 @@ pub mod writer;
 
 pub use dataset::{DatasetReader, Manifest, ObjectRecord, SceneLabel, SceneRecord};
 pub use generators::{GenerateOptions, Generator};
-pub use scenarios::{Scenario, ScenarioParameters};
+pub use scenarios::{MaterialRanges, Materials, Scenario, ScenarioParameters};
 pub use scene::{KinematicPath, ObjectSpec, SceneSpec, SimConfig};
 pub use shapes::{Shape, ShapeKind};
 

@@ -139,6 +139,10 @@ pub struct DatasetStats {
     pub shapes: BTreeMap<String, usize>,
     /// Objects per (friction, restitution) pair, as text.
     pub materials: BTreeMap<String, usize>,
+    /// Friction coefficient per object.
+    pub friction: Summary,
+    /// Restitution coefficient per object.
+    pub restitution: Summary,
     /// Mass, kilograms.
     pub mass: Summary,
     /// Scale (first axis).
@@ -166,11 +170,16 @@ pub struct DatasetStats {
     pub contact_pairs_per_scene: Summary,
 }
 
+/// Most (friction, restitution) pairs `inspect` lists one by one.
+const MATERIALS_LISTED: usize = 8;
+
 #[derive(Default)]
 struct SceneStats {
     objects: usize,
     shapes: BTreeMap<i32, usize>,
     materials: BTreeMap<String, usize>,
+    friction: Summary,
+    restitution: Summary,
     mass: Summary,
     scale: Summary,
     initial_speed: Summary,
@@ -214,6 +223,8 @@ fn scene_stats(scene: &SceneRecord, sample_frames: &[usize]) -> SceneStats {
                 o.friction, o.restitution
             ))
             .or_default() += 1;
+        s.friction.add(o.friction as f64);
+        s.restitution.add(o.restitution as f64);
         s.mass.add(o.mass as f64);
         s.scale.add(o.scale[0] as f64);
         if t_end >= 1 {
@@ -319,6 +330,8 @@ pub fn inspect(reader: &DatasetReader, limit: Option<usize>) -> Result<DatasetSt
             for (name, n) in p.materials {
                 *acc.materials.entry(name).or_default() += n;
             }
+            acc.friction.merge(&p.friction);
+            acc.restitution.merge(&p.restitution);
             acc.mass.merge(&p.mass);
             acc.scale.merge(&p.scale);
             acc.initial_speed.merge(&p.initial_speed);
@@ -359,6 +372,8 @@ pub fn inspect(reader: &DatasetReader, limit: Option<usize>) -> Result<DatasetSt
             .map(|(&id, &n)| (shape_name(id), n))
             .collect(),
         materials: acc.materials,
+        friction: acc.friction,
+        restitution: acc.restitution,
         mass: acc.mass,
         scale: acc.scale,
         initial_speed: acc.initial_speed,
@@ -399,9 +414,20 @@ impl fmt::Display for DatasetStats {
             .map(|(k, v)| format!("{k} {v}"))
             .collect();
         writeln!(f, "shapes                 {}", shapes.join(", "))?;
-        for (k, v) in &self.materials {
-            writeln!(f, "material               {k}: {v}")?;
+        // A few named materials are listed; drawn ones (one per object) are summarised.
+        if self.materials.len() <= MATERIALS_LISTED {
+            for (k, v) in &self.materials {
+                writeln!(f, "material               {k}: {v}")?;
+            }
+        } else {
+            writeln!(
+                f,
+                "materials              {} distinct",
+                self.materials.len()
+            )?;
         }
+        writeln!(f, "friction               {}", self.friction)?;
+        writeln!(f, "restitution            {}", self.restitution)?;
         writeln!(f, "mass (kg)              {}", self.mass)?;
         writeln!(f, "scale                  {}", self.scale)?;
         writeln!(f, "initial speed (m/s)    {}", self.initial_speed)?;

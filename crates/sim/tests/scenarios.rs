@@ -3,7 +3,9 @@
 
 use dynaserve_sim::dataset::DatasetReader;
 use dynaserve_sim::generators::{GenerateOptions, GeneratedScene, generate_scene};
-use dynaserve_sim::scenarios::{RestVariant, Scenario, ScenarioParameters};
+use dynaserve_sim::scenarios::{
+    MaterialRanges, Materials, RestVariant, Scenario, ScenarioParameters,
+};
 use dynaserve_sim::shapes::ShapeKind;
 use dynaserve_sim::stats::posed_cloud;
 use dynaserve_sim::writer::generate_dataset;
@@ -324,5 +326,73 @@ fn scenario_scenes_are_deterministic_and_parameters_are_checked() {
     assert!(generate_scene(&options(Generator::Scenario(Box::new(p.clone())), 7, 1), 0).is_err());
     p.scenarios = vec![Scenario::Drop];
     p.drop_height = [2.0, 1.0];
+    assert!(generate_scene(&options(Generator::Scenario(Box::new(p)), 7, 1), 0).is_err());
+}
+
+#[test]
+fn uniform_materials_vary_each_coefficient_on_its_own_and_scenes_still_behave() {
+    let r = MaterialRanges::UNIFORM;
+    let within = |v: f32, range: [f32; 2]| (range[0]..=range[1]).contains(&v);
+    let mut drawn = Vec::new();
+    for scenario in [Scenario::Rest, Scenario::Collide, Scenario::StackHit] {
+        let p = ScenarioParameters::new(vec![scenario]).with_materials(Materials::Uniform);
+        for g in scenes(Generator::Scenario(Box::new(p)), 11, 3) {
+            for (spec, rec) in g.spec.objects.iter().zip(&g.record.objects) {
+                let m = spec.material;
+                assert!(within(m.friction, r.friction), "friction {}", m.friction);
+                assert!(
+                    within(m.restitution, r.restitution),
+                    "restitution {}",
+                    m.restitution
+                );
+                assert!(within(m.density, r.density), "density {}", m.density);
+                // The record carries what was simulated.
+                assert_eq!((rec.friction, rec.restitution), (m.friction, m.restitution));
+                drawn.push((m.friction, m.restitution));
+            }
+            // Rest scenes stand with any material: low friction does not set them sliding.
+            if scenario == Scenario::Rest {
+                for (i, o) in g.record.objects.iter().enumerate() {
+                    assert!(drift(o) < 2e-3, "rest object {i} moved {} m", drift(o));
+                }
+            }
+        }
+    }
+    // Continuous, and friction says nothing about restitution (in Kubric's two materials
+    // they move together: correlation 1).
+    let n = drawn.len() as f32;
+    let mut distinct: Vec<f32> = drawn.iter().map(|d| d.0).collect();
+    distinct.sort_by(f32::total_cmp);
+    distinct.dedup();
+    assert_eq!(
+        distinct.len(),
+        drawn.len(),
+        "every object draws its own friction"
+    );
+    let mean = |f: fn(&(f32, f32)) -> f32| drawn.iter().map(f).sum::<f32>() / n;
+    let (mf, mr) = (mean(|d| d.0), mean(|d| d.1));
+    let cov = |f: &dyn Fn(&(f32, f32)) -> f32| drawn.iter().map(f).sum::<f32>() / n;
+    let c = cov(&|d| (d.0 - mf) * (d.1 - mr))
+        / (cov(&|d| (d.0 - mf).powi(2)) * cov(&|d| (d.1 - mr).powi(2))).sqrt();
+    assert!(c.abs() < 0.6, "friction and restitution correlate: {c}");
+    // The default keeps Kubric's two materials.
+    let kubric: std::collections::BTreeSet<(u32, u32)> =
+        scenes(Generator::scenario(Scenario::Collide), 11, 3)
+            .iter()
+            .flat_map(|g| g.spec.objects.iter())
+            .map(|o| {
+                (
+                    o.material.friction.to_bits(),
+                    o.material.restitution.to_bits(),
+                )
+            })
+            .collect();
+    assert!(kubric.len() <= 2, "kubric draws {kubric:?}");
+    // Ranges outside what rapier accepts are refused.
+    let mut p = ScenarioParameters::new(vec![Scenario::Drop]);
+    p.material_ranges = Some(MaterialRanges {
+        restitution: [0.5, 1.2],
+        ..r
+    });
     assert!(generate_scene(&options(Generator::Scenario(Box::new(p)), 7, 1), 0).is_err());
 }

@@ -8,7 +8,7 @@ use std::sync::{Arc, OnceLock};
 
 use dynaserve_model::{Pose, SceneState};
 use dynaserve_sim::writer::generate_dataset;
-use dynaserve_sim::{GenerateOptions, Generator, SceneRecord};
+use dynaserve_sim::{GenerateOptions, Generator, Materials, SceneRecord};
 use dynaserve_train::eval::physics_report::{format_physics_markdown, format_physics_text};
 use dynaserve_train::eval::physics_suite::{
     PhysicsSuiteReport, SuiteOptions, SuiteScene, generate_suite, load_suite, run_suite,
@@ -21,7 +21,7 @@ const GRAVITY: [f32; 3] = [0.0, 0.0, -10.0];
 /// One scene of each of the 7 suite groups (seed 7, split test, 256 points), generated once.
 fn suite() -> &'static [SuiteScene] {
     static SUITE: OnceLock<Vec<SuiteScene>> = OnceLock::new();
-    SUITE.get_or_init(|| generate_suite(7, "test", 1, 256).unwrap())
+    SUITE.get_or_init(|| generate_suite(7, "test", 1, 256, Materials::Kubric).unwrap())
 }
 
 fn ballistic() -> Ballistic {
@@ -105,7 +105,7 @@ fn regimes_of(s: &SuiteScene, k: usize) -> Vec<Regime> {
 fn generated_suite_is_labelled_and_deterministic() {
     let scenes = suite();
     assert_eq!(scenes.len(), 7);
-    let again = generate_suite(7, "test", 1, 256).unwrap();
+    let again = generate_suite(7, "test", 1, 256, Materials::Kubric).unwrap();
     for (a, b) in scenes.iter().zip(&again) {
         assert_eq!(a.scene, b.scene);
         assert_eq!(a.label, b.label);
@@ -125,7 +125,7 @@ fn generated_suite_is_labelled_and_deterministic() {
     ] {
         scene_of(scenes, name, variant);
     }
-    assert!(generate_suite(7, "test", 0, 256).is_err());
+    assert!(generate_suite(7, "test", 0, 256, Materials::Kubric).is_err());
 }
 
 #[test]

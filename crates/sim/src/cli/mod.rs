@@ -27,7 +27,7 @@ use crate::mesh_scenes::cli::{self as mesh_cli, MeshGenerateArgs};
 use crate::mesh_scenes::{MeshSet, is_mesh_dataset};
 use crate::preview::write_preview;
 use crate::replay::cli::{ReplayArgs, run_replay};
-use crate::scenarios::{Scenario, ScenarioParameters};
+use crate::scenarios::{Materials, Scenario, ScenarioParameters};
 use crate::stats::inspect;
 use crate::writer::generate_dataset;
 use split_args::{scene_progress, worker_pool};
@@ -55,20 +55,20 @@ pub enum SimCommand {
     /// Physics scenario: objects at rest from frame 0 (single objects, box towers, piles).
     Rest(RestArgs),
     /// Physics scenario: one object dropped from 0.5-3 m with random attitude and spin.
-    Drop(GenerateArgs),
+    Drop(ScenarioArgs),
     /// Physics scenario: objects launched along the floor that friction stops.
-    Slide(GenerateArgs),
+    Slide(ScenarioArgs),
     /// Physics scenario: two objects thrown at each other, in the air or along the floor.
-    Collide(GenerateArgs),
+    Collide(ScenarioArgs),
     /// Physics scenario: a tower of 2-4 boxes hit by a thrown object.
     #[command(name = "stack-hit")]
-    StackHit(GenerateArgs),
+    StackHit(ScenarioArgs),
     /// Physics scenario: 1-3 objects on the floor pushed by a kinematic pusher (the last
     /// object, marked kinematic) following a random smooth path through them.
-    Push(GenerateArgs),
+    Push(ScenarioArgs),
     /// Physics scenarios: each scene draws one of rest, drop, slide, collide, stack-hit.
     #[command(name = "physics-mix")]
-    PhysicsMix(GenerateArgs),
+    PhysicsMix(ScenarioArgs),
     /// Mesh scenes: 1-5 convex rigid objects resting on the floor of a closed box, some sliding.
     #[command(name = "mesh-d1")]
     MeshD1(MeshGenerateArgs),
@@ -104,12 +104,31 @@ pub struct GenerateArgs {
     pub scenes_per_shard: Option<usize>,
 }
 
-/// Options of `dynaserve sim rest`.
+/// Options of the physics scenario generators.
 #[derive(Args, Debug, Clone)]
-pub struct RestArgs {
+pub struct ScenarioArgs {
     /// Shared generator options.
     #[command(flatten)]
     pub common: GenerateArgs,
+    /// Contact materials of the objects.
+    #[arg(long, value_enum, default_value_t = Materials::Kubric)]
+    pub materials: Materials,
+}
+
+impl ScenarioArgs {
+    /// Runs the scenario generator of `p` with these options' materials.
+    fn run(&self, p: ScenarioParameters) -> anyhow::Result<()> {
+        let p = p.with_materials(self.materials);
+        run_generate(Generator::Scenario(Box::new(p)), &self.common)
+    }
+}
+
+/// Options of `dynaserve sim rest`.
+#[derive(Args, Debug, Clone)]
+pub struct RestArgs {
+    /// Shared scenario options.
+    #[command(flatten)]
+    pub scenario: ScenarioArgs,
     /// Side range of a tower's cubes, metres, as `MIN,MAX` (default 0.7,1.4, the scale of
     /// every other object).
     #[arg(long, value_delimiter = ',', value_name = "MIN,MAX")]
@@ -170,14 +189,14 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
                 };
                 p.tower_scale = [lo, hi];
             }
-            run_generate(Generator::Scenario(Box::new(p)), &a.common)
+            a.scenario.run(p)
         }
-        SimCommand::Drop(a) => run_generate(Generator::scenario(Scenario::Drop), &a),
-        SimCommand::Slide(a) => run_generate(Generator::scenario(Scenario::Slide), &a),
-        SimCommand::Collide(a) => run_generate(Generator::scenario(Scenario::Collide), &a),
-        SimCommand::StackHit(a) => run_generate(Generator::scenario(Scenario::StackHit), &a),
-        SimCommand::Push(a) => run_generate(Generator::scenario(Scenario::Push), &a),
-        SimCommand::PhysicsMix(a) => run_generate(Generator::physics_mix(), &a),
+        SimCommand::Drop(a) => a.run(ScenarioParameters::new(vec![Scenario::Drop])),
+        SimCommand::Slide(a) => a.run(ScenarioParameters::new(vec![Scenario::Slide])),
+        SimCommand::Collide(a) => a.run(ScenarioParameters::new(vec![Scenario::Collide])),
+        SimCommand::StackHit(a) => a.run(ScenarioParameters::new(vec![Scenario::StackHit])),
+        SimCommand::Push(a) => a.run(ScenarioParameters::new(vec![Scenario::Push])),
+        SimCommand::PhysicsMix(a) => a.run(ScenarioParameters::new(Scenario::ALL.to_vec())),
         SimCommand::MeshD1(a) => mesh_cli::run_generate(MeshSet::D1, &a),
         SimCommand::MeshD2(a) => mesh_cli::run_generate(MeshSet::D2, &a),
         SimCommand::MeshD3(a) => mesh_cli::run_generate(MeshSet::D3, &a),

@@ -17,5 +17,5 @@ mod placement;
 mod push;
 mod sample;
 
-pub use parameters::{RestVariant, Scenario, ScenarioParameters};
+pub use parameters::{MaterialRanges, Materials, RestVariant, Scenario, ScenarioParameters};
 pub use sample::sample_scenario;

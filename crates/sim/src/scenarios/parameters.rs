@@ -82,6 +82,68 @@ impl RestVariant {
     }
 }
 
+/// Where scenario objects get their contact materials from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum Materials {
+    /// Kubric's metal or rubber, as in MOVi-B (friction, restitution and density move
+    /// together).
+    #[default]
+    Kubric,
+    /// Friction, restitution and density drawn independently and uniformly per object
+    /// ([`MaterialRanges::UNIFORM`]).
+    Uniform,
+}
+
+/// Ranges of contact materials drawn per object, each coefficient independently and uniformly
+/// (so that friction, restitution and mass vary separately, unlike Kubric's two materials,
+/// in which they move together).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct MaterialRanges {
+    /// Friction coefficient range (combined with the floor's 0.3 by multiplication).
+    pub friction: [f32; 2],
+    /// Restitution coefficient range, within `[0, 1]`.
+    pub restitution: [f32; 2],
+    /// Density range, kilograms per cubic metre of the scene's units.
+    pub density: [f32; 2],
+}
+
+impl MaterialRanges {
+    /// The ranges `--materials uniform` draws from: friction 0.1-1.0, restitution 0.05-0.8,
+    /// density 0.5-3.0. They hold both of Kubric's materials (metal 0.4 / 0.3 / 2.7, rubber
+    /// 0.8 / 0.7 / 1.1) and the values users commonly send (wood, plastic, steel-like).
+    pub const UNIFORM: Self = Self {
+        friction: [0.1, 1.0],
+        restitution: [0.05, 0.8],
+        density: [0.5, 3.0],
+    };
+
+    /// Draws one material.
+    pub fn draw<R: rand::Rng + ?Sized>(&self, rng: &mut R) -> Material {
+        let u = |rng: &mut R, r: [f32; 2]| r[0] + (r[1] - r[0]) * rng.random::<f32>();
+        Material {
+            friction: u(rng, self.friction),
+            restitution: u(rng, self.restitution),
+            density: u(rng, self.density),
+        }
+    }
+
+    fn validate(&self) -> Result<()> {
+        let ordered = |r: [f32; 2], lo: f32, hi: f32| {
+            r[0].is_finite() && r[1].is_finite() && lo <= r[0] && r[0] <= r[1] && r[1] <= hi
+        };
+        if ordered(self.friction, 0.0, f32::INFINITY)
+            && ordered(self.restitution, 0.0, 1.0)
+            && ordered(self.density, f32::MIN_POSITIVE, f32::INFINITY)
+        {
+            Ok(())
+        } else {
+            Err(SimError::Invalid(format!(
+                "scenario parameters: material ranges must be ordered, friction >= 0, restitution in [0, 1], density > 0 (got {self:?})"
+            )))
+        }
+    }
+}
+
 /// Parameters of the scenario generators, recorded in the manifest. Ranges `[a, b]` are
 /// drawn uniformly (integers inclusive).
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -92,8 +154,12 @@ pub struct ScenarioParameters {
     pub shapes: Vec<ShapeKind>,
     /// Uniform scale range of the unit shapes.
     pub scale: [f32; 2],
-    /// Materials drawn uniformly: (name, material).
+    /// Materials drawn uniformly: (name, material). Unused when `material_ranges` is set.
     pub materials: Vec<(String, Material)>,
+    /// When set, every object draws its friction, restitution and density independently and
+    /// uniformly from these ranges instead of picking one of `materials`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub material_ranges: Option<MaterialRanges>,
     /// The floor.
     pub floor: FloorSpec,
     /// Gravity, metres per second squared.
@@ -210,6 +276,7 @@ impl ScenarioParameters {
             scale: [0.7, 1.4],
             tower_scale: [0.7, 1.4],
             materials: vec![("metal".into(), METAL), ("rubber".into(), RUBBER)],
+            material_ranges: None,
             floor: MOVI_FLOOR,
             gravity: [0.0, 0.0, -10.0],
             settle_steps: 720,
@@ -251,6 +318,15 @@ impl ScenarioParameters {
             push_ramp: 0.5,
             push_tail: 8.0,
         }
+    }
+
+    /// These parameters with their objects' materials drawn as `materials` says.
+    pub fn with_materials(mut self, materials: Materials) -> Self {
+        self.material_ranges = match materials {
+            Materials::Kubric => None,
+            Materials::Uniform => Some(MaterialRanges::UNIFORM),
+        };
+        self
     }
 
     /// Generator name: the scenario's own name, or `physics-mix` for several.
@@ -320,6 +396,9 @@ impl ScenarioParameters {
             .any(|r| !(r[0].is_finite() && r[1].is_finite() && r[0] > 0.0 && r[0] <= r[1]))
         {
             return bad("a range is empty, not positive or not finite");
+        }
+        if let Some(m) = &self.material_ranges {
+            m.validate()?;
         }
         if !(0.0..=1.0).contains(&self.collide_air_fraction) {
             return bad("collide_air_fraction must be in [0, 1]");

@@ -52,7 +52,10 @@ pub(super) fn draw_object<R: Rng + ?Sized>(
         .ok_or_else(|| SimError::Invalid(format!("shape {kind:?} is not in the shape list")))?;
     let shape = Shape::unit(kind, rng)?;
     let scale = uniform(rng, p.scale);
-    let material = p.materials[rng.random_range(0..p.materials.len())].1;
+    let material = match &p.material_ranges {
+        Some(m) => m.draw(rng),
+        None => p.materials[rng.random_range(0..p.materials.len())].1,
+    };
     Ok(ObjectSpec {
         shape,
         shape_id: shape_id as i32,

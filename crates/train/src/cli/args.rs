@@ -56,6 +56,11 @@ pub struct EvalArgs {
     /// Scenes per group of the generated suite.
     #[arg(long, default_value_t = crate::eval::physics_suite::DEFAULT_SCENES_PER_GROUP)]
     pub suite_scenes: usize,
+    /// Materials of the generated suite's objects: Kubric's two (as in MOVi-B and the
+    /// training scenarios), or friction, restitution and density drawn independently per
+    /// object (a test of materials between and beyond them).
+    #[arg(long, value_enum, default_value_t = dynaserve_sim::Materials::Kubric)]
+    pub suite_materials: dynaserve_sim::Materials,
     /// Suite: score every N-th one-step window of each scene in the regime table.
     #[arg(long, default_value_t = 1)]
     pub window_stride: usize,

@@ -19,15 +19,29 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     let started = std::time::Instant::now();
     let (scenes, gravity, source) = if args.data.is_empty() {
         eprintln!(
-            "generating the physics suite: {} scenes per group, seed {}, split test",
-            args.suite_scenes, args.seed
+            "generating the physics suite: {} scenes per group, seed {}, split test, {:?} materials",
+            args.suite_scenes, args.seed, args.suite_materials
         );
-        let scenes = generate_suite(args.seed, "test", args.suite_scenes, SUITE_POINTS)?;
+        let scenes = generate_suite(
+            args.seed,
+            "test",
+            args.suite_scenes,
+            SUITE_POINTS,
+            args.suite_materials,
+        )?;
         let gravity = dynaserve_sim::ScenarioParameters::new(vec![]).gravity;
         (
             scenes,
             gravity,
-            format!("generated scenes (seed {}, split test)", args.seed),
+            match args.suite_materials {
+                dynaserve_sim::Materials::Kubric => {
+                    format!("generated scenes (seed {}, split test)", args.seed)
+                }
+                dynaserve_sim::Materials::Uniform => format!(
+                    "generated scenes (seed {}, split test, uniform materials)",
+                    args.seed
+                ),
+            },
         )
     } else {
         let (scenes, gravity) = load_suite(&args.data, args.max_scenes)?;

@@ -13,7 +13,7 @@ use std::path::PathBuf;
 
 use dynaserve_geometry::geodesic_angle;
 use dynaserve_sim::generators::{GenerateOptions, generate_scene};
-use dynaserve_sim::scenarios::{RestVariant, Scenario, ScenarioParameters};
+use dynaserve_sim::scenarios::{Materials, RestVariant, Scenario, ScenarioParameters};
 use dynaserve_sim::{DatasetReader, Generator, SceneLabel, SceneRecord};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -49,46 +49,58 @@ pub struct SuiteScene {
 
 /// The groups of the generated suite: (name, generator). `rest-tower` holds towers of
 /// [`SUITE_TOWER_BOXES`] cubes, `rest-single` single objects, `collide-air` and
-/// `collide-floor` one variant each; the others use the scenario generators' defaults.
-pub fn suite_groups() -> Vec<(&'static str, Generator)> {
+/// `collide-floor` one variant each; the others use the scenario generators' defaults. Every
+/// object's material is drawn as `materials` says.
+pub fn suite_groups(materials: Materials) -> Vec<(&'static str, Generator)> {
+    let params = |s: Scenario| ScenarioParameters::new(vec![s]).with_materials(materials);
     let rest = |variant: RestVariant| {
-        let mut p = ScenarioParameters::new(vec![Scenario::Rest]);
+        let mut p = params(Scenario::Rest);
         p.rest_variants = vec![variant];
         p.tower_boxes = [SUITE_TOWER_BOXES, SUITE_TOWER_BOXES];
         Generator::Scenario(Box::new(p))
     };
     let collide = |air: f32| {
-        let mut p = ScenarioParameters::new(vec![Scenario::Collide]);
+        let mut p = params(Scenario::Collide);
         p.collide_air_fraction = air;
         Generator::Scenario(Box::new(p))
     };
     vec![
         ("rest-tower", rest(RestVariant::Tower)),
         ("rest-single", rest(RestVariant::Single)),
-        ("drop", Generator::scenario(Scenario::Drop)),
-        ("slide", Generator::scenario(Scenario::Slide)),
+        (
+            "drop",
+            Generator::Scenario(Box::new(params(Scenario::Drop))),
+        ),
+        (
+            "slide",
+            Generator::Scenario(Box::new(params(Scenario::Slide))),
+        ),
         ("collide-air", collide(1.0)),
         ("collide-floor", collide(0.0)),
-        ("stack-hit", Generator::scenario(Scenario::StackHit)),
+        (
+            "stack-hit",
+            Generator::Scenario(Box::new(params(Scenario::StackHit))),
+        ),
     ]
 }
 
-/// Generates the suite: `per_group` scenes of every group of [`suite_groups`], from `seed`
-/// and `split` (group `g` uses scene indices `g * 1_000_000 + i`, so groups sharing a
-/// generator never share a scene), `points` reference points per object. Deterministic and
-/// independent of the thread count.
+/// Generates the suite: `per_group` scenes of every group of [`suite_groups`] with objects of
+/// `materials`, from `seed` and `split` (group `g` uses scene indices `g * 1_000_000 + i`, so
+/// groups sharing a generator never share a scene), `points` reference points per object.
+/// Deterministic and independent of the thread count.
 pub fn generate_suite(
     seed: u64,
     split: &str,
     per_group: usize,
     points: usize,
+    materials: Materials,
 ) -> Result<Vec<SuiteScene>, EvalError> {
     if per_group == 0 {
         return Err(EvalError::Invalid(
             "the suite needs at least one scene per group".into(),
         ));
     }
-    let jobs: Vec<(GenerateOptions, u64)> = suite_groups()
+    let jobs: Vec<(GenerateOptions, u64)> = suite_groups(materials)
         .into_iter()
         .enumerate()
         .flat_map(|(g, (_, generator))| {
