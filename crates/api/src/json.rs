@@ -104,10 +104,12 @@ pub struct ObjectSpec {
     pub velocity: Option<Velocity>,
     /// Mass, kilograms, in (0, 1e4].
     pub mass: f32,
-    /// Coulomb friction coefficient in [0, 10]. Defaults to 0.
+    /// Coulomb friction coefficient in [0, 10]. Defaults to 0. A learned model forecasts
+    /// well only within the range its card says it was trained on.
     #[serde(default)]
     pub friction: f32,
-    /// Coefficient of restitution in [0, 1]. Defaults to 0.
+    /// Coefficient of restitution in [0, 1]. Defaults to 0. As for `friction`, see the
+    /// model's card for the range it was trained on.
     #[serde(default)]
     pub restitution: f32,
 }
