@@ -118,8 +118,10 @@ pub struct ScenarioArgs {
 impl ScenarioArgs {
     /// Runs the scenario generator of `p` with these options' materials.
     fn run(&self, p: ScenarioParameters) -> anyhow::Result<()> {
-        let p = p.with_materials(self.materials);
-        run_generate(Generator::Scenario(Box::new(p)), &self.common)
+        run_generate(
+            Generator::scenarios(p.with_materials(self.materials)),
+            &self.common,
+        )
     }
 }
 

@@ -60,6 +60,11 @@ impl Generator {
         Generator::Scenario(Box::new(ScenarioParameters::new(vec![scenario])))
     }
 
+    /// Scenario scenes drawn from `p` (several scenarios: one drawn per scene).
+    pub fn scenarios(p: ScenarioParameters) -> Self {
+        Generator::Scenario(Box::new(p))
+    }
+
     /// `physics-mix`: each scene draws one of the five scenarios uniformly.
     pub fn physics_mix() -> Self {
         Generator::Scenario(Box::new(ScenarioParameters::new(Scenario::ALL.to_vec())))

@@ -94,6 +94,16 @@ pub enum Materials {
     Uniform,
 }
 
+impl Materials {
+    /// Name as on the command line (`kubric`, `uniform`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Materials::Kubric => "kubric",
+            Materials::Uniform => "uniform",
+        }
+    }
+}
+
 /// Ranges of contact materials drawn per object, each coefficient independently and uniformly
 /// (so that friction, restitution and mass vary separately, unlike Kubric's two materials,
 /// in which they move together).

@@ -19,8 +19,10 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     let started = std::time::Instant::now();
     let (scenes, gravity, source) = if args.data.is_empty() {
         eprintln!(
-            "generating the physics suite: {} scenes per group, seed {}, split test, {:?} materials",
-            args.suite_scenes, args.seed, args.suite_materials
+            "generating the physics suite: {} scenes per group, seed {}, split test, {} materials",
+            args.suite_scenes,
+            args.seed,
+            args.suite_materials.name()
         );
         let scenes = generate_suite(
             args.seed,
@@ -33,15 +35,14 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         (
             scenes,
             gravity,
-            match args.suite_materials {
-                dynaserve_sim::Materials::Kubric => {
-                    format!("generated scenes (seed {}, split test)", args.seed)
+            format!(
+                "generated scenes (seed {}, split test{})",
+                args.seed,
+                match args.suite_materials {
+                    dynaserve_sim::Materials::Kubric => "",
+                    dynaserve_sim::Materials::Uniform => ", uniform materials",
                 }
-                dynaserve_sim::Materials::Uniform => format!(
-                    "generated scenes (seed {}, split test, uniform materials)",
-                    args.seed
-                ),
-            },
+            ),
         )
     } else {
         let (scenes, gravity) = load_suite(&args.data, args.max_scenes)?;

@@ -57,30 +57,22 @@ pub fn suite_groups(materials: Materials) -> Vec<(&'static str, Generator)> {
         let mut p = params(Scenario::Rest);
         p.rest_variants = vec![variant];
         p.tower_boxes = [SUITE_TOWER_BOXES, SUITE_TOWER_BOXES];
-        Generator::Scenario(Box::new(p))
+        Generator::scenarios(p)
     };
     let collide = |air: f32| {
         let mut p = params(Scenario::Collide);
         p.collide_air_fraction = air;
-        Generator::Scenario(Box::new(p))
+        Generator::scenarios(p)
     };
+    let plain = |s: Scenario| Generator::scenarios(params(s));
     vec![
         ("rest-tower", rest(RestVariant::Tower)),
         ("rest-single", rest(RestVariant::Single)),
-        (
-            "drop",
-            Generator::Scenario(Box::new(params(Scenario::Drop))),
-        ),
-        (
-            "slide",
-            Generator::Scenario(Box::new(params(Scenario::Slide))),
-        ),
+        ("drop", plain(Scenario::Drop)),
+        ("slide", plain(Scenario::Slide)),
         ("collide-air", collide(1.0)),
         ("collide-floor", collide(0.0)),
-        (
-            "stack-hit",
-            Generator::Scenario(Box::new(params(Scenario::StackHit))),
-        ),
+        ("stack-hit", plain(Scenario::StackHit)),
     ]
 }
 
