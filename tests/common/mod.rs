@@ -71,10 +71,16 @@ pub fn test_model() -> TestModel {
 
 /// A randomly initialised tiny RigidFormer saved as a checkpoint directory named `name`.
 pub fn random_model(name: &str, seed: u64) -> TestModel {
+    random_model_with(name, seed, |_| {})
+}
+
+/// [`random_model`] with its configuration adjusted by `tweak` before the weights are drawn.
+pub fn random_model_with(name: &str, seed: u64, tweak: impl FnOnce(&mut ModelConfig)) -> TestModel {
     let tmp = TempDir::new("model");
     let dir = tmp.0.join(name);
     let mut config = ModelConfig::tiny();
     config.points_per_object = 64;
+    tweak(&mut config);
     RigidFormer::new(config, seed, &dynaserve_model::Device::Cpu)
         .unwrap()
         .save(&dir)

@@ -14,3 +14,4 @@ mod examples;
 mod invalid_inputs;
 mod metrics;
 mod rollouts;
+mod trained_ranges;

@@ -11,7 +11,7 @@ needs numpy only).
 """
 
 from .client import AFFINITY_HEADER, AsyncClient, Client, Frame, Session
-from .errors import DynaserveError
+from .errors import DynaserveError, OutOfRangeWarning
 from .mesh import Generated, MeshObject
 from .scene import Body, box_points, pose_array, pose_doc
 
@@ -24,6 +24,7 @@ __all__ = [
     "Frame",
     "Generated",
     "MeshObject",
+    "OutOfRangeWarning",
     "Session",
     "box_points",
     "pose_array",

@@ -22,7 +22,7 @@ from typing import Any, Dict, Iterator, List, Optional, Sequence
 
 import numpy as np
 
-from .errors import DynaserveError
+from .errors import DynaserveError, warn_out_of_range
 from .scene import Body, actions_doc, object_state_doc, poses_array, scene_doc
 
 AFFINITY_HEADER = "x-dynaserve-affinity"
@@ -103,6 +103,7 @@ class Client:
             conn.close()
         if resp.status >= 400:
             raise _error(resp.status, raw)
+        warn_out_of_range(resp.getheaders())
         return json.loads(raw) if raw else None
 
     # ---- stateless calls ----
@@ -139,6 +140,7 @@ class Client:
             resp = conn.getresponse()
             if resp.status >= 400:
                 raise _error(resp.status, resp.read())
+            warn_out_of_range(resp.getheaders())
             event, data = "", []
             for line in resp:
                 text = line.decode().rstrip("\r\n")

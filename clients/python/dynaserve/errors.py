@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from typing import Optional
+import warnings
+from typing import Iterable, Optional
+
+WARNING_HEADER = "x-dynaserve-warning"
 
 
 class DynaserveError(Exception):
@@ -33,3 +36,20 @@ class DynaserveError(Exception):
         self.message = message
         self.field = field
         self.retry_after_ms = retry_after_ms
+
+
+class OutOfRangeWarning(UserWarning):
+    """The server answered, but some object's mass, friction or restitution lies outside the
+    range its model was trained on, so the forecast there is less accurate. The message names
+    the objects and the trained range (the server's ``x-dynaserve-warning`` header or gRPC
+    metadata). Turn it into an error with ``warnings.simplefilter("error", OutOfRangeWarning)``.
+    """
+
+
+def warn_out_of_range(pairs: Iterable[tuple]) -> None:
+    """Issues one :class:`OutOfRangeWarning` per ``x-dynaserve-warning`` entry of ``pairs``
+    (header or metadata ``(key, value)`` pairs)."""
+    for key, value in pairs:
+        if key.lower() == WARNING_HEADER:
+            text = value.decode() if isinstance(value, bytes) else str(value)
+            warnings.warn(text, OutOfRangeWarning, stacklevel=4)

@@ -55,7 +55,7 @@ except ImportError as _missing:  # pragma: no cover - depends on the environment
     ) from _missing
 
 from .client import AFFINITY_HEADER, Frame
-from .errors import DynaserveError
+from .errors import DynaserveError, warn_out_of_range
 from .mesh import Generated, MeshObject
 from .scene import Body
 from .v1 import sessions_pb2 as spb
@@ -541,9 +541,11 @@ class GrpcClient(_Base):
     def _unary(self, method: Any, request: Any, timeout: Optional[float] = None) -> Any:
         self.last_request_bytes = request.ByteSize()
         try:
-            return method(request, timeout=timeout or self.timeout, metadata=self.metadata)
+            resp, call = method.with_call(request, timeout=timeout or self.timeout, metadata=self.metadata)
         except grpc.RpcError as e:
             raise error_of(e) from None
+        warn_out_of_range(_pairs(call.initial_metadata()))
+        return resp
 
     # ---- stateless calls ----
 
@@ -666,13 +668,19 @@ class FrameStream(Iterator[Frame]):
     def __init__(self, call: Any) -> None:
         self._call = call
         self._cancelled = False
+        self._warned = False
 
     def __iter__(self) -> "FrameStream":
         return self
 
     def __next__(self) -> Frame:
         try:
-            return frame_of(next(self._call))
+            f = next(self._call)
+            if not self._warned:
+                # The headers have arrived with the first frame.
+                self._warned = True
+                warn_out_of_range(_pairs(self._call.initial_metadata()))
+            return frame_of(f)
         except grpc.RpcError as e:
             if self._cancelled and e.code() == grpc.StatusCode.CANCELLED:
                 raise StopIteration from None
@@ -932,9 +940,13 @@ class AsyncGrpcClient(_Base):
     async def _unary(self, method: Any, request: Any, timeout: Optional[float] = None) -> Any:
         self.last_request_bytes = request.ByteSize()
         try:
-            return await method(request, timeout=timeout or self.timeout, metadata=self.metadata)
+            call = method(request, timeout=timeout or self.timeout, metadata=self.metadata)
+            resp = await call
+            md = await call.initial_metadata()
         except grpc.aio.AioRpcError as e:
             raise error_of(e) from None
+        warn_out_of_range(_pairs(md))
+        return resp
 
     async def list_models(self, timeout: Optional[float] = None) -> List[Dict[str, Any]]:
         """See :meth:`GrpcClient.list_models`."""
@@ -1042,6 +1054,7 @@ class AsyncFrameStream(AsyncIterator[Frame]):
     def __init__(self, call: Any) -> None:
         self._call = call
         self._cancelled = False
+        self._warned = False
 
     def __aiter__(self) -> "AsyncFrameStream":
         return self
@@ -1049,6 +1062,9 @@ class AsyncFrameStream(AsyncIterator[Frame]):
     async def __anext__(self) -> Frame:
         try:
             f = await self._call.read()
+            if not self._warned and f is not grpc.aio.EOF:
+                self._warned = True
+                warn_out_of_range(_pairs(await self._call.initial_metadata()))
         except asyncio.CancelledError:
             if self._cancelled:
                 raise StopAsyncIteration from None

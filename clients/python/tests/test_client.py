@@ -4,10 +4,11 @@ which calls naming no model reach, beside a PhysiFormer model)."""
 
 import os
 import unittest
+import warnings
 
 import numpy as np
 
-from dynaserve import Body, Client, DynaserveError, box_points
+from dynaserve import Body, Client, DynaserveError, OutOfRangeWarning, box_points
 
 
 def bodies():
@@ -41,6 +42,20 @@ class ClientTest(unittest.TestCase):
         self.assertEqual(from_session.shape, (2, 1, 2, 7))
         np.testing.assert_allclose(from_session, full, atol=1e-5)
         np.testing.assert_allclose(full[0, -1], frames[-1].poses, atol=1e-5)
+
+    def test_objects_outside_the_trained_ranges_warn(self):
+        slippery = bodies()
+        slippery[0].friction = 0.0
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            list(self.c.rollout(bodies(), steps=1))
+            self.assertEqual([w for w in caught if w.category is OutOfRangeWarning], [])
+            list(self.c.rollout(slippery, steps=1))
+            self.c.predict([bodies(), slippery], steps=1)
+        got = [str(w.message) for w in caught if w.category is OutOfRangeWarning]
+        self.assertEqual(len(got), 2, got)
+        self.assertTrue(got[0].startswith("scene.objects[0].friction: 0 is outside the range"), got[0])
+        self.assertTrue(got[1].startswith("variants[1].objects[0].friction: 0 is outside"), got[1])
 
     def test_fork_set_state_kinematic_and_errors(self):
         s = self.c.create_session(bodies(), kinematic=[1])

@@ -8,10 +8,11 @@ import json
 import os
 import pathlib
 import unittest
+import warnings
 
 import numpy as np
 
-from dynaserve import Body, Client, DynaserveError, box_points
+from dynaserve import Body, Client, DynaserveError, OutOfRangeWarning, box_points
 from dynaserve.grpc import AsyncGrpcClient, GrpcClient
 from dynaserve.mesh import MeshObject
 
@@ -86,6 +87,24 @@ class GrpcTest(unittest.TestCase):
         self.assertEqual(frames[0].poses.shape, (len(doc["objects"]), 7))
         assert_frames_equal(self, frames, list(self.h.rollout(doc, steps=4)))
         self.assertGreater(np.abs(frames[-1].poses[0, :3] - doc["objects"][0]["pose"]["translation"]).max(), 0.1)
+
+    def test_objects_outside_the_trained_ranges_warn_as_over_http(self):
+        bouncy = bodies()
+        bouncy[1].restitution = 0.99
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            list(self.g.rollout(bodies(), steps=1))
+            self.assertEqual([w for w in caught if w.category is OutOfRangeWarning], [])
+            list(self.g.rollout(bouncy, steps=1))
+            self.g.predict([bouncy], steps=1)
+            self.g.create_session(bouncy).delete()
+            list(self.h.rollout(bouncy, steps=1))
+        got = [str(w.message) for w in caught if w.category is OutOfRangeWarning]
+        self.assertEqual(len(got), 4, got)
+        self.assertTrue(got[0].startswith("scene.objects[1].restitution: 0.99 is outside"), got[0])
+        self.assertTrue(got[1].startswith("variants[0].objects[1].restitution"), got[1])
+        self.assertEqual(got[2], got[0])
+        self.assertEqual(got[3], got[0])
 
     def test_session_fork_step_state_predict_delete(self):
         s = self.g.create_session(bodies(), kinematic=[1])

@@ -62,6 +62,9 @@ pub fn run(args: RolloutArgs) -> anyhow::Result<()> {
             .await?
             .with_timeout(args.timeout_ms.map(Duration::from_millis));
         let mut rollout = client.rollout(&request).await?;
+        for w in &rollout.warnings {
+            eprintln!("warning: {w}");
+        }
         let mut frames = Vec::new();
         let stdout = std::io::stdout();
         while let Some(frame) = rollout.frames.next().await {

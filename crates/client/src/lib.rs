@@ -79,12 +79,18 @@ impl ClientError {
 /// server's DEADLINE_EXCEEDED (sent at the deadline) arrives first.
 pub const DEADLINE_BACKSTOP: Duration = Duration::from_millis(500);
 
+/// Header (HTTP) and metadata key (gRPC) of each server warning about a request.
+pub const WARNING_KEY: &str = "x-dynaserve-warning";
+
 /// A running rollout: its frames in step order (an `Err` ends the stream).
 pub struct Rollout {
     /// Request id assigned by the server (`x-request-id`).
     pub request_id: String,
     /// Model serving the rollout.
     pub model: String,
+    /// The server's warnings about the request (`x-dynaserve-warning`): one line per object
+    /// parameter outside the range the model was trained on; empty when all are inside.
+    pub warnings: Vec<String>,
     /// The frames.
     pub frames: std::pin::Pin<Box<dyn Stream<Item = Result<json::StepFrame, ClientError>> + Send>>,
 }
@@ -167,6 +173,12 @@ impl Client {
         };
         let request_id = meta("x-request-id");
         let model = meta("x-dynaserve-model");
+        let warnings = resp
+            .metadata()
+            .get_all(WARNING_KEY)
+            .iter()
+            .filter_map(|v| v.to_str().ok().map(str::to_string))
+            .collect();
         let frames = resp.into_inner().map(|r| {
             r.map(|f| json::StepFrame::from_proto(&f))
                 .map_err(ClientError::from)
@@ -174,6 +186,7 @@ impl Client {
         Ok(Rollout {
             request_id,
             model,
+            warnings,
             frames: Box::pin(frames),
         })
     }

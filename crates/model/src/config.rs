@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::ModelError;
+use crate::trained_ranges::TrainedRanges;
 
 /// Name of the only architecture this crate implements so far.
 pub const RIGIDFORMER: &str = "rigidformer";
@@ -305,6 +306,11 @@ pub struct ModelConfig {
     /// Input and output parametrisation; absent in older checkpoints (all off).
     #[serde(default)]
     pub dynamics: DynamicsConfig,
+    /// Mass, friction and restitution of the objects the model was trained on; the server
+    /// warns about requests outside them. Absent in older `config.json` files and in models
+    /// not yet trained (no warning then).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub trained_ranges: Option<TrainedRanges>,
 }
 
 /// The sizes a prepared scene's caches were built for (see [`ModelConfig::prepared_key`]).
@@ -355,6 +361,7 @@ impl ModelConfig {
             accel_coarse_scale: None,
             loss: LossConfig::default(),
             dynamics: DynamicsConfig::residual(),
+            trained_ranges: None,
         }
     }
 
@@ -521,6 +528,10 @@ impl ModelConfig {
                 .any(|w| !(w.is_finite() && *w >= 0.0))
         {
             return bad("gravity, ground_z and loss.weights must be finite".into());
+        }
+        if let Some(r) = &self.trained_ranges {
+            r.validate()
+                .map_err(|m| ModelError::Checkpoint(format!("config.json: {m}")))?;
         }
         Ok(())
     }

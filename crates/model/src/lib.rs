@@ -19,6 +19,7 @@ pub mod rigidformer;
 pub mod runtime;
 pub mod scene_threads;
 pub mod team;
+pub mod trained_ranges;
 
 pub use api::{ObjectInput, Pose, SceneState, StepItem, WorldModel, rollout};
 pub use batching::PassBudget;
@@ -37,6 +38,7 @@ pub use rigidformer::features::{
 };
 pub use rigidformer::{RigidFormer, StepProfile, TrainItem, TrainOutput};
 pub use runtime::{configure_compute, keep_freed_memory};
+pub use trained_ranges::{OutOfRange, TrainedRanges};
 
 /// Re-exported so callers can name devices and dtypes without depending on candle directly.
 pub use candle_core::{DType, Device};

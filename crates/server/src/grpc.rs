@@ -53,6 +53,16 @@ fn ctx_of(meta: &MetadataMap) -> RequestCtx {
     RequestCtx::new(Protocol::Grpc, rid, timeout)
 }
 
+/// Appends one `x-dynaserve-warning` entry per warning (object parameters outside the model's
+/// trained range).
+fn insert_warnings(meta: &mut MetadataMap, warnings: &[String]) {
+    for w in warnings {
+        if let Ok(v) = MetadataValue::try_from(w.as_str()) {
+            meta.append(crate::http::WARNING_HEADER, v);
+        }
+    }
+}
+
 fn insert(meta: &mut MetadataMap, key: &'static str, value: &str) {
     if let Ok(v) = MetadataValue::try_from(value) {
         meta.insert(key, v);
@@ -92,6 +102,7 @@ impl WorldModelApi for GrpcService {
         let mut resp = Response::new(Box::pin(stream) as FrameStream);
         insert(resp.metadata_mut(), "x-request-id", &handle.request_id);
         insert(resp.metadata_mut(), "x-dynaserve-model", &handle.model);
+        insert_warnings(resp.metadata_mut(), &handle.warnings);
         Ok(resp)
     }
 
@@ -114,6 +125,7 @@ impl WorldModelApi for GrpcService {
         let mut resp = Response::new(out.to_v1());
         let m = resp.metadata_mut();
         insert(m, "x-request-id", &rid);
+        insert_warnings(m, &out.warnings);
         let t = &out.timing;
         insert(
             m,

@@ -103,6 +103,20 @@ fn set_header(headers: &mut HeaderMap, key: &'static str, value: &str) {
     }
 }
 
+/// Appends one `x-dynaserve-warning` header per warning (object parameters outside the model's
+/// trained range).
+fn with_warnings(mut r: Response, warnings: &[String]) -> Response {
+    for w in warnings {
+        if let Ok(v) = HeaderValue::from_str(w) {
+            r.headers_mut().append(WARNING_HEADER, v);
+        }
+    }
+    r
+}
+
+/// The header (and gRPC metadata key) that carries each warning about a request.
+pub(crate) const WARNING_HEADER: &str = "x-dynaserve-warning";
+
 fn error_response(e: ApiError, rid: &str) -> Response {
     let mut r = e.into_response();
     set_header(r.headers_mut(), "x-request-id", rid);
@@ -177,7 +191,8 @@ fn prediction_response(r: Result<Prediction, ApiError>, rid: &str) -> Response {
         Ok(out) => {
             let body = out.to_json();
             let (timing, model) = (body.timing, body.model.clone());
-            timed(json_response(StatusCode::OK, body, rid), &model, &timing)
+            let r = timed(json_response(StatusCode::OK, body, rid), &model, &timing);
+            with_warnings(r, &out.warnings)
         }
         Err(e) => error_response(e, rid),
     }
@@ -272,12 +287,14 @@ async fn rollout(State(s): State<AppState>, headers: HeaderMap, body: Body) -> R
         Err(e) => return error_response(e, &rid),
     };
     let model = handle.model.clone();
+    let warnings = handle.warnings;
     if sse {
-        return sse_response(
+        let r = sse_response(
             sse_events(handle.frames, rid.to_string(), arrival),
             &rid,
             &model,
         );
+        return with_warnings(r, &warnings);
     }
     let (frames, timing) = match collect_frames(handle.frames, arrival).await {
         Ok(f) => f,
@@ -289,7 +306,8 @@ async fn rollout(State(s): State<AppState>, headers: HeaderMap, body: Body) -> R
         frames,
         timing,
     };
-    timed(json_response(StatusCode::OK, body, &rid), &model, &timing)
+    let r = timed(json_response(StatusCode::OK, body, &rid), &model, &timing);
+    with_warnings(r, &warnings)
 }
 
 fn sse_events(

@@ -182,6 +182,13 @@ pub const METRICS: &[MetricSpec] = &[
         "Sessions created (CreateSession and Interact streams that create their own).",
     ),
     spec(
+        "dynaserve_out_of_range_scenes_total",
+        Counter,
+        &["model", "parameter"],
+        "Request scenes holding objects whose parameter (mass, friction, restitution) is \
+         outside the range the model was trained on; each is answered with a warning.",
+    ),
+    spec(
         "dynaserve_session_forks_total",
         Counter,
         &["model"],
@@ -362,6 +369,8 @@ pub struct Metrics {
     pub sessions_open: IntGaugeVec,
     /// `dynaserve_sessions_created_total`.
     pub sessions_created: IntCounterVec,
+    /// `dynaserve_out_of_range_scenes_total`.
+    pub out_of_range_scenes: IntCounterVec,
     /// `dynaserve_session_forks_total`.
     pub session_forks: IntCounterVec,
     /// `dynaserve_sessions_reaped_total`.
@@ -422,6 +431,7 @@ impl Metrics {
             active_predict: gauge(&registry, "dynaserve_active_predict_variants"),
             sessions_open: gauge(&registry, "dynaserve_sessions_open"),
             sessions_created: counter(&registry, "dynaserve_sessions_created_total"),
+            out_of_range_scenes: counter(&registry, "dynaserve_out_of_range_scenes_total"),
             session_forks: counter(&registry, "dynaserve_session_forks_total"),
             sessions_reaped: counter(&registry, "dynaserve_sessions_reaped_total"),
             stalled_streams: counter(&registry, "dynaserve_stalled_streams_total"),
@@ -475,6 +485,9 @@ impl Metrics {
             m.sessions_open.with_label_values(&[model]);
             m.sessions_created.with_label_values(&[model]);
             m.session_forks.with_label_values(&[model]);
+            for parameter in ["mass", "friction", "restitution"] {
+                m.out_of_range_scenes.with_label_values(&[model, parameter]);
+            }
             m.sessions_reaped.with_label_values(&[model]);
             m.denoise_steps.with_label_values(&[model]);
             m.generate_sample_seconds.with_label_values(&[model]);

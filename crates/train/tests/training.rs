@@ -194,6 +194,15 @@ fn resume_is_exact() {
     .unwrap();
     let m = dynaserve_model::load_model(&dir.join("model"), &dynaserve_model::Device::Cpu).unwrap();
     assert_eq!(m.config().width, dynaserve_model::ModelConfig::tiny().width);
+    // The exported config records the parameter ranges of every object of the run's data.
+    let objects = dynaserve_sim::DatasetReader::open(&data)
+        .unwrap()
+        .object_parameters()
+        .unwrap();
+    assert!(objects.len() > 1);
+    let ranges = m.config().trained_ranges.expect("trained_ranges written");
+    assert_eq!(Some(ranges), dynaserve_model::TrainedRanges::of(objects));
+    assert!(ranges.friction[0] <= ranges.friction[1]);
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -84,7 +84,8 @@ class SessionsServicer:
 
     def CreateSession(self, request, context):
         """Validates and prepares a scene once and keeps it with its state. RESOURCE_EXHAUSTED when
-        the server holds its limit of sessions or of session memory.
+        the server holds its limit of sessions or of session memory. Response metadata:
+        `x-dynaserve-warning` per object parameter outside the model's trained ranges.
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')
@@ -139,7 +140,8 @@ class SessionsServicer:
         """Closed loop: the first message names a session (`session_id`) or creates one for this
         stream (`create`, deleted when the stream ends); every later message is one step (its
         `action` and optional `correct`ions) and is answered by one StepFrame as soon as its batch
-        has run. A client that stops sending pauses only itself.
+        has run. A client that stops sending pauses only itself. A session created for the stream
+        is warned about as in CreateSession (response metadata `x-dynaserve-warning`).
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')

@@ -65,7 +65,7 @@ class WorldModelServicer:
         """Rolls one scene forward and streams one StepFrame per step as soon as it is computed.
         Interactive priority: its steps are batched ahead of Predict work. Output is bounded per
         stream: a client that reads slowly pauses only its own rollout. Response metadata:
-        `x-request-id`.
+        `x-request-id`, `x-dynaserve-model`, `x-dynaserve-warning` (see Warnings above).
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')
@@ -74,7 +74,7 @@ class WorldModelServicer:
     def Predict(self, request, context):
         """Rolls many scene variants forward at once (for planners) and returns their final poses or
         every k-th frame. Bulk priority. Response metadata: `x-request-id`, `x-dynaserve-queue-ms`,
-        `x-dynaserve-forward-ms`, `x-dynaserve-total-ms`.
+        `x-dynaserve-forward-ms`, `x-dynaserve-total-ms`, `x-dynaserve-warning`.
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')

@@ -166,6 +166,9 @@ pub struct Prediction {
     pub trajectories: Vec<Vec<Frame>>,
     /// Timings.
     pub timing: Timing,
+    /// One line per object parameter of the variants outside the range the model was trained
+    /// on (sent as `x-dynaserve-warning` headers / metadata); empty when all are inside.
+    pub warnings: Vec<String>,
 }
 
 /// A resident model and the limits requests to it must respect.

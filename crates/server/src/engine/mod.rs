@@ -32,6 +32,7 @@ use tokio::sync::{Semaphore, watch};
 
 pub use generate::{GenerateHandle, GeneratorEntry};
 pub use registry::ModelEntry;
+use registry::PreparedScenes;
 pub use request::{Protocol, RequestCtx, new_request_id};
 pub use rollout::RolloutHandle;
 pub use sessions::{InteractHandle, StepHandle};
@@ -216,6 +217,27 @@ impl Engine {
         for e in self.generators.values() {
             e.scheduler.shutdown();
         }
+    }
+
+    /// The warnings of `prepared` (see [`PreparedScenes::warnings`]), each parameter outside
+    /// the trained ranges counted once per scene in `dynaserve_out_of_range_scenes_total` and
+    /// logged.
+    pub(crate) fn range_warnings(
+        &self,
+        entry: &ModelEntry,
+        prepared: &PreparedScenes,
+    ) -> Vec<String> {
+        for (_, o) in &prepared.outside {
+            self.metrics
+                .out_of_range_scenes
+                .with_label_values(&[entry.name.as_str(), o.field])
+                .inc();
+        }
+        let warnings = prepared.warnings();
+        for w in &warnings {
+            tracing::info!(warning = %w, "parameter outside the trained range");
+        }
+        warnings
     }
 
     /// Counts a request that a front end rejected before it reached the engine (malformed or

@@ -56,12 +56,14 @@ impl Engine {
         check_variant_count(&entry, n)?;
         let deadline = ctx.deadline_with(req.timeout_ms);
         let _slots = self.variant_slots(&entry, n)?;
-        let variants = with_deadline(
+        let prepared = with_deadline(
             deadline,
             prepare_scenes(&entry, req.variants, dt_steps, "variants"),
         )
         .await?;
-        let steppers = variants
+        let warnings = self.range_warnings(&entry, &prepared);
+        let steppers = prepared
+            .scenes
             .into_iter()
             .map(|(scene, state)| {
                 Stepper::new(
@@ -78,8 +80,11 @@ impl Engine {
                 )
             })
             .collect();
-        self.run_variants(&entry, steppers, req.steps, req.every, deadline, ctx)
-            .await
+        let mut prediction = self
+            .run_variants(&entry, steppers, req.steps, req.every, deadline, ctx)
+            .await?;
+        prediction.warnings = warnings;
+        Ok(prediction)
     }
 
     /// Takes `n` of the server's in-flight variant slots (RESOURCE_EXHAUSTED when they are
@@ -161,6 +166,7 @@ impl Engine {
             model: entry.name.clone(),
             trajectories,
             timing,
+            warnings: Vec::new(),
         })
     }
 }

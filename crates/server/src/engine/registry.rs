@@ -6,7 +6,7 @@ use std::sync::Arc;
 use dynaserve_api::build::{BuiltScene, build_scene};
 use dynaserve_api::limits::{Caps, Limits};
 use dynaserve_api::spec::{ModelInfo, ModelKind, Scene};
-use dynaserve_model::{PreparedScene, SceneState, WorldModel};
+use dynaserve_model::{OutOfRange, PreparedScene, SceneState, WorldModel};
 
 use crate::error::ApiError;
 use crate::metrics::Metrics;
@@ -86,20 +86,62 @@ fn check_previous(state: &SceneState, path: &str) -> Result<(), ApiError> {
     }
 }
 
+/// Scenes prepared for a model (request order), with every parameter of their objects that
+/// lies outside the model's trained ranges (`(scene path, parameter)`; empty when the model
+/// records no ranges).
+pub(crate) struct PreparedScenes {
+    /// Each scene's caches and initial state.
+    pub scenes: Vec<(Arc<PreparedScene>, SceneState)>,
+    /// Parameters outside the trained ranges, with the path of their scene.
+    pub outside: Vec<(String, OutOfRange)>,
+}
+
+/// Most warning lines in one answer: each is a header (HTTP) or metadata entry (gRPC) of about
+/// 150 bytes, and a Predict of hundreds of variants must not outgrow a client's header limit
+/// (16 KiB is common).
+pub(crate) const MAX_WARNINGS: usize = 8;
+
+impl PreparedScenes {
+    /// One warning line per parameter outside the trained ranges (ASCII; see
+    /// [`OutOfRange::message`]), at most [`MAX_WARNINGS`]: past that, the last line counts
+    /// the ones left out.
+    pub fn warnings(&self) -> Vec<String> {
+        let n = self.outside.len();
+        let shown = if n > MAX_WARNINGS {
+            MAX_WARNINGS - 1
+        } else {
+            n
+        };
+        let mut lines: Vec<String> = self.outside[..shown]
+            .iter()
+            .map(|(path, o)| o.message(path))
+            .collect();
+        if n > shown {
+            lines.push(format!(
+                "{} more parameters outside the trained ranges in later scenes of this request",
+                n - shown
+            ));
+        }
+        lines
+    }
+}
+
 /// Validates, builds and prepares scenes on a blocking thread (mesh sampling and the model's
 /// per-scene caches are CPU work that must not run on the async runtime). `field` names the
-/// scenes in errors: `scene` for one, `variants` for `variants[i]`.
+/// scenes in errors and warnings: `scene` for one, `variants` for `variants[i]`.
 pub(crate) async fn prepare_scenes(
     entry: &Arc<ModelEntry>,
     scenes: Vec<Scene>,
     dt_steps: u32,
     field: &'static str,
-) -> Result<Vec<(Arc<PreparedScene>, SceneState)>, ApiError> {
+) -> Result<PreparedScenes, ApiError> {
     let entry = entry.clone();
     let single = field == "scene";
+    let ranges = entry.model().config().trained_ranges;
     tokio::task::spawn_blocking(move || {
         let dt_seconds = (f64::from(dt_steps) * entry.dt_frame) as f32;
-        scenes
+        let mut outside = Vec::new();
+        let scenes = scenes
             .iter()
             .enumerate()
             .map(|(i, s)| {
@@ -111,6 +153,9 @@ pub(crate) async fn prepare_scenes(
                 let BuiltScene { objects, state } =
                     build_scene(s, &path, &entry.limits, dt_seconds)?;
                 check_previous(&state, &path)?;
+                if let Some(r) = &ranges {
+                    outside.extend(r.check(&objects).into_iter().map(|o| (path.clone(), o)));
+                }
                 let prepared = entry.model().prepare(objects).map_err(|e| match e {
                     dynaserve_model::ModelError::InvalidInput(m) => {
                         ApiError::invalid(path.clone(), m)
@@ -119,7 +164,8 @@ pub(crate) async fn prepare_scenes(
                 })?;
                 Ok((Arc::new(prepared), state))
             })
-            .collect()
+            .collect::<Result<Vec<_>, ApiError>>()?;
+        Ok(PreparedScenes { scenes, outside })
     })
     .await
     .map_err(|e| ApiError::internal(format!("scene preparation failed: {e}")))?

@@ -28,6 +28,9 @@ pub struct RolloutHandle {
     pub request_id: Arc<str>,
     /// Frames in step order; an `Err` ends the stream.
     pub frames: mpsc::Receiver<Result<Frame, ApiError>>,
+    /// One line per object parameter outside the model's trained range (see
+    /// [`dynaserve_model::OutOfRange::message`]); empty when all are inside.
+    pub warnings: Vec<String>,
 }
 
 const DEADLINE_MSG: &str = "deadline exceeded";
@@ -70,8 +73,10 @@ impl Engine {
                         self.retry_after(),
                     )
                 })?;
-            let (scene, state) = prepare_scenes(&entry, vec![req.scene], dt_steps, "scene")
-                .await?
+            let mut prepared = prepare_scenes(&entry, vec![req.scene], dt_steps, "scene").await?;
+            let warnings = self.range_warnings(&entry, &prepared);
+            let (scene, state) = prepared
+                .scenes
                 .pop()
                 .ok_or_else(|| ApiError::internal("no scene prepared"))?;
             let stepper = Stepper::new(
@@ -86,11 +91,11 @@ impl Engine {
                     request_id: ctx.request_id.clone(),
                 },
             );
-            Ok::<_, ApiError>((entry, deadline, permit, stepper))
+            Ok::<_, ApiError>((entry, deadline, permit, stepper, warnings))
         }
         .instrument(span.clone())
         .await;
-        let (entry, deadline, permit, stepper) = match prepared {
+        let (entry, deadline, permit, stepper, warnings) = match prepared {
             Ok(p) => p,
             Err(e) => return Err(span.in_scope(|| rec.fail(e))),
         };
@@ -137,6 +142,7 @@ impl Engine {
             model: entry.name.clone(),
             request_id: ctx.request_id,
             frames: rx,
+            warnings,
         })
     }
 }

@@ -53,6 +53,7 @@ impl Engine {
             let (scene, state) = prepare_scenes(entry, vec![scene], 1, "scene")
                 .await
                 .map_err(|e| ApiError::internal(format!("warm-up: {}", e.message)))?
+                .scenes
                 .pop()
                 .ok_or_else(|| ApiError::internal("warm-up: no scene prepared"))?;
             let mut stepper = Stepper::new(

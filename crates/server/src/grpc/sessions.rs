@@ -14,7 +14,7 @@ use prost::Message;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
 
-use super::{FrameStream, ctx_of, insert, with_request_id};
+use super::{FrameStream, ctx_of, insert, insert_warnings, with_request_id};
 use crate::engine::{Engine, RequestCtx};
 use crate::error::ApiError;
 
@@ -79,7 +79,13 @@ impl SessionsApi for SessionsService {
             CreateSessionSpec::from_v1(r, "")
         })?;
         let r = self.engine.create_session(spec, ctx.clone()).await;
-        self.reply(&ctx, r.map(|i| i.to_v1()))
+        let (info, warnings) = match r {
+            Ok((info, w)) => (Ok(info.to_v1()), w),
+            Err(e) => (Err(e), Vec::new()),
+        };
+        let mut resp = self.reply(&ctx, info)?;
+        insert_warnings(resp.metadata_mut(), &warnings);
+        Ok(resp)
     }
 
     async fn step(
@@ -188,6 +194,7 @@ impl SessionsApi for SessionsService {
             "x-dynaserve-session",
             &handle.session_id,
         );
+        insert_warnings(resp.metadata_mut(), &handle.warnings);
         Ok(resp)
     }
 }

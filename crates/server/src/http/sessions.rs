@@ -25,7 +25,7 @@ use utoipa::OpenApi;
 
 use super::{
     AppState, collect_frames, ctx_of, error_response, json_response as ok, parse,
-    prediction_response, set_header, timed,
+    prediction_response, set_header, timed, with_warnings,
 };
 
 /// The OpenAPI description of the session routes (merged into the HTTP API's document).
@@ -85,7 +85,9 @@ async fn create(State(s): State<AppState>, headers: HeaderMap, body: Body) -> Re
         Err(r) => return r,
     };
     match s.engine.create_session(spec, ctx).await {
-        Ok(info) => ok(StatusCode::CREATED, info.to_json(), &rid),
+        Ok((info, warnings)) => {
+            with_warnings(ok(StatusCode::CREATED, info.to_json(), &rid), &warnings)
+        }
         Err(e) => error_response(e, &rid),
     }
 }

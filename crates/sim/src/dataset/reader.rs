@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use super::io_err;
 use super::manifest::{Manifest, read_manifest_of_kind};
 use super::records::SceneRecord;
-use super::shard::decode_shard;
+use super::shard::{decode_shard, shard_object_parameters};
 use crate::{Result, SimError};
 
 /// Entry `k` of a manifest's shard list, or an error naming how many there are.
@@ -102,6 +102,18 @@ impl DatasetReader {
             });
         }
         Ok(scenes)
+    }
+
+    /// `[mass kg, friction, restitution]` of every object of the split, in order; reads only
+    /// those tensors' values from each shard.
+    pub fn object_parameters(&self) -> Result<Vec<[f32; 3]>> {
+        let mut all = Vec::new();
+        for info in &self.manifest.shards {
+            let path = self.dir.join(&info.file);
+            let bytes = std::fs::read(&path).map_err(io_err(&path))?;
+            all.extend(shard_object_parameters(&bytes, &path)?);
+        }
+        Ok(all)
     }
 
     /// Streams all scenes in order, one shard in memory at a time. After an error the iterator

@@ -308,6 +308,20 @@ pub fn decode_shard(
         .collect())
 }
 
+/// `[mass kg, friction, restitution]` of every object of one shard, in order, without decoding
+/// the trajectories.
+pub fn shard_object_parameters(bytes: &[u8], path: &Path) -> Result<Vec<[f32; 3]>> {
+    let sh = ShardTensors::deserialize(bytes, path)?;
+    let offsets = sh.offsets("scene_object_offsets", None)?;
+    let n = *offsets.last().unwrap_or(&0);
+    let mass = sh.f32s("mass", &[n])?;
+    let friction = sh.f32s("friction", &[n])?;
+    let restitution = sh.f32s("restitution", &[n])?;
+    Ok((0..n)
+        .map(|i| [mass[i], friction[i], restitution[i]])
+        .collect())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -352,5 +366,29 @@ mod tests {
         let (back, stored) = round_trip(vec![object(false)]);
         assert!(!stored);
         assert!(!back[0].objects[0].kinematic);
+    }
+
+    #[test]
+    fn object_parameters_read_without_the_trajectories() {
+        let mut heavy = object(false);
+        heavy.mass = 3.0;
+        heavy.friction = 0.9;
+        heavy.restitution = 0.1;
+        let scenes = [
+            SceneRecord {
+                objects: vec![object(false)],
+                dt_frame: 0.5,
+            },
+            SceneRecord {
+                objects: vec![heavy, object(true)],
+                dt_frame: 0.5,
+            },
+        ];
+        let bytes = encode_shard(&scenes, 2, 1).unwrap();
+        let params = shard_object_parameters(&bytes, Path::new("s")).unwrap();
+        assert_eq!(
+            params,
+            vec![[1.0, 0.5, 0.3], [3.0, 0.9, 0.1], [1.0, 0.5, 0.3]]
+        );
     }
 }

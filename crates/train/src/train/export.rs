@@ -2,14 +2,16 @@
 //! their average, in the chosen weight type), checked by loading it.
 
 use std::collections::HashMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use candle_core::{DType, Device, Tensor};
 use dynaserve_model::checkpoint::{CONFIG_FILE, WEIGHTS_FILE};
-use dynaserve_model::{load_model, load_rigidformer};
+use dynaserve_model::{TrainedRanges, load_model, load_rigidformer, read_config};
+use dynaserve_sim::dataset::DatasetReader;
 
 use super::TrainError;
 use super::run_dir::{OPTIMIZER_FILE, STATE_FILE, io, resumable};
+use super::trainer::read_state;
 
 /// What [`export`] writes.
 #[derive(Clone, Debug)]
@@ -25,7 +27,49 @@ pub struct ExportOptions {
     pub dtype: DType,
 }
 
-/// Writes a run's checkpoint as a model directory and checks that it loads.
+/// The parameter ranges of everything the exported weights have seen: those the checkpoint
+/// inherited from its `model.init` (`inherited`), joined with every object of the run's
+/// training directories that have a share of the samples. Data paths are read as the run
+/// recorded them (relative to the directory training ran in); when they cannot be read, the
+/// inherited ranges are kept and a warning printed.
+fn trained_ranges(
+    ckpt: &Path,
+    inherited: Option<TrainedRanges>,
+) -> Result<Option<TrainedRanges>, TrainError> {
+    let state = read_state(ckpt)?;
+    let data = &state.config.data;
+    let dirs = std::iter::once(&data.train).chain(&data.extra);
+    let mut ranges = inherited;
+    for (i, dir) in dirs.enumerate() {
+        if data.mix.get(i).is_some_and(|&share| share <= 0.0) {
+            continue;
+        }
+        let params = DatasetReader::open(dir).and_then(|r| r.object_parameters());
+        match params {
+            Ok(p) => {
+                if let Some(r) = TrainedRanges::of(p) {
+                    ranges = Some(ranges.map_or(r, |a| a.union(&r)));
+                }
+            }
+            Err(e) => {
+                eprintln!(
+                    "warning: trained_ranges left without {} ({e}); run the export where training ran",
+                    dir.display()
+                );
+            }
+        }
+    }
+    if let Some(r) = &ranges {
+        eprintln!(
+            "trained ranges: mass {:?} kg, friction {:?}, restitution {:?}",
+            r.mass, r.friction, r.restitution
+        );
+    }
+    Ok(ranges)
+}
+
+/// Writes a run's checkpoint as a model directory (its `config.json` with the
+/// [`TrainedRanges`] of the run's data) and checks that it loads.
 pub fn export(o: &ExportOptions) -> Result<(), TrainError> {
     let ckpt = if o.run.join(STATE_FILE).exists() {
         o.run.clone()
@@ -69,9 +113,12 @@ pub fn export(o: &ExportOptions) -> Result<(), TrainError> {
         .map(|(k, v)| Ok((k, v.to_dtype(o.dtype)?)))
         .collect::<Result<HashMap<_, _>, TrainError>>()?;
     std::fs::create_dir_all(&o.out).map_err(io(&o.out))?;
-    let cfg_src = ckpt.join(CONFIG_FILE);
+    let mut config = read_config(&ckpt)?;
+    config.trained_ranges = trained_ranges(&ckpt, config.trained_ranges)?;
     let cfg_dst = o.out.join(CONFIG_FILE);
-    std::fs::copy(&cfg_src, &cfg_dst).map_err(io(&cfg_src))?;
+    let text = serde_json::to_string_pretty(&config)
+        .map_err(|e| TrainError::Config(format!("config.json: {e}")))?;
+    std::fs::write(&cfg_dst, text + "\n").map_err(io(&cfg_dst))?;
     candle_core::safetensors::save(&weights, o.out.join(WEIGHTS_FILE))?;
     // The directory must load as a model.
     load_model(&o.out, &Device::Cpu)?;

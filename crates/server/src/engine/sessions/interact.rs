@@ -26,6 +26,9 @@ pub struct InteractHandle {
     pub model: String,
     /// Frames in step order; an `Err` ends the stream.
     pub frames: mpsc::Receiver<Result<Frame, ApiError>>,
+    /// For a session created for the stream, one line per object parameter outside the
+    /// model's trained range; empty otherwise.
+    pub warnings: Vec<String>,
 }
 
 const CLOSE_MSG: &str = "server shutting down: the drain deadline passed during the stream";
@@ -48,13 +51,16 @@ impl Engine {
         let opened = async {
             self.admit_check()?;
             match open {
-                InteractOpen::Session(id) => Ok((self.sessions.get(&id)?, false)),
-                InteractOpen::Create(spec) => Ok((self.create_session_inner(spec).await?, true)),
+                InteractOpen::Session(id) => Ok((self.sessions.get(&id)?, false, Vec::new())),
+                InteractOpen::Create(spec) => {
+                    let (s, warnings) = self.create_session_inner(spec).await?;
+                    Ok((s, true, warnings))
+                }
             }
         }
         .instrument(span.clone())
         .await;
-        let (session, owned) = match opened {
+        let (session, owned, warnings) = match opened {
             Ok(o) => o,
             Err(e) => return Err(span.in_scope(|| rec.fail(e))),
         };
@@ -64,6 +70,7 @@ impl Engine {
             session_id: session.id.clone(),
             model: session.entry.name.clone(),
             frames: rx,
+            warnings,
         };
         tokio::spawn(
             async move {

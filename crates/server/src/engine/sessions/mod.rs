@@ -365,32 +365,36 @@ impl Engine {
         self.sessions.len()
     }
 
-    /// Validates and prepares a scene and keeps it as a new session.
+    /// Validates and prepares a scene and keeps it as a new session; with the session, one
+    /// warning per object parameter outside the model's trained range.
     pub async fn create_session(
         self: &Arc<Self>,
         req: CreateSessionSpec,
         ctx: RequestCtx,
-    ) -> Result<SessionInfo, ApiError> {
+    ) -> Result<(SessionInfo, Vec<String>), ApiError> {
         self.session_call(&ctx, "create_session", async {
-            let s = self.create_session_inner(req).await?;
-            Ok(self.sessions.info(&s))
+            let (s, warnings) = self.create_session_inner(req).await?;
+            Ok((self.sessions.info(&s), warnings))
         })
         .await
     }
 
-    /// Creates a session (the caller has checked admission and records the call).
+    /// Creates a session (the caller has checked admission and records the call); with it,
+    /// the warnings of its scene (see [`Engine::range_warnings`]).
     pub(crate) async fn create_session_inner(
         self: &Arc<Self>,
         req: CreateSessionSpec,
-    ) -> Result<Arc<Session>, ApiError> {
+    ) -> Result<(Arc<Session>, Vec<String>), ApiError> {
         let entry = self.resolve(&req.model)?;
         let dt_steps = dynaserve_api::build::check_steps(1, req.dt_steps, &entry.limits)?;
         let kinematic: Arc<[bool]> =
             kinematic_mask(&req.kinematic, req.scene.objects.len())?.into();
         // The count cap first, before preparing anything.
         self.sessions.admit(0, self.retry_after())?;
-        let (scene, state) = prepare_scenes(&entry, vec![req.scene], dt_steps, "scene")
-            .await?
+        let mut prepared = prepare_scenes(&entry, vec![req.scene], dt_steps, "scene").await?;
+        let warnings = self.range_warnings(&entry, &prepared);
+        let (scene, state) = prepared
+            .scenes
             .pop()
             .ok_or_else(|| ApiError::internal("no scene prepared"))?;
         let bytes = scene_bytes(&scene);
@@ -415,7 +419,7 @@ impl Engine {
             .with_label_values(&[s.entry.name.as_str()])
             .inc();
         tracing::info!(session = %s.id, objects = s.scene().len(), "session created");
-        Ok(s)
+        Ok((s, warnings))
     }
 
     /// Copies a session's state under a new id (the prepared scene is shared).

@@ -1,0 +1,226 @@
+//! The physical parameters a model was trained on, stored in its `config.json`, and the check
+//! that names the objects of a request outside them: a learned model forecasts well only on
+//! what it has seen, and a caller should hear when a scene leaves that.
+
+use serde::{Deserialize, Serialize};
+
+use crate::ObjectInput;
+
+/// Closed interval `[low, high]` of one parameter over every object of the training data.
+pub type Interval = [f32; 2];
+
+/// Reads one parameter of an object.
+type Getter = fn(&ObjectInput) -> f32;
+
+/// Smallest and largest mass, friction and restitution of the objects a model was trained on
+/// (`trained_ranges` in `config.json`; written by `dynaserve train export` from the run's
+/// training data).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainedRanges {
+    /// Mass, kilograms.
+    pub mass: Interval,
+    /// Coulomb friction coefficient (dimensionless).
+    pub friction: Interval,
+    /// Coefficient of restitution (dimensionless).
+    pub restitution: Interval,
+}
+
+/// One parameter of a scene's objects outside the trained interval.
+#[derive(Clone, Debug, PartialEq)]
+pub struct OutOfRange {
+    /// Parameter name as in the request (`mass`, `friction`, `restitution`).
+    pub field: &'static str,
+    /// Indices of the objects outside, in request order.
+    pub objects: Vec<usize>,
+    /// Smallest and largest value among those objects.
+    pub values: Interval,
+    /// The trained interval.
+    pub trained: Interval,
+}
+
+impl OutOfRange {
+    /// One line for a caller, ASCII only (it travels in HTTP headers and gRPC metadata);
+    /// `path` names the scene (`scene`, `variants[2]`).
+    pub fn message(&self, path: &str) -> String {
+        const SHOWN: usize = 6;
+        let mut list: Vec<String> = self
+            .objects
+            .iter()
+            .take(SHOWN)
+            .map(|i| i.to_string())
+            .collect();
+        if self.objects.len() > SHOWN {
+            list.push(format!("{} more", self.objects.len() - SHOWN));
+        }
+        let [lo, hi] = self.values;
+        let value = if lo == hi {
+            format!("{lo}")
+        } else {
+            format!("{lo} to {hi}")
+        };
+        format!(
+            "{path}.objects[{}].{}: {value} is outside the range the model was trained on \
+             ({} to {}); its forecast there is less accurate",
+            list.join(","),
+            self.field,
+            self.trained[0],
+            self.trained[1]
+        )
+    }
+}
+
+impl TrainedRanges {
+    /// The smallest ranges holding every `(mass kg, friction, restitution)` given; `None` for
+    /// none.
+    pub fn of(params: impl IntoIterator<Item = [f32; 3]>) -> Option<TrainedRanges> {
+        params.into_iter().fold(None, |acc, [m, f, r]| {
+            let point = TrainedRanges {
+                mass: [m, m],
+                friction: [f, f],
+                restitution: [r, r],
+            };
+            Some(match acc {
+                None => point,
+                Some(a) => a.union(&point),
+            })
+        })
+    }
+
+    /// The smallest ranges holding both.
+    pub fn union(&self, other: &TrainedRanges) -> TrainedRanges {
+        let join = |a: Interval, b: Interval| [a[0].min(b[0]), a[1].max(b[1])];
+        TrainedRanges {
+            mass: join(self.mass, other.mass),
+            friction: join(self.friction, other.friction),
+            restitution: join(self.restitution, other.restitution),
+        }
+    }
+
+    /// Every parameter some of `objects` hold outside the trained ranges (at most one entry
+    /// per parameter; empty when all are inside). Values within 1e-4 (relative) of a bound
+    /// count as inside, so a value written with fewer digits than the bound is not flagged.
+    pub fn check(&self, objects: &[ObjectInput]) -> Vec<OutOfRange> {
+        let fields: [(&'static str, Interval, Getter); 3] = [
+            ("mass", self.mass, |o| o.mass),
+            ("friction", self.friction, |o| o.friction),
+            ("restitution", self.restitution, |o| o.restitution),
+        ];
+        fields
+            .into_iter()
+            .filter_map(|(field, trained, get)| {
+                let slack = 1e-4 * trained[0].abs().max(trained[1].abs()).max(1e-3);
+                let outside: Vec<(usize, f32)> = objects
+                    .iter()
+                    .map(get)
+                    .enumerate()
+                    .filter(|(_, v)| *v < trained[0] - slack || *v > trained[1] + slack)
+                    .collect();
+                let first = outside.first()?.1;
+                let values = outside
+                    .iter()
+                    .fold([first, first], |[lo, hi], (_, v)| [lo.min(*v), hi.max(*v)]);
+                Some(OutOfRange {
+                    field,
+                    objects: outside.into_iter().map(|(i, _)| i).collect(),
+                    values,
+                    trained,
+                })
+            })
+            .collect()
+    }
+
+    /// Checks that every bound is finite and `low <= high`.
+    pub fn validate(&self) -> Result<(), String> {
+        for (name, [lo, hi]) in [
+            ("mass", self.mass),
+            ("friction", self.friction),
+            ("restitution", self.restitution),
+        ] {
+            if !(lo.is_finite() && hi.is_finite() && lo <= hi) {
+                return Err(format!(
+                    "trained_ranges.{name} must be finite with low <= high, got [{lo}, {hi}]"
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn object(mass: f32, friction: f32, restitution: f32) -> ObjectInput {
+        ObjectInput {
+            reference: vec![[0.0; 3]],
+            mass,
+            friction,
+            restitution,
+        }
+    }
+
+    fn ranges() -> TrainedRanges {
+        TrainedRanges::of([[0.5, 0.1, 0.05], [4.0, 1.0, 0.8], [1.0, 0.4, 0.3]]).unwrap()
+    }
+
+    #[test]
+    fn ranges_span_the_given_parameters() {
+        let r = ranges();
+        assert_eq!(r.mass, [0.5, 4.0]);
+        assert_eq!(r.friction, [0.1, 1.0]);
+        assert_eq!(r.restitution, [0.05, 0.8]);
+        assert_eq!(TrainedRanges::of([]), None);
+        let wider = r.union(&TrainedRanges::of([[10.0, 0.0, 0.5]]).unwrap());
+        assert_eq!(wider.mass, [0.5, 10.0]);
+        assert_eq!(wider.friction, [0.0, 1.0]);
+        assert_eq!(wider.restitution, [0.05, 0.8]);
+    }
+
+    #[test]
+    fn objects_inside_pass_and_those_outside_are_named() {
+        let r = ranges();
+        assert!(
+            r.check(&[object(1.0, 0.5, 0.2), object(0.5, 1.0, 0.8)])
+                .is_empty()
+        );
+        // Written with fewer digits than the stored bound: still inside.
+        assert!(r.check(&[object(1.0, 0.1, 0.05)]).is_empty());
+        let out = r.check(&[
+            object(1.0, 0.0, 0.2),
+            object(1.0, 0.5, 0.2),
+            object(20.0, 2.0, 0.2),
+        ]);
+        assert_eq!(out.len(), 2);
+        assert_eq!(out[0].field, "mass");
+        assert_eq!(out[0].objects, vec![2]);
+        assert_eq!(out[1].field, "friction");
+        assert_eq!(out[1].objects, vec![0, 2]);
+        assert_eq!(out[1].values, [0.0, 2.0]);
+        let m = out[1].message("scene");
+        assert_eq!(
+            m,
+            "scene.objects[0,2].friction: 0 to 2 is outside the range the model was trained \
+             on (0.1 to 1); its forecast there is less accurate"
+        );
+        assert!(m.is_ascii());
+    }
+
+    #[test]
+    fn long_lists_are_cut_and_bad_bounds_refused() {
+        let objects: Vec<ObjectInput> = (0..9).map(|_| object(1.0, 0.5, 0.95)).collect();
+        let out = ranges().check(&objects);
+        assert_eq!(out.len(), 1);
+        assert!(
+            out[0]
+                .message("variants[1]")
+                .starts_with("variants[1].objects[0,1,2,3,4,5,3 more].restitution: 0.95 is")
+        );
+        let mut bad = ranges();
+        bad.friction = [1.0, 0.5];
+        assert!(bad.validate().is_err());
+        bad.friction = [f32::NAN, 0.5];
+        assert!(bad.validate().is_err());
+        assert!(ranges().validate().is_ok());
+    }
+}
