@@ -174,7 +174,18 @@ pub struct DynamicsConfig {
     /// free fall or a penetration of up to a step's travel. Absent in older `config.json`
     /// files, which means off.
     pub floor_base: bool,
+    /// Scene-relative mass: before the features are computed, every mass of a scene is
+    /// multiplied by one factor chosen so that the scene's mean `ln(mass / kg)` equals the
+    /// normalisation mean of the mass feature ([`LN_MASS_FEATURE`]). Rigid bodies under gravity
+    /// and contact move the same under such a common factor, and the model then answers the
+    /// same too: only mass ratios reach it. Absent in older `config.json` files, which means
+    /// off.
+    pub relative_mass: bool,
 }
+
+/// Index of the `ln(mass / kg)` feature among the per-point features (see
+/// [`FeatureNormalization`]).
+pub const LN_MASS_FEATURE: usize = 9;
 
 impl DynamicsConfig {
     /// Every improvement on (the presets).
@@ -187,6 +198,7 @@ impl DynamicsConfig {
             rigid_extrapolation: true,
             object_summary: false,
             floor_base: false,
+            relative_mass: false,
         }
     }
 

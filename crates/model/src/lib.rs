@@ -26,13 +26,15 @@ pub use batching::PassBudget;
 pub use checkpoint::{load_model, load_rigidformer, read_config};
 pub use config::{
     BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig, FeatureNormalization,
-    LossConfig, ModelConfig, OBJECT_SUMMARY_FEATURES, PreparedKey,
+    LN_MASS_FEATURE, LossConfig, ModelConfig, OBJECT_SUMMARY_FEATURES, PreparedKey,
 };
 pub use error::ModelError;
 pub use kernels::kabsch::{self as kabsch_op, KabschOp};
 pub use layers::Mode;
 pub use physiformer::PhysiFormer;
-pub use prepare::{MAX_BODY_EXTENT, MAX_DT_STEPS, MAX_WORLD_EXTENT, PreparedScene, normalise_pose};
+pub use prepare::{
+    MAX_BODY_EXTENT, MAX_DT_STEPS, MAX_WORLD_EXTENT, PreparedScene, model_masses, normalise_pose,
+};
 pub use rigidformer::features::{
     FeatureFrame, ScenePoints, contact_velocity, object_params, object_summary, raw_point_features,
 };

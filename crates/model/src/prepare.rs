@@ -137,6 +137,26 @@ fn finite3(p: &[f32; 3]) -> bool {
     p.iter().all(|v| v.is_finite())
 }
 
+/// The masses the network sees for a scene's objects, kilograms, in order: as given, or with
+/// [`crate::DynamicsConfig::relative_mass`] all multiplied by the one factor that puts the
+/// scene's mean `ln(mass / kg)` at the mass feature's normalisation mean. Masses must be
+/// finite and > 0.
+pub fn model_masses(cfg: &ModelConfig, objects: &[ObjectInput]) -> Vec<f32> {
+    let given = objects.iter().map(|o| o.mass);
+    if !cfg.dynamics.relative_mass || objects.is_empty() {
+        return given.collect();
+    }
+    let reference = cfg
+        .normalization
+        .mean
+        .get(crate::config::LN_MASS_FEATURE)
+        .copied()
+        .unwrap_or(0.0);
+    let mean = objects.iter().map(|o| f64::from(o.mass).ln()).sum::<f64>() / objects.len() as f64;
+    let factor = (f64::from(reference) - mean).exp();
+    given.map(|m| (f64::from(m) * factor) as f32).collect()
+}
+
 /// Validates a scene and builds its caches for a model with configuration `cfg`.
 pub(crate) fn prepare_scene(
     cfg: &ModelConfig,
@@ -195,6 +215,13 @@ pub(crate) fn prepare_scene(
         }
     }
     use rayon::prelude::*;
+    let mut objects = objects;
+    if cfg.dynamics.relative_mass {
+        let masses = model_masses(cfg, &objects);
+        for (o, m) in objects.iter_mut().zip(masses) {
+            o.mass = m;
+        }
+    }
     let prepared: Result<Vec<PreparedObject>, ModelError> = objects
         .into_par_iter()
         .enumerate()

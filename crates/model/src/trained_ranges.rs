@@ -33,7 +33,8 @@ pub struct OutOfRange {
     pub field: &'static str,
     /// Indices of the objects outside, in request order.
     pub objects: Vec<usize>,
-    /// Smallest and largest value among those objects.
+    /// Smallest and largest value among those objects (masses as the network sees them,
+    /// [`crate::model_masses`]).
     pub values: Interval,
     /// The trained interval.
     pub trained: Interval,
@@ -98,9 +99,10 @@ impl TrainedRanges {
     }
 
     /// Every parameter some of `objects` hold outside the trained ranges (at most one entry
-    /// per parameter; empty when all are inside). Values within 1e-4 (relative) of a bound
+    /// per parameter; empty when all are inside), with `masses` the masses the network sees
+    /// (kg, one per object: [`crate::model_masses`]). Values within 1e-4 (relative) of a bound
     /// count as inside, so a value written with fewer digits than the bound is not flagged.
-    pub fn check(&self, objects: &[ObjectInput]) -> Vec<OutOfRange> {
+    pub fn check(&self, objects: &[ObjectInput], masses: &[f32]) -> Vec<OutOfRange> {
         let fields: [(&'static str, Interval, Getter); 3] = [
             ("mass", self.mass, |o| o.mass),
             ("friction", self.friction, |o| o.friction),
@@ -110,9 +112,12 @@ impl TrainedRanges {
             .into_iter()
             .filter_map(|(field, trained, get)| {
                 let slack = 1e-4 * trained[0].abs().max(trained[1].abs()).max(1e-3);
-                let outside: Vec<(usize, f32)> = objects
-                    .iter()
-                    .map(get)
+                let values: Vec<f32> = match field {
+                    "mass" => masses.to_vec(),
+                    _ => objects.iter().map(get).collect(),
+                };
+                let outside: Vec<(usize, f32)> = values
+                    .into_iter()
                     .enumerate()
                     .filter(|(_, v)| *v < trained[0] - slack || *v > trained[1] + slack)
                     .collect();
@@ -160,6 +165,12 @@ mod tests {
         }
     }
 
+    /// The check with the masses as given.
+    fn check(r: &TrainedRanges, objects: &[ObjectInput]) -> Vec<OutOfRange> {
+        let masses: Vec<f32> = objects.iter().map(|o| o.mass).collect();
+        r.check(objects, &masses)
+    }
+
     fn ranges() -> TrainedRanges {
         TrainedRanges::of([[0.5, 0.1, 0.05], [4.0, 1.0, 0.8], [1.0, 0.4, 0.3]]).unwrap()
     }
@@ -180,17 +191,17 @@ mod tests {
     #[test]
     fn objects_inside_pass_and_those_outside_are_named() {
         let r = ranges();
-        assert!(
-            r.check(&[object(1.0, 0.5, 0.2), object(0.5, 1.0, 0.8)])
-                .is_empty()
-        );
+        assert!(check(&r, &[object(1.0, 0.5, 0.2), object(0.5, 1.0, 0.8)]).is_empty());
         // Written with fewer digits than the stored bound: still inside.
-        assert!(r.check(&[object(1.0, 0.1, 0.05)]).is_empty());
-        let out = r.check(&[
-            object(1.0, 0.0, 0.2),
-            object(1.0, 0.5, 0.2),
-            object(20.0, 2.0, 0.2),
-        ]);
+        assert!(check(&r, &[object(1.0, 0.1, 0.05)]).is_empty());
+        let out = check(
+            &r,
+            &[
+                object(1.0, 0.0, 0.2),
+                object(1.0, 0.5, 0.2),
+                object(20.0, 2.0, 0.2),
+            ],
+        );
         assert_eq!(out.len(), 2);
         assert_eq!(out[0].field, "mass");
         assert_eq!(out[0].objects, vec![2]);
@@ -209,7 +220,7 @@ mod tests {
     #[test]
     fn long_lists_are_cut_and_bad_bounds_refused() {
         let objects: Vec<ObjectInput> = (0..9).map(|_| object(1.0, 0.5, 0.95)).collect();
-        let out = ranges().check(&objects);
+        let out = check(&ranges(), &objects);
         assert_eq!(out.len(), 1);
         assert!(
             out[0]

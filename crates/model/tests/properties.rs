@@ -218,6 +218,49 @@ fn training_kernels_match_inference_kernels() {
     assert!(diff < 1e-5, "modes differ by {diff}");
 }
 
+/// With `dynamics.relative_mass` only mass ratios reach the network: a common factor on every
+/// mass leaves the step unchanged, a changed ratio does not; without it the factor shows.
+#[test]
+fn relative_mass_sees_ratios_only() {
+    let (objects, state) = close_scene(9, 4, 64);
+    let scaled = |k: &[f32]| -> Vec<ObjectInput> {
+        objects
+            .iter()
+            .zip(k.iter().cycle())
+            .map(|(o, f)| ObjectInput {
+                mass: o.mass * f,
+                ..o.clone()
+            })
+            .collect()
+    };
+    let absolute = tiny();
+    let a = step1(&absolute, objects.clone(), &state, 1);
+    let a37 = step1(&absolute, scaled(&[37.0]), &state, 1);
+    assert!(
+        max_pose_diff(&a, &a37) > 1e-6,
+        "absolute masses had no effect"
+    );
+    let relative = tiny().with_relative_mass(true);
+    let r = step1(&relative, objects.clone(), &state, 1);
+    for factor in [0.01, 37.0, 1.0e3] {
+        let diff = max_pose_diff(&r, &step1(&relative, scaled(&[factor]), &state, 1));
+        assert!(
+            diff < 1e-5,
+            "common factor {factor} changed the step by {diff}"
+        );
+    }
+    let ratio = step1(&relative, scaled(&[4.0, 1.0]), &state, 1);
+    assert!(
+        max_pose_diff(&r, &ratio) > 1e-6,
+        "a changed mass ratio had no effect"
+    );
+    // What the network sees: the scene's mean log mass at the feature's normalisation mean.
+    let cfg = relative.config();
+    let seen = dynaserve_model::model_masses(cfg, &scaled(&[37.0]));
+    let mean_ln = seen.iter().map(|m| m.ln()).sum::<f32>() / seen.len() as f32;
+    assert!((mean_ln - cfg.normalization.mean[dynaserve_model::LN_MASS_FEATURE]).abs() < 1e-4);
+}
+
 #[test]
 fn step_size_conditions_the_output() {
     let model = tiny();

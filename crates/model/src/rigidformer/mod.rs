@@ -191,6 +191,14 @@ impl RigidFormer {
         self
     }
 
+    /// Switches scene-relative mass ([`crate::DynamicsConfig::relative_mass`]) on or off. No
+    /// weight changes; a model trained with absolute masses needs fine-tuning, having learnt
+    /// how the data couple mass and size.
+    pub fn with_relative_mass(mut self, on: bool) -> RigidFormer {
+        self.config.dynamics.relative_mass = on;
+        self
+    }
+
     /// Sets the Smooth L1 transition point of the training loss ([`crate::LossConfig::beta`],
     /// in units of the loss scale). Inference is unaffected; fine-tuning then weighs errors
     /// below the new point linearly instead of quadratically (or the reverse).

@@ -154,7 +154,9 @@ pub(crate) async fn prepare_scenes(
                     build_scene(s, &path, &entry.limits, dt_seconds)?;
                 check_previous(&state, &path)?;
                 if let Some(r) = &ranges {
-                    outside.extend(r.check(&objects).into_iter().map(|o| (path.clone(), o)));
+                    let masses = dynaserve_model::model_masses(entry.model().config(), &objects);
+                    let out = r.check(&objects, &masses);
+                    outside.extend(out.into_iter().map(|o| (path.clone(), o)));
                 }
                 let prepared = entry.model().prepare(objects).map_err(|e| match e {
                     dynaserve_model::ModelError::InvalidInput(m) => {

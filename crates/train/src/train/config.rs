@@ -174,6 +174,10 @@ pub struct ModelSection {
     /// config or `init` model has; set, it switches the base of any of them (an `init` model
     /// keeps its weights and learns the new base's residual).
     pub floor_base: Option<bool>,
+    /// Scene-relative mass (`DynamicsConfig::relative_mass`): unset keeps what the preset,
+    /// config or `init` model has; set, it switches it on any of them (an `init` model keeps
+    /// its weights and learns from the scaled masses).
+    pub relative_mass: Option<bool>,
     /// The Smooth L1 transition point of the loss (`LossConfig::beta`, in units of its
     /// 1 mm scale): unset keeps what the preset, config or `init` model has. Errors below it
     /// pull quadratically (weakly), errors above it linearly; a smaller value gives the
@@ -198,6 +202,7 @@ impl Default for ModelSection {
             object_summary: None,
             rigid_extrapolation: None,
             floor_base: None,
+            relative_mass: None,
             loss_beta: None,
             rest_weight: None,
         }
@@ -207,8 +212,8 @@ impl Default for ModelSection {
 impl ModelSection {
     /// The model configuration this section names (before normalisation fitting), with
     /// `contact_velocity` (the normalisation then resized to its defaults),
-    /// `object_summary`, `rigid_extrapolation`, `floor_base`, `loss_beta` and `rest_weight`
-    /// applied.
+    /// `object_summary`, `rigid_extrapolation`, `floor_base`, `relative_mass`, `loss_beta` and
+    /// `rest_weight` applied.
     pub fn model_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {
         let mut c = self.named_config(base)?;
         if let Some(on) = self.rigid_extrapolation {
@@ -216,6 +221,9 @@ impl ModelSection {
         }
         if let Some(on) = self.floor_base {
             c.dynamics.floor_base = on;
+        }
+        if let Some(on) = self.relative_mass {
+            c.dynamics.relative_mass = on;
         }
         if let Some(beta) = self.loss_beta {
             c.loss.beta = beta;

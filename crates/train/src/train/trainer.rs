@@ -255,6 +255,10 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                 Some(on) => m.with_floor_base(on),
                 None => m,
             };
+            let m = match cfg.model.relative_mass {
+                Some(on) => m.with_relative_mass(on),
+                None => m,
+            };
             let m = match cfg.model.loss_beta {
                 Some(beta) => m.with_loss_beta(beta),
                 None => m,
