@@ -443,6 +443,31 @@ impl TrainConfig {
 mod tests {
     use super::*;
 
+    /// Every committed RigidFormer training configuration parses and validates (a typo in one
+    /// surfaces here, not an hour into a run); the relative-mass run switches it on.
+    #[test]
+    fn committed_configs_parse_and_validate() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
+        let mut n = 0;
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let p = entry.unwrap().path();
+            let rigid = p
+                .file_name()
+                .is_some_and(|f| f.to_string_lossy().starts_with("rigidformer"));
+            if rigid && p.extension().is_some_and(|e| e == "toml") {
+                TrainConfig::from_file(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+                n += 1;
+            }
+        }
+        assert!(
+            n >= 30,
+            "only {n} configurations found in {}",
+            dir.display()
+        );
+        let r24 = TrainConfig::from_file(&dir.join("rigidformer-small-r24.toml")).unwrap();
+        assert_eq!(r24.model.relative_mass, Some(true));
+    }
+
     #[test]
     fn loss_beta_switches_the_named_config_and_is_checked() {
         let base = Path::new(".");
