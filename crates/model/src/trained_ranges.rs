@@ -9,9 +9,6 @@ use crate::ObjectInput;
 /// Closed interval `[low, high]` of one parameter over every object of the training data.
 pub type Interval = [f32; 2];
 
-/// Reads one parameter of an object.
-type Getter = fn(&ObjectInput) -> f32;
-
 /// Smallest and largest mass, friction and restitution of the objects a model was trained on
 /// (`trained_ranges` in `config.json`; written by `dynaserve train export` from the run's
 /// training data).
@@ -103,19 +100,23 @@ impl TrainedRanges {
     /// (kg, one per object: [`crate::model_masses`]). Values within 1e-4 (relative) of a bound
     /// count as inside, so a value written with fewer digits than the bound is not flagged.
     pub fn check(&self, objects: &[ObjectInput], masses: &[f32]) -> Vec<OutOfRange> {
-        let fields: [(&'static str, Interval, Getter); 3] = [
-            ("mass", self.mass, |o| o.mass),
-            ("friction", self.friction, |o| o.friction),
-            ("restitution", self.restitution, |o| o.restitution),
+        let fields: [(&'static str, Interval, Vec<f32>); 3] = [
+            ("mass", self.mass, masses.to_vec()),
+            (
+                "friction",
+                self.friction,
+                objects.iter().map(|o| o.friction).collect(),
+            ),
+            (
+                "restitution",
+                self.restitution,
+                objects.iter().map(|o| o.restitution).collect(),
+            ),
         ];
         fields
             .into_iter()
-            .filter_map(|(field, trained, get)| {
+            .filter_map(|(field, trained, values)| {
                 let slack = 1e-4 * trained[0].abs().max(trained[1].abs()).max(1e-3);
-                let values: Vec<f32> = match field {
-                    "mass" => masses.to_vec(),
-                    _ => objects.iter().map(get).collect(),
-                };
                 let outside: Vec<(usize, f32)> = values
                     .into_iter()
                     .enumerate()
