@@ -26,12 +26,22 @@ fn with_params(mut scene: json::Scene, params: &[(f32, f32)]) -> json::Scene {
     scene
 }
 
-fn warnings(resp: &HttpResponse) -> Vec<String> {
-    resp.headers
+/// POSTs `body` to `path`, checks that it was answered (200) and returns the answer with its
+/// `x-dynaserve-warning` lines.
+async fn warned<T: serde::Serialize>(
+    addr: std::net::SocketAddr,
+    path: &str,
+    body: &T,
+) -> (HttpResponse, Vec<String>) {
+    let resp = post_json(addr, path, body).await;
+    assert_eq!(resp.status, 200, "{}", resp.text());
+    let w = resp
+        .headers
         .iter()
-        .filter(|(k, _)| k == "x-dynaserve-warning")
+        .filter(|(k, _)| k == dynaserve_api::WARNING_HEADER)
         .map(|(_, v)| v.clone())
-        .collect()
+        .collect();
+    (resp, w)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -41,28 +51,25 @@ async fn parameters_outside_the_trained_ranges_are_warned_about_and_still_answer
 
     // Inside: no warning.
     let inside = with_params(scene(3, 3, 64), &[(0.5, 0.2), (0.1, 0.05), (1.0, 0.8)]);
-    let resp = post_json(
+    let (_, w) = warned(
         server.http_addr,
         "/v1/rollout",
         &rollout_request(&m.name, inside, 4),
     )
     .await;
-    assert_eq!(resp.status, 200, "{}", resp.text());
-    assert!(warnings(&resp).is_empty());
+    assert!(w.is_empty(), "{w:?}");
 
     // Two objects with friction 0 (the value an omitted field reads as), one bouncier than
     // trained: the rollout still answers, with one warning per parameter.
     let outside = with_params(scene(3, 3, 64), &[(0.0, 0.2), (0.5, 0.95), (0.0, 0.2)]);
-    let resp = post_json(
+    let (resp, w) = warned(
         server.http_addr,
         "/v1/rollout",
         &rollout_request(&m.name, outside.clone(), 4),
     )
     .await;
-    assert_eq!(resp.status, 200, "{}", resp.text());
     let body: json::RolloutResponse = resp.json();
     assert_eq!(body.frames.len(), 4);
-    let w = warnings(&resp);
     assert_eq!(w.len(), 2, "{w:?}");
     assert!(
         w[0].starts_with("scene.objects[0,2].friction: 0 is outside the range the model was trained on (0.1 to 1)"),
@@ -87,9 +94,7 @@ async fn parameters_outside_the_trained_ranges_are_warned_about_and_still_answer
         every: 0,
         timeout_ms: 0,
     };
-    let resp = post_json(server.http_addr, "/v1/predict", &predict).await;
-    assert_eq!(resp.status, 200, "{}", resp.text());
-    let w = warnings(&resp);
+    let (_, w) = warned(server.http_addr, "/v1/predict", &predict).await;
     assert_eq!(w.len(), 2, "{w:?}");
     assert!(
         w[0].starts_with("variants[1].objects[0,2].friction"),
@@ -125,9 +130,7 @@ async fn parameters_outside_the_trained_ranges_are_warned_about_and_still_answer
         variants: vec![slippery; 10],
         ..predict
     };
-    let resp = post_json(server.http_addr, "/v1/predict", &many).await;
-    assert_eq!(resp.status, 200, "{}", resp.text());
-    let w = warnings(&resp);
+    let (_, w) = warned(server.http_addr, "/v1/predict", &many).await;
     assert_eq!(w.len(), 8, "{w:?}");
     assert!(
         w[6].starts_with("variants[6].objects[0].friction"),

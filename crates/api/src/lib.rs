@@ -42,6 +42,10 @@ pub mod wire;
 
 pub use error::{FieldError, code_name};
 
+/// Response header (HTTP) and metadata key (gRPC) of each server warning about a request: one
+/// line per object parameter outside the range the model was trained on.
+pub const WARNING_HEADER: &str = "x-dynaserve-warning";
+
 /// Generated protobuf messages and gRPC client/server code for `dynaserve.v1`.
 #[allow(missing_docs, clippy::all, clippy::pedantic)]
 pub mod v1 {

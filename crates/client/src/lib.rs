@@ -79,8 +79,7 @@ impl ClientError {
 /// server's DEADLINE_EXCEEDED (sent at the deadline) arrives first.
 pub const DEADLINE_BACKSTOP: Duration = Duration::from_millis(500);
 
-/// Header (HTTP) and metadata key (gRPC) of each server warning about a request.
-pub const WARNING_KEY: &str = "x-dynaserve-warning";
+pub use dynaserve_api::WARNING_HEADER;
 
 /// A running rollout: its frames in step order (an `Err` ends the stream).
 pub struct Rollout {
@@ -175,7 +174,7 @@ impl Client {
         let model = meta("x-dynaserve-model");
         let warnings = resp
             .metadata()
-            .get_all(WARNING_KEY)
+            .get_all(WARNING_HEADER)
             .iter()
             .filter_map(|v| v.to_str().ok().map(str::to_string))
             .collect();

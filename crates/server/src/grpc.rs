@@ -58,7 +58,7 @@ fn ctx_of(meta: &MetadataMap) -> RequestCtx {
 fn insert_warnings(meta: &mut MetadataMap, warnings: &[String]) {
     for w in warnings {
         if let Ok(v) = MetadataValue::try_from(w.as_str()) {
-            meta.append(crate::http::WARNING_HEADER, v);
+            meta.append(dynaserve_api::WARNING_HEADER, v);
         }
     }
 }

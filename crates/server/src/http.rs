@@ -108,14 +108,11 @@ fn set_header(headers: &mut HeaderMap, key: &'static str, value: &str) {
 fn with_warnings(mut r: Response, warnings: &[String]) -> Response {
     for w in warnings {
         if let Ok(v) = HeaderValue::from_str(w) {
-            r.headers_mut().append(WARNING_HEADER, v);
+            r.headers_mut().append(dynaserve_api::WARNING_HEADER, v);
         }
     }
     r
 }
-
-/// The header (and gRPC metadata key) that carries each warning about a request.
-pub(crate) const WARNING_HEADER: &str = "x-dynaserve-warning";
 
 fn error_response(e: ApiError, rid: &str) -> Response {
     let mut r = e.into_response();

@@ -162,7 +162,7 @@ impl SecurityConfig {
                 .expose_headers([
                     header::HeaderName::from_static("x-request-id"),
                     header::HeaderName::from_static("x-dynaserve-model"),
-                    header::HeaderName::from_static(crate::http::WARNING_HEADER),
+                    header::HeaderName::from_static(dynaserve_api::WARNING_HEADER),
                     header::RETRY_AFTER,
                 ])
                 .max_age(std::time::Duration::from_secs(600)),

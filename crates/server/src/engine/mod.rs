@@ -26,13 +26,13 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
-use dynaserve_api::spec::ModelInfo;
-use dynaserve_model::{PhysiFormer, WorldModel};
+use dynaserve_api::spec::{ModelInfo, Scene};
+use dynaserve_model::{PhysiFormer, PreparedScene, SceneState, WorldModel};
 use tokio::sync::{Semaphore, watch};
 
 pub use generate::{GenerateHandle, GeneratorEntry};
 pub use registry::ModelEntry;
-use registry::PreparedScenes;
+use registry::{PreparedScenes, prepare_scenes};
 pub use request::{Protocol, RequestCtx, new_request_id};
 pub use rollout::RolloutHandle;
 pub use sessions::{InteractHandle, StepHandle};
@@ -238,6 +238,23 @@ impl Engine {
             tracing::info!(warning = %w, "parameter outside the trained range");
         }
         warnings
+    }
+
+    /// Validates and prepares the one scene of a request (field `scene`), with its warnings
+    /// (see [`Engine::range_warnings`]).
+    pub(crate) async fn prepare_one(
+        &self,
+        entry: &Arc<ModelEntry>,
+        scene: Scene,
+        dt_steps: u32,
+    ) -> Result<(Arc<PreparedScene>, SceneState, Vec<String>), ApiError> {
+        let mut prepared = prepare_scenes(entry, vec![scene], dt_steps, "scene").await?;
+        let warnings = self.range_warnings(entry, &prepared);
+        let (scene, state) = prepared
+            .scenes
+            .pop()
+            .ok_or_else(|| ApiError::internal("no scene prepared"))?;
+        Ok((scene, state, warnings))
     }
 
     /// Counts a request that a front end rejected before it reached the engine (malformed or

@@ -14,7 +14,6 @@ use tokio::sync::{OwnedSemaphorePermit, mpsc, watch};
 use tracing::Instrument;
 
 use super::Engine;
-use super::registry::prepare_scenes;
 use super::request::{GaugeGuard, RequestCtx, RequestRecord, sleep_until};
 use super::stepper::{Stepper, StepperSpec, step_error};
 use crate::error::ApiError;
@@ -73,12 +72,7 @@ impl Engine {
                         self.retry_after(),
                     )
                 })?;
-            let mut prepared = prepare_scenes(&entry, vec![req.scene], dt_steps, "scene").await?;
-            let warnings = self.range_warnings(&entry, &prepared);
-            let (scene, state) = prepared
-                .scenes
-                .pop()
-                .ok_or_else(|| ApiError::internal("no scene prepared"))?;
+            let (scene, state, warnings) = self.prepare_one(&entry, req.scene, dt_steps).await?;
             let stepper = Stepper::new(
                 entry.clone(),
                 StepperSpec {

@@ -33,7 +33,7 @@ pub use driven::StepHandle;
 pub use interact::InteractHandle;
 
 use super::Engine;
-use super::registry::{ModelEntry, prepare_scenes};
+use super::registry::ModelEntry;
 use super::request::{RequestCtx, RequestRecord};
 use crate::config::SessionConfig;
 use crate::error::ApiError;
@@ -391,12 +391,7 @@ impl Engine {
             kinematic_mask(&req.kinematic, req.scene.objects.len())?.into();
         // The count cap first, before preparing anything.
         self.sessions.admit(0, self.retry_after())?;
-        let mut prepared = prepare_scenes(&entry, vec![req.scene], dt_steps, "scene").await?;
-        let warnings = self.range_warnings(&entry, &prepared);
-        let (scene, state) = prepared
-            .scenes
-            .pop()
-            .ok_or_else(|| ApiError::internal("no scene prepared"))?;
+        let (scene, state, warnings) = self.prepare_one(&entry, req.scene, dt_steps).await?;
         let bytes = scene_bytes(&scene);
         self.sessions
             .admit(bytes + state_bytes(state.len()), self.retry_after())?;
