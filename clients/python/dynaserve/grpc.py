@@ -820,16 +820,18 @@ class Interaction:
         self._reader = threading.Thread(target=self._read, name="dynaserve-interact", daemon=True)
         self._reader.start()
         kind, value = self._next("opening the Interact stream")
-        if kind != "open" or SESSION_KEY not in value:
+        md = dict(value) if kind == "open" else {}
+        if SESSION_KEY not in md:
             if kind == "open":
                 kind, value = self._next("opening the Interact stream")
             self._finish()
             if kind == "error":
                 raise error_of(value)
             raise DynaserveError(500, "UNKNOWN", "the Interact stream ended before it opened")
-        self.session_id: str = value[SESSION_KEY]
-        self.model: str = value.get("x-dynaserve-model", "")
-        self.request_id: str = value.get("x-request-id", "")
+        warn_out_of_range(value)
+        self.session_id: str = md[SESSION_KEY]
+        self.model: str = md.get("x-dynaserve-model", "")
+        self.request_id: str = md.get("x-request-id", "")
 
     def _requests(self) -> Iterator[spb.InteractRequest]:
         while True:
@@ -840,7 +842,7 @@ class Interaction:
 
     def _read(self) -> None:
         try:
-            self._in.put(("open", dict(_pairs(self._call.initial_metadata()))))
+            self._in.put(("open", list(_pairs(self._call.initial_metadata()))))
             for f in self._call:
                 self._in.put(("frame", f))
             self._in.put(("end", None))
@@ -1183,12 +1185,14 @@ class AsyncInteraction:
 
     async def _open(self, first: spb.InteractRequest) -> None:
         await self._wait("opening the Interact stream", self._call.write(first))
-        md = dict(_pairs(await self._wait("opening the Interact stream", self._call.initial_metadata())))
+        pairs = list(_pairs(await self._wait("opening the Interact stream", self._call.initial_metadata())))
+        md = dict(pairs)
         if SESSION_KEY not in md:
             # The stream failed before it opened: reading surfaces its status.
             await self._wait("opening the Interact stream", self._call.read())
             self._done = True
             raise DynaserveError(500, "UNKNOWN", "the Interact stream ended before it opened")
+        warn_out_of_range(pairs)
         self.session_id = md[SESSION_KEY]
         self.model = md.get("x-dynaserve-model", "")
         self.request_id = md.get("x-request-id", "")

@@ -98,13 +98,16 @@ class GrpcTest(unittest.TestCase):
             list(self.g.rollout(bouncy, steps=1))
             self.g.predict([bouncy], steps=1)
             self.g.create_session(bouncy).delete()
+            with self.g.interact(bouncy) as loop:
+                loop.step()
             list(self.h.rollout(bouncy, steps=1))
         got = [str(w.message) for w in caught if w.category is OutOfRangeWarning]
-        self.assertEqual(len(got), 4, got)
+        self.assertEqual(len(got), 5, got)
         self.assertTrue(got[0].startswith("scene.objects[1].restitution: 0.99 is outside"), got[0])
         self.assertTrue(got[1].startswith("variants[0].objects[1].restitution"), got[1])
         self.assertEqual(got[2], got[0])
         self.assertEqual(got[3], got[0])
+        self.assertEqual(got[4], got[0])
 
     def test_session_fork_step_state_predict_delete(self):
         s = self.g.create_session(bodies(), kinematic=[1])
