@@ -13,6 +13,7 @@ fn ranged_model() -> TestModel {
             mass: [0.01, 10.0],
             friction: [0.1, 1.0],
             restitution: [0.05, 0.8],
+            mass_relative: false,
         });
     })
 }

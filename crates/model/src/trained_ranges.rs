@@ -15,12 +15,17 @@ pub type Interval = [f32; 2];
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TrainedRanges {
-    /// Mass, kilograms.
+    /// Mass, kilograms; with [`TrainedRanges::mass_relative`], the ratio of each object's mass
+    /// to its scene's geometric mean mass (dimensionless).
     pub mass: Interval,
     /// Coulomb friction coefficient (dimensionless).
     pub friction: Interval,
     /// Coefficient of restitution (dimensionless).
     pub restitution: Interval,
+    /// `mass` holds mass ratios within a scene ([`mass_ratios`]), as for a model with
+    /// [`crate::DynamicsConfig::relative_mass`], which sees only those; absent means false.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub mass_relative: bool,
 }
 
 /// One parameter of a scene's objects outside the trained interval.
@@ -30,11 +35,26 @@ pub struct OutOfRange {
     pub field: &'static str,
     /// Indices of the objects outside, in request order.
     pub objects: Vec<usize>,
-    /// Smallest and largest value among those objects (masses as the network sees them,
-    /// [`crate::model_masses`]).
+    /// Smallest and largest value among those objects (for `mass` with `relative`, ratios to
+    /// the scene's geometric mean mass).
     pub values: Interval,
     /// The trained interval.
     pub trained: Interval,
+    /// The values are mass ratios ([`TrainedRanges::mass_relative`]).
+    pub relative: bool,
+}
+
+/// Each mass over the geometric mean of all of them (dimensionless, one per mass): what a
+/// model with [`crate::DynamicsConfig::relative_mass`] distinguishes. Masses must be > 0.
+pub fn mass_ratios(masses: &[f32]) -> Vec<f32> {
+    if masses.is_empty() {
+        return Vec::new();
+    }
+    let mean = masses.iter().map(|&m| f64::from(m).ln()).sum::<f64>() / masses.len() as f64;
+    masses
+        .iter()
+        .map(|&m| (f64::from(m).ln() - mean).exp() as f32)
+        .collect()
 }
 
 impl OutOfRange {
@@ -57,8 +77,16 @@ impl OutOfRange {
         } else {
             format!("{lo} to {hi}")
         };
+        let (value, range) = if self.relative {
+            (
+                format!("{value} times the scene's geometric mean mass"),
+                "the ratios",
+            )
+        } else {
+            (value, "the range")
+        };
         format!(
-            "{path}.objects[{}].{}: {value} is outside the range the model was trained on \
+            "{path}.objects[{}].{}: {value} is outside {range} the model was trained on \
              ({} to {}); its forecast there is less accurate",
             list.join(","),
             self.field,
@@ -69,39 +97,65 @@ impl OutOfRange {
 }
 
 impl TrainedRanges {
-    /// The smallest ranges holding every `(mass kg, friction, restitution)` given; `None` for
-    /// none.
-    pub fn of(params: impl IntoIterator<Item = [f32; 3]>) -> Option<TrainedRanges> {
-        params.into_iter().fold(None, |acc, [m, f, r]| {
-            let point = TrainedRanges {
-                mass: [m, m],
-                friction: [f, f],
-                restitution: [r, r],
+    /// The smallest ranges holding every object of `scenes` (each scene a list of
+    /// `[mass kg, friction, restitution]`), masses as ratios within their scene when
+    /// `mass_relative`; `None` for no object.
+    pub fn of<S: AsRef<[[f32; 3]]>>(
+        scenes: impl IntoIterator<Item = S>,
+        mass_relative: bool,
+    ) -> Option<TrainedRanges> {
+        scenes.into_iter().fold(None, |acc, scene| {
+            let scene = scene.as_ref();
+            let masses: Vec<f32> = scene.iter().map(|p| p[0]).collect();
+            let masses = if mass_relative {
+                mass_ratios(&masses)
+            } else {
+                masses
             };
-            Some(match acc {
-                None => point,
-                Some(a) => a.union(&point),
+            scene.iter().zip(masses).fold(acc, |acc, (&[_, f, r], m)| {
+                let point = TrainedRanges {
+                    mass: [m, m],
+                    friction: [f, f],
+                    restitution: [r, r],
+                    mass_relative,
+                };
+                Some(match acc {
+                    None => point,
+                    Some(a) => a.union(&point),
+                })
             })
         })
     }
 
-    /// The smallest ranges holding both.
+    /// The smallest ranges holding both. Mass intervals of different kinds
+    /// ([`TrainedRanges::mass_relative`]) do not join: `other`'s is kept.
     pub fn union(&self, other: &TrainedRanges) -> TrainedRanges {
         let join = |a: Interval, b: Interval| [a[0].min(b[0]), a[1].max(b[1])];
         TrainedRanges {
-            mass: join(self.mass, other.mass),
+            mass: if self.mass_relative == other.mass_relative {
+                join(self.mass, other.mass)
+            } else {
+                other.mass
+            },
             friction: join(self.friction, other.friction),
             restitution: join(self.restitution, other.restitution),
+            mass_relative: other.mass_relative,
         }
     }
 
     /// Every parameter some of `objects` hold outside the trained ranges (at most one entry
-    /// per parameter; empty when all are inside), with `masses` the masses the network sees
-    /// (kg, one per object: [`crate::model_masses`]). Values within 1e-4 (relative) of a bound
+    /// per parameter; empty when all are inside); masses are compared as ratios within the
+    /// scene when [`TrainedRanges::mass_relative`]. Values within 1e-4 (relative) of a bound
     /// count as inside, so a value written with fewer digits than the bound is not flagged.
-    pub fn check(&self, objects: &[ObjectInput], masses: &[f32]) -> Vec<OutOfRange> {
+    pub fn check(&self, objects: &[ObjectInput]) -> Vec<OutOfRange> {
+        let masses: Vec<f32> = objects.iter().map(|o| o.mass).collect();
+        let masses = if self.mass_relative {
+            mass_ratios(&masses)
+        } else {
+            masses
+        };
         let fields: [(&'static str, Interval, Vec<f32>); 3] = [
-            ("mass", self.mass, masses.to_vec()),
+            ("mass", self.mass, masses),
             (
                 "friction",
                 self.friction,
@@ -131,6 +185,7 @@ impl TrainedRanges {
                     objects: outside.into_iter().map(|(i, _)| i).collect(),
                     values,
                     trained,
+                    relative: field == "mass" && self.mass_relative,
                 })
             })
             .collect()
@@ -166,14 +221,16 @@ mod tests {
         }
     }
 
-    /// The check with the masses as given.
     fn check(r: &TrainedRanges, objects: &[ObjectInput]) -> Vec<OutOfRange> {
-        let masses: Vec<f32> = objects.iter().map(|o| o.mass).collect();
-        r.check(objects, &masses)
+        r.check(objects)
     }
 
     fn ranges() -> TrainedRanges {
-        TrainedRanges::of([[0.5, 0.1, 0.05], [4.0, 1.0, 0.8], [1.0, 0.4, 0.3]]).unwrap()
+        let scenes = [
+            vec![[0.5, 0.1, 0.05], [4.0, 1.0, 0.8]],
+            vec![[1.0, 0.4, 0.3]],
+        ];
+        TrainedRanges::of(scenes, false).unwrap()
     }
 
     #[test]
@@ -182,8 +239,8 @@ mod tests {
         assert_eq!(r.mass, [0.5, 4.0]);
         assert_eq!(r.friction, [0.1, 1.0]);
         assert_eq!(r.restitution, [0.05, 0.8]);
-        assert_eq!(TrainedRanges::of([]), None);
-        let wider = r.union(&TrainedRanges::of([[10.0, 0.0, 0.5]]).unwrap());
+        assert_eq!(TrainedRanges::of(Vec::<Vec<[f32; 3]>>::new(), false), None);
+        let wider = r.union(&TrainedRanges::of([[[10.0, 0.0, 0.5]]], false).unwrap());
         assert_eq!(wider.mass, [0.5, 10.0]);
         assert_eq!(wider.friction, [0.0, 1.0]);
         assert_eq!(wider.restitution, [0.05, 0.8]);
@@ -234,5 +291,39 @@ mod tests {
         bad.friction = [f32::NAN, 0.5];
         assert!(bad.validate().is_err());
         assert!(ranges().validate().is_ok());
+    }
+
+    #[test]
+    fn relative_ranges_hold_mass_ratios_within_scenes() {
+        // Scenes of 1 and 4 kg, and of 10 and 40 kg: ratios 0.5 and 2 either way.
+        let scenes = [
+            vec![[1.0, 0.5, 0.3], [4.0, 0.5, 0.3]],
+            vec![[10.0, 0.5, 0.3], [40.0, 0.5, 0.3]],
+        ];
+        let r = TrainedRanges::of(scenes, true).unwrap();
+        assert!(r.mass_relative);
+        assert!((r.mass[0] - 0.5).abs() < 1e-5 && (r.mass[1] - 2.0).abs() < 1e-5);
+        // Any scale passes; a ratio of 8 (masses 1 and 64) does not.
+        assert!(check(&r, &[object(300.0, 0.5, 0.3), object(1200.0, 0.5, 0.3)]).is_empty());
+        let out = check(&r, &[object(1.0, 0.5, 0.3), object(64.0, 0.5, 0.3)]);
+        assert_eq!(out.len(), 1);
+        assert_eq!(out[0].objects, vec![0, 1]);
+        assert!(out[0].relative);
+        let m = out[0].message("scene");
+        assert!(
+            m.starts_with("scene.objects[0,1].mass: 0.125 to 8 times the scene's geometric mean mass is outside the ratios the model was trained on (0.5 to 2)"),
+            "{m}"
+        );
+        // Absolute ranges inherited by a relative model keep friction and restitution only.
+        let joined = ranges().union(&r);
+        assert!(joined.mass_relative);
+        assert_eq!(joined.mass, r.mass);
+        assert_eq!(joined.friction, [0.1, 1.0]);
+        // Stored without the flag, a config reads as absolute.
+        let back: TrainedRanges = serde_json::from_str(
+            r#"{"mass": [0.5, 4.0], "friction": [0.1, 1.0], "restitution": [0.05, 0.8]}"#,
+        )
+        .unwrap();
+        assert_eq!(back, ranges());
     }
 }

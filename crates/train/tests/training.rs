@@ -201,7 +201,10 @@ fn resume_is_exact() {
         .unwrap();
     assert!(objects.len() > 1);
     let ranges = m.config().trained_ranges.expect("trained_ranges written");
-    assert_eq!(Some(ranges), dynaserve_model::TrainedRanges::of(objects));
+    assert_eq!(
+        Some(ranges),
+        dynaserve_model::TrainedRanges::of(objects, false)
+    );
     assert!(ranges.friction[0] <= ranges.friction[1]);
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -154,8 +154,7 @@ pub(crate) async fn prepare_scenes(
                     build_scene(s, &path, &entry.limits, dt_seconds)?;
                 check_previous(&state, &path)?;
                 if let Some(r) = &ranges {
-                    let masses = dynaserve_model::model_masses(entry.model().config(), &objects);
-                    let out = r.check(&objects, &masses);
+                    let out = r.check(&objects);
                     outside.extend(out.into_iter().map(|o| (path.clone(), o)));
                 }
                 let prepared = entry.model().prepare(objects).map_err(|e| match e {

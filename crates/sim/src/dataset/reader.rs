@@ -104,9 +104,9 @@ impl DatasetReader {
         Ok(scenes)
     }
 
-    /// `[mass kg, friction, restitution]` of every object of the split, in order; reads only
-    /// those tensors' values from each shard.
-    pub fn object_parameters(&self) -> Result<Vec<[f32; 3]>> {
+    /// `[mass kg, friction, restitution]` of every object of the split, one list per scene,
+    /// in order; reads only those tensors' values from each shard.
+    pub fn object_parameters(&self) -> Result<Vec<Vec<[f32; 3]>>> {
         let mut all = Vec::new();
         for info in &self.manifest.shards {
             let path = self.dir.join(&info.file);

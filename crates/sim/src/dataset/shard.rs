@@ -308,17 +308,22 @@ pub fn decode_shard(
         .collect())
 }
 
-/// `[mass kg, friction, restitution]` of every object of one shard, in order, without decoding
-/// the trajectories.
-pub fn shard_object_parameters(bytes: &[u8], path: &Path) -> Result<Vec<[f32; 3]>> {
+/// `[mass kg, friction, restitution]` of every object of one shard, one list per scene, in
+/// order, without decoding the trajectories.
+pub fn shard_object_parameters(bytes: &[u8], path: &Path) -> Result<Vec<Vec<[f32; 3]>>> {
     let sh = ShardTensors::deserialize(bytes, path)?;
     let offsets = sh.offsets("scene_object_offsets", None)?;
     let n = *offsets.last().unwrap_or(&0);
     let mass = sh.f32s("mass", &[n])?;
     let friction = sh.f32s("friction", &[n])?;
     let restitution = sh.f32s("restitution", &[n])?;
-    Ok((0..n)
-        .map(|i| [mass[i], friction[i], restitution[i]])
+    Ok(offsets
+        .windows(2)
+        .map(|w| {
+            (w[0]..w[1])
+                .map(|i| [mass[i], friction[i], restitution[i]])
+                .collect()
+        })
         .collect())
 }
 
@@ -388,7 +393,10 @@ mod tests {
         let params = shard_object_parameters(&bytes, Path::new("s")).unwrap();
         assert_eq!(
             params,
-            vec![[1.0, 0.5, 0.3], [3.0, 0.9, 0.1], [1.0, 0.5, 0.3]]
+            vec![
+                vec![[1.0, 0.5, 0.3]],
+                vec![[3.0, 0.9, 0.1], [1.0, 0.5, 0.3]]
+            ]
         );
     }
 }

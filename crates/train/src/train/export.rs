@@ -29,12 +29,15 @@ pub struct ExportOptions {
 
 /// The parameter ranges of everything the exported weights have seen: those the checkpoint
 /// inherited from its `model.init` (`inherited`), joined with every object of the run's
-/// training directories that have a share of the samples. Data paths are read as the run
-/// recorded them (relative to the directory training ran in); when they cannot be read, the
-/// inherited ranges are kept and a warning printed.
+/// training directories that have a share of the samples; masses as ratios within a scene
+/// when `mass_relative` (the model's `dynamics.relative_mass`), in which case inherited
+/// absolute masses are dropped. Data paths are read as the run recorded them (relative to the
+/// directory training ran in); when they cannot be read, the inherited ranges are kept and a
+/// warning printed.
 fn trained_ranges(
     ckpt: &Path,
     inherited: Option<TrainedRanges>,
+    mass_relative: bool,
 ) -> Result<Option<TrainedRanges>, TrainError> {
     let state = read_state(ckpt)?;
     let data = &state.config.data;
@@ -47,7 +50,7 @@ fn trained_ranges(
         let params = DatasetReader::open(dir).and_then(|r| r.object_parameters());
         match params {
             Ok(p) => {
-                if let Some(r) = TrainedRanges::of(p) {
+                if let Some(r) = TrainedRanges::of(p, mass_relative) {
                     ranges = Some(ranges.map_or(r, |a| a.union(&r)));
                 }
             }
@@ -59,9 +62,20 @@ fn trained_ranges(
             }
         }
     }
-    if let Some(r) = &ranges {
+    if ranges.is_some_and(|r| r.mass_relative != mass_relative) {
         eprintln!(
-            "trained ranges: mass {:?} kg, friction {:?}, restitution {:?}",
+            "warning: trained_ranges left out: no data to measure the masses as the model sees them"
+        );
+        return Ok(None);
+    }
+    if let Some(r) = &ranges {
+        let unit = if r.mass_relative {
+            "times the scene's geometric mean"
+        } else {
+            "kg"
+        };
+        eprintln!(
+            "trained ranges: mass {:?} {unit}, friction {:?}, restitution {:?}",
             r.mass, r.friction, r.restitution
         );
     }
@@ -114,7 +128,8 @@ pub fn export(o: &ExportOptions) -> Result<(), TrainError> {
         .collect::<Result<HashMap<_, _>, TrainError>>()?;
     std::fs::create_dir_all(&o.out).map_err(io(&o.out))?;
     let mut config = read_config(&ckpt)?;
-    config.trained_ranges = trained_ranges(&ckpt, config.trained_ranges)?;
+    config.trained_ranges =
+        trained_ranges(&ckpt, config.trained_ranges, config.dynamics.relative_mass)?;
     let cfg_dst = o.out.join(CONFIG_FILE);
     let text = serde_json::to_string_pretty(&config)
         .map_err(|e| TrainError::Config(format!("config.json: {e}")))?;
