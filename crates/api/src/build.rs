@@ -309,6 +309,7 @@ pub fn build_scene(
             mass,
             friction,
             restitution,
+            kinematic: false,
         });
         previous.push(before);
         current.push(now);

@@ -71,6 +71,7 @@ fn movi_scene(rng: &mut ChaCha8Rng, m: usize, n: usize) -> (Vec<ObjectInput>, Sc
                 mass: rng.random_range(0.5..8.0),
                 friction: 0.4,
                 restitution: 0.3,
+                kinematic: false,
             }
         })
         .collect();
@@ -109,6 +110,7 @@ fn wrecking_ball(n: usize) -> (Vec<ObjectInput>, SceneState) {
                     mass: 0.3,
                     friction: 0.5,
                     restitution: 0.1,
+                    kinematic: false,
                 });
                 current.push(Pose {
                     translation: [
@@ -126,6 +128,7 @@ fn wrecking_ball(n: usize) -> (Vec<ObjectInput>, SceneState) {
         mass: 50.0,
         friction: 0.5,
         restitution: 0.2,
+        kinematic: false,
     });
     current.push(Pose {
         translation: [-1.5, 1.25, 1.5],

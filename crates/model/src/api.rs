@@ -61,6 +61,11 @@ pub struct ObjectInput {
     pub friction: f32,
     /// Coefficient of restitution in `[0, 1]`.
     pub restitution: f32,
+    /// Moved along given poses by the caller (a kinematic body, such as a pusher): its mass
+    /// has no effect on the others' motion, so a relative-mass model neither takes its scale
+    /// from it nor reads it ([`crate::model_masses`]). Absent means false.
+    #[serde(default)]
+    pub kinematic: bool,
 }
 
 /// The two most recent poses of every object, `dt_steps` frames apart: the state a step

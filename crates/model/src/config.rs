@@ -175,11 +175,12 @@ pub struct DynamicsConfig {
     /// files, which means off.
     pub floor_base: bool,
     /// Scene-relative mass: before the features are computed, every mass of a scene is
-    /// multiplied by one factor chosen so that the scene's mean `ln(mass / kg)` equals the
-    /// normalisation mean of the mass feature ([`LN_MASS_FEATURE`]). Rigid bodies under gravity
-    /// and contact move the same under such a common factor, and the model then answers the
-    /// same too: only mass ratios reach it. Absent in older `config.json` files, which means
-    /// off.
+    /// multiplied by one factor chosen so that the mean `ln(mass / kg)` of its dynamic
+    /// (not kinematic) objects equals the normalisation mean of the mass feature
+    /// ([`LN_MASS_FEATURE`]). Rigid bodies under gravity and contact move the same under such a
+    /// common factor, and the model then answers the same too: only mass ratios reach it. A
+    /// kinematic body's mass moves nothing: it sets no scale and is seen as that mean. Absent
+    /// in older `config.json` files, which means off.
     pub relative_mass: bool,
 }
 

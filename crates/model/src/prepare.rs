@@ -138,9 +138,10 @@ fn finite3(p: &[f32; 3]) -> bool {
 }
 
 /// The masses the network sees for a scene's objects, kilograms, in order: as given, or with
-/// [`crate::DynamicsConfig::relative_mass`] all multiplied by the one factor that puts the
-/// scene's mean `ln(mass / kg)` at the mass feature's normalisation mean. Masses must be
-/// finite and > 0.
+/// [`crate::DynamicsConfig::relative_mass`] the dynamic objects' multiplied by the one factor
+/// that puts their mean `ln(mass / kg)` at the mass feature's normalisation mean, and every
+/// [`ObjectInput::kinematic`] one's set to that mean (its mass moves nothing, so it is
+/// neither a scale nor an input). Masses must be finite and > 0.
 pub fn model_masses(cfg: &ModelConfig, objects: &[ObjectInput]) -> Vec<f32> {
     let given = objects.iter().map(|o| o.mass);
     if !cfg.dynamics.relative_mass || objects.is_empty() {
@@ -152,9 +153,24 @@ pub fn model_masses(cfg: &ModelConfig, objects: &[ObjectInput]) -> Vec<f32> {
         .get(crate::config::LN_MASS_FEATURE)
         .copied()
         .unwrap_or(0.0);
-    let mean = objects.iter().map(|o| f64::from(o.mass).ln()).sum::<f64>() / objects.len() as f64;
+    let dynamic: Vec<f64> = objects
+        .iter()
+        .filter(|o| !o.kinematic)
+        .map(|o| f64::from(o.mass).ln())
+        .collect();
+    let mean = dynamic.iter().sum::<f64>() / dynamic.len().max(1) as f64;
     let factor = (f64::from(reference) - mean).exp();
-    given.map(|m| (f64::from(m) * factor) as f32).collect()
+    let neutral = f64::from(reference).exp() as f32;
+    objects
+        .iter()
+        .map(|o| {
+            if o.kinematic {
+                neutral
+            } else {
+                (f64::from(o.mass) * factor) as f32
+            }
+        })
+        .collect()
 }
 
 /// Validates a scene and builds its caches for a model with configuration `cfg`.

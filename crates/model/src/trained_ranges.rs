@@ -218,6 +218,7 @@ mod tests {
             mass,
             friction,
             restitution,
+            kinematic: false,
         }
     }
 

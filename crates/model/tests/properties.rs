@@ -259,6 +259,20 @@ fn relative_mass_sees_ratios_only() {
     let seen = dynaserve_model::model_masses(cfg, &scaled(&[37.0]));
     let mean_ln = seen.iter().map(|m| m.ln()).sum::<f32>() / seen.len() as f32;
     assert!((mean_ln - cfg.normalization.mean[dynaserve_model::LN_MASS_FEATURE]).abs() < 1e-4);
+    // A kinematic object (a pusher) sets no scale and is seen at the reference: making it 50
+    // times heavier changes nothing the network sees, where a dynamic one's mass would.
+    let pushed = |kinematic: bool, factor: f32| -> Vec<f32> {
+        let mut o = scaled(&[factor, 1.0, 1.0, 1.0]);
+        o[0].kinematic = kinematic;
+        dynaserve_model::model_masses(cfg, &o)
+    };
+    let (light, heavy) = (pushed(true, 1.0), pushed(true, 50.0));
+    for j in 0..light.len() {
+        assert!((light[j] - heavy[j]).abs() <= 1e-5 * light[j], "object {j}");
+    }
+    let reference = cfg.normalization.mean[dynaserve_model::LN_MASS_FEATURE];
+    assert!((heavy[0].ln() - reference).abs() < 1e-5);
+    assert!((pushed(false, 50.0)[1] - pushed(false, 1.0)[1]).abs() > 1e-3 * light[1]);
 }
 
 #[test]

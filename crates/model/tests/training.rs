@@ -346,6 +346,7 @@ fn floor_base_holds_a_resting_body_and_stops_a_landing_one_on_the_floor() {
         mass: 1.0,
         friction: 0.5,
         restitution: 0.5,
+        kinematic: false,
     };
     let at = |z: f32| Pose::from_parts(Vector3::new(0.3, -0.2, z), UnitQuaternion::identity());
     for floor_base in [true, false] {

@@ -38,6 +38,7 @@ fn main() {
                 mass: o.mass,
                 friction: o.friction,
                 restitution: o.restitution,
+                kinematic: o.kinematic,
             })
             .collect();
         let scene = model.prepare(objects).unwrap();

@@ -37,6 +37,7 @@ fn widened_model_steps_a_collision_scene_identically() {
             mass: o.mass,
             friction: o.friction,
             restitution: o.restitution,
+            kinematic: o.kinematic,
         })
         .collect();
     let frames = record.objects[0].positions.len();

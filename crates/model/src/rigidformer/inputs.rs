@@ -621,6 +621,7 @@ mod tests {
                 mass: 1.0,
                 friction: 0.5,
                 restitution: 0.5,
+                kinematic: false,
             })
             .collect();
         let scene = prepare_scene(&cfg, objects).unwrap();

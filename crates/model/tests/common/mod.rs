@@ -38,6 +38,7 @@ pub fn random_object(rng: &mut ChaCha8Rng, n: usize) -> ObjectInput {
         mass: rng.random_range(0.5..5.0),
         friction: rng.random_range(0.2..0.9),
         restitution: rng.random_range(0.1..0.8),
+        kinematic: false,
     }
 }
 

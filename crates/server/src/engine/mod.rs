@@ -241,14 +241,16 @@ impl Engine {
     }
 
     /// Validates and prepares the one scene of a request (field `scene`), with its warnings
-    /// (see [`Engine::range_warnings`]).
+    /// (see [`Engine::range_warnings`]); `kinematic` flags the objects the caller moves
+    /// (`[objects]`, empty for none).
     pub(crate) async fn prepare_one(
         &self,
         entry: &Arc<ModelEntry>,
         scene: Scene,
         dt_steps: u32,
+        kinematic: Arc<[bool]>,
     ) -> Result<(Arc<PreparedScene>, SceneState, Vec<String>), ApiError> {
-        let mut prepared = prepare_scenes(entry, vec![scene], dt_steps, "scene").await?;
+        let mut prepared = prepare_scenes(entry, vec![scene], dt_steps, "scene", kinematic).await?;
         let warnings = self.range_warnings(entry, &prepared);
         let (scene, state) = prepared
             .scenes

@@ -58,7 +58,7 @@ impl Engine {
         let _slots = self.variant_slots(&entry, n)?;
         let prepared = with_deadline(
             deadline,
-            prepare_scenes(&entry, req.variants, dt_steps, "variants"),
+            prepare_scenes(&entry, req.variants, dt_steps, "variants", Arc::from([])),
         )
         .await?;
         let warnings = self.range_warnings(&entry, &prepared);

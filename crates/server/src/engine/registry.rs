@@ -128,12 +128,15 @@ impl PreparedScenes {
 
 /// Validates, builds and prepares scenes on a blocking thread (mesh sampling and the model's
 /// per-scene caches are CPU work that must not run on the async runtime). `field` names the
-/// scenes in errors and warnings: `scene` for one, `variants` for `variants[i]`.
+/// scenes in errors and warnings: `scene` for one, `variants` for `variants[i]`. `kinematic`
+/// flags the objects the caller moves (`[objects]`, the same for every scene; empty for
+/// none).
 pub(crate) async fn prepare_scenes(
     entry: &Arc<ModelEntry>,
     scenes: Vec<Scene>,
     dt_steps: u32,
     field: &'static str,
+    kinematic: Arc<[bool]>,
 ) -> Result<PreparedScenes, ApiError> {
     let entry = entry.clone();
     let single = field == "scene";
@@ -150,8 +153,11 @@ pub(crate) async fn prepare_scenes(
                 } else {
                     format!("{field}[{i}]")
                 };
-                let BuiltScene { objects, state } =
+                let BuiltScene { mut objects, state } =
                     build_scene(s, &path, &entry.limits, dt_seconds)?;
+                for (o, &k) in objects.iter_mut().zip(kinematic.iter()) {
+                    o.kinematic = k;
+                }
                 check_previous(&state, &path)?;
                 if let Some(r) = &ranges {
                     let out = r.check(&objects);

@@ -72,7 +72,9 @@ impl Engine {
                         self.retry_after(),
                     )
                 })?;
-            let (scene, state, warnings) = self.prepare_one(&entry, req.scene, dt_steps).await?;
+            let (scene, state, warnings) = self
+                .prepare_one(&entry, req.scene, dt_steps, Arc::from([]))
+                .await?;
             let stepper = Stepper::new(
                 entry.clone(),
                 StepperSpec {

@@ -50,7 +50,7 @@ impl Engine {
             let scene = Scene {
                 objects: vec![cube(0.0, 0.5, points), cube(0.3, 1.6, points)],
             };
-            let (scene, state) = prepare_scenes(entry, vec![scene], 1, "scene")
+            let (scene, state) = prepare_scenes(entry, vec![scene], 1, "scene", Arc::from([]))
                 .await
                 .map_err(|e| ApiError::internal(format!("warm-up: {}", e.message)))?
                 .scenes

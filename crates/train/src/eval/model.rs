@@ -188,6 +188,7 @@ impl ModelPredictor {
                     mass: o.mass,
                     friction: o.friction,
                     restitution: o.restitution,
+                    kinematic: o.kinematic,
                 }
             })
             .collect()

@@ -218,6 +218,7 @@ pub fn sample_window(
             mass: o.mass,
             friction: o.friction,
             restitution: o.restitution,
+            kinematic: o.kinematic,
         });
         let mut prev = pose_at(o, t - ku);
         let mut cur = pose_at(o, t);

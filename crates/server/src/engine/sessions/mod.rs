@@ -391,7 +391,9 @@ impl Engine {
             kinematic_mask(&req.kinematic, req.scene.objects.len())?.into();
         // The count cap first, before preparing anything.
         self.sessions.admit(0, self.retry_after())?;
-        let (scene, state, warnings) = self.prepare_one(&entry, req.scene, dt_steps).await?;
+        let (scene, state, warnings) = self
+            .prepare_one(&entry, req.scene, dt_steps, kinematic.clone())
+            .await?;
         let bytes = scene_bytes(&scene);
         self.sessions
             .admit(bytes + state_bytes(state.len()), self.retry_after())?;
