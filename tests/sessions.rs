@@ -1,7 +1,8 @@
 //! End-to-end tests of sessions (`dynaserve.v1.Sessions`, `/v1/sessions`) against a real
 //! server on 127.0.0.1 with the real RigidFormer checkpoint: steps through a session equal a
 //! rollout, Fork and SetState, Predict from a session (fewer bytes, same answers), kinematic
-//! objects, caps, TTL reaping and Interact.
+//! objects, caps, TTL reaping and Interact; and, on a randomly initialised relative-mass
+//! model, that a kinematic object's mass changes nothing.
 
 mod common;
 
@@ -514,6 +515,49 @@ async fn caps_ttl_reaping_and_interact() {
         );
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
+    server.shutdown();
+    server.wait().await.unwrap();
+}
+
+/// The box's pose after 4 steps of a session on `push_scene` with the box at 1 kg, the
+/// pusher at `pusher_mass` kg and `kinematic` the kinematic objects.
+async fn box_after(
+    c: &mut SessionsClient<Channel>,
+    model: &str,
+    pusher_mass: f32,
+    kinematic: Vec<u32>,
+) -> Pose {
+    let mut scene = push_scene();
+    scene.objects[0].mass = 1.0;
+    scene.objects[1].mass = pusher_mass;
+    let created = c.create_session(create(model, &scene, kinematic)).await;
+    let id = created.unwrap().into_inner().session_id;
+    let frames = step(c, &id, 4).await;
+    pose_of(&frames.last().unwrap().poses[0])
+}
+
+/// With `dynamics.relative_mass`, a session's kinematic objects reach the model flagged: the
+/// pusher's mass (which moves nothing in rigid-body physics) changes no forecast, while the
+/// same object left dynamic changes the box's.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_kinematic_objects_mass_changes_nothing_under_relative_mass() {
+    let m = random_model_with("relative", 41, |c| c.dynamics.relative_mass = true);
+    let server = start(&m.dir, |_| {}).await;
+    let mut c = sessions(&server).await;
+    let diff = |a: &Pose, b: &Pose| {
+        (0..3)
+            .map(|d| (a.translation[d] - b.translation[d]).abs())
+            .fold(0.0f32, f32::max)
+    };
+    let light = box_after(&mut c, &m.name, 1.0, vec![1]).await;
+    let heavy = box_after(&mut c, &m.name, 20.0, vec![1]).await;
+    assert!(diff(&light, &heavy) < 1e-6, "{light:?} against {heavy:?}");
+    let dynamic_light = box_after(&mut c, &m.name, 1.0, vec![]).await;
+    let dynamic_heavy = box_after(&mut c, &m.name, 20.0, vec![]).await;
+    assert!(
+        diff(&dynamic_light, &dynamic_heavy) > 1e-6,
+        "a dynamic object's mass had no effect"
+    );
     server.shutdown();
     server.wait().await.unwrap();
 }
