@@ -15,8 +15,9 @@ pub type Interval = [f32; 2];
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TrainedRanges {
-    /// Mass, kilograms; with [`TrainedRanges::mass_relative`], the ratio of each object's mass
-    /// to its scene's geometric mean mass (dimensionless).
+    /// Mass, kilograms; with [`TrainedRanges::mass_relative`], the ratio of each dynamic
+    /// object's mass to its scene's geometric mean dynamic mass (dimensionless,
+    /// [`mass_ratios`]).
     pub mass: Interval,
     /// Coulomb friction coefficient (dimensionless).
     pub friction: Interval,
@@ -44,16 +45,20 @@ pub struct OutOfRange {
     pub relative: bool,
 }
 
-/// Each mass over the geometric mean of all of them (dimensionless, one per mass): what a
-/// model with [`crate::DynamicsConfig::relative_mass`] distinguishes. Masses must be > 0.
-pub fn mass_ratios(masses: &[f32]) -> Vec<f32> {
-    if masses.is_empty() {
-        return Vec::new();
-    }
-    let mean = masses.iter().map(|&m| f64::from(m).ln()).sum::<f64>() / masses.len() as f64;
-    masses
+/// Each dynamic object's mass over the geometric mean of the dynamic objects' masses
+/// (dimensionless; `None` for a kinematic one, whose mass a relative-mass model does not
+/// read): what a model with [`crate::DynamicsConfig::relative_mass`] distinguishes.
+/// `(mass kg, kinematic)` per object; masses must be > 0.
+pub fn mass_ratios(objects: &[(f32, bool)]) -> Vec<Option<f32>> {
+    let dynamic: Vec<f64> = objects
         .iter()
-        .map(|&m| (f64::from(m).ln() - mean).exp() as f32)
+        .filter(|o| !o.1)
+        .map(|o| f64::from(o.0).ln())
+        .collect();
+    let mean = dynamic.iter().sum::<f64>() / dynamic.len().max(1) as f64;
+    objects
+        .iter()
+        .map(|&(m, kinematic)| (!kinematic).then(|| (f64::from(m).ln() - mean).exp() as f32))
         .collect()
 }
 
@@ -98,32 +103,38 @@ impl OutOfRange {
 
 impl TrainedRanges {
     /// The smallest ranges holding every object of `scenes` (each scene a list of
-    /// `[mass kg, friction, restitution]`), masses as ratios within their scene when
-    /// `mass_relative`; `None` for no object.
-    pub fn of<S: AsRef<[[f32; 3]]>>(
+    /// `([mass kg, friction, restitution], kinematic)`), masses as ratios within their scene
+    /// when `mass_relative` (kinematic objects' masses then left out: [`mass_ratios`]); `None`
+    /// when no object gives a mass.
+    pub fn of<S: AsRef<[([f32; 3], bool)]>>(
         scenes: impl IntoIterator<Item = S>,
         mass_relative: bool,
     ) -> Option<TrainedRanges> {
-        scenes.into_iter().fold(None, |acc, scene| {
+        let widen = |acc: &mut Option<Interval>, v: f32| {
+            *acc = Some(acc.map_or([v, v], |[lo, hi]| [lo.min(v), hi.max(v)]));
+        };
+        let (mut mass, mut friction, mut restitution) = (None, None, None);
+        for scene in scenes {
             let scene = scene.as_ref();
-            let masses: Vec<f32> = scene.iter().map(|p| p[0]).collect();
-            let masses = if mass_relative {
-                mass_ratios(&masses)
+            let masses: Vec<Option<f32>> = if mass_relative {
+                let pairs: Vec<(f32, bool)> = scene.iter().map(|(p, k)| (p[0], *k)).collect();
+                mass_ratios(&pairs)
             } else {
-                masses
+                scene.iter().map(|(p, _)| Some(p[0])).collect()
             };
-            scene.iter().zip(masses).fold(acc, |acc, (&[_, f, r], m)| {
-                let point = TrainedRanges {
-                    mass: [m, m],
-                    friction: [f, f],
-                    restitution: [r, r],
-                    mass_relative,
-                };
-                Some(match acc {
-                    None => point,
-                    Some(a) => a.union(&point),
-                })
-            })
+            for ((p, _), m) in scene.iter().zip(masses) {
+                if let Some(m) = m {
+                    widen(&mut mass, m);
+                }
+                widen(&mut friction, p[1]);
+                widen(&mut restitution, p[2]);
+            }
+        }
+        Some(TrainedRanges {
+            mass: mass?,
+            friction: friction?,
+            restitution: restitution?,
+            mass_relative,
         })
     }
 
@@ -145,26 +156,27 @@ impl TrainedRanges {
 
     /// Every parameter some of `objects` hold outside the trained ranges (at most one entry
     /// per parameter; empty when all are inside); masses are compared as ratios within the
-    /// scene when [`TrainedRanges::mass_relative`]. Values within 1e-4 (relative) of a bound
-    /// count as inside, so a value written with fewer digits than the bound is not flagged.
+    /// scene when [`TrainedRanges::mass_relative`] (kinematic objects' masses then not at
+    /// all). Values within 1e-4 (relative) of a bound count as inside, so a value written with
+    /// fewer digits than the bound is not flagged.
     pub fn check(&self, objects: &[ObjectInput]) -> Vec<OutOfRange> {
-        let masses: Vec<f32> = objects.iter().map(|o| o.mass).collect();
-        let masses = if self.mass_relative {
-            mass_ratios(&masses)
+        let masses: Vec<Option<f32>> = if self.mass_relative {
+            let pairs: Vec<(f32, bool)> = objects.iter().map(|o| (o.mass, o.kinematic)).collect();
+            mass_ratios(&pairs)
         } else {
-            masses
+            objects.iter().map(|o| Some(o.mass)).collect()
         };
-        let fields: [(&'static str, Interval, Vec<f32>); 3] = [
+        let fields: [(&'static str, Interval, Vec<Option<f32>>); 3] = [
             ("mass", self.mass, masses),
             (
                 "friction",
                 self.friction,
-                objects.iter().map(|o| o.friction).collect(),
+                objects.iter().map(|o| Some(o.friction)).collect(),
             ),
             (
                 "restitution",
                 self.restitution,
-                objects.iter().map(|o| o.restitution).collect(),
+                objects.iter().map(|o| Some(o.restitution)).collect(),
             ),
         ];
         fields
@@ -174,6 +186,7 @@ impl TrainedRanges {
                 let outside: Vec<(usize, f32)> = values
                     .into_iter()
                     .enumerate()
+                    .filter_map(|(i, v)| Some((i, v?)))
                     .filter(|(_, v)| *v < trained[0] - slack || *v > trained[1] + slack)
                     .collect();
                 let first = outside.first()?.1;
@@ -228,8 +241,8 @@ mod tests {
 
     fn ranges() -> TrainedRanges {
         let scenes = [
-            vec![[0.5, 0.1, 0.05], [4.0, 1.0, 0.8]],
-            vec![[1.0, 0.4, 0.3]],
+            vec![([0.5, 0.1, 0.05], false), ([4.0, 1.0, 0.8], false)],
+            vec![([1.0, 0.4, 0.3], true)],
         ];
         TrainedRanges::of(scenes, false).unwrap()
     }
@@ -240,8 +253,8 @@ mod tests {
         assert_eq!(r.mass, [0.5, 4.0]);
         assert_eq!(r.friction, [0.1, 1.0]);
         assert_eq!(r.restitution, [0.05, 0.8]);
-        assert_eq!(TrainedRanges::of(Vec::<Vec<[f32; 3]>>::new(), false), None);
-        let wider = r.union(&TrainedRanges::of([[[10.0, 0.0, 0.5]]], false).unwrap());
+        assert_eq!(TrainedRanges::of(Vec::<Vec<_>>::new(), false), None);
+        let wider = r.union(&TrainedRanges::of([[([10.0, 0.0, 0.5], false)]], false).unwrap());
         assert_eq!(wider.mass, [0.5, 10.0]);
         assert_eq!(wider.friction, [0.0, 1.0]);
         assert_eq!(wider.restitution, [0.05, 0.8]);
@@ -296,16 +309,22 @@ mod tests {
 
     #[test]
     fn relative_ranges_hold_mass_ratios_within_scenes() {
-        // Scenes of 1 and 4 kg, and of 10 and 40 kg: ratios 0.5 and 2 either way.
+        // Scenes of 1 and 4 kg, and of 10 and 40 kg: ratios 0.5 and 2 either way; a kinematic
+        // object's mass (here a 500 kg pusher) counts for nothing.
+        let dynamic = |m: f32| ([m, 0.5, 0.3], false);
         let scenes = [
-            vec![[1.0, 0.5, 0.3], [4.0, 0.5, 0.3]],
-            vec![[10.0, 0.5, 0.3], [40.0, 0.5, 0.3]],
+            vec![dynamic(1.0), dynamic(4.0), ([500.0, 0.9, 0.3], true)],
+            vec![dynamic(10.0), dynamic(40.0)],
         ];
         let r = TrainedRanges::of(scenes, true).unwrap();
+        assert_eq!(r.friction, [0.5, 0.9]);
         assert!(r.mass_relative);
         assert!((r.mass[0] - 0.5).abs() < 1e-5 && (r.mass[1] - 2.0).abs() < 1e-5);
         // Any scale passes; a ratio of 8 (masses 1 and 64) does not.
         assert!(check(&r, &[object(300.0, 0.5, 0.3), object(1200.0, 0.5, 0.3)]).is_empty());
+        let mut pusher = object(1.0e4, 0.5, 0.3);
+        pusher.kinematic = true;
+        assert!(check(&r, &[object(1.0, 0.5, 0.3), object(2.0, 0.5, 0.3), pusher]).is_empty());
         let out = check(&r, &[object(1.0, 0.5, 0.3), object(64.0, 0.5, 0.3)]);
         assert_eq!(out.len(), 1);
         assert_eq!(out[0].objects, vec![0, 1]);

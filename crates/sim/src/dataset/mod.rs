@@ -37,8 +37,8 @@ pub(crate) use manifest::{
 pub use reader::{DatasetReader, SceneIter};
 pub(crate) use reader::{scene_in_shards, shard_entry};
 pub use records::{ObjectRecord, SceneLabel, SceneRecord};
+pub use shard::{ObjectParameters, decode_shard, encode_shard};
 pub(crate) use shard::{ShardTensors, TensorBytes, serialize_tensors};
-pub use shard::{decode_shard, encode_shard};
 pub(crate) use write::write_shards;
 pub use write::{prepare_dir, write_file, write_manifest};
 

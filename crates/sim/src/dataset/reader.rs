@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use super::io_err;
 use super::manifest::{Manifest, read_manifest_of_kind};
 use super::records::SceneRecord;
-use super::shard::{decode_shard, shard_object_parameters};
+use super::shard::{ObjectParameters, decode_shard, shard_object_parameters};
 use crate::{Result, SimError};
 
 /// Entry `k` of a manifest's shard list, or an error naming how many there are.
@@ -104,9 +104,10 @@ impl DatasetReader {
         Ok(scenes)
     }
 
-    /// `[mass kg, friction, restitution]` of every object of the split, one list per scene,
-    /// in order; reads only those tensors' values from each shard.
-    pub fn object_parameters(&self) -> Result<Vec<Vec<[f32; 3]>>> {
+    /// The [`ObjectParameters`] (`([mass kg, friction, restitution], kinematic)`) of every
+    /// object of the split, one list per scene, in order; reads only those tensors' values
+    /// from each shard.
+    pub fn object_parameters(&self) -> Result<Vec<Vec<ObjectParameters>>> {
         let mut all = Vec::new();
         for info in &self.manifest.shards {
             let path = self.dir.join(&info.file);

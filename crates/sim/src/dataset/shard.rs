@@ -308,20 +308,27 @@ pub fn decode_shard(
         .collect())
 }
 
-/// `[mass kg, friction, restitution]` of every object of one shard, one list per scene, in
-/// order, without decoding the trajectories.
-pub fn shard_object_parameters(bytes: &[u8], path: &Path) -> Result<Vec<Vec<[f32; 3]>>> {
+/// One object's `([mass kg, friction, restitution], kinematic)`.
+pub type ObjectParameters = ([f32; 3], bool);
+
+/// The [`ObjectParameters`] of every object of one shard, one list per scene, in order,
+/// without decoding the trajectories.
+pub fn shard_object_parameters(bytes: &[u8], path: &Path) -> Result<Vec<Vec<ObjectParameters>>> {
     let sh = ShardTensors::deserialize(bytes, path)?;
     let offsets = sh.offsets("scene_object_offsets", None)?;
     let n = *offsets.last().unwrap_or(&0);
     let mass = sh.f32s("mass", &[n])?;
     let friction = sh.f32s("friction", &[n])?;
     let restitution = sh.f32s("restitution", &[n])?;
+    let kinematic = match sh.has("kinematic") {
+        true => sh.i32s("kinematic", &[n])?,
+        false => vec![0; n],
+    };
     Ok(offsets
         .windows(2)
         .map(|w| {
             (w[0]..w[1])
-                .map(|i| [mass[i], friction[i], restitution[i]])
+                .map(|i| ([mass[i], friction[i], restitution[i]], kinematic[i] == 1))
                 .collect()
         })
         .collect())
@@ -394,8 +401,8 @@ mod tests {
         assert_eq!(
             params,
             vec![
-                vec![[1.0, 0.5, 0.3]],
-                vec![[3.0, 0.9, 0.1], [1.0, 0.5, 0.3]]
+                vec![([1.0, 0.5, 0.3], false)],
+                vec![([3.0, 0.9, 0.1], false), ([1.0, 0.5, 0.3], true)]
             ]
         );
     }
