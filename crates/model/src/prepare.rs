@@ -153,23 +153,13 @@ pub fn model_masses(cfg: &ModelConfig, objects: &[ObjectInput]) -> Vec<f32> {
         .get(crate::config::LN_MASS_FEATURE)
         .copied()
         .unwrap_or(0.0);
-    let dynamic: Vec<f64> = objects
-        .iter()
-        .filter(|o| !o.kinematic)
-        .map(|o| f64::from(o.mass).ln())
-        .collect();
-    let mean = dynamic.iter().sum::<f64>() / dynamic.len().max(1) as f64;
-    let factor = (f64::from(reference) - mean).exp();
-    let neutral = f64::from(reference).exp() as f32;
-    objects
-        .iter()
-        .map(|o| {
-            if o.kinematic {
-                neutral
-            } else {
-                (f64::from(o.mass) * factor) as f32
-            }
-        })
+    // The dynamic objects' ratios to their geometric mean, placed at the reference; a
+    // kinematic object (no ratio) at the reference itself.
+    let scale = f64::from(reference).exp();
+    let pairs: Vec<(f32, bool)> = objects.iter().map(|o| (o.mass, o.kinematic)).collect();
+    crate::trained_ranges::mass_ratios(&pairs)
+        .into_iter()
+        .map(|r| (f64::from(r.unwrap_or(1.0)) * scale) as f32)
         .collect()
 }
 

@@ -271,13 +271,7 @@ pub fn decode_shard(
     let scale = sh.f32s("scale", &[n, 3])?;
     let shape_id = sh.i32s("shape_id", &[n])?;
     let material = sh.i32s("material", &[n])?;
-    let kinematic = match sh.has("kinematic") {
-        true => sh.i32s("kinematic", &[n])?,
-        false => vec![0; n],
-    };
-    if let Some(i) = kinematic.iter().position(|&k| k != 0 && k != 1) {
-        return Err(sh.bad(format!("kinematic[{i}] is {}, not 0 or 1", kinematic[i])));
-    }
+    let kinematic = kinematic_flags(&sh, n)?;
     let object = |i: usize| ObjectRecord {
         positions: positions[i * frames * 3..(i + 1) * frames * 3]
             .chunks_exact(3)
@@ -297,7 +291,7 @@ pub fn decode_shard(
         scale: [scale[3 * i], scale[3 * i + 1], scale[3 * i + 2]],
         shape_id: shape_id[i],
         material: material[i],
-        kinematic: kinematic[i] == 1,
+        kinematic: kinematic[i],
     };
     Ok(offsets
         .windows(2)
@@ -306,6 +300,19 @@ pub fn decode_shard(
             dt_frame,
         })
         .collect())
+}
+
+/// The `kinematic` flag of each of the shard's `n` objects (all false when the tensor is
+/// absent, as in shards without a kinematic object); values other than 0 and 1 are refused.
+fn kinematic_flags(sh: &ShardTensors, n: usize) -> Result<Vec<bool>> {
+    if !sh.has("kinematic") {
+        return Ok(vec![false; n]);
+    }
+    let k = sh.i32s("kinematic", &[n])?;
+    if let Some(i) = k.iter().position(|&v| v != 0 && v != 1) {
+        return Err(sh.bad(format!("kinematic[{i}] is {}, not 0 or 1", k[i])));
+    }
+    Ok(k.into_iter().map(|v| v == 1).collect())
 }
 
 /// One object's `([mass kg, friction, restitution], kinematic)`.
@@ -320,15 +327,12 @@ pub fn shard_object_parameters(bytes: &[u8], path: &Path) -> Result<Vec<Vec<Obje
     let mass = sh.f32s("mass", &[n])?;
     let friction = sh.f32s("friction", &[n])?;
     let restitution = sh.f32s("restitution", &[n])?;
-    let kinematic = match sh.has("kinematic") {
-        true => sh.i32s("kinematic", &[n])?,
-        false => vec![0; n],
-    };
+    let kinematic = kinematic_flags(&sh, n)?;
     Ok(offsets
         .windows(2)
         .map(|w| {
             (w[0]..w[1])
-                .map(|i| ([mass[i], friction[i], restitution[i]], kinematic[i] == 1))
+                .map(|i| ([mass[i], friction[i], restitution[i]], kinematic[i]))
                 .collect()
         })
         .collect())
