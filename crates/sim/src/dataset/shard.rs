@@ -385,6 +385,42 @@ mod tests {
     }
 
     #[test]
+    fn a_kinematic_flag_other_than_0_or_1_is_refused_by_both_readers() {
+        let scene = SceneRecord {
+            objects: vec![object(false), object(true)],
+            dt_frame: 0.5,
+        };
+        let bytes = encode_shard(&[scene], 2, 1).unwrap();
+        // The same shard with the second object's flag written as 2.
+        let st = SafeTensors::deserialize(&bytes).unwrap();
+        let names = st.names();
+        let buffers: Vec<TensorBytes<'_>> = names
+            .iter()
+            .map(|name| {
+                let t = st.tensor(name).unwrap();
+                let data = if *name == "kinematic" {
+                    [0i32, 2].iter().flat_map(|v| v.to_le_bytes()).collect()
+                } else {
+                    t.data().to_vec()
+                };
+                (*name, t.dtype(), t.shape().to_vec(), data)
+            })
+            .collect();
+        let bad = serialize_tensors(&buffers).unwrap();
+        let path = Path::new("bad.safetensors");
+        for err in [
+            decode_shard(&bad, path, 2, 1, 0.5).unwrap_err(),
+            shard_object_parameters(&bad, path).unwrap_err(),
+        ] {
+            let message = err.to_string();
+            assert!(
+                message.contains("bad.safetensors") && message.contains("kinematic[1] is 2"),
+                "{message}"
+            );
+        }
+    }
+
+    #[test]
     fn object_parameters_read_without_the_trajectories() {
         let mut heavy = object(false);
         heavy.mass = 3.0;
