@@ -182,6 +182,14 @@ pub struct DynamicsConfig {
     /// kinematic body's mass moves nothing: it sets no scale and is seen as that mean. Absent
     /// in older `config.json` files, which means off.
     pub relative_mass: bool,
+    /// Free flight without the network: an object that can touch neither the floor nor any
+    /// other object during the step (its bounding sphere's path, and every other object's,
+    /// kept apart by more than either could be deflected within the step; see
+    /// `docs/rigidformer.md`) moves exactly on the Verlet base, the rigid body's ballistic
+    /// motion, whatever the network outputs. Only in scenes without kinematic objects (a
+    /// kinematic body's next pose is not known to the model). Inference only; absent in
+    /// older `config.json` files, which means off.
+    pub free_flight_gate: bool,
 }
 
 /// Index of the `ln(mass / kg)` feature among the per-point features (see
@@ -200,6 +208,7 @@ impl DynamicsConfig {
             object_summary: false,
             floor_base: false,
             relative_mass: false,
+            free_flight_gate: false,
         }
     }
 

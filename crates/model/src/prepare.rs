@@ -36,6 +36,12 @@ pub(crate) struct PreparedObject {
     pub anchor_d2: Vec<f32>,
     /// Centroid of the reference cloud, metres.
     pub centroid: [f32; 3],
+    /// Largest distance of a reference point from the body origin (the centre of mass),
+    /// metres: the radius of a sphere about the centre holding the cloud in any attitude.
+    pub radius: f32,
+    /// The object is kinematic ([`ObjectInput::kinematic`](crate::ObjectInput::kinematic)):
+    /// its motion is given from outside and need not be ballistic.
+    pub kinematic: bool,
 }
 
 /// A validated scene with the per-object caches a model computes once (anchor indices by FPS on
@@ -318,8 +324,15 @@ fn prepare_object(cfg: &ModelConfig, o: ObjectInput) -> Result<PreparedObject, S
         let ap = o.reference[a];
         anchor_d2.extend(o.reference.iter().map(|p| d2(p, &ap)));
     }
+    let radius = o
+        .reference
+        .iter()
+        .map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt())
+        .fold(0.0f32, f32::max);
     Ok(PreparedObject {
         params: crate::rigidformer::features::object_params(o.mass, o.friction, o.restitution),
+        radius,
+        kinematic: o.kinematic,
         reference: o.reference,
         anchors,
         centres,

@@ -85,6 +85,9 @@ pub(crate) struct BatchInputs<'a> {
     /// How far the Verlet base raises each object so no point is below the floor, `[o]`
     /// metres (>= 0; empty without `dynamics.floor_base`).
     pub floor_lift: Vec<f64>,
+    /// Objects certainly in free flight over the step, `[o]`, which move on the Verlet base
+    /// alone ([`super::free_flight`]); empty without `dynamics.free_flight_gate`.
+    pub free_flight: Vec<bool>,
     /// Current rotation per object (for the quaternion sign of the output).
     pub current_rot: Vec<[f32; 4]>,
 }
@@ -292,6 +295,14 @@ pub(crate) fn build_inputs<'a>(
         anchors_base: Vec::with_capacity(o),
         anchors_ref: Vec::with_capacity(o),
         floor_lift: Vec::new(),
+        free_flight: if cfg.dynamics.free_flight_gate {
+            requests
+                .iter()
+                .flat_map(|r| super::free_flight::free_flight(cfg, r))
+                .collect()
+        } else {
+            Vec::new()
+        },
         current_rot: requests
             .iter()
             .flat_map(|r| r.current.iter().map(|p| p.rotation))

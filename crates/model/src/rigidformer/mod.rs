@@ -17,6 +17,7 @@ pub(crate) mod attention;
 pub(crate) mod decoder;
 pub(crate) mod encoder;
 pub mod features;
+pub(crate) mod free_flight;
 pub(crate) mod inputs;
 pub(crate) mod projection;
 pub(crate) mod summary;

@@ -40,11 +40,13 @@ pub(crate) fn project_poses(
     let k = c.anchors;
     let poses: Result<Vec<Pose>, ModelError> = team::map_indices(inp.o, PARALLEL_OBJECTS, |obj| {
         let fall = base_shift(c, inp, obj);
+        // An object in free flight moves on the base alone (`dynamics.free_flight_gate`).
+        let free = inp.free_flight.get(obj).copied().unwrap_or(false);
         let target: Vec<[f64; 3]> = (0..k)
             .map(|i| {
                 let base = inp.anchors_base[obj][i];
                 let a = &acc[(obj * k + i) * 3..(obj * k + i + 1) * 3];
-                [0, 1, 2].map(|d| base[d] + fall[d] + a[d] as f64)
+                [0, 1, 2].map(|d| base[d] + fall[d] + if free { 0.0 } else { a[d] as f64 })
             })
             .collect();
         let sol = dynaserve_geometry::kabsch(&inp.anchors_ref[obj], &target, None)
