@@ -8,7 +8,8 @@
 //! surface between sampled points. Between two free bodies gravity cancels, so their
 //! separation moves on a straight line over the step; the other body may also be deflected by
 //! a contact of its own within the step, taken as at most twice the scene's largest step
-//! displacement. The floor is cleared when the sphere's lowest point is above it at both
+//! displacement, or held up against gravity (a body resting on another does not fall), which
+//! adds the step's free fall. The floor is cleared when the sphere's lowest point is above it at both
 //! ends of the step (a free centre's height is a parabola opening downwards, lowest at an end).
 
 use nalgebra::Vector3;
@@ -47,7 +48,8 @@ pub(crate) fn free_flight(cfg: &ModelConfig, r: &SceneRequest<'_>) -> Vec<bool> 
         .collect();
     // Largest distance any object's centre travels in a step at its current velocity: a
     // contact within the step moves a body off its ballistic path by at most about twice that.
-    let deflect = 2.0 * step.iter().map(|s| s.norm()).fold(0.0, f64::max);
+    // A supported body does not fall with the others: the step's free fall on top.
+    let deflect = 2.0 * step.iter().map(|s| s.norm()).fold(0.0, f64::max) + fall.norm();
     (0..m)
         .map(|i| {
             let next = now[i] + step[i] + fall;
