@@ -26,10 +26,7 @@ fn cube(rng: &mut ChaCha8Rng, kinematic: bool) -> ObjectInput {
 /// Where a rigid body in free flight goes over a step of `k` frames from `previous` and
 /// `current` (constant linear and angular velocity, free fall), as `(centre, rotation)`.
 fn ballistic(cfg: &ModelConfig, previous: &Pose, current: &Pose, k: u32) -> Pose {
-    let rot = |p: &Pose| {
-        let [x, y, z, w] = p.rotation;
-        UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z))
-    };
+    let rot = Pose::unit_quaternion;
     let (p0, p1) = (
         Vector3::from(previous.translation),
         Vector3::from(current.translation),
@@ -45,11 +42,7 @@ fn ballistic(cfg: &ModelConfig, previous: &Pose, current: &Pose, k: u32) -> Pose
 /// Largest distance between the centres (metres) or rotation angle (radians) of two poses.
 fn pose_gap(a: &Pose, b: &Pose) -> f32 {
     let t = (Vector3::from(a.translation) - Vector3::from(b.translation)).norm();
-    let q = |p: &Pose| {
-        let [x, y, z, w] = p.rotation;
-        UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z))
-    };
-    t.max(q(a).angle_to(&q(b)))
+    t.max(a.unit_quaternion().angle_to(&b.unit_quaternion()))
 }
 
 /// Object 0 flies high and alone, object 1 rests on the floor far away, object 2 flies next

@@ -17,6 +17,7 @@ use nalgebra::Vector3;
 use super::inputs::SceneRequest;
 use super::projection::free_fall;
 use crate::ModelConfig;
+use crate::api::Pose;
 
 /// Clearance added to every bounding sphere, metres: contact skins and the surface between a
 /// cloud's points.
@@ -34,13 +35,13 @@ pub(crate) fn free_flight(cfg: &ModelConfig, r: &SceneRequest<'_>) -> Vec<bool> 
         return vec![false; m];
     }
     let fall = Vector3::from(free_fall(cfg, r.dt_steps));
-    let centre = |p: &[f32; 3]| Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
-    let now: Vec<Vector3<f64>> = r.current.iter().map(|p| centre(&p.translation)).collect();
+    let centre = |p: &Pose| Vector3::from(p.translation).cast::<f64>();
+    let now: Vec<Vector3<f64>> = r.current.iter().map(centre).collect();
     let step: Vec<Vector3<f64>> = r
         .previous
         .iter()
         .zip(&now)
-        .map(|(prev, c)| c - centre(&prev.translation))
+        .map(|(prev, c)| c - centre(prev))
         .collect();
     let reach: Vec<f64> = objects
         .iter()
