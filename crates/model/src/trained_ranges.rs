@@ -154,6 +154,24 @@ impl TrainedRanges {
         }
     }
 
+    /// The ranges of everything a model's weights have seen: `inherited` (what its initial
+    /// weights had seen) joined with each of `measured` (its run's data), for a model that
+    /// reads masses as ratios within a scene when `mass_relative`. Mass intervals of the other
+    /// kind cannot be joined with the model's: a later one replaces an earlier one (friction
+    /// and restitution still join), and `None` is returned when the result's masses are not
+    /// of the model's kind (no data measured them as it sees them). The one rule for
+    /// joining ranges, used by the export.
+    pub fn seen(
+        inherited: Option<TrainedRanges>,
+        measured: impl IntoIterator<Item = TrainedRanges>,
+        mass_relative: bool,
+    ) -> Option<TrainedRanges> {
+        measured
+            .into_iter()
+            .fold(inherited, |acc, r| Some(acc.map_or(r, |a| a.union(&r))))
+            .filter(|r| r.mass_relative == mass_relative)
+    }
+
     /// Every parameter some of `objects` hold outside the trained ranges (at most one entry
     /// per parameter; empty when all are inside); masses are compared as ratios within the
     /// scene when [`TrainedRanges::mass_relative`] (kinematic objects' masses then not at
@@ -335,10 +353,19 @@ mod tests {
             "{m}"
         );
         // Absolute ranges inherited by a relative model keep friction and restitution only.
-        let joined = ranges().union(&r);
+        let joined = TrainedRanges::seen(Some(ranges()), [r], true).unwrap();
         assert!(joined.mass_relative);
         assert_eq!(joined.mass, r.mass);
         assert_eq!(joined.friction, [0.1, 1.0]);
+        // Without relative data, a relative model has no ranges of its kind; an absolute
+        // model keeps its inherited ranges, and relative data do not join them.
+        assert_eq!(TrainedRanges::seen(Some(ranges()), [], true), None);
+        assert_eq!(
+            TrainedRanges::seen(Some(ranges()), [], false),
+            Some(ranges())
+        );
+        assert_eq!(TrainedRanges::seen(None, [r], false), None);
+        assert_eq!(TrainedRanges::seen(None, [], true), None);
         // Stored without the flag, a config reads as absolute.
         let back: TrainedRanges = serde_json::from_str(
             r#"{"mass": [0.5, 4.0], "friction": [0.1, 1.0], "restitution": [0.05, 0.8]}"#,

@@ -42,7 +42,7 @@ fn trained_ranges(
     let state = read_state(ckpt)?;
     let data = &state.config.data;
     let dirs = std::iter::once(&data.train).chain(&data.extra);
-    let mut ranges = inherited;
+    let mut measured = Vec::new();
     for (i, dir) in dirs.enumerate() {
         if data.mix.get(i).is_some_and(|&share| share <= 0.0) {
             continue;
@@ -50,9 +50,7 @@ fn trained_ranges(
         let params = DatasetReader::open(dir).and_then(|r| r.object_parameters());
         match params {
             Ok(p) => {
-                if let Some(r) = TrainedRanges::of(p, mass_relative) {
-                    ranges = Some(ranges.map_or(r, |a| a.union(&r)));
-                }
+                measured.extend(TrainedRanges::of(p, mass_relative));
             }
             Err(e) => {
                 eprintln!(
@@ -62,11 +60,12 @@ fn trained_ranges(
             }
         }
     }
-    if ranges.is_some_and(|r| r.mass_relative != mass_relative) {
+    let kinds_differ = inherited.is_some_and(|r| r.mass_relative != mass_relative);
+    let ranges = TrainedRanges::seen(inherited, measured, mass_relative);
+    if ranges.is_none() && kinds_differ {
         eprintln!(
             "warning: trained_ranges left out: no data to measure the masses as the model sees them"
         );
-        return Ok(None);
     }
     if let Some(r) = &ranges {
         let unit = if r.mass_relative {
