@@ -64,11 +64,18 @@ fn stat_pair(s: Option<&Stat>) -> String {
     }
 }
 
-/// `mean / median / max` (the resting drift, where one object that falls over moves the
-/// mean by metres).
-fn stat_triple(s: Option<&Stat>) -> String {
+/// `mean / median / p90 / p99 / max` (the resting drift, where one object that falls over
+/// moves the mean by metres).
+fn stat_spread(s: Option<&Stat>) -> String {
     match s {
-        Some(s) => format!("{} / {} / {}", sig(s.mean), sig(s.median), sig(s.max)),
+        Some(s) => format!(
+            "{} / {} / {} / {} / {}",
+            sig(s.mean),
+            sig(s.median),
+            sig(s.p90),
+            sig(s.p99),
+            sig(s.max)
+        ),
         None => "-".into(),
     }
 }
@@ -243,7 +250,7 @@ pub fn format_suite(suite: &SuiteReport) -> String {
         let _ = writeln!(
             s,
             "\nresting drift over frames {}..{} ({} s): {} of {} objects at rest in the ground \
-             truth (speed < {} m/s and < {} deg/s between consecutive frames); mean / median / max",
+             truth (speed < {} m/s and < {} deg/s between consecutive frames); mean / median / p90 / p99 / max",
             r.first_frame,
             r.last_frame,
             r.options.window_s,
@@ -254,17 +261,17 @@ pub fn format_suite(suite: &SuiteReport) -> String {
         );
         let _ = writeln!(
             s,
-            "{:<16} {:>3} | {:>30} {:>30}",
+            "{:<16} {:>3} | {:>46} {:>46}",
             "predictor", "k", "translation m", "rotation deg"
         );
         for (label, d) in suite.drift_rows(r) {
             let _ = writeln!(
                 s,
-                "{:<16} {:>3} | {:>30} {:>30}",
+                "{:<16} {:>3} | {:>46} {:>46}",
                 label,
                 step_label(d),
-                stat_triple(d.translation_m.as_ref()),
-                stat_triple(d.rotation_deg.as_ref())
+                stat_spread(d.translation_m.as_ref()),
+                stat_spread(d.rotation_deg.as_ref())
             );
         }
     }
@@ -342,7 +349,7 @@ pub fn format_markdown(suite: &SuiteReport) -> String {
         let _ = writeln!(
             s,
             "\n**Resting drift** over frames {}..{} ({} s) of the {} of {} objects at rest in \
-             the ground truth (speed < {} m/s, < {} deg/s); mean / median / max\n",
+             the ground truth (speed < {} m/s, < {} deg/s); mean / median / p90 / p99 / max\n",
             r.first_frame,
             r.last_frame,
             r.options.window_s,
@@ -360,8 +367,8 @@ pub fn format_markdown(suite: &SuiteReport) -> String {
                 s,
                 "| {label} | {} | {} | {} |",
                 step_label(d),
-                stat_triple(d.translation_m.as_ref()),
-                stat_triple(d.rotation_deg.as_ref())
+                stat_spread(d.translation_m.as_ref()),
+                stat_spread(d.rotation_deg.as_ref())
             );
         }
     }

@@ -48,7 +48,8 @@ pub struct StepSizeReport {
     pub curve: Vec<CurvePoint>,
 }
 
-/// Mean, median and maximum of a non-negative quantity over a set of samples.
+/// Mean, median, upper percentiles and maximum of a non-negative quantity over a set of
+/// samples.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Stat {
     /// Mean over the samples (0 when there are none).
@@ -57,6 +58,15 @@ pub struct Stat {
     /// an even count). Reports written before it existed read as 0.
     #[serde(default)]
     pub median: f64,
+    /// 90th percentile (nearest rank: the smallest sample with at least 90% of the samples
+    /// at or below it; 0 when there are none). Reports written before it existed read as 0.
+    #[serde(default)]
+    pub p90: f64,
+    /// 99th percentile (nearest rank, as `p90`): with a mean decided by a few large samples
+    /// (an object that falls over), it shows how many there are. Reports written before it
+    /// existed read as 0.
+    #[serde(default)]
+    pub p99: f64,
     /// Maximum over the samples (0 when there are none).
     pub max: f64,
     /// Number of samples.
@@ -88,9 +98,12 @@ impl StatAcc {
         } else {
             0.5 * (v[n / 2 - 1] + v[n / 2])
         };
+        let rank = |q: f64| v[((q * n as f64).ceil() as usize).clamp(1, n) - 1];
         Stat {
             mean: v.iter().sum::<f64>() / n as f64,
             median,
+            p90: rank(0.9),
+            p99: rank(0.99),
             max: v[n - 1],
             count: n as u64,
         }
@@ -218,6 +231,25 @@ pub struct DatasetInfo {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn percentiles_are_nearest_rank() {
+        let mut acc = StatAcc::default();
+        // 1..=200 shuffled: p90 is the 180th smallest, p99 the 198th.
+        for i in 0..200u32 {
+            acc.add(f64::from((i * 7) % 200 + 1));
+        }
+        let s = acc.stat();
+        assert_eq!(
+            (s.median, s.p90, s.p99, s.max),
+            (100.5, 180.0, 198.0, 200.0)
+        );
+        let mut one = StatAcc::default();
+        one.add(3.0);
+        let s = one.stat();
+        assert_eq!((s.p90, s.p99, s.count), (3.0, 3.0, 1));
+        assert_eq!(StatAcc::default().stat().p99, 0.0);
+    }
 
     #[test]
     fn stat_has_mean_median_and_max() {
