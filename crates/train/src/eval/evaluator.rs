@@ -12,7 +12,8 @@ use super::results::StatAcc;
 use super::scoring::{Tally, score_scene};
 use super::{
     CurvePoint, DatasetInfo, DriftReport, EvalError, EvalOptions, EvalReport, HorizonReport,
-    LongRolloutReport, Predictor, RestingReport, RolloutRequest, StepSizeReport, observed_state,
+    LongRolloutReport, Predictor, RestingReport, RolloutRequest, ShapeDrift, StepSizeReport,
+    observed_state,
 };
 
 /// Scenes evaluated per parallel batch when streaming a dataset.
@@ -32,6 +33,8 @@ struct Evaluator<'a> {
     scenes: usize,
     objects: usize,
     busy: std::time::Duration,
+    /// Shape names by `shape_id` (the dataset manifest's), for the per-shape drift.
+    shape_names: Vec<(i32, String)>,
 }
 
 impl<'a> Evaluator<'a> {
@@ -52,6 +55,7 @@ impl<'a> Evaluator<'a> {
             scenes: 0,
             objects: 0,
             busy: std::time::Duration::ZERO,
+            shape_names: Vec::new(),
         })
     }
 
@@ -251,7 +255,15 @@ impl<'a> Evaluator<'a> {
                     translation_m: missing.is_none().then(|| acc.0.stat()),
                     rotation_deg: missing.is_none().then(|| acc.1.stat()),
                     missing,
+                    by_shape: Vec::new(),
                 };
+            let name = |id: i32| {
+                self.shape_names
+                    .iter()
+                    .find(|(i, _)| *i == id)
+                    .map(|(_, n)| n.clone())
+                    .unwrap_or_default()
+            };
             RestingReport {
                 options: r.options.clone(),
                 first_frame: r.a,
@@ -263,8 +275,21 @@ impl<'a> Evaluator<'a> {
                     .plans
                     .steps
                     .iter()
-                    .zip(&t.rest_pred)
-                    .map(|(p, acc)| drift(p.k, acc, p.rest_missing.clone()))
+                    .zip(t.rest_pred.iter().zip(&t.rest_pred_shape))
+                    .map(|(p, (acc, shapes))| {
+                        let mut d = drift(p.k, acc, p.rest_missing.clone());
+                        if d.missing.is_none() {
+                            d.by_shape = shapes
+                                .iter()
+                                .map(|(&shape_id, a)| ShapeDrift {
+                                    shape_id,
+                                    shape: name(shape_id),
+                                    translation_m: a.stat(),
+                                })
+                                .collect();
+                        }
+                        d
+                    })
                     .collect(),
             }
         });
@@ -337,8 +362,12 @@ pub fn evaluate_dataset_many(
     let m = reader.manifest();
     let mut evs = predictors
         .iter()
-        .map(|p| Evaluator::new(*p, opts, m.frames, f64::from(m.dt_frame)))
-        .collect::<Result<Vec<_>, _>>()?;
+        .map(|p| {
+            let mut ev = Evaluator::new(*p, opts, m.frames, f64::from(m.dt_frame))?;
+            ev.shape_names = m.shapes.iter().map(|s| (s.id, s.name.clone())).collect();
+            Ok(ev)
+        })
+        .collect::<Result<Vec<_>, EvalError>>()?;
     let limit = opts.max_scenes.unwrap_or(usize::MAX).min(reader.len());
     let mut batch = Vec::with_capacity(BATCH);
     let mut read = 0;

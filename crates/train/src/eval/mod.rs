@@ -70,7 +70,7 @@ pub use predictor::{Predictor, ProjectionWindow, RolloutRequest};
 pub use report::{SuiteEntry, SuiteReport, format_markdown, format_suite};
 pub use results::{
     CurvePoint, DatasetInfo, DriftReport, EvalReport, HorizonReport, LongRolloutReport,
-    RestingReport, Stat, StepSizeReport,
+    RestingReport, ShapeDrift, Stat, StepSizeReport,
 };
 pub use table::format_table;
 pub(crate) use table::write_missing_horizons;

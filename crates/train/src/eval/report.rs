@@ -371,6 +371,32 @@ pub fn format_markdown(suite: &SuiteReport) -> String {
                 stat_spread(d.rotation_deg.as_ref())
             );
         }
+        let shapes: Vec<_> = suite
+            .drift_rows(r)
+            .flat_map(|(label, d)| d.by_shape.iter().map(move |x| (label, d, x)))
+            .collect();
+        if !shapes.is_empty() {
+            let _ = writeln!(
+                s,
+                "\n**Resting drift by shape**, translation (m): mean / median / p90 / p99 / \
+                 max\n\n| predictor | k | shape | objects | translation (m) |\n| --- | --- | --- \
+                 | --- | --- |"
+            );
+            for (label, d, x) in shapes {
+                let _ = writeln!(
+                    s,
+                    "| {label} | {} | {} | {} | {} |",
+                    step_label(d),
+                    if x.shape.is_empty() {
+                        x.shape_id.to_string()
+                    } else {
+                        x.shape.clone()
+                    },
+                    x.translation_m.count,
+                    stat_spread(Some(&x.translation_m))
+                );
+            }
+        }
     }
     s
 }

@@ -152,6 +152,21 @@ pub struct DriftReport {
     pub rotation_deg: Option<Stat>,
     /// Why it is missing, if it is.
     pub missing: Option<String>,
+    /// The translation drift of the predicted resting objects per shape, by `shape_id` (empty
+    /// for the ground truth, and in reports written before it existed).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub by_shape: Vec<ShapeDrift>,
+}
+
+/// Translation drift over the resting window of the resting objects of one shape.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ShapeDrift {
+    /// The objects' `shape_id`.
+    pub shape_id: i32,
+    /// The shape's name in the dataset's manifest (empty when not known).
+    pub shape: String,
+    /// `|p(b) - p(a)|`, metres.
+    pub translation_m: Stat,
 }
 
 /// Drift of the predicted poses over the last second of the data, for objects that are at rest

@@ -2,6 +2,8 @@
 //! resting drift, and the stability and rigidity checks of the long rollout, tallied so that
 //! scenes can be merged in a fixed order.
 
+use std::collections::BTreeMap;
+
 use dynaserve_geometry::geodesic_angle;
 use dynaserve_geometry::metrics::{RmseAccumulator, squared_distance};
 use dynaserve_model::{Pose, SceneState};
@@ -27,6 +29,8 @@ pub(super) struct Tally {
     pub(super) rest_truth: (StatAcc, StatAcc),
     /// Predicted drift per step size.
     pub(super) rest_pred: Vec<(StatAcc, StatAcc)>,
+    /// Predicted translation drift per step size and `shape_id`.
+    pub(super) rest_pred_shape: Vec<BTreeMap<i32, StatAcc>>,
     pub(super) at_rest: u64,
     pub(super) long_objects: u64,
     pub(super) long_failed_objects: u64,
@@ -51,6 +55,7 @@ impl Tally {
             horizons: grid(&|p| p.horizons.len()),
             curves: grid(&|p| p.curve_steps),
             rest_pred: vec![Default::default(); plans.steps.len()],
+            rest_pred_shape: vec![BTreeMap::new(); plans.steps.len()],
             ..Tally::default()
         }
     }
@@ -72,6 +77,11 @@ impl Tally {
         for (x, y) in self.rest_pred.iter_mut().zip(&o.rest_pred) {
             x.0.merge(&y.0);
             x.1.merge(&y.1);
+        }
+        for (x, y) in self.rest_pred_shape.iter_mut().zip(&o.rest_pred_shape) {
+            for (id, acc) in y {
+                x.entry(*id).or_default().merge(acc);
+            }
         }
         self.at_rest += o.at_rest;
         self.long_objects += o.long_objects;
@@ -207,8 +217,13 @@ pub(super) fn score_scene(
             let pb = rollout_pose(observed, rollout, (r.b - start) / ku);
             for (j, o) in scene.objects.iter().enumerate() {
                 if is_at_rest(o, r, dt_frame) {
+                    let drift = translation_distance(&pa[j], &pb[j]);
+                    tally.rest_pred_shape[pi]
+                        .entry(o.shape_id)
+                        .or_default()
+                        .add(drift);
                     let acc = &mut tally.rest_pred[pi];
-                    acc.0.add(translation_distance(&pa[j], &pb[j]));
+                    acc.0.add(drift);
                     acc.1
                         .add(geodesic_angle(pa[j].rotation, pb[j].rotation).to_degrees());
                 }

@@ -71,7 +71,7 @@ fn resting_drift_counts_only_objects_at_rest_in_the_truth() {
         bad_after: usize::MAX,
         scale: 1.0,
     };
-    let cr = evaluate_scenes(&creeping, &[s], &EvalOptions::default()).unwrap();
+    let cr = evaluate_scenes(&creeping, std::slice::from_ref(&s), &EvalOptions::default()).unwrap();
     for d in &cr.resting.as_ref().unwrap().predicted {
         let t = d.translation_m.unwrap();
         assert!(
@@ -79,6 +79,28 @@ fn resting_drift_counts_only_objects_at_rest_in_the_truth() {
             "{d:?}"
         );
         assert!(d.rotation_deg.unwrap().max < 1e-3, "{d:?}");
+    }
+    // The drift per shape: two resting objects of shapes 5 and 3, listed by shape id, each
+    // with its own count; the ground truth has no breakdown.
+    let mut two = scene(2, 101, |j, _| {
+        pose(
+            Vector3::new(2.0 * j as f64, 0.0, 0.5),
+            UnitQuaternion::identity(),
+        )
+    });
+    two.objects[0].shape_id = 5;
+    two.objects[1].shape_id = 3;
+    let r = evaluate_scenes(&creeping, &[two], &EvalOptions::default()).unwrap();
+    let r = r.resting.unwrap();
+    assert!(r.truth.by_shape.is_empty());
+    for d in &r.predicted {
+        let ids: Vec<(i32, u64)> = d
+            .by_shape
+            .iter()
+            .map(|x| (x.shape_id, x.translation_m.count))
+            .collect();
+        assert_eq!(ids, vec![(3, 1), (5, 1)], "{d:?}");
+        assert!((d.by_shape[0].translation_m.mean - 0.05).abs() < 1e-5);
     }
     // A window that does not fit after the start frame gives no resting report.
     let short = scene(1, 20, |_, _| Pose::IDENTITY);
