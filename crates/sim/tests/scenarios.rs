@@ -175,6 +175,44 @@ fn sliding_objects_are_stopped_by_friction() {
 }
 
 #[test]
+fn round_objects_roll_on_their_side_and_slow_down() {
+    let mut stopped = 0;
+    for g in scenes(Generator::scenario(Scenario::Roll), 5, 6) {
+        let dt = g.record.dt_frame;
+        for (o, spec) in g.record.objects.iter().zip(&g.spec.objects) {
+            let kind = spec.shape.kind;
+            assert!(
+                matches!(kind, ShapeKind::Cylinder | ShapeKind::Cone | ShapeKind::Mug),
+                "{kind:?}"
+            );
+            let t_end = o.positions.len() - 1;
+            // Launched rolling: horizontal, and spinning about a horizontal axis at the
+            // speed over the centre's height (no slipping at the contact).
+            let v0 = spec.linvel;
+            let launch = v0[0].hypot(v0[1]);
+            assert_eq!(v0[2], 0.0);
+            assert!((0.2..=1.5).contains(&launch), "launched at {launch} m/s");
+            let w = spec.angvel;
+            assert_eq!(w[2], 0.0);
+            let spin = w[0].hypot(w[1]);
+            let slip = (spin * spec.position[2] - launch).abs();
+            assert!(slip < 1e-3 * launch.max(1.0), "slips at {slip} m/s");
+            // On the floor throughout, and slower at the end than at the start: the
+            // faceted sides and friction take the energy.
+            for t in 0..=t_end {
+                assert!(lowest(o, t) < 0.05, "{kind:?} left the floor at frame {t}");
+            }
+            let end = speed(o, t_end, dt);
+            assert!(end < 0.8 * speed(o, 1, dt), "{kind:?} keeps {end} m/s");
+            if end < 0.02 {
+                stopped += 1;
+            }
+        }
+    }
+    assert!(stopped > 0, "no rolling object came to rest");
+}
+
+#[test]
 fn colliding_objects_exchange_momentum() {
     let (mut air, mut floor) = (0, 0);
     for g in scenes(Generator::scenario(Scenario::Collide), 4, 10) {

@@ -66,6 +66,9 @@ pub enum SimCommand {
     /// Physics scenario: 1-3 objects on the floor pushed by a kinematic pusher (the last
     /// object, marked kinematic) following a random smooth path through them.
     Push(ScenarioArgs),
+    /// Physics scenario: 1-2 round objects (cylinder, cone, mug) lying on their side, set
+    /// rolling along the floor until they stop.
+    Roll(ScenarioArgs),
     /// Physics scenarios: each scene draws one of rest, drop, slide, collide, stack-hit.
     #[command(name = "physics-mix")]
     PhysicsMix(ScenarioArgs),
@@ -198,6 +201,7 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
         SimCommand::Collide(a) => a.run(ScenarioParameters::new(vec![Scenario::Collide])),
         SimCommand::StackHit(a) => a.run(ScenarioParameters::new(vec![Scenario::StackHit])),
         SimCommand::Push(a) => a.run(ScenarioParameters::new(vec![Scenario::Push])),
+        SimCommand::Roll(a) => a.run(ScenarioParameters::new(vec![Scenario::Roll])),
         SimCommand::PhysicsMix(a) => a.run(ScenarioParameters::new(Scenario::ALL.to_vec())),
         SimCommand::MeshD1(a) => mesh_cli::run_generate(MeshSet::D1, &a),
         SimCommand::MeshD2(a) => mesh_cli::run_generate(MeshSet::D2, &a),

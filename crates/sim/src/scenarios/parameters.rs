@@ -25,6 +25,9 @@ pub enum Scenario {
     /// Objects resting on the floor pushed by a kinematic pusher (the last object of the
     /// scene) following a random smooth path through them.
     Push,
+    /// Round objects (cylinder, cone, mug) lying on their side, set rolling along the floor
+    /// until the facets of their sides and friction stop them.
+    Roll,
 }
 
 impl Scenario {
@@ -47,6 +50,7 @@ impl Scenario {
             Scenario::Collide => "collide",
             Scenario::StackHit => "stack-hit",
             Scenario::Push => "push",
+            Scenario::Roll => "roll",
         }
     }
 
@@ -54,7 +58,7 @@ impl Scenario {
     pub fn from_name(name: &str) -> Option<Self> {
         Self::ALL
             .into_iter()
-            .chain([Scenario::Push])
+            .chain([Scenario::Push, Scenario::Roll])
             .find(|s| s.name() == name)
     }
 }
@@ -210,6 +214,13 @@ pub struct ScenarioParameters {
     pub slide_speed: [f32; 2],
     /// Longest stopping time under friction alone `v / (mu_object mu_floor |g|)`, seconds.
     pub slide_stop_time: f32,
+    /// Objects of a `roll` scene (lanes 3 m apart across the rolling direction).
+    pub roll_objects: [usize; 2],
+    /// Shapes of a `roll` scene: round ones that roll on their side.
+    pub roll_shapes: Vec<ShapeKind>,
+    /// Initial rolling speed of the centre of a `roll` object, m/s (its spin about its axis
+    /// is this speed over the centre's height, as for rolling without slipping).
+    pub roll_speed: [f32; 2],
     /// Probability that a `collide` scene is thrown in the air rather than along the floor.
     pub collide_air_fraction: f32,
     /// Speed of each object towards the other in `collide`, m/s (horizontal).
@@ -304,6 +315,9 @@ impl ScenarioParameters {
             slide_objects: [1, 3],
             slide_speed: [1.0, 5.0],
             slide_stop_time: 3.0,
+            roll_objects: [1, 2],
+            roll_shapes: vec![ShapeKind::Cylinder, ShapeKind::Cone, ShapeKind::Mug],
+            roll_speed: [0.2, 1.5],
             collide_air_fraction: 0.5,
             collide_speed: [2.5, 5.0],
             collide_air_time: [0.5, 0.8],
@@ -357,6 +371,7 @@ impl ScenarioParameters {
             || self.materials.is_empty()
             || self.rest_shapes.is_empty()
             || self.floor_shapes.is_empty()
+            || self.roll_shapes.is_empty()
         {
             return bad("empty shape or material list");
         }
@@ -364,10 +379,11 @@ impl ScenarioParameters {
             .floor_shapes
             .iter()
             .chain(&self.rest_shapes)
+            .chain(&self.roll_shapes)
             .any(|k| !self.shapes.contains(k))
             || !self.shapes.contains(&ShapeKind::Cube)
         {
-            return bad("floor shapes and the cube must be in the shape list");
+            return bad("floor, rest and roll shapes and the cube must be in the shape list");
         }
         if self.rest_variants.is_empty() {
             return bad("no rest variant");
@@ -379,6 +395,7 @@ impl ScenarioParameters {
             self.slide_objects,
             self.stack_boxes,
             self.push_objects,
+            self.roll_objects,
         ];
         if ranges.iter().any(|r| r[0] == 0 || r[0] > r[1]) {
             return bad("an object-count range is empty or starts at 0");
@@ -400,6 +417,7 @@ impl ScenarioParameters {
             self.pusher_scale,
             self.push_approach,
             self.push_speed,
+            self.roll_speed,
         ];
         if spans
             .iter()

@@ -1,4 +1,5 @@
-//! The scene samplers of every scenario (`rest`, `drop`, `slide`, `collide`, `stack-hit`) and
+//! The scene samplers of every scenario (`rest`, `drop`, `slide`, `collide`, `stack-hit`,
+//! `push`, `roll`) and
 //! [`sample_scenario`], which draws one of the parameters' scenarios and labels its scene.
 
 use std::f32::consts::TAU;
@@ -96,6 +97,41 @@ fn sample_drop<R: Rng + ?Sized>(p: &ScenarioParameters, rng: &mut R) -> Result<O
     let spin = rng.random_range(0.0..=p.drop_spin);
     o.angvel = random_direction(rng).map(|c| c * spin);
     Ok(o)
+}
+
+/// Round objects laid on their side (axis horizontal, settled there), spun about their axis
+/// and moving as if rolling without slipping; lanes 3 m apart along the axes.
+fn sample_roll<R: Rng + ?Sized>(p: &ScenarioParameters, rng: &mut R) -> Result<Vec<ObjectSpec>> {
+    let n = count(rng, p.roll_objects);
+    let yaw = rng.random_range(0.0..TAU);
+    let on_side = quat(
+        Rotation::from_rotation_z(yaw) * Rotation::from_rotation_x(std::f32::consts::FRAC_PI_2),
+    );
+    let mut objects = Vec::with_capacity(n);
+    for i in 0..n {
+        let mut o = draw_object(p, &p.roll_shapes, rng)?;
+        let (q, z) = rest_on_floor(p, &o, Some(on_side), rng)?;
+        // The body axis in the world, flattened: the object rolls about it.
+        let rot = Rotation::from_xyzw(q[0], q[1], q[2], q[3]);
+        let axis = rot * rapier3d::math::Vector::new(0.0, 0.0, 1.0);
+        let flat = rapier3d::math::Vector::new(axis.x, axis.y, 0.0);
+        let a = if flat.length() > 1e-3 {
+            flat.normalize()
+        } else {
+            rapier3d::math::Vector::new(yaw.cos(), yaw.sin(), 0.0)
+        };
+        let sign = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+        let speed = sign * uniform(rng, p.roll_speed);
+        let spin = speed / z.max(0.05);
+        // Rolling about `a` at `spin`: the centre moves along `a x z` at spin * height.
+        let lane = 3.0 * (i as f32 - 0.5 * (n as f32 - 1.0));
+        o.rotation = q;
+        o.position = [lane * a.x, lane * a.y, z];
+        o.angvel = [spin * a.x, spin * a.y, 0.0];
+        o.linvel = [speed * a.y, -speed * a.x, 0.0];
+        objects.push(o);
+    }
+    Ok(objects)
 }
 
 /// Effective friction coefficient of an object on the floor (Multiply rule).
@@ -247,6 +283,7 @@ pub fn sample_scenario<R: Rng + ?Sized>(
             (o, v, 0)
         }
         Scenario::StackHit => (sample_stack_hit(p, rng)?, "tower", p.settle_steps),
+        Scenario::Roll => (sample_roll(p, rng)?, "floor", 0),
         Scenario::Push => {
             let (o, path, v) = sample_push(p, rng)?;
             kinematic.push(path);
