@@ -104,7 +104,7 @@ fn regimes_of(s: &SuiteScene, k: usize) -> Vec<Regime> {
 #[test]
 fn generated_suite_is_labelled_and_deterministic() {
     let scenes = suite();
-    assert_eq!(scenes.len(), 7);
+    assert_eq!(scenes.len(), 8);
     let again = generate_suite(7, "test", 1, 256, Materials::Kubric).unwrap();
     for (a, b) in scenes.iter().zip(&again) {
         assert_eq!(a.scene, b.scene);
@@ -122,6 +122,7 @@ fn generated_suite_is_labelled_and_deterministic() {
         ("collide", "air"),
         ("collide", "floor"),
         ("stack-hit", ""),
+        ("roll", ""),
     ] {
         scene_of(scenes, name, variant);
     }

@@ -1,6 +1,6 @@
 //! The physics scenario suite: scenes that isolate one behaviour each (rest, drop, slide,
-//! collide, stack-hit; see `dynaserve_sim::scenarios`), generated deterministically in memory
-//! or read from labelled dataset directories (also `push` data), and scored for any set of
+//! collide, stack-hit, roll; see `dynaserve_sim::scenarios`), generated deterministically in
+//! memory or read from labelled dataset directories (also `push` data), and scored for any set of
 //! predictors. Scenes with kinematic objects (a pusher) are rolled out with those objects
 //! driven along their recorded poses ([`super::driven`]), and kinematic objects enter no
 //! error:
@@ -73,6 +73,7 @@ pub fn suite_groups(materials: Materials) -> Vec<(&'static str, Generator)> {
         ("collide-air", collide(1.0)),
         ("collide-floor", collide(0.0)),
         ("stack-hit", plain(Scenario::StackHit)),
+        ("roll", plain(Scenario::Roll)),
     ]
 }
 
@@ -200,7 +201,7 @@ pub struct FigureRow {
     pub unit: String,
     /// The target each sample is judged by, if any.
     pub target: Option<String>,
-    /// Samples (scenes, or objects for `slide`).
+    /// Samples (scenes, or objects for `slide` and `roll`).
     pub samples: u64,
     /// Rapier's figure on the same scenes, for figures that have one.
     pub rapier: Option<FigureStat>,

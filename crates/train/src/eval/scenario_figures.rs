@@ -8,6 +8,8 @@
 //! - `drop`: the centre's height at the last frame, m; the depth of the deepest reference point
 //!   below the floor over frames `s..T` (0 if none), m;
 //! - `slide`: per object, the horizontal distance from frame `s` to the last frame, m;
+//! - `roll`: the same per rolling object (`rolled distance`; no target: many still roll at
+//!   the last frame, so it is the distance covered, not a stopping distance);
 //! - `collide`: the momentum object 0 exchanges in the impact, `|m (v_after - v_before) -
 //!   m g (t_after - t_before)|` (air) or the horizontal part of `m (v_after - v_before)`
 //!   (floor), kg m/s, with velocities from the frame pairs `(c - 2, c - 1)` (or `(s - 1, s)` if
@@ -267,16 +269,21 @@ pub fn scene_samples(
                 Some(Target::Below(PENETRATION_TARGET_M)),
             ));
         }
-        "slide" => {
+        "slide" | "roll" => {
+            let slide = label.scenario == "slide";
             for j in 0..n {
                 let dp = horizontal(pred.position(j, last), pred.position(j, start));
                 let dt = horizontal(truth.position(j, last), truth.position(j, start));
                 out.push(sample(
-                    "stopping distance",
+                    if slide {
+                        "stopping distance"
+                    } else {
+                        "rolled distance"
+                    },
                     "m",
                     dp,
                     Some(dt),
-                    Some(Target::Relative(SLIDE_TARGET)),
+                    slide.then_some(Target::Relative(SLIDE_TARGET)),
                 ));
             }
         }
