@@ -371,15 +371,24 @@ pub fn format_markdown(suite: &SuiteReport) -> String {
                 stat_spread(d.rotation_deg.as_ref())
             );
         }
+        // The first predictor only (the model evaluated; the baselines' rows say nothing per
+        // shape); the JSON report has every predictor's.
         let shapes: Vec<_> = suite
-            .drift_rows(r)
-            .flat_map(|(label, d)| d.by_shape.iter().map(move |x| (label, d, x)))
+            .entries
+            .iter()
+            .take(1)
+            .flat_map(|e| e.report.resting.iter().flat_map(|rr| &rr.predicted))
+            .flat_map(|d| {
+                d.by_shape
+                    .iter()
+                    .map(move |x| (suite.entries[0].label.as_str(), d, x))
+            })
             .collect();
         if !shapes.is_empty() {
             let _ = writeln!(
                 s,
-                "\n**Resting drift by shape**, translation (m): mean / median / p90 / p99 / \
-                 max\n\n| predictor | k | shape | objects | translation (m) |\n| --- | --- | --- \
+                "\n**Resting drift by shape** of the first predictor, translation (m): mean / \
+                 median / p90 / p99 / max\n\n| predictor | k | shape | objects | translation (m) |\n| --- | --- | --- \
                  | --- | --- |"
             );
             for (label, d, x) in shapes {
