@@ -210,6 +210,20 @@ fn round_objects_roll_on_their_side_and_slow_down() {
         }
     }
     assert!(stopped > 0, "no rolling object came to rest");
+    // Roll shapes outside the shape list are refused where roll scenes are drawn, and do not
+    // matter where they are not.
+    let narrow = |scenario: Scenario| {
+        let mut p = ScenarioParameters::new(vec![scenario]);
+        p.shapes = vec![ShapeKind::Cube, ShapeKind::Cylinder];
+        p.rest_shapes = p.shapes.clone();
+        p.floor_shapes = p.shapes.clone();
+        generate_scene(&options(Generator::scenarios(p), 5, 1), 0)
+    };
+    let err = narrow(Scenario::Roll)
+        .err()
+        .expect("cone and mug are not in the list");
+    assert!(err.to_string().contains("roll shapes"), "{err}");
+    assert!(narrow(Scenario::Drop).is_ok());
 }
 
 #[test]

@@ -371,7 +371,6 @@ impl ScenarioParameters {
             || self.materials.is_empty()
             || self.rest_shapes.is_empty()
             || self.floor_shapes.is_empty()
-            || self.roll_shapes.is_empty()
         {
             return bad("empty shape or material list");
         }
@@ -379,11 +378,17 @@ impl ScenarioParameters {
             .floor_shapes
             .iter()
             .chain(&self.rest_shapes)
-            .chain(&self.roll_shapes)
             .any(|k| !self.shapes.contains(k))
             || !self.shapes.contains(&ShapeKind::Cube)
         {
-            return bad("floor, rest and roll shapes and the cube must be in the shape list");
+            return bad("floor and rest shapes and the cube must be in the shape list");
+        }
+        // Roll shapes matter only where roll scenes are drawn.
+        if self.scenarios.contains(&Scenario::Roll)
+            && (self.roll_shapes.is_empty()
+                || self.roll_shapes.iter().any(|k| !self.shapes.contains(k)))
+        {
+            return bad("roll shapes must be a non-empty part of the shape list");
         }
         if self.rest_variants.is_empty() {
             return bad("no rest variant");
