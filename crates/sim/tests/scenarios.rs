@@ -219,9 +219,7 @@ fn round_objects_roll_on_their_side_and_slow_down() {
         p.floor_shapes = p.shapes.clone();
         generate_scene(&options(Generator::scenarios(p), 5, 1), 0)
     };
-    let err = narrow(Scenario::Roll)
-        .err()
-        .expect("cone and mug are not in the list");
+    let err = narrow(Scenario::Roll).expect_err("cone and mug are not in the list");
     assert!(err.to_string().contains("roll shapes"), "{err}");
     assert!(narrow(Scenario::Drop).is_ok());
 }
