@@ -1,6 +1,6 @@
 //! The scene samplers of every scenario (`rest`, `drop`, `slide`, `collide`, `stack-hit`,
-//! `push`, `roll`) and
-//! [`sample_scenario`], which draws one of the parameters' scenarios and labels its scene.
+//! `push`, `roll`) and [`sample_scenario`], which draws one of the parameters' scenarios and
+//! labels its scene.
 
 use std::f32::consts::TAU;
 
