@@ -197,8 +197,7 @@ fn round_objects_roll_on_their_side_and_slow_down() {
             let spin = w[0].hypot(w[1]);
             let slip = (spin * spec.position[2] - launch).abs();
             assert!(slip < 1e-3 * launch.max(1.0), "slips at {slip} m/s");
-            // On the floor throughout, and slower at the end than at the start: the
-            // faceted sides and friction take the energy.
+            // On the floor throughout, and slower at the end than at the start.
             for t in 0..=t_end {
                 assert!(lowest(o, t) < 0.05, "{kind:?} left the floor at frame {t}");
             }

@@ -25,8 +25,8 @@ pub enum Scenario {
     /// Objects resting on the floor pushed by a kinematic pusher (the last object of the
     /// scene) following a random smooth path through them.
     Push,
-    /// Round objects (cylinder, cone, mug) lying on their side, set rolling along the floor
-    /// until the facets of their sides and friction stop them.
+    /// Round objects (cylinder, cone, mug) lying on their side, set rolling along the floor;
+    /// rapier slows them down and stops many within the scene.
     Roll,
 }
 

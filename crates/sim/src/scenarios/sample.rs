@@ -2,10 +2,10 @@
 //! `push`, `roll`) and [`sample_scenario`], which draws one of the parameters' scenarios and
 //! labels its scene.
 
-use std::f32::consts::TAU;
+use std::f32::consts::{FRAC_PI_2, TAU};
 
 use rand::Rng;
-use rapier3d::math::Rotation;
+use rapier3d::math::{Rotation, Vector};
 
 use super::parameters::{RestVariant, Scenario, ScenarioParameters};
 use super::placement::{
@@ -100,25 +100,26 @@ fn sample_drop<R: Rng + ?Sized>(p: &ScenarioParameters, rng: &mut R) -> Result<O
 }
 
 /// Round objects laid on their side (axis horizontal, settled there), spun about their axis
-/// and moving as if rolling without slipping; lanes 3 m apart along the axes.
+/// at the launch speed over the centre's height, as a cylinder rolling without slipping (a
+/// cone or mug starts close to that and friction does the rest); lanes 3 m apart along the
+/// axes.
 fn sample_roll<R: Rng + ?Sized>(p: &ScenarioParameters, rng: &mut R) -> Result<Vec<ObjectSpec>> {
     let n = count(rng, p.roll_objects);
     let yaw = rng.random_range(0.0..TAU);
-    let on_side = quat(
-        Rotation::from_rotation_z(yaw) * Rotation::from_rotation_x(std::f32::consts::FRAC_PI_2),
-    );
+    let on_side = quat(Rotation::from_rotation_z(yaw) * Rotation::from_rotation_x(FRAC_PI_2));
     let mut objects = Vec::with_capacity(n);
     for i in 0..n {
         let mut o = draw_object(p, &p.roll_shapes, rng)?;
         let (q, z) = rest_on_floor(p, &o, Some(on_side), rng)?;
-        // The body axis in the world, flattened: the object rolls about it.
-        let rot = Rotation::from_xyzw(q[0], q[1], q[2], q[3]);
-        let axis = rot * rapier3d::math::Vector::new(0.0, 0.0, 1.0);
-        let flat = rapier3d::math::Vector::new(axis.x, axis.y, 0.0);
+        // The body axis in the world, flattened: the object rolls about it. (Computed with
+        // rapier's quaternion, as the committed roll data were generated.)
+        let axis = Rotation::from_xyzw(q[0], q[1], q[2], q[3]) * Vector::Z;
+        let flat = Vector::new(axis.x, axis.y, 0.0);
         let a = if flat.length() > 1e-3 {
-            flat.normalize()
+            let f = flat.normalize();
+            [f.x, f.y]
         } else {
-            rapier3d::math::Vector::new(yaw.cos(), yaw.sin(), 0.0)
+            [yaw.cos(), yaw.sin()]
         };
         let sign = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
         let speed = sign * uniform(rng, p.roll_speed);
@@ -126,9 +127,9 @@ fn sample_roll<R: Rng + ?Sized>(p: &ScenarioParameters, rng: &mut R) -> Result<V
         // Rolling about `a` at `spin`: the centre moves along `a x z` at spin * height.
         let lane = 3.0 * (i as f32 - 0.5 * (n as f32 - 1.0));
         o.rotation = q;
-        o.position = [lane * a.x, lane * a.y, z];
-        o.angvel = [spin * a.x, spin * a.y, 0.0];
-        o.linvel = [speed * a.y, -speed * a.x, 0.0];
+        o.position = [lane * a[0], lane * a[1], z];
+        o.angvel = [spin * a[0], spin * a[1], 0.0];
+        o.linvel = [speed * a[1], -speed * a[0], 0.0];
         objects.push(o);
     }
     Ok(objects)
