@@ -33,8 +33,6 @@ struct Evaluator<'a> {
     scenes: usize,
     objects: usize,
     busy: std::time::Duration,
-    /// Shape names by `shape_id` (the dataset manifest's), for the per-shape drift.
-    shape_names: Vec<(i32, String)>,
 }
 
 impl<'a> Evaluator<'a> {
@@ -55,7 +53,6 @@ impl<'a> Evaluator<'a> {
             scenes: 0,
             objects: 0,
             busy: std::time::Duration::ZERO,
-            shape_names: Vec::new(),
         })
     }
 
@@ -250,40 +247,35 @@ impl<'a> Evaluator<'a> {
         };
         let resting = self.plans.rest.as_ref().map(|r| {
             let drift =
-                |dt_steps: u32, acc: &(StatAcc, StatAcc), missing: Option<String>| DriftReport {
+                |dt_steps: u32, t: &StatAcc, r: &StatAcc, missing: Option<String>| DriftReport {
                     dt_steps,
-                    translation_m: missing.is_none().then(|| acc.0.stat()),
-                    rotation_deg: missing.is_none().then(|| acc.1.stat()),
+                    translation_m: missing.is_none().then(|| t.stat()),
+                    rotation_deg: missing.is_none().then(|| r.stat()),
                     missing,
                     by_shape: Vec::new(),
                 };
-            let name = |id: i32| {
-                self.shape_names
-                    .iter()
-                    .find(|(i, _)| *i == id)
-                    .map(|(_, n)| n.clone())
-                    .unwrap_or_default()
-            };
             RestingReport {
                 options: r.options.clone(),
                 first_frame: r.a,
                 last_frame: r.b,
                 objects_at_rest: t.at_rest,
                 objects: self.objects as u64,
-                truth: drift(0, &t.rest_truth, None),
+                truth: drift(0, &t.rest_truth.0, &t.rest_truth.1, None),
                 predicted: self
                     .plans
                     .steps
                     .iter()
-                    .zip(t.rest_pred.iter().zip(&t.rest_pred_shape))
-                    .map(|(p, (acc, shapes))| {
-                        let mut d = drift(p.k, acc, p.rest_missing.clone());
+                    .zip(&t.rest_pred)
+                    .map(|(p, acc)| {
+                        let missing = p.rest_missing.clone();
+                        let mut d = drift(p.k, &acc.translation(), &acc.rotation, missing);
                         if d.missing.is_none() {
-                            d.by_shape = shapes
+                            d.by_shape = acc
+                                .translation_by_shape
                                 .iter()
                                 .map(|(&shape_id, a)| ShapeDrift {
                                     shape_id,
-                                    shape: name(shape_id),
+                                    shape: String::new(),
                                     translation_m: a.stat(),
                                 })
                                 .collect();
@@ -362,12 +354,8 @@ pub fn evaluate_dataset_many(
     let m = reader.manifest();
     let mut evs = predictors
         .iter()
-        .map(|p| {
-            let mut ev = Evaluator::new(*p, opts, m.frames, f64::from(m.dt_frame))?;
-            ev.shape_names = m.shapes.iter().map(|s| (s.id, s.name.clone())).collect();
-            Ok(ev)
-        })
-        .collect::<Result<Vec<_>, EvalError>>()?;
+        .map(|p| Evaluator::new(*p, opts, m.frames, f64::from(m.dt_frame)))
+        .collect::<Result<Vec<_>, _>>()?;
     let limit = opts.max_scenes.unwrap_or(usize::MAX).min(reader.len());
     let mut batch = Vec::with_capacity(BATCH);
     let mut read = 0;
@@ -407,6 +395,17 @@ pub fn evaluate_dataset_many(
     };
     Ok(evs
         .into_iter()
-        .map(|ev| ev.finish(Some(info.clone())))
+        .map(|ev| {
+            let mut report = ev.finish(Some(info.clone()));
+            // Name the shapes of the per-shape drift from the manifest.
+            for d in report.resting.iter_mut().flat_map(|r| &mut r.predicted) {
+                for x in &mut d.by_shape {
+                    if let Some(shape) = m.shapes.iter().find(|s| s.id == x.shape_id) {
+                        x.shape.clone_from(&shape.name);
+                    }
+                }
+            }
+            report
+        })
         .collect())
 }

@@ -250,7 +250,8 @@ pub fn format_suite(suite: &SuiteReport) -> String {
         let _ = writeln!(
             s,
             "\nresting drift over frames {}..{} ({} s): {} of {} objects at rest in the ground \
-             truth (speed < {} m/s and < {} deg/s between consecutive frames); mean / median / p90 / p99 / max",
+             truth (speed < {} m/s and < {} deg/s between consecutive frames); mean / median / \
+             p90 / p99 / max",
             r.first_frame,
             r.last_frame,
             r.options.window_s,
@@ -373,25 +374,22 @@ pub fn format_markdown(suite: &SuiteReport) -> String {
         }
         // The first predictor only (the model evaluated; the baselines' rows say nothing per
         // shape); the JSON report has every predictor's.
-        let shapes: Vec<_> = suite
-            .entries
-            .iter()
-            .take(1)
-            .flat_map(|e| e.report.resting.iter().flat_map(|rr| &rr.predicted))
-            .flat_map(|d| {
-                d.by_shape
-                    .iter()
-                    .map(move |x| (suite.entries[0].label.as_str(), d, x))
-            })
+        let first = suite.entries.first();
+        let label = first.map_or("", |e| e.label.as_str());
+        let shapes: Vec<_> = first
+            .and_then(|e| e.report.resting.as_ref())
+            .into_iter()
+            .flat_map(|rr| &rr.predicted)
+            .flat_map(|d| d.by_shape.iter().map(move |x| (d, x)))
             .collect();
         if !shapes.is_empty() {
             let _ = writeln!(
                 s,
                 "\n**Resting drift by shape** of the first predictor, translation (m): mean / \
-                 median / p90 / p99 / max\n\n| predictor | k | shape | objects | translation (m) |\n| --- | --- | --- \
-                 | --- | --- |"
+                 median / p90 / p99 / max\n\n| predictor | k | shape | objects | translation (m) \
+                 |\n| --- | --- | --- | --- | --- |"
             );
-            for (label, d, x) in shapes {
+            for (d, x) in shapes {
                 let _ = writeln!(
                     s,
                     "| {label} | {} | {} | {} | {} |",

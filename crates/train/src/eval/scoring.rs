@@ -20,6 +20,25 @@ use super::{
 /// deg^2).
 pub(super) type ErrorGrid = Vec<Vec<(RmseAccumulator, RmseAccumulator)>>;
 
+/// A predictor's drift over the resting window at one step size: translation (m) per
+/// `shape_id` (all objects together is their union) and rotation (deg).
+#[derive(Clone, Debug, Default)]
+pub(super) struct PredictedDrift {
+    pub(super) translation_by_shape: BTreeMap<i32, StatAcc>,
+    pub(super) rotation: StatAcc,
+}
+
+impl PredictedDrift {
+    /// The translation drift of every resting object.
+    pub(super) fn translation(&self) -> StatAcc {
+        let mut all = StatAcc::default();
+        for acc in self.translation_by_shape.values() {
+            all.merge(acc);
+        }
+        all
+    }
+}
+
 /// Everything one predictor contributes for one scene (or, merged, for all scenes so far).
 #[derive(Clone, Debug, Default)]
 pub(super) struct Tally {
@@ -28,9 +47,7 @@ pub(super) struct Tally {
     /// Ground-truth drift of the resting objects: (translation m, rotation deg).
     pub(super) rest_truth: (StatAcc, StatAcc),
     /// Predicted drift per step size.
-    pub(super) rest_pred: Vec<(StatAcc, StatAcc)>,
-    /// Predicted translation drift per step size and `shape_id`.
-    pub(super) rest_pred_shape: Vec<BTreeMap<i32, StatAcc>>,
+    pub(super) rest_pred: Vec<PredictedDrift>,
     pub(super) at_rest: u64,
     pub(super) long_objects: u64,
     pub(super) long_failed_objects: u64,
@@ -55,7 +72,6 @@ impl Tally {
             horizons: grid(&|p| p.horizons.len()),
             curves: grid(&|p| p.curve_steps),
             rest_pred: vec![Default::default(); plans.steps.len()],
-            rest_pred_shape: vec![BTreeMap::new(); plans.steps.len()],
             ..Tally::default()
         }
     }
@@ -75,13 +91,10 @@ impl Tally {
         self.rest_truth.0.merge(&o.rest_truth.0);
         self.rest_truth.1.merge(&o.rest_truth.1);
         for (x, y) in self.rest_pred.iter_mut().zip(&o.rest_pred) {
-            x.0.merge(&y.0);
-            x.1.merge(&y.1);
-        }
-        for (x, y) in self.rest_pred_shape.iter_mut().zip(&o.rest_pred_shape) {
-            for (id, acc) in y {
-                x.entry(*id).or_default().merge(acc);
+            for (id, acc) in &y.translation_by_shape {
+                x.translation_by_shape.entry(*id).or_default().merge(acc);
             }
+            x.rotation.merge(&y.rotation);
         }
         self.at_rest += o.at_rest;
         self.long_objects += o.long_objects;
@@ -217,14 +230,12 @@ pub(super) fn score_scene(
             let pb = rollout_pose(observed, rollout, (r.b - start) / ku);
             for (j, o) in scene.objects.iter().enumerate() {
                 if is_at_rest(o, r, dt_frame) {
-                    let drift = translation_distance(&pa[j], &pb[j]);
-                    tally.rest_pred_shape[pi]
+                    let acc = &mut tally.rest_pred[pi];
+                    acc.translation_by_shape
                         .entry(o.shape_id)
                         .or_default()
-                        .add(drift);
-                    let acc = &mut tally.rest_pred[pi];
-                    acc.0.add(drift);
-                    acc.1
+                        .add(translation_distance(&pa[j], &pb[j]));
+                    acc.rotation
                         .add(geodesic_angle(pa[j].rotation, pb[j].rotation).to_degrees());
                 }
             }
