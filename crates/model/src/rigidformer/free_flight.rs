@@ -9,8 +9,9 @@
 //! separation moves on a straight line over the step; the other body may also be deflected by
 //! a contact of its own within the step, taken as at most twice the scene's largest step
 //! displacement, or held up against gravity (a body resting on another does not fall), which
-//! adds the step's free fall. The floor is cleared when the sphere's lowest point is above it at both
-//! ends of the step (a free centre's height is a parabola opening downwards, lowest at an end).
+//! adds the step's free fall. The floor is cleared when the sphere's lowest point is above it
+//! at both ends of the step (a free centre's height is a parabola opening downwards, lowest at
+//! an end).
 
 use nalgebra::Vector3;
 
