@@ -79,7 +79,7 @@ async fn python_client_tests_and_push_planner_run_against_a_real_server() {
     .await;
     println!("{tests}");
     assert!(tests.contains("OK"), "{tests}");
-    // The push planner over each transport, with a small budget.
+    // The push planner over each transport, with a small budget, on two seeds.
     let grpc = server.grpc_addr.to_string();
     for (flag, address) in [("--server", url.as_str()), ("--grpc", grpc.as_str())] {
         let planner = run(
@@ -94,6 +94,8 @@ async fn python_client_tests_and_push_planner_run_against_a_real_server() {
                     "16",
                     "--iterations",
                     "1",
+                    "--seeds",
+                    "0-1",
                     "--dynaserve",
                     env!("CARGO_BIN_EXE_dynaserve"),
                 ]),
@@ -113,6 +115,18 @@ async fn python_client_tests_and_push_planner_run_against_a_real_server() {
             .collect();
         assert_eq!(metres.len(), 2, "{line}");
         assert!(metres.iter().all(|d| d.is_finite() && *d >= 0.0), "{line}");
+        // One plan per seed, then the summary over both.
+        assert_eq!(
+            planner
+                .matches("final distance to the goal (rapier replay)")
+                .count(),
+            2,
+            "{planner}"
+        );
+        assert!(
+            planner.contains("over 2 seeds (rapier replay)"),
+            "{planner}"
+        );
     }
     server.shutdown();
     server.wait().await.unwrap();

@@ -13,6 +13,10 @@ the ground truth, where both executed pusher paths are replayed in rapier by
 
     python examples/push_planner.py --server http://127.0.0.1:8080
     python examples/push_planner.py --grpc 127.0.0.1:50051     # the same over gRPC
+    python examples/push_planner.py --seeds 0-199   # one plan per seed, then a summary line
+
+Planning in the model's own rollout makes the rapier distance a measure of the model: over many
+seeds, a model whose pushes are forecast better ends closer to the goal more often.
 """
 
 from __future__ import annotations
@@ -104,39 +108,40 @@ def replay(binary: str, bodies, path: np.ndarray, dt_frame: float) -> np.ndarray
     return np.array(json.loads(out.stdout)["poses"])
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--server", default="http://127.0.0.1:8080", help="the server's HTTP address")
-    ap.add_argument("--grpc", help="plan over gRPC at this host:port instead (needs the grpc extra)")
-    ap.add_argument("--goal", type=float, nargs=2, default=[0.35, 0.15], help="goal of the box, m")
-    ap.add_argument("--rounds", type=int, default=8, help="planning rounds")
-    ap.add_argument("--horizon", type=int, default=10, help="steps looked ahead")
-    ap.add_argument("--execute", type=int, default=4, help="steps executed per round")
-    ap.add_argument("--samples", type=int, default=48, help="candidate paths per call")
-    ap.add_argument("--iterations", type=int, default=2, help="CEM iterations per round")
-    ap.add_argument("--speed", type=float, default=0.8, help="largest pusher speed, m/s")
-    ap.add_argument(
-        "--approach-weight",
-        type=float,
-        default=0.5,
-        help="weight of the pusher's distance to the box's pushing side in the cost (0: goal distance only)",
-    )
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--dynaserve", help="dynaserve binary for the rapier replay (default: found)")
-    args = ap.parse_args()
-    binary = find_dynaserve(args.dynaserve)
-    rng = np.random.default_rng(args.seed)
-    client: Any
-    if args.grpc:
-        from dynaserve.grpc import GrpcClient
+def parse_seeds(text: str) -> list[int]:
+    """Seeds from ``"7"``, ``"0-199"`` (inclusive) or ``"1,4,9-11"``."""
+    seeds: list[int] = []
+    for part in text.split(","):
+        lo, sep, hi = part.strip().partition("-")
+        if not lo:
+            raise ValueError(f"not a seed or a range of seeds: {part!r}")
+        first = int(lo)
+        last = int(hi) if sep else first
+        if last < first:
+            raise ValueError(f"empty range of seeds: {part!r}")
+        seeds.extend(range(first, last + 1))
+    return seeds
 
-        client = GrpcClient(args.grpc)
-    else:
-        client = Client(args.server)
-    # The session's model: the one RigidFormer (a PhysiFormer may be resident beside it).
-    dt_frame = next(m for m in client.list_models() if m["architecture"] == "rigidformer")["dt_frame"]
+
+def summary(results: list[tuple[int, float, float]]) -> str:
+    """One line over ``(seed, planned, random)`` rapier-replayed final distances (m): the means,
+    the medians and on how many seeds the plan ended closer to the goal than the random path."""
+    planned = np.array([r[1] for r in results])
+    random_d = np.array([r[2] for r in results])
+    wins = int((planned < random_d).sum())
+    return (
+        f"over {len(results)} seeds (rapier replay): planned mean {planned.mean():.3f} m, "
+        f"median {np.median(planned):.3f} m; random plan mean {random_d.mean():.3f} m, "
+        f"median {np.median(random_d):.3f} m; planned closer than random on {wins} of {len(results)}"
+    )
+
+
+def plan(client: Any, args: argparse.Namespace, seed: int, dt_frame: float, binary: Optional[str]):
+    """Plans one push (scene and sampling from ``seed``) and prints the distances; returns the
+    rapier-replayed final distances ``(planned, random)`` in m, or ``None`` without a binary."""
+    rng = np.random.default_rng(seed)
     goal = np.array(args.goal)
-    bodies = scene(args.seed)
+    bodies = scene(seed)
     session = client.create_session(bodies, kinematic=[PUSHER])
     baseline = session.fork()
     start = session.state()["poses"]
@@ -176,7 +181,7 @@ def main() -> None:
     session.delete()
     baseline.delete()
 
-    print(f"goal {goal.tolist()} m; box starts {d0:.3f} m away")
+    print(f"seed {seed}: goal {goal.tolist()} m; box starts {d0:.3f} m away")
     print(
         f"planner: {calls} Predict calls of {args.samples} paths x {args.horizon} steps "
         f"({sent / max(calls, 1) / 1024:.1f} KiB each), {time.time() - t0:.1f} s"
@@ -184,12 +189,60 @@ def main() -> None:
     print(f"final distance to the goal (learned model): planned {planned:.3f} m, random plan {random_d:.3f} m")
     if binary is None:
         print("rapier replay skipped: no dynaserve binary (build it or give --dynaserve)")
-        return
+        return None
     rapier = [
         float(np.linalg.norm(replay(binary, bodies, p, dt_frame)[-1, BOX, :2] - goal))
         for p in (np.concatenate(executed), random_path)
     ]
     print(f"final distance to the goal (rapier replay): planned {rapier[0]:.3f} m, random plan {rapier[1]:.3f} m")
+    return rapier[0], rapier[1]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--server", default="http://127.0.0.1:8080", help="the server's HTTP address")
+    ap.add_argument("--grpc", help="plan over gRPC at this host:port instead (needs the grpc extra)")
+    ap.add_argument("--goal", type=float, nargs=2, default=[0.35, 0.15], help="goal of the box, m")
+    ap.add_argument("--rounds", type=int, default=8, help="planning rounds")
+    ap.add_argument("--horizon", type=int, default=10, help="steps looked ahead")
+    ap.add_argument("--execute", type=int, default=4, help="steps executed per round")
+    ap.add_argument("--samples", type=int, default=48, help="candidate paths per call")
+    ap.add_argument("--iterations", type=int, default=2, help="CEM iterations per round")
+    ap.add_argument("--speed", type=float, default=0.8, help="largest pusher speed, m/s")
+    ap.add_argument(
+        "--approach-weight",
+        type=float,
+        default=0.5,
+        help="weight of the pusher's distance to the box's pushing side in the cost (0: goal distance only)",
+    )
+    ap.add_argument("--seed", type=int, default=0, help="the scene's and the sampler's seed")
+    ap.add_argument(
+        "--seeds",
+        help="plan once per seed (\"0-199\", \"1,4,9-11\") and end with a summary over them; overrides --seed",
+    )
+    ap.add_argument("--dynaserve", help="dynaserve binary for the rapier replay (default: found)")
+    args = ap.parse_args()
+    try:
+        seeds = parse_seeds(args.seeds) if args.seeds is not None else [args.seed]
+    except ValueError as e:
+        ap.error(f"--seeds: {e}")
+    binary = find_dynaserve(args.dynaserve)
+    client: Any
+    if args.grpc:
+        from dynaserve.grpc import GrpcClient
+
+        client = GrpcClient(args.grpc)
+    else:
+        client = Client(args.server)
+    # The session's model: the one RigidFormer (a PhysiFormer may be resident beside it).
+    dt_frame = next(m for m in client.list_models() if m["architecture"] == "rigidformer")["dt_frame"]
+    results = []
+    for seed in seeds:
+        distances = plan(client, args, seed, dt_frame, binary)
+        if distances is not None:
+            results.append((seed, *distances))
+    if len(seeds) > 1 and results:
+        print(summary(results))
 
 
 if __name__ == "__main__":

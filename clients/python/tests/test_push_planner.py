@@ -26,5 +26,24 @@ class ApproachCost(unittest.TestCase):
         self.assertAlmostEqual(cost[1], 2 * -behind, places=9)
 
 
+class Seeds(unittest.TestCase):
+    def test_single_ranges_and_lists(self):
+        self.assertEqual(planner.parse_seeds("7"), [7])
+        self.assertEqual(planner.parse_seeds("0-3"), [0, 1, 2, 3])
+        self.assertEqual(planner.parse_seeds("1,4,9-11"), [1, 4, 9, 10, 11])
+
+    def test_bad_seeds_are_refused(self):
+        for text in ["", "3-1", "a", "-2", "1,,2"]:
+            with self.assertRaises(ValueError, msg=text):
+                planner.parse_seeds(text)
+
+    def test_summary_counts_the_plans_closer_than_random(self):
+        line = planner.summary([(0, 0.10, 0.30), (1, 0.20, 0.10), (2, 0.30, 0.35)])
+        self.assertIn("over 3 seeds", line)
+        self.assertIn("planned mean 0.200 m, median 0.200 m", line)
+        self.assertIn("random plan mean 0.250 m, median 0.300 m", line)
+        self.assertIn("planned closer than random on 2 of 3", line)
+
+
 if __name__ == "__main__":
     unittest.main()
