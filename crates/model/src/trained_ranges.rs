@@ -140,7 +140,7 @@ impl TrainedRanges {
 
     /// The smallest ranges holding both. Mass intervals of different kinds
     /// ([`TrainedRanges::mass_relative`]) do not join: `other`'s is kept.
-    pub fn union(&self, other: &TrainedRanges) -> TrainedRanges {
+    fn union(&self, other: &TrainedRanges) -> TrainedRanges {
         let join = |a: Interval, b: Interval| [a[0].min(b[0]), a[1].max(b[1])];
         TrainedRanges {
             mass: if self.mass_relative == other.mass_relative {

@@ -6,7 +6,7 @@ use std::fmt::Write;
 
 use serde::{Deserialize, Serialize};
 
-use super::{DriftReport, EvalReport, Stat, write_missing_horizons};
+use super::{DriftReport, EvalReport, ShapeDrift, Stat, write_missing_horizons};
 
 /// One predictor of a suite.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -98,6 +98,21 @@ impl SuiteReport {
 
     fn first(&self) -> Option<&EvalReport> {
         self.entries.first().map(|e| &e.report)
+    }
+
+    /// The first predictor's label and its resting drift per (step size, shape); the model
+    /// evaluated (the baselines' rows say nothing per shape). The JSON report has every
+    /// predictor's.
+    fn first_shape_drift(&self) -> (&str, Vec<(&DriftReport, &ShapeDrift)>) {
+        let first = self.entries.first();
+        let label = first.map_or("", |e| e.label.as_str());
+        let rows = first
+            .and_then(|e| e.report.resting.as_ref())
+            .into_iter()
+            .flat_map(|rr| &rr.predicted)
+            .flat_map(|d| d.by_shape.iter().map(move |x| (d, x)))
+            .collect();
+        (label, rows)
     }
 
     /// Rows of the error tables: every (horizon index, step-size index) of the first report.
@@ -275,8 +290,39 @@ pub fn format_suite(suite: &SuiteReport) -> String {
                 stat_spread(d.rotation_deg.as_ref())
             );
         }
+        let (label, shapes) = suite.first_shape_drift();
+        if !shapes.is_empty() {
+            let _ = writeln!(
+                s,
+                "\nresting drift by shape ({label}), translation m: mean / median / p90 / p99 / max"
+            );
+            let _ = writeln!(
+                s,
+                "{:>3} | {:<16} {:>7} | {:>46}",
+                "k", "shape", "objects", "translation m"
+            );
+            for (d, x) in shapes {
+                let _ = writeln!(
+                    s,
+                    "{:>3} | {:<16} {:>7} | {:>46}",
+                    step_label(d),
+                    shape_name(x),
+                    x.translation_m.count,
+                    stat_spread(Some(&x.translation_m))
+                );
+            }
+        }
     }
     s
+}
+
+/// The shape's name, or its id where the manifest gave none.
+fn shape_name(x: &ShapeDrift) -> String {
+    if x.shape.is_empty() {
+        x.shape_id.to_string()
+    } else {
+        x.shape.clone()
+    }
 }
 
 /// The suite as Markdown tables a model card can include: translation and orientation RMSE
@@ -372,16 +418,7 @@ pub fn format_markdown(suite: &SuiteReport) -> String {
                 stat_spread(d.rotation_deg.as_ref())
             );
         }
-        // The first predictor only (the model evaluated; the baselines' rows say nothing per
-        // shape); the JSON report has every predictor's.
-        let first = suite.entries.first();
-        let label = first.map_or("", |e| e.label.as_str());
-        let shapes: Vec<_> = first
-            .and_then(|e| e.report.resting.as_ref())
-            .into_iter()
-            .flat_map(|rr| &rr.predicted)
-            .flat_map(|d| d.by_shape.iter().map(move |x| (d, x)))
-            .collect();
+        let (label, shapes) = suite.first_shape_drift();
         if !shapes.is_empty() {
             let _ = writeln!(
                 s,
@@ -394,11 +431,7 @@ pub fn format_markdown(suite: &SuiteReport) -> String {
                     s,
                     "| {label} | {} | {} | {} | {} |",
                     step_label(d),
-                    if x.shape.is_empty() {
-                        x.shape_id.to_string()
-                    } else {
-                        x.shape.clone()
-                    },
+                    shape_name(x),
                     x.translation_m.count,
                     stat_spread(Some(&x.translation_m))
                 );

@@ -63,3 +63,48 @@ fn suite_reports_print_and_plot() {
     assert_eq!(&bytes[1..4], b"PNG");
     assert!(bytes.len() > 5000);
 }
+
+#[test]
+fn the_resting_drift_by_shape_is_printed_in_text_and_markdown() {
+    // Two objects at rest, of shapes 5 (named) and 3 (no name in the manifest).
+    let mut s = scene(2, 101, |j, _| {
+        pose(
+            Vector3::new(2.0 * j as f64, 0.0, 0.5),
+            UnitQuaternion::identity(),
+        )
+    });
+    s.objects[0].shape_id = 5;
+    s.objects[1].shape_id = 3;
+    let mut report = evaluate_scenes(&Static, &[s], &EvalOptions::default()).unwrap();
+    for d in &mut report.resting.as_mut().unwrap().predicted {
+        for x in &mut d.by_shape {
+            if x.shape_id == 5 {
+                x.shape = "cube".into();
+            }
+        }
+    }
+    let suite = SuiteReport {
+        entries: vec![SuiteEntry {
+            label: "static".into(),
+            input: None,
+            report,
+        }],
+        elapsed_s: 0.0,
+    };
+    let text = format_suite(&suite);
+    assert!(text.contains("resting drift by shape (static)"), "{text}");
+    let rows: Vec<&str> = text
+        .lines()
+        .skip_while(|l| !l.starts_with("resting drift by shape"))
+        .skip(2)
+        .collect();
+    // One row per (step size, shape), shapes by id: 3 (its id) before 5 (its name).
+    assert_eq!(rows.len(), 2 * 3, "{text}");
+    assert!(
+        rows[0].contains(" 3 ") && rows[1].contains("cube"),
+        "{text}"
+    );
+    let md = format_markdown(&suite);
+    assert!(md.contains("**Resting drift by shape**"), "{md}");
+    assert_eq!(md.matches("| static | 1 | cube | 1 |").count(), 1, "{md}");
+}
