@@ -6,7 +6,7 @@ use std::fmt::Write;
 
 use serde::{Deserialize, Serialize};
 
-use super::{DriftReport, EvalReport, ShapeDrift, Stat, write_missing_horizons};
+use super::{DriftReport, EvalReport, Stat, write_missing_horizons};
 
 /// One predictor of a suite.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -100,17 +100,31 @@ impl SuiteReport {
         self.entries.first().map(|e| &e.report)
     }
 
-    /// The first predictor's label and its resting drift per (step size, shape); the model
-    /// evaluated (the baselines' rows say nothing per shape). The JSON report has every
-    /// predictor's.
-    fn first_shape_drift(&self) -> (&str, Vec<(&DriftReport, &ShapeDrift)>) {
+    /// The first predictor's label and its resting drift per (step size, shape) as cells: `k`,
+    /// the shape's name (its id where the manifest gave none), the object count and the
+    /// translation spread (m). The first predictor is the model evaluated (the baselines' rows
+    /// say nothing per shape); the JSON report has every predictor's.
+    fn first_shape_drift(&self) -> (&str, Vec<[String; 4]>) {
         let first = self.entries.first();
         let label = first.map_or("", |e| e.label.as_str());
         let rows = first
             .and_then(|e| e.report.resting.as_ref())
             .into_iter()
             .flat_map(|rr| &rr.predicted)
-            .flat_map(|d| d.by_shape.iter().map(move |x| (d, x)))
+            .flat_map(|d| {
+                d.by_shape.iter().map(move |x| {
+                    [
+                        step_label(d),
+                        if x.shape.is_empty() {
+                            x.shape_id.to_string()
+                        } else {
+                            x.shape.clone()
+                        },
+                        x.translation_m.count.to_string(),
+                        stat_spread(Some(&x.translation_m)),
+                    ]
+                })
+            })
             .collect();
         (label, rows)
     }
@@ -301,28 +315,12 @@ pub fn format_suite(suite: &SuiteReport) -> String {
                 "{:>3} | {:<16} {:>7} | {:>46}",
                 "k", "shape", "objects", "translation m"
             );
-            for (d, x) in shapes {
-                let _ = writeln!(
-                    s,
-                    "{:>3} | {:<16} {:>7} | {:>46}",
-                    step_label(d),
-                    shape_name(x),
-                    x.translation_m.count,
-                    stat_spread(Some(&x.translation_m))
-                );
+            for [k, shape, count, spread] in shapes {
+                let _ = writeln!(s, "{k:>3} | {shape:<16} {count:>7} | {spread:>46}");
             }
         }
     }
     s
-}
-
-/// The shape's name, or its id where the manifest gave none.
-fn shape_name(x: &ShapeDrift) -> String {
-    if x.shape.is_empty() {
-        x.shape_id.to_string()
-    } else {
-        x.shape.clone()
-    }
 }
 
 /// The suite as Markdown tables a model card can include: translation and orientation RMSE
@@ -426,15 +424,8 @@ pub fn format_markdown(suite: &SuiteReport) -> String {
                  median / p90 / p99 / max\n\n| predictor | k | shape | objects | translation (m) \
                  |\n| --- | --- | --- | --- | --- |"
             );
-            for (d, x) in shapes {
-                let _ = writeln!(
-                    s,
-                    "| {label} | {} | {} | {} | {} |",
-                    step_label(d),
-                    shape_name(x),
-                    x.translation_m.count,
-                    stat_spread(Some(&x.translation_m))
-                );
+            for [k, shape, count, spread] in shapes {
+                let _ = writeln!(s, "| {label} | {k} | {shape} | {count} | {spread} |");
             }
         }
     }

@@ -60,6 +60,19 @@ fn scene(objects: usize, frames: usize, pose: impl Fn(usize, f64) -> Pose) -> Sc
     }
 }
 
+/// Two objects standing still 2 m apart for 101 frames, of shapes 5 and 3 (in that order).
+fn resting_pair_of_shapes_5_and_3() -> SceneRecord {
+    let mut s = scene(2, 101, |j, _| {
+        pose(
+            Vector3::new(2.0 * j as f64, 0.0, 0.5),
+            UnitQuaternion::identity(),
+        )
+    });
+    s.objects[0].shape_id = 5;
+    s.objects[1].shape_id = 3;
+    s
+}
+
 fn pose(p: Vector3<f64>, q: UnitQuaternion<f64>) -> Pose {
     let c = q.coords;
     Pose {

@@ -82,14 +82,7 @@ fn resting_drift_counts_only_objects_at_rest_in_the_truth() {
     }
     // The drift per shape: two resting objects of shapes 5 and 3, listed by shape id, each
     // with its own count; the ground truth has no breakdown.
-    let mut two = scene(2, 101, |j, _| {
-        pose(
-            Vector3::new(2.0 * j as f64, 0.0, 0.5),
-            UnitQuaternion::identity(),
-        )
-    });
-    two.objects[0].shape_id = 5;
-    two.objects[1].shape_id = 3;
+    let two = resting_pair_of_shapes_5_and_3();
     let r = evaluate_scenes(&creeping, &[two], &EvalOptions::default()).unwrap();
     let r = r.resting.unwrap();
     assert!(r.truth.by_shape.is_empty());

@@ -67,14 +67,7 @@ fn suite_reports_print_and_plot() {
 #[test]
 fn the_resting_drift_by_shape_is_printed_in_text_and_markdown() {
     // Two objects at rest, of shapes 5 (named) and 3 (no name in the manifest).
-    let mut s = scene(2, 101, |j, _| {
-        pose(
-            Vector3::new(2.0 * j as f64, 0.0, 0.5),
-            UnitQuaternion::identity(),
-        )
-    });
-    s.objects[0].shape_id = 5;
-    s.objects[1].shape_id = 3;
+    let s = resting_pair_of_shapes_5_and_3();
     let mut report = evaluate_scenes(&Static, &[s], &EvalOptions::default()).unwrap();
     for d in &mut report.resting.as_mut().unwrap().predicted {
         for x in &mut d.by_shape {
