@@ -38,7 +38,7 @@ class Seeds(unittest.TestCase):
                 planner.parse_seeds(text)
 
     def test_summary_counts_the_plans_closer_than_random(self):
-        line = planner.summary([(0, 0.10, 0.30), (1, 0.20, 0.10), (2, 0.30, 0.35)])
+        line = planner.summary([(0.10, 0.30), (0.20, 0.10), (0.30, 0.35)])
         self.assertIn("over 3 seeds", line)
         self.assertIn("planned mean 0.200 m, median 0.200 m", line)
         self.assertIn("random plan mean 0.250 m, median 0.300 m", line)
