@@ -196,24 +196,28 @@ impl<'a> Evaluator<'a> {
             .plans
             .steps
             .iter()
-            .zip(t.horizons.iter().zip(&t.curves))
-            .map(|(plan, (totals, curve))| StepSizeReport {
+            .zip(t.horizons.iter().zip(&t.curves).zip(&t.horizon_spread))
+            .map(|(plan, ((totals, curve), spread))| StepSizeReport {
                 dt_steps: plan.k,
                 horizons: plan
                     .horizons
                     .iter()
-                    .zip(totals)
-                    .map(|(h, (trans, rot))| HorizonReport {
-                        horizon_s: h.horizon_s,
-                        frames: h.frames,
-                        steps: h.steps,
-                        translation_rmse_m: h.steps.and(trans.rmse()),
-                        orientation_rmse_deg: h.steps.and(rot.rmse()),
-                        objects: trans.count,
-                        missing: h.missing.clone().or_else(|| {
-                            (trans.count == 0).then(|| "no scenes evaluated".to_string())
-                        }),
-                    })
+                    .zip(totals.iter().zip(spread))
+                    .map(
+                        |(h, ((trans, rot), (trans_spread, rot_spread)))| HorizonReport {
+                            horizon_s: h.horizon_s,
+                            frames: h.frames,
+                            steps: h.steps,
+                            translation_rmse_m: h.steps.and(trans.rmse()),
+                            orientation_rmse_deg: h.steps.and(rot.rmse()),
+                            objects: trans.count,
+                            translation_m: h.steps.and(trans_spread.stat_if_any()),
+                            orientation_deg: h.steps.and(rot_spread.stat_if_any()),
+                            missing: h.missing.clone().or_else(|| {
+                                (trans.count == 0).then(|| "no scenes evaluated".to_string())
+                            }),
+                        },
+                    )
                     .collect(),
                 curve: curve
                     .iter()

@@ -129,6 +129,39 @@ impl SuiteReport {
         (label, rows)
     }
 
+    /// The per-object error spread at step size 1 (or the first step size where 1 was not
+    /// evaluated): that step size in frames, and per horizon and predictor in turn the cells
+    /// horizon label, predictor label, translation spread (m), orientation spread (deg).
+    fn spread_rows(&self) -> (u32, Vec<[String; 4]>) {
+        let Some((k, dt)) = self.first().and_then(|r| {
+            let k = r
+                .step_sizes
+                .iter()
+                .position(|x| x.dt_steps == 1)
+                .or((!r.step_sizes.is_empty()).then_some(0))?;
+            Some((k, r.step_sizes[k].dt_steps))
+        }) else {
+            return (1, Vec::new());
+        };
+        let horizons = self.first().map_or(0, |r| r.step_sizes[k].horizons.len());
+        let rows = (0..horizons)
+            .flat_map(|h| {
+                self.entries.iter().filter_map(move |e| {
+                    let x = e.report.step_sizes.get(k)?.horizons.get(h)?;
+                    (x.translation_m.is_some() || x.orientation_deg.is_some()).then(|| {
+                        [
+                            self.horizon_label(h),
+                            e.label.clone(),
+                            stat_spread(x.translation_m.as_ref()),
+                            stat_spread(x.orientation_deg.as_ref()),
+                        ]
+                    })
+                })
+            })
+            .collect();
+        (dt, rows)
+    }
+
     /// Rows of the error tables: every (horizon index, step-size index) of the first report.
     fn rows(&self) -> Vec<(usize, usize)> {
         let Some(r) = self.first() else {
@@ -242,6 +275,22 @@ pub fn format_suite(suite: &SuiteReport) -> String {
     }
     if let Some(r) = suite.first() {
         write_missing_horizons(&mut s, r);
+    }
+    let (spread_k, spread) = suite.spread_rows();
+    if !spread.is_empty() {
+        let _ = writeln!(
+            s,
+            "\nper-object error at k = {}: mean / median / p90 / p99 / max over the objects",
+            spread_k
+        );
+        let _ = writeln!(
+            s,
+            "{:<16} {:<16} | {:>46} {:>46}",
+            "horizon", "predictor", "translation m", "orientation deg"
+        );
+        for [h, label, t, r] in spread {
+            let _ = writeln!(s, "{h:<16} {label:<16} | {t:>46} {r:>46}");
+        }
     }
     if let Some(l) = suite.first().and_then(|r| r.long_rollout.as_ref()) {
         let _ = writeln!(
@@ -358,6 +407,19 @@ pub fn format_markdown(suite: &SuiteReport) -> String {
                 );
             }
             let _ = writeln!(s, "{line}");
+        }
+    }
+    let (spread_k, spread) = suite.spread_rows();
+    if !spread.is_empty() {
+        let _ = writeln!(
+            s,
+            "\n**Per-object error** at k = {}: mean / median / p90 / p99 / max over the objects \
+             (the RMSE above pools their squares)\n\n| horizon | predictor | translation (m) | \
+             orientation (deg) |\n| --- | --- | --- | --- |",
+            spread_k
+        );
+        for [h, label, t, r] in spread {
+            let _ = writeln!(s, "| {h} | {label} | {t} | {r} |");
         }
     }
     if let Some(l) = suite.first().and_then(|r| r.long_rollout.as_ref()) {

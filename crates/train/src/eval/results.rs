@@ -20,6 +20,14 @@ pub struct HorizonReport {
     pub orientation_rmse_deg: Option<f64>,
     /// Number of objects pooled.
     pub objects: u64,
+    /// Spread of the per-object translation error, metres: the RMSE's mean hides whether a
+    /// few objects or all of them are off. `None` when missing (and in reports written before
+    /// it existed).
+    #[serde(default)]
+    pub translation_m: Option<Stat>,
+    /// Spread of the per-object geodesic orientation error, degrees, as `translation_m`.
+    #[serde(default)]
+    pub orientation_deg: Option<Stat>,
     /// Why the horizon is missing, if it is.
     pub missing: Option<String>,
 }
@@ -85,6 +93,10 @@ impl StatAcc {
     }
     pub(super) fn merge(&mut self, o: &StatAcc) {
         self.values.extend_from_slice(&o.values);
+    }
+    /// [`StatAcc::stat`], `None` without samples.
+    pub(super) fn stat_if_any(&self) -> Option<Stat> {
+        (!self.values.is_empty()).then(|| self.stat())
     }
     pub(super) fn stat(&self) -> Stat {
         let n = self.values.len();

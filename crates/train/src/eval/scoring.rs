@@ -43,6 +43,9 @@ impl PredictedDrift {
 #[derive(Clone, Debug, Default)]
 pub(super) struct Tally {
     pub(super) horizons: ErrorGrid,
+    /// Per-object errors at every horizon, `[step size][horizon]` of (translation m,
+    /// orientation deg).
+    pub(super) horizon_spread: Vec<Vec<(StatAcc, StatAcc)>>,
     pub(super) curves: ErrorGrid,
     /// Ground-truth drift of the resting objects: (translation m, rotation deg).
     pub(super) rest_truth: (StatAcc, StatAcc),
@@ -70,6 +73,11 @@ impl Tally {
         };
         Tally {
             horizons: grid(&|p| p.horizons.len()),
+            horizon_spread: plans
+                .steps
+                .iter()
+                .map(|p| vec![Default::default(); p.horizons.len()])
+                .collect(),
             curves: grid(&|p| p.curve_steps),
             rest_pred: vec![Default::default(); plans.steps.len()],
             ..Tally::default()
@@ -86,6 +94,12 @@ impl Tally {
                     x.0.merge(&y.0);
                     x.1.merge(&y.1);
                 }
+            }
+        }
+        for (ra, rb) in self.horizon_spread.iter_mut().zip(&o.horizon_spread) {
+            for (x, y) in ra.iter_mut().zip(rb) {
+                x.0.merge(&y.0);
+                x.1.merge(&y.1);
             }
         }
         self.rest_truth.0.merge(&o.rest_truth.0);
@@ -204,6 +218,11 @@ pub(super) fn score_scene(
         for i in 1..=plan.curve_steps {
             let truth = poses_at(scene, start + i * plan.k as usize)?;
             let mut acc = (RmseAccumulator::default(), RmseAccumulator::default());
+            let mut spread = plan
+                .horizons
+                .iter()
+                .position(|h| h.steps == Some(i))
+                .map(|h| &mut tally.horizon_spread[pi][h]);
             for (j, (p, t)) in rollout[i - 1].iter().zip(&truth).enumerate() {
                 let d2 = squared_distance(&p.translation, &t.translation);
                 let theta = geodesic_angle(p.rotation, t.rotation);
@@ -215,6 +234,10 @@ pub(super) fn score_scene(
                 }
                 acc.0.add_squared(d2);
                 acc.1.add(theta.to_degrees());
+                if let Some((t, r)) = spread.as_mut() {
+                    t.add(d2.sqrt());
+                    r.add(theta.to_degrees());
+                }
             }
             step_errors.push(acc);
         }

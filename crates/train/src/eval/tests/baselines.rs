@@ -35,6 +35,19 @@ fn static_error_is_pooled_over_objects_not_averaged_over_scenes() {
             let want_deg = (0.5 * h).to_degrees() / 3f64.sqrt();
             let got_deg = e.orientation_rmse_deg.unwrap();
             assert!((got_deg - want_deg).abs() < 1e-2, "{got_deg} vs {want_deg}");
+            // Per object: 1, 2 and 3 m/s times H; only the first object turns.
+            let t = e.translation_m.expect("translation spread");
+            assert_eq!(t.count, 3);
+            for (got, want) in [(t.mean, 2.0 * h), (t.median, 2.0 * h), (t.max, 3.0 * h)] {
+                assert!((got - want).abs() < 1e-4 * want.max(1.0), "{got} vs {want}");
+            }
+            let r = e.orientation_deg.expect("orientation spread");
+            let turned = (0.5 * h).to_degrees();
+            assert!(
+                r.median.abs() < 1e-2 && (r.max - turned).abs() < 1e-2,
+                "{r:?}"
+            );
+            assert!((r.mean - turned / 3.0).abs() < 1e-2, "{r:?}");
         }
     }
 }

@@ -38,10 +38,16 @@ fn suite_reports_print_and_plot() {
         "resting drift over frames 76..100",
         "ground truth",
         "0.5 s (12 fr)",
+        "per-object error at k = 1",
     ] {
         assert!(text.contains(want), "{want:?} missing from\n{text}");
     }
     let md = format_markdown(&suite);
+    // The per-object table: every horizon, each predictor in turn.
+    assert!(md.contains("**Per-object error** at k = 1"), "{md}");
+    for label in ["static", "ballistic"] {
+        assert_eq!(md.matches(&format!("fr) | {label} |")).count(), 4, "{md}");
+    }
     assert!(md.contains("| horizon | k | static | ballistic |"), "{md}");
     assert!(md.contains("| 4 s (96 fr) | 4 |"), "{md}");
     assert!(md.contains("**Resting drift**"), "{md}");
