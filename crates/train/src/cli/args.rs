@@ -138,6 +138,7 @@ impl EvalArgs {
             long_rollout_steps: self.long_steps,
             projection_every: self.projection_every,
             resting: (!self.no_resting).then(RestingOptions::default),
+            ..EvalOptions::default()
         }
     }
 

@@ -7,13 +7,15 @@ use dynaserve_model::SceneState;
 use dynaserve_sim::{DatasetReader, SceneRecord};
 use rayon::prelude::*;
 
-use super::horizon_plan::{Plans, plan};
+use dynaserve_geometry::metrics::RmseAccumulator;
+
+use super::horizon_plan::{HorizonPlan, Plans, plan};
 use super::results::StatAcc;
 use super::scoring::{Tally, score_scene};
 use super::{
-    CurvePoint, DatasetInfo, DriftReport, EvalError, EvalOptions, EvalReport, HorizonReport,
-    LongRolloutReport, Predictor, RestingReport, RolloutRequest, ShapeDrift, StepSizeReport,
-    observed_state,
+    ContactHistory, ContactSpread, CurvePoint, DatasetInfo, DriftReport, EvalError, EvalOptions,
+    EvalReport, HorizonReport, LongRolloutReport, Predictor, RestingReport, RolloutRequest,
+    ShapeDrift, StepSizeReport, observed_state,
 };
 
 /// Scenes evaluated per parallel batch when streaming a dataset.
@@ -33,6 +35,46 @@ struct Evaluator<'a> {
     scenes: usize,
     objects: usize,
     busy: std::time::Duration,
+}
+
+/// One horizon's report from its pooled errors (`rmse`: translation m^2, orientation deg^2),
+/// its per-object errors (`spread`: m, deg) and those per [`ContactHistory`] (`contact`).
+fn horizon_report(
+    h: &HorizonPlan,
+    rmse: &(RmseAccumulator, RmseAccumulator),
+    spread: &(StatAcc, StatAcc),
+    contact: &[(StatAcc, StatAcc); 3],
+) -> HorizonReport {
+    let (trans, rot) = rmse;
+    HorizonReport {
+        horizon_s: h.horizon_s,
+        frames: h.frames,
+        steps: h.steps,
+        translation_rmse_m: h.steps.and(trans.rmse()),
+        orientation_rmse_deg: h.steps.and(rot.rmse()),
+        objects: trans.count,
+        translation_m: h.steps.and(spread.0.stat_if_any()),
+        orientation_deg: h.steps.and(spread.1.stat_if_any()),
+        by_contact: match h.steps {
+            None => Vec::new(),
+            Some(_) => ContactHistory::ALL
+                .iter()
+                .zip(contact)
+                .filter(|(_, (t, _))| t.stat_if_any().is_some())
+                .map(|(c, (t, r))| ContactSpread {
+                    contact: *c,
+                    translation_rmse_m: t.rms(),
+                    orientation_rmse_deg: r.rms(),
+                    translation_m: t.stat(),
+                    orientation_deg: r.stat(),
+                })
+                .collect(),
+        },
+        missing: h
+            .missing
+            .clone()
+            .or_else(|| (trans.count == 0).then(|| "no scenes evaluated".to_string())),
+    }
 }
 
 impl<'a> Evaluator<'a> {
@@ -176,6 +218,7 @@ impl<'a> Evaluator<'a> {
                     self.dt_frame,
                     &self.plans,
                     self.opts.projection_every,
+                    self.opts.gravity,
                     rollouts,
                     long,
                 )
@@ -196,43 +239,34 @@ impl<'a> Evaluator<'a> {
             .plans
             .steps
             .iter()
-            .zip(t.horizons.iter().zip(&t.curves).zip(&t.horizon_spread))
-            .map(|(plan, ((totals, curve), spread))| StepSizeReport {
-                dt_steps: plan.k,
-                horizons: plan
-                    .horizons
-                    .iter()
-                    .zip(totals.iter().zip(spread))
-                    .map(
-                        |(h, ((trans, rot), (trans_spread, rot_spread)))| HorizonReport {
-                            horizon_s: h.horizon_s,
-                            frames: h.frames,
-                            steps: h.steps,
-                            translation_rmse_m: h.steps.and(trans.rmse()),
-                            orientation_rmse_deg: h.steps.and(rot.rmse()),
-                            objects: trans.count,
-                            translation_m: h.steps.and(trans_spread.stat_if_any()),
-                            orientation_deg: h.steps.and(rot_spread.stat_if_any()),
-                            missing: h.missing.clone().or_else(|| {
-                                (trans.count == 0).then(|| "no scenes evaluated".to_string())
-                            }),
-                        },
-                    )
-                    .collect(),
-                curve: curve
-                    .iter()
-                    .enumerate()
-                    .filter_map(|(i, (trans, rot))| {
-                        let frames = (i + 1) * plan.k as usize;
-                        Some(CurvePoint {
-                            time_s: frames as f64 * self.dt_frame,
-                            frames,
-                            translation_rmse_m: trans.rmse()?,
-                            orientation_rmse_deg: rot.rmse()?,
+            .zip(t.horizons.iter().zip(&t.curves))
+            .zip(t.horizon_spread.iter().zip(&t.horizon_contact))
+            .map(
+                |((plan, (totals, curve)), (spread, contact))| StepSizeReport {
+                    dt_steps: plan.k,
+                    horizons: plan
+                        .horizons
+                        .iter()
+                        .zip(totals.iter().zip(spread).zip(contact))
+                        .map(|(h, ((rmse, spread), contact))| {
+                            horizon_report(h, rmse, spread, contact)
                         })
-                    })
-                    .collect(),
-            })
+                        .collect(),
+                    curve: curve
+                        .iter()
+                        .enumerate()
+                        .filter_map(|(i, (trans, rot))| {
+                            let frames = (i + 1) * plan.k as usize;
+                            Some(CurvePoint {
+                                time_s: frames as f64 * self.dt_frame,
+                                frames,
+                                translation_rmse_m: trans.rmse()?,
+                                orientation_rmse_deg: rot.rmse()?,
+                            })
+                        })
+                        .collect(),
+                },
+            )
             .collect();
         let long_rollout = match self.plans.long_steps {
             None => None,
@@ -356,6 +390,10 @@ pub fn evaluate_dataset_many(
         return Err(EvalError::Invalid("no predictor to evaluate".into()));
     }
     let m = reader.manifest();
+    let opts = &EvalOptions {
+        gravity: m.gravity,
+        ..opts.clone()
+    };
     let mut evs = predictors
         .iter()
         .map(|p| Evaluator::new(*p, opts, m.frames, f64::from(m.dt_frame)))

@@ -69,8 +69,8 @@ pub use plot::{PlotStyle, plot_errors};
 pub use predictor::{Predictor, ProjectionWindow, RolloutRequest};
 pub use report::{SuiteEntry, SuiteReport, format_markdown, format_suite};
 pub use results::{
-    CurvePoint, DatasetInfo, DriftReport, EvalReport, HorizonReport, LongRolloutReport,
-    RestingReport, ShapeDrift, Stat, StepSizeReport,
+    ContactHistory, ContactSpread, CurvePoint, DatasetInfo, DriftReport, EvalReport, HorizonReport,
+    LongRolloutReport, RestingReport, ShapeDrift, Stat, StepSizeReport,
 };
 pub use table::format_table;
 pub(crate) use table::write_missing_horizons;

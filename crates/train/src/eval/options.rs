@@ -29,6 +29,9 @@ pub struct EvalOptions {
     pub projection_every: usize,
     /// Resting-drift settings; `None` disables the resting-drift report.
     pub resting: Option<RestingOptions>,
+    /// Gravity of the scenes, m/s^2: it tells a bounce between two frames from free flight in
+    /// the per-object error by contact. A dataset's manifest overrides it.
+    pub gravity: [f32; 3],
 }
 
 impl Default for EvalOptions {
@@ -41,6 +44,7 @@ impl Default for EvalOptions {
             long_rollout_steps: DEFAULT_LONG_ROLLOUT_STEPS,
             projection_every: DEFAULT_PROJECTION_EVERY,
             resting: Some(RestingOptions::default()),
+            gravity: [0.0, 0.0, -10.0],
         }
     }
 }

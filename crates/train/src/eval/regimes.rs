@@ -258,7 +258,31 @@ fn speeds(scene: &SceneRecord, j: usize, t: usize) -> (f64, f64) {
 /// The regime of object `j` during the window `t - k, t -> t + k` (`1 <= t`, `t + k` a
 /// frame).
 pub fn regime(scene: &SceneRecord, flags: &ContactFlags, j: usize, t: usize, k: usize) -> Regime {
-    let span = t.saturating_sub(k)..=t + k;
+    let (on_object, on_floor) = touched(scene, flags, j, t.saturating_sub(k)..=t + k);
+    let still = |f: usize| {
+        let (v, w) = speeds(scene, j, f);
+        v < RESTING_SPEED_M_S && w < RESTING_ANGULAR_DEG_S
+    };
+    if (on_object || on_floor) && still(t) && still(t + k) {
+        Regime::Resting
+    } else if on_object {
+        Regime::ObjectContact
+    } else if on_floor {
+        Regime::FloorContact
+    } else {
+        Regime::FreeFlight
+    }
+}
+
+/// Whether object `j` touched another object and whether it touched the floor during the
+/// frames `span` (the module's distance tests, and its impulse test for a contact between two
+/// frames).
+pub fn touched(
+    scene: &SceneRecord,
+    flags: &ContactFlags,
+    j: usize,
+    span: std::ops::RangeInclusive<usize>,
+) -> (bool, bool) {
     let mut on_object = span.clone().any(|f| flags.object[f][j]);
     let mut on_floor = span.clone().any(|f| flags.floor[f][j]);
     if !(on_object || on_floor) && span.clone().any(|f| flags.impulse[f][j]) {
@@ -278,19 +302,7 @@ pub fn regime(scene: &SceneRecord, flags: &ContactFlags, j: usize, t: usize, k: 
             on_object = true;
         }
     }
-    let still = |f: usize| {
-        let (v, w) = speeds(scene, j, f);
-        v < RESTING_SPEED_M_S && w < RESTING_ANGULAR_DEG_S
-    };
-    if (on_object || on_floor) && still(t) && still(t + k) {
-        Regime::Resting
-    } else if on_object {
-        Regime::ObjectContact
-    } else if on_floor {
-        Regime::FloorContact
-    } else {
-        Regime::FreeFlight
-    }
+    (on_object, on_floor)
 }
 
 /// True when object `j` is off the floor (by the floor distance test) at `t` or at `t + k`:

@@ -133,14 +133,7 @@ impl SuiteReport {
     /// evaluated): that step size in frames, and per horizon and predictor in turn the cells
     /// horizon label, predictor label, translation spread (m), orientation spread (deg).
     fn spread_rows(&self) -> (u32, Vec<[String; 4]>) {
-        let Some((k, dt)) = self.first().and_then(|r| {
-            let k = r
-                .step_sizes
-                .iter()
-                .position(|x| x.dt_steps == 1)
-                .or((!r.step_sizes.is_empty()).then_some(0))?;
-            Some((k, r.step_sizes[k].dt_steps))
-        }) else {
+        let Some((k, dt)) = self.spread_step() else {
             return (1, Vec::new());
         };
         let horizons = self.first().map_or(0, |r| r.step_sizes[k].horizons.len());
@@ -160,6 +153,49 @@ impl SuiteReport {
             })
             .collect();
         (dt, rows)
+    }
+
+    /// The step size of the per-object tables: the index of step size 1 in the first report
+    /// (or of its first step size where 1 was not evaluated), and that step size in frames.
+    fn spread_step(&self) -> Option<(usize, u32)> {
+        let r = self.first()?;
+        let k = r
+            .step_sizes
+            .iter()
+            .position(|x| x.dt_steps == 1)
+            .or((!r.step_sizes.is_empty()).then_some(0))?;
+        Some((k, r.step_sizes[k].dt_steps))
+    }
+
+    /// The first predictor's label and its per-object errors at the step size of
+    /// [`SuiteReport::spread_step`] split by what the objects touched, as cells: horizon,
+    /// contact class, objects, translation RMSE (m), orientation RMSE (deg), orientation
+    /// spread (deg).
+    fn contact_rows(&self) -> (&str, Vec<[String; 6]>) {
+        let label = self.entries.first().map_or("", |e| e.label.as_str());
+        let Some((k, _)) = self.spread_step() else {
+            return (label, Vec::new());
+        };
+        let horizons = self
+            .first()
+            .map_or(&[][..], |r| &r.step_sizes[k].horizons[..]);
+        let rows = horizons
+            .iter()
+            .enumerate()
+            .flat_map(|(h, x)| {
+                x.by_contact.iter().map(move |c| {
+                    [
+                        self.horizon_label(h),
+                        c.contact.name().to_string(),
+                        c.translation_m.count.to_string(),
+                        sig(c.translation_rmse_m),
+                        sig(c.orientation_rmse_deg),
+                        stat_spread(Some(&c.orientation_deg)),
+                    ]
+                })
+            })
+            .collect();
+        (label, rows)
     }
 
     /// Rows of the error tables: every (horizon index, step-size index) of the first report.
@@ -292,6 +328,22 @@ pub fn format_suite(suite: &SuiteReport) -> String {
             let _ = writeln!(s, "{h:<16} {label:<16} | {t:>46} {r:>46}");
         }
     }
+    let (label, contact) = suite.contact_rows();
+    if !contact.is_empty() {
+        let _ = writeln!(
+            s,
+            "\nper-object error at k = {spread_k} ({label}) by what the object touched in the \
+             ground truth from frame s to the horizon"
+        );
+        let _ = writeln!(
+            s,
+            "{:<16} {:<16} {:>7} | {:>8} {:>8} | {:>46}",
+            "horizon", "touched", "objects", "RMSE m", "RMSE deg", "orientation deg"
+        );
+        for [h, c, n, t, r, spread] in contact {
+            let _ = writeln!(s, "{h:<16} {c:<16} {n:>7} | {t:>8} {r:>8} | {spread:>46}");
+        }
+    }
     if let Some(l) = suite.first().and_then(|r| r.long_rollout.as_ref()) {
         let _ = writeln!(
             s,
@@ -420,6 +472,20 @@ pub fn format_markdown(suite: &SuiteReport) -> String {
         );
         for [h, label, t, r] in spread {
             let _ = writeln!(s, "| {h} | {label} | {t} | {r} |");
+        }
+    }
+    let (label, contact) = suite.contact_rows();
+    if !contact.is_empty() {
+        let _ = writeln!(
+            s,
+            "\n**Per-object error by contact** of `{label}` at k = {spread_k}: what \
+             each object touched in the ground truth from frame s to the horizon (the regime \
+             table's contact tests); orientation: mean / median / p90 / p99 / max\n\n| \
+             horizon | touched | objects | translation RMSE (m) | orientation RMSE (deg) | \
+             orientation (deg) |\n| --- | --- | --- | --- | --- | --- |"
+        );
+        for [h, c, n, t, r, spread] in contact {
+            let _ = writeln!(s, "| {h} | {c} | {n} | {t} | {r} | {spread} |");
         }
     }
     if let Some(l) = suite.first().and_then(|r| r.long_rollout.as_ref()) {

@@ -28,6 +28,12 @@ pub struct HorizonReport {
     /// Spread of the per-object geodesic orientation error, degrees, as `translation_m`.
     #[serde(default)]
     pub orientation_deg: Option<Stat>,
+    /// The same errors split by what each object touched in the ground truth between the
+    /// start frame and the horizon ([`ContactHistory`]), in the order of
+    /// [`ContactHistory::ALL`], classes without objects left out. Empty when missing (and in
+    /// reports written before it existed).
+    #[serde(default)]
+    pub by_contact: Vec<ContactSpread>,
     /// Why the horizon is missing, if it is.
     pub missing: Option<String>,
 }
@@ -93,6 +99,13 @@ impl StatAcc {
     }
     pub(super) fn merge(&mut self, o: &StatAcc) {
         self.values.extend_from_slice(&o.values);
+    }
+    /// Root mean square of the samples (0 without samples).
+    pub(super) fn rms(&self) -> f64 {
+        if self.values.is_empty() {
+            return 0.0;
+        }
+        (self.values.iter().map(|v| v * v).sum::<f64>() / self.values.len() as f64).sqrt()
     }
     /// [`StatAcc::stat`], `None` without samples.
     pub(super) fn stat_if_any(&self) -> Option<Stat> {
@@ -168,6 +181,53 @@ pub struct DriftReport {
     /// for the ground truth, and in reports written before it existed).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub by_shape: Vec<ShapeDrift>,
+}
+
+/// What an object touched in the ground truth from the start frame to a horizon, by the
+/// contact tests of the regime table ([`super::regimes::touched`]: distances, and the
+/// acceleration for a bounce between two frames).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ContactHistory {
+    /// Touched another object.
+    Object,
+    /// Touched the floor, never another object.
+    FloorOnly,
+    /// Neither: free flight throughout.
+    None,
+}
+
+impl ContactHistory {
+    /// Every class, in report order.
+    pub const ALL: [ContactHistory; 3] = [
+        ContactHistory::Object,
+        ContactHistory::FloorOnly,
+        ContactHistory::None,
+    ];
+
+    /// Label in tables.
+    pub fn name(self) -> &'static str {
+        match self {
+            ContactHistory::Object => "another object",
+            ContactHistory::FloorOnly => "floor only",
+            ContactHistory::None => "nothing",
+        }
+    }
+}
+
+/// The per-object errors at one horizon of the objects of one [`ContactHistory`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ContactSpread {
+    /// What these objects touched.
+    pub contact: ContactHistory,
+    /// Their translation RMSE, metres (pooled like the horizon's).
+    pub translation_rmse_m: f64,
+    /// Their orientation RMSE, degrees.
+    pub orientation_rmse_deg: f64,
+    /// Spread of their translation errors, metres (`count` is the number of objects).
+    pub translation_m: Stat,
+    /// Spread of their orientation errors, degrees.
+    pub orientation_deg: Stat,
 }
 
 /// Translation drift over the resting window of the resting objects of one shape.

@@ -11,7 +11,8 @@ use dynaserve_sim::SceneRecord;
 use nalgebra::{Quaternion, Vector3};
 
 use super::horizon_plan::{Plans, RestPlan, StepPlan};
-use super::results::StatAcc;
+use super::regimes::{ContactFlags, contact_flags, touched};
+use super::results::{ContactHistory, StatAcc};
 use super::{
     EvalError, PAIRWISE_POINTS, Predictor, ProjectionWindow, QUATERNION_NORM_TOLERANCE, poses_at,
 };
@@ -46,6 +47,8 @@ pub(super) struct Tally {
     /// Per-object errors at every horizon, `[step size][horizon]` of (translation m,
     /// orientation deg).
     pub(super) horizon_spread: Vec<Vec<(StatAcc, StatAcc)>>,
+    /// The same per [`ContactHistory`] (index in [`ContactHistory::ALL`]).
+    pub(super) horizon_contact: Vec<Vec<[(StatAcc, StatAcc); 3]>>,
     pub(super) curves: ErrorGrid,
     /// Ground-truth drift of the resting objects: (translation m, rotation deg).
     pub(super) rest_truth: (StatAcc, StatAcc),
@@ -78,6 +81,11 @@ impl Tally {
                 .iter()
                 .map(|p| vec![Default::default(); p.horizons.len()])
                 .collect(),
+            horizon_contact: plans
+                .steps
+                .iter()
+                .map(|p| vec![Default::default(); p.horizons.len()])
+                .collect(),
             curves: grid(&|p| p.curve_steps),
             rest_pred: vec![Default::default(); plans.steps.len()],
             ..Tally::default()
@@ -102,6 +110,14 @@ impl Tally {
                 x.1.merge(&y.1);
             }
         }
+        for (ra, rb) in self.horizon_contact.iter_mut().zip(&o.horizon_contact) {
+            for (xa, xb) in ra.iter_mut().zip(rb) {
+                for (x, y) in xa.iter_mut().zip(xb) {
+                    x.0.merge(&y.0);
+                    x.1.merge(&y.1);
+                }
+            }
+        }
         self.rest_truth.0.merge(&o.rest_truth.0);
         self.rest_truth.1.merge(&o.rest_truth.1);
         for (x, y) in self.rest_pred.iter_mut().zip(&o.rest_pred) {
@@ -119,6 +135,22 @@ impl Tally {
         self.max_pairwise = self.max_pairwise.max(o.max_pairwise);
         self.projection.merge(&o.projection);
         self.projection_available |= o.projection_available;
+    }
+}
+
+/// What object `j` of `scene` touched in the ground truth over frames `from..=to` (the
+/// regime table's tests, [`touched`]).
+fn history(
+    scene: &SceneRecord,
+    flags: &ContactFlags,
+    j: usize,
+    from: usize,
+    to: usize,
+) -> ContactHistory {
+    match touched(scene, flags, j, from..=to) {
+        (true, _) => ContactHistory::Object,
+        (false, true) => ContactHistory::FloorOnly,
+        (false, false) => ContactHistory::None,
     }
 }
 
@@ -184,6 +216,7 @@ pub(super) fn score_scene(
     dt_frame: f64,
     plans: &Plans,
     projection_every: usize,
+    gravity: [f32; 3],
     rollouts: &[(SceneState, Vec<Vec<Pose>>)],
     long: Option<&(SceneState, Vec<Vec<Pose>>)>,
 ) -> Result<Tally, EvalError> {
@@ -194,6 +227,7 @@ pub(super) fn score_scene(
     };
     let n = scene.objects.len();
     let mut tally = Tally::empty(plans);
+    let flags = contact_flags(scene, gravity)?;
     for (pi, (plan, (observed, rollout))) in plans.steps.iter().zip(rollouts).enumerate() {
         if rollout.len() != plan.steps {
             return Err(bad(format!(
@@ -218,11 +252,8 @@ pub(super) fn score_scene(
         for i in 1..=plan.curve_steps {
             let truth = poses_at(scene, start + i * plan.k as usize)?;
             let mut acc = (RmseAccumulator::default(), RmseAccumulator::default());
-            let mut spread = plan
-                .horizons
-                .iter()
-                .position(|h| h.steps == Some(i))
-                .map(|h| &mut tally.horizon_spread[pi][h]);
+            let horizon = plan.horizons.iter().position(|h| h.steps == Some(i));
+            let frame = start + i * plan.k as usize;
             for (j, (p, t)) in rollout[i - 1].iter().zip(&truth).enumerate() {
                 let d2 = squared_distance(&p.translation, &t.translation);
                 let theta = geodesic_angle(p.rotation, t.rotation);
@@ -234,9 +265,15 @@ pub(super) fn score_scene(
                 }
                 acc.0.add_squared(d2);
                 acc.1.add(theta.to_degrees());
-                if let Some((t, r)) = spread.as_mut() {
-                    t.add(d2.sqrt());
-                    r.add(theta.to_degrees());
+                if let Some(h) = horizon {
+                    let c = history(scene, &flags, j, start, frame) as usize;
+                    for (t, r) in [
+                        &mut tally.horizon_spread[pi][h],
+                        &mut tally.horizon_contact[pi][h][c],
+                    ] {
+                        t.add(d2.sqrt());
+                        r.add(theta.to_degrees());
+                    }
                 }
             }
             step_errors.push(acc);

@@ -19,7 +19,12 @@ fn static_error_is_pooled_over_objects_not_averaged_over_scenes() {
     let b = scene(1, 101, |_, t| {
         pose(Vector3::new(3.0 * t, 0.0, 5.0), UnitQuaternion::identity())
     });
-    let report = evaluate_scenes(&Static, &[a, b], &EvalOptions::default()).unwrap();
+    // The objects fly without gravity (the contact split's impulse test must know it).
+    let opts = EvalOptions {
+        gravity: [0.0; 3],
+        ..EvalOptions::default()
+    };
+    let report = evaluate_scenes(&Static, &[a, b], &opts).unwrap();
     assert_eq!(report.scenes, 2);
     assert_eq!(report.objects, 3);
     for k in DEFAULT_STEP_SIZES {
@@ -48,6 +53,23 @@ fn static_error_is_pooled_over_objects_not_averaged_over_scenes() {
                 "{r:?}"
             );
             assert!((r.mean - turned / 3.0).abs() < 1e-2, "{r:?}");
+            // Scene A's two objects start in one place (in contact), scene B's is alone and
+            // high above the floor.
+            let classes: Vec<_> = e.by_contact.iter().map(|c| c.contact).collect();
+            assert_eq!(classes, [ContactHistory::Object, ContactHistory::None]);
+            let (touching, alone) = (&e.by_contact[0], &e.by_contact[1]);
+            assert_eq!(
+                (touching.translation_m.count, alone.translation_m.count),
+                (2, 1)
+            );
+            for (got, want) in [
+                (touching.translation_rmse_m, 2.5f64.sqrt() * h),
+                (alone.translation_rmse_m, 3.0 * h),
+                (touching.orientation_rmse_deg, turned / 2f64.sqrt()),
+                (alone.orientation_rmse_deg, 0.0),
+            ] {
+                assert!((got - want).abs() < 1e-2 * want.max(1.0), "{got} vs {want}");
+            }
         }
     }
 }

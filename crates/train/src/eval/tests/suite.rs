@@ -45,6 +45,19 @@ fn suite_reports_print_and_plot() {
     let md = format_markdown(&suite);
     // The per-object table: every horizon, each predictor in turn.
     assert!(md.contains("**Per-object error** at k = 1"), "{md}");
+    // The corner clouds' spacing is 1 m, so the contact distance between objects (0.01 m
+    // plus that spacing) spans the 1 m gap between the two cubes: both count as touching.
+    assert!(
+        md.contains("**Per-object error by contact** of `static`"),
+        "{md}"
+    );
+    for h in ["0.5 s (12 fr)", "1 s (24 fr)", "2 s (48 fr)", "4 s (96 fr)"] {
+        assert!(
+            md.contains(&format!("| {h} | another object | 2 |")),
+            "{md}"
+        );
+    }
+    assert!(text.contains("by what the object touched"), "{text}");
     for label in ["static", "ballistic"] {
         assert_eq!(md.matches(&format!("fr) | {label} |")).count(), 4, "{md}");
     }
