@@ -37,15 +37,19 @@ struct Evaluator<'a> {
     busy: std::time::Duration,
 }
 
-/// One horizon's report from its pooled errors (`rmse`: translation m^2, orientation deg^2),
-/// its per-object errors (`spread`: m, deg) and those per [`ContactHistory`] (`contact`).
+/// One horizon's report from its pooled errors (`rmse`: translation m^2, orientation deg^2)
+/// and its per-object errors (m, deg) per [`ContactHistory`] (`contact`).
 fn horizon_report(
     h: &HorizonPlan,
     rmse: &(RmseAccumulator, RmseAccumulator),
-    spread: &(StatAcc, StatAcc),
     contact: &[(StatAcc, StatAcc); 3],
 ) -> HorizonReport {
     let (trans, rot) = rmse;
+    let mut all = (StatAcc::default(), StatAcc::default());
+    for (t, r) in contact {
+        all.0.merge(t);
+        all.1.merge(r);
+    }
     HorizonReport {
         horizon_s: h.horizon_s,
         frames: h.frames,
@@ -53,20 +57,21 @@ fn horizon_report(
         translation_rmse_m: h.steps.and(trans.rmse()),
         orientation_rmse_deg: h.steps.and(rot.rmse()),
         objects: trans.count,
-        translation_m: h.steps.and(spread.0.stat_if_any()),
-        orientation_deg: h.steps.and(spread.1.stat_if_any()),
+        translation_m: h.steps.and(all.0.stat_if_any()),
+        orientation_deg: h.steps.and(all.1.stat_if_any()),
         by_contact: match h.steps {
             None => Vec::new(),
             Some(_) => ContactHistory::ALL
                 .iter()
                 .zip(contact)
-                .filter(|(_, (t, _))| t.stat_if_any().is_some())
-                .map(|(c, (t, r))| ContactSpread {
-                    contact: *c,
-                    translation_rmse_m: t.rms(),
-                    orientation_rmse_deg: r.rms(),
-                    translation_m: t.stat(),
-                    orientation_deg: r.stat(),
+                .filter_map(|(c, (t, r))| {
+                    Some(ContactSpread {
+                        contact: *c,
+                        translation_rmse_m: t.rms(),
+                        orientation_rmse_deg: r.rms(),
+                        translation_m: t.stat_if_any()?,
+                        orientation_deg: r.stat(),
+                    })
                 })
                 .collect(),
         },
@@ -239,34 +244,29 @@ impl<'a> Evaluator<'a> {
             .plans
             .steps
             .iter()
-            .zip(t.horizons.iter().zip(&t.curves))
-            .zip(t.horizon_spread.iter().zip(&t.horizon_contact))
-            .map(
-                |((plan, (totals, curve)), (spread, contact))| StepSizeReport {
-                    dt_steps: plan.k,
-                    horizons: plan
-                        .horizons
-                        .iter()
-                        .zip(totals.iter().zip(spread).zip(contact))
-                        .map(|(h, ((rmse, spread), contact))| {
-                            horizon_report(h, rmse, spread, contact)
+            .zip(t.horizons.iter().zip(&t.curves).zip(&t.horizon_contact))
+            .map(|(plan, ((totals, curve), contact))| StepSizeReport {
+                dt_steps: plan.k,
+                horizons: plan
+                    .horizons
+                    .iter()
+                    .zip(totals.iter().zip(contact))
+                    .map(|(h, (rmse, contact))| horizon_report(h, rmse, contact))
+                    .collect(),
+                curve: curve
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(i, (trans, rot))| {
+                        let frames = (i + 1) * plan.k as usize;
+                        Some(CurvePoint {
+                            time_s: frames as f64 * self.dt_frame,
+                            frames,
+                            translation_rmse_m: trans.rmse()?,
+                            orientation_rmse_deg: rot.rmse()?,
                         })
-                        .collect(),
-                    curve: curve
-                        .iter()
-                        .enumerate()
-                        .filter_map(|(i, (trans, rot))| {
-                            let frames = (i + 1) * plan.k as usize;
-                            Some(CurvePoint {
-                                time_s: frames as f64 * self.dt_frame,
-                                frames,
-                                translation_rmse_m: trans.rmse()?,
-                                orientation_rmse_deg: rot.rmse()?,
-                            })
-                        })
-                        .collect(),
-                },
-            )
+                    })
+                    .collect(),
+            })
             .collect();
         let long_rollout = match self.plans.long_steps {
             None => None,

@@ -205,6 +205,15 @@ impl ContactHistory {
         ContactHistory::None,
     ];
 
+    /// Position in [`ContactHistory::ALL`].
+    pub fn index(self) -> usize {
+        match self {
+            ContactHistory::Object => 0,
+            ContactHistory::FloorOnly => 1,
+            ContactHistory::None => 2,
+        }
+    }
+
     /// Label in tables.
     pub fn name(self) -> &'static str {
         match self {

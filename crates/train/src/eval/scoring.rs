@@ -44,10 +44,8 @@ impl PredictedDrift {
 #[derive(Clone, Debug, Default)]
 pub(super) struct Tally {
     pub(super) horizons: ErrorGrid,
-    /// Per-object errors at every horizon, `[step size][horizon]` of (translation m,
-    /// orientation deg).
-    pub(super) horizon_spread: Vec<Vec<(StatAcc, StatAcc)>>,
-    /// The same per [`ContactHistory`] (index in [`ContactHistory::ALL`]).
+    /// Per-object errors at every horizon by what the object touched, `[step size][horizon]
+    /// [ContactHistory::index]` of (translation m, orientation deg).
     pub(super) horizon_contact: Vec<Vec<[(StatAcc, StatAcc); 3]>>,
     pub(super) curves: ErrorGrid,
     /// Ground-truth drift of the resting objects: (translation m, rotation deg).
@@ -76,11 +74,6 @@ impl Tally {
         };
         Tally {
             horizons: grid(&|p| p.horizons.len()),
-            horizon_spread: plans
-                .steps
-                .iter()
-                .map(|p| vec![Default::default(); p.horizons.len()])
-                .collect(),
             horizon_contact: plans
                 .steps
                 .iter()
@@ -102,12 +95,6 @@ impl Tally {
                     x.0.merge(&y.0);
                     x.1.merge(&y.1);
                 }
-            }
-        }
-        for (ra, rb) in self.horizon_spread.iter_mut().zip(&o.horizon_spread) {
-            for (x, y) in ra.iter_mut().zip(rb) {
-                x.0.merge(&y.0);
-                x.1.merge(&y.1);
             }
         }
         for (ra, rb) in self.horizon_contact.iter_mut().zip(&o.horizon_contact) {
@@ -266,14 +253,10 @@ pub(super) fn score_scene(
                 acc.0.add_squared(d2);
                 acc.1.add(theta.to_degrees());
                 if let Some(h) = horizon {
-                    let c = history(scene, &flags, j, start, frame) as usize;
-                    for (t, r) in [
-                        &mut tally.horizon_spread[pi][h],
-                        &mut tally.horizon_contact[pi][h][c],
-                    ] {
-                        t.add(d2.sqrt());
-                        r.add(theta.to_degrees());
-                    }
+                    let c = history(scene, &flags, j, start, frame).index();
+                    let (t, r) = &mut tally.horizon_contact[pi][h][c];
+                    t.add(d2.sqrt());
+                    r.add(theta.to_degrees());
                 }
             }
             step_errors.push(acc);
