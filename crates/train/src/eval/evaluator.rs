@@ -10,6 +10,7 @@ use rayon::prelude::*;
 use dynaserve_geometry::metrics::RmseAccumulator;
 
 use super::horizon_plan::{HorizonPlan, Plans, plan};
+use super::regimes::{ContactFlags, contact_flags};
 use super::results::StatAcc;
 use super::scoring::{Tally, score_scene};
 use super::{
@@ -103,11 +104,20 @@ impl<'a> Evaluator<'a> {
         })
     }
 
-    /// Evaluates a batch of scenes (rollouts batched by the predictor, scoring in parallel)
-    /// and adds them in order.
-    fn add(&mut self, scenes: &[SceneRecord]) -> Result<(), EvalError> {
-        let t0 = Instant::now();
-        let start = self.opts.start_frame;
+    /// The ground-truth contact flags of a batch of scenes (checked first), which every
+    /// predictor's [`Evaluator::add`] of that batch shares: computed once per scene, not once
+    /// per predictor.
+    fn contact_flags(&self, scenes: &[SceneRecord]) -> Result<Vec<ContactFlags>, EvalError> {
+        self.check(scenes)?;
+        scenes
+            .par_iter()
+            .map(|s| contact_flags(s, self.opts.gravity))
+            .collect()
+    }
+
+    /// Every scene of the batch has this evaluation's frame count and interval, objects and
+    /// reference points.
+    fn check(&self, scenes: &[SceneRecord]) -> Result<(), EvalError> {
         for (i, s) in scenes.iter().enumerate() {
             let index = self.scenes + i;
             if (f64::from(s.dt_frame) - self.dt_frame).abs() > 1e-9 * self.dt_frame.max(1.0) {
@@ -135,6 +145,22 @@ impl<'a> Evaluator<'a> {
                     )));
                 }
             }
+        }
+        Ok(())
+    }
+
+    /// Evaluates a batch of scenes (rollouts batched by the predictor, scoring in parallel)
+    /// and adds them in order; `flags[i]` are scene `i`'s contact flags from
+    /// [`Evaluator::contact_flags`], which also checked the scenes.
+    fn add(&mut self, scenes: &[SceneRecord], flags: &[ContactFlags]) -> Result<(), EvalError> {
+        let t0 = Instant::now();
+        let start = self.opts.start_frame;
+        if flags.len() != scenes.len() {
+            return Err(EvalError::Invalid(format!(
+                "internal: {} contact flags for {} scenes",
+                flags.len(),
+                scenes.len()
+            )));
         }
         // One request per (scene, step size), plus a k = 1 stability rollout when no step size
         // of 1 is evaluated.
@@ -208,8 +234,9 @@ impl<'a> Evaluator<'a> {
         let results: Vec<Tally> = scenes
             .par_iter()
             .zip(&per_scene)
+            .zip(flags)
             .enumerate()
-            .map(|(i, (s, (rollouts, long)))| {
+            .map(|(i, ((s, (rollouts, long)), flags))| {
                 let long = match (self.plans.long_steps, long_plan) {
                     (None, _) => None,
                     (Some(_), Some(p)) => Some(&rollouts[p]),
@@ -223,7 +250,7 @@ impl<'a> Evaluator<'a> {
                     self.dt_frame,
                     &self.plans,
                     self.opts.projection_every,
-                    self.opts.gravity,
+                    flags,
                     rollouts,
                     long,
                 )
@@ -357,7 +384,8 @@ pub fn evaluate_scenes(
     let take = opts.max_scenes.unwrap_or(scenes.len()).min(scenes.len());
     let mut ev = Evaluator::new(predictor, opts, frames, f64::from(first.dt_frame))?;
     for chunk in scenes[..take].chunks(BATCH) {
-        ev.add(chunk)?;
+        let flags = ev.contact_flags(chunk)?;
+        ev.add(chunk, &flags)?;
     }
     Ok(ev.finish(None))
 }
@@ -402,8 +430,9 @@ pub fn evaluate_dataset_many(
     let mut batch = Vec::with_capacity(BATCH);
     let mut read = 0;
     let mut flush = |batch: &mut Vec<SceneRecord>| -> Result<(), EvalError> {
+        let flags = evs[0].contact_flags(batch)?;
         for (i, ev) in evs.iter_mut().enumerate() {
-            ev.add(batch)?;
+            ev.add(batch, &flags)?;
             progress(i, ev.scenes);
         }
         batch.clear();

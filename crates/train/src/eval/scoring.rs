@@ -11,7 +11,7 @@ use dynaserve_sim::SceneRecord;
 use nalgebra::{Quaternion, Vector3};
 
 use super::horizon_plan::{Plans, RestPlan, StepPlan};
-use super::regimes::{ContactFlags, contact_flags, touched};
+use super::regimes::{ContactFlags, touched};
 use super::results::{ContactHistory, StatAcc};
 use super::{
     EvalError, PAIRWISE_POINTS, Predictor, ProjectionWindow, QUATERNION_NORM_TOLERANCE, poses_at,
@@ -193,7 +193,7 @@ fn rollout_pose<'a>(observed: &'a SceneState, rollout: &'a [Vec<Pose>], step: us
 }
 
 /// Scores one scene's rollouts (`rollouts[p]` answers `plans.steps[p]`, `long` is the `k = 1`
-/// rollout of the stability check).
+/// rollout of the stability check; `flags` are the scene's ground-truth contacts).
 #[allow(clippy::too_many_arguments)]
 pub(super) fn score_scene(
     predictor: &dyn Predictor,
@@ -203,7 +203,7 @@ pub(super) fn score_scene(
     dt_frame: f64,
     plans: &Plans,
     projection_every: usize,
-    gravity: [f32; 3],
+    flags: &ContactFlags,
     rollouts: &[(SceneState, Vec<Vec<Pose>>)],
     long: Option<&(SceneState, Vec<Vec<Pose>>)>,
 ) -> Result<Tally, EvalError> {
@@ -214,7 +214,6 @@ pub(super) fn score_scene(
     };
     let n = scene.objects.len();
     let mut tally = Tally::empty(plans);
-    let flags = contact_flags(scene, gravity)?;
     for (pi, (plan, (observed, rollout))) in plans.steps.iter().zip(rollouts).enumerate() {
         if rollout.len() != plan.steps {
             return Err(bad(format!(
@@ -253,7 +252,7 @@ pub(super) fn score_scene(
                 acc.0.add_squared(d2);
                 acc.1.add(theta.to_degrees());
                 if let Some(h) = horizon {
-                    let c = history(scene, &flags, j, start, frame).index();
+                    let c = history(scene, flags, j, start, frame).index();
                     let (t, r) = &mut tally.horizon_contact[pi][h][c];
                     t.add(d2.sqrt());
                     r.add(theta.to_degrees());
