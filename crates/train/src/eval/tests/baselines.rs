@@ -299,3 +299,36 @@ fn curves_cover_every_step_inside_the_data() {
         assert_eq!(h.translation_rmse_m, Some(c.translation_rmse_m));
     }
 }
+
+#[test]
+fn the_contact_split_tells_the_floor_from_free_fall() {
+    // Object 0 rests on the floor (its lowest corner at z = 0); object 1 falls freely from
+    // 100 m, 10 m away, under the default gravity: its acceleration is gravity's, so the
+    // impulse test sees no contact.
+    let s = scene(2, 101, |j, t| {
+        let p = match j {
+            0 => Vector3::new(0.0, 0.0, 0.5),
+            _ => Vector3::new(10.0, 0.0, 100.0 - 5.0 * t * t),
+        };
+        pose(p, UnitQuaternion::identity())
+    });
+    let report = evaluate_scenes(&Static, &[s], &EvalOptions::default()).unwrap();
+    for h in DEFAULT_HORIZONS_S {
+        let e = entry(&report, 1, h);
+        let classes: Vec<_> = e
+            .by_contact
+            .iter()
+            .map(|c| (c.contact, c.translation_m.count))
+            .collect();
+        assert_eq!(
+            classes,
+            [(ContactHistory::FloorOnly, 1), (ContactHistory::None, 1)],
+            "h = {h}"
+        );
+        // Static is exact for the resting object and off by the fall for the other.
+        let fall = 5.0 * ((4.0 / 24.0 + h).powi(2) - (4.0f64 / 24.0).powi(2));
+        assert!(e.by_contact[0].translation_rmse_m < 1e-6, "{e:?}");
+        let got = e.by_contact[1].translation_rmse_m;
+        assert!((got - fall).abs() < 1e-3 * fall, "{got} vs {fall}");
+    }
+}
