@@ -100,7 +100,18 @@ pub struct LossConfig {
     /// object. Dimensionless, > 0; absent in older `config.json` files, which means 1.
     #[serde(default = "unit_weight")]
     pub rest_weight: f32,
+    /// Factor on the errors of moving objects that touch another object at the window's
+    /// current frame t: some point of theirs within [`OBJECT_CONTACT_WEIGHT_DISTANCE_M`] of
+    /// another object's point (the contact search the inputs run anyway). Resting objects keep
+    /// `rest_weight`. 1 weighs them as any object. Dimensionless, > 0; absent in older
+    /// `config.json` files, which means 1.
+    #[serde(default = "unit_weight")]
+    pub object_contact_weight: f32,
 }
+
+/// Contact test of [`LossConfig::object_contact_weight`]: largest distance from one of an
+/// object's points to another object's point, metres.
+pub const OBJECT_CONTACT_WEIGHT_DISTANCE_M: f32 = 0.1;
 
 /// Resting test of [`LossConfig::rest_weight`]: largest centre displacement per frame, metres
 /// (0.5 mm a frame: 1.2 cm/s at 24 frames a second).
@@ -124,6 +135,7 @@ impl Default for LossConfig {
             scale: 0.001,
             weights: [1.0; 4],
             rest_weight: 1.0,
+            object_contact_weight: 1.0,
         }
     }
 }
@@ -506,6 +518,10 @@ impl ModelConfig {
             ("loss.beta", self.loss.beta),
             ("loss.scale", self.loss.scale),
             ("loss.rest_weight", self.loss.rest_weight),
+            (
+                "loss.object_contact_weight",
+                self.loss.object_contact_weight,
+            ),
         ];
         for (name, v) in finite_pos {
             if !(v.is_finite() && v > 0.0) {

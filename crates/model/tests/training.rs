@@ -482,3 +482,64 @@ fn rest_weight_scales_only_objects_at_rest() {
     };
     assert!(bad.validate().is_err());
 }
+
+/// The object-contact weight raises the loss only when a moving object has a point within
+/// 0.1 m of another object's: the same scene with its objects apart is unchanged.
+#[test]
+fn object_contact_weight_scales_only_objects_touching_another() {
+    let plain = RigidFormer::new(ModelConfig::tiny(), 8, &Device::Cpu).unwrap();
+    let weighted = RigidFormer::new(ModelConfig::tiny(), 8, &Device::Cpu)
+        .unwrap()
+        .with_object_contact_weight(4.0);
+    let (objs, apart) = random_scene(11, 3, 40);
+    let sc = plain.prepare(objs).unwrap();
+    let place = |state: &SceneState, positions: [[f32; 3]; 3]| {
+        let mut s = state.clone();
+        for (j, p) in positions.iter().enumerate() {
+            let (c, q) = (s.current[j], s.previous[j]);
+            let shift: Vec<f32> = (0..3).map(|d| p[d] - c.translation[d]).collect();
+            let moved = |pose: Pose| {
+                let t = pose.translation;
+                Pose::from_parts(
+                    Vector3::new(t[0] + shift[0], t[1] + shift[1], t[2] + shift[2]),
+                    pose.unit_quaternion(),
+                )
+            };
+            (s.current[j], s.previous[j]) = (moved(c), moved(q));
+        }
+        s
+    };
+    // Boxes of half extents 0.2-0.6 m: 4 m apart nothing touches; centres 0.3 m apart the
+    // first two overlap.
+    let apart = place(&apart, [[0.0, 0.0, 2.0], [4.0, 0.0, 2.0], [0.0, 4.0, 2.0]]);
+    let touching = place(&apart, [[0.0, 0.0, 2.0], [0.3, 0.0, 2.0], [0.0, 4.0, 2.0]]);
+    let loss = |model: &RigidFormer, state: &SceneState| {
+        model
+            .train_forward(&[TrainItem {
+                scene: &sc,
+                state,
+                target: &next_poses(state),
+                dt_steps: 1,
+                kinematic: &[],
+            }])
+            .unwrap()
+            .loss
+            .to_scalar::<f32>()
+            .unwrap()
+    };
+    assert_eq!(
+        loss(&plain, &apart),
+        loss(&weighted, &apart),
+        "no object touches another: the weight must change nothing"
+    );
+    let (a, b) = (loss(&plain, &touching), loss(&weighted, &touching));
+    assert!(b > a * 1.5, "two of three objects touching: {a} -> {b}");
+    let bad = ModelConfig {
+        loss: dynaserve_model::LossConfig {
+            object_contact_weight: 0.0,
+            ..Default::default()
+        },
+        ..ModelConfig::tiny()
+    };
+    assert!(bad.validate().is_err());
+}

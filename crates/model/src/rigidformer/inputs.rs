@@ -5,6 +5,7 @@
 //! Scenes are processed in parallel with rayon; objects are laid out scene-major, and the
 //! per-point rows are packed without padding (the point MLP never sees a padding row).
 
+use dynaserve_geometry::ContactSource;
 use nalgebra::{Matrix3, Vector3};
 
 use super::features::{FeatureFrame, ScenePoints, object_summary, rotation_translation as rot};
@@ -90,6 +91,9 @@ pub(crate) struct BatchInputs<'a> {
     pub free_flight: Vec<bool>,
     /// Current rotation per object (for the quaternion sign of the output).
     pub current_rot: Vec<[f32; 4]>,
+    /// Smallest distance from a point of each object to another object's point at t, found
+    /// by the contact search, `[o]` metres; infinite when none is within the contact radius.
+    pub object_gap: Vec<f32>,
 }
 
 impl BatchInputs<'_> {
@@ -141,6 +145,7 @@ struct SceneChunk {
     anchors_base: Vec<Vec<[f64; 3]>>,
     anchors_ref: Vec<Vec<[f64; 3]>>,
     floor_lift: Vec<f64>,
+    object_gap: Vec<f32>,
 }
 
 /// A scene's rows of the batch's fixed-size buffers: features `[points, F]` and point mask
@@ -307,6 +312,7 @@ pub(crate) fn build_inputs<'a>(
             .iter()
             .flat_map(|r| r.current.iter().map(|p| p.rotation))
             .collect(),
+        object_gap: Vec::with_capacity(o),
     };
     for c in chunks.into_iter().flatten() {
         inp.group_idx.extend(c.group_idx);
@@ -323,6 +329,7 @@ pub(crate) fn build_inputs<'a>(
         inp.anchors_base.extend(c.anchors_base);
         inp.anchors_ref.extend(c.anchors_ref);
         inp.floor_lift.extend(c.floor_lift);
+        inp.object_gap.extend(c.object_gap);
     }
     Ok(inp)
 }
@@ -428,6 +435,7 @@ impl ObjectContext<'_> {
             anchors_base: Vec::with_capacity(m),
             anchors_ref: Vec::with_capacity(m),
             floor_lift: Vec::new(),
+            object_gap: Vec::with_capacity(m),
         };
         let mut ang = Vec::with_capacity(3 * freqs.len());
         // Normalisation as a multiply by the inverse deviation over fixed-length slices: the
@@ -453,8 +461,13 @@ impl ObjectContext<'_> {
                     &frame,
                 ));
             }
-            // Per-point features.
+            // Per-point features, and the nearest other object.
+            let mut gap2 = f32::INFINITY;
             for i in 0..n {
+                let hit = &points.contact[base + i];
+                if let ContactSource::Point(_) = hit.source {
+                    gap2 = gap2.min(hit.displacement.iter().map(|d| d * d).sum());
+                }
                 let row = base + i - row0;
                 let dst = &mut feats[row * nf..(row + 1) * nf];
                 points.raw_features(base + i, obj.reference[i], obj.params, &frame, with_cv, dst);
@@ -463,6 +476,7 @@ impl ObjectContext<'_> {
                 }
                 point_mask[(j - mask0) * nmax + i] = 1.0;
             }
+            c.object_gap.push(gap2.sqrt());
             // Encoder grouping.
             for (ci, &centre) in obj.centres.iter().enumerate() {
                 let cw = world[base + centre];

@@ -215,6 +215,13 @@ impl RigidFormer {
         self
     }
 
+    /// Sets the factor on the training loss of moving objects touching another object
+    /// ([`crate::LossConfig::object_contact_weight`]). Inference is unaffected.
+    pub fn with_object_contact_weight(mut self, weight: f32) -> RigidFormer {
+        self.config.loss.object_contact_weight = weight;
+        self
+    }
+
     /// Sets the model's name (normally its checkpoint directory name).
     pub fn with_name(mut self, name: impl Into<String>) -> RigidFormer {
         self.name = name.into();

@@ -9,6 +9,7 @@ use super::inputs::{SceneRequest, build_inputs};
 use super::projection::{base_shift, pose_f64};
 use crate::ModelError;
 use crate::api::{Pose, SceneState};
+use crate::config::OBJECT_CONTACT_WEIGHT_DISTANCE_M;
 use crate::kernels::kabsch::KabschOp;
 use crate::layers::{Mode, smooth_l1_mean};
 use crate::prepare::{PreparedScene, normalise_pose, validate_state};
@@ -134,7 +135,8 @@ impl RigidFormer {
         let learned = items.iter().flat_map(|it| {
             (0..it.scene.len()).map(|j| !it.kinematic.get(j).copied().unwrap_or(false))
         });
-        // Objects at rest in the window weigh `rest_weight` times as much.
+        // Objects at rest in the window weigh `rest_weight` times as much; moving objects
+        // touching another object at t, `object_contact_weight` times.
         let resting = requests.iter().zip(items).flat_map(|(r, it)| {
             (0..it.scene.len())
                 .map(move |j| at_rest([&r.previous[j], &r.current[j], &it.target[j]], it.dt_steps))
@@ -144,8 +146,15 @@ impl RigidFormer {
             .iter()
             .zip(learned)
             .zip(resting)
-            .map(|((&dt, learn), rest)| {
-                let w = if rest { lc.rest_weight } else { 1.0 };
+            .zip(&inp.object_gap)
+            .map(|(((&dt, learn), rest), &gap)| {
+                let w = if rest {
+                    lc.rest_weight
+                } else if gap <= OBJECT_CONTACT_WEIGHT_DISTANCE_M {
+                    lc.object_contact_weight
+                } else {
+                    1.0
+                };
                 if learn {
                     w / (lc.scale * self.config.dynamics.output_factor(dt))
                 } else {

@@ -188,6 +188,10 @@ pub struct ModelSection {
     /// config or `init` model has (1 unless set before). Above 1 it weighs the millimetre
     /// errors that make resting objects drift against those of impacts.
     pub rest_weight: Option<f32>,
+    /// Factor on the loss of moving objects that touch another object at the window's current
+    /// frame (`LossConfig::object_contact_weight`; a point within 0.1 m of another object's):
+    /// unset keeps what the preset, config or `init` model has (1 unless set before).
+    pub object_contact_weight: Option<f32>,
 }
 
 impl Default for ModelSection {
@@ -205,6 +209,7 @@ impl Default for ModelSection {
             relative_mass: None,
             loss_beta: None,
             rest_weight: None,
+            object_contact_weight: None,
         }
     }
 }
@@ -212,8 +217,8 @@ impl Default for ModelSection {
 impl ModelSection {
     /// The model configuration this section names (before normalisation fitting), with
     /// `contact_velocity` (the normalisation then resized to its defaults),
-    /// `object_summary`, `rigid_extrapolation`, `floor_base`, `relative_mass`, `loss_beta` and
-    /// `rest_weight` applied.
+    /// `object_summary`, `rigid_extrapolation`, `floor_base`, `relative_mass`, `loss_beta`,
+    /// `rest_weight` and `object_contact_weight` applied.
     pub fn model_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {
         let mut c = self.named_config(base)?;
         if let Some(on) = self.rigid_extrapolation {
@@ -230,6 +235,9 @@ impl ModelSection {
         }
         if let Some(w) = self.rest_weight {
             c.loss.rest_weight = w;
+        }
+        if let Some(w) = self.object_contact_weight {
+            c.loss.object_contact_weight = w;
         }
         if let Some(on) = self.object_summary {
             c.dynamics.object_summary = on;
@@ -411,6 +419,11 @@ impl TrainConfig {
         {
             return bad("model.rest_weight must be finite and > 0");
         }
+        if let Some(w) = self.model.object_contact_weight
+            && !(w > 0.0 && w.is_finite())
+        {
+            return bad("model.object_contact_weight must be finite and > 0");
+        }
         let o = &self.optim;
         if o.batch_size == 0 || o.iterations == 0 {
             return bad("optim.batch_size and optim.iterations must be >= 1");
@@ -494,6 +507,18 @@ mod tests {
         c.validate().unwrap();
         let neg: TrainConfig = toml::from_str("[model]\nrest_weight = -1.0\n").unwrap();
         assert!(neg.validate().is_err());
+    }
+
+    #[test]
+    fn object_contact_weight_switches_the_named_config_and_is_checked() {
+        let base = Path::new(".");
+        let loss = |c: &ModelSection| c.model_config(base).unwrap().loss;
+        assert_eq!(loss(&ModelSection::default()).object_contact_weight, 1.0);
+        let c: TrainConfig = toml::from_str("[model]\nobject_contact_weight = 3.0\n").unwrap();
+        assert_eq!(loss(&c.model).object_contact_weight, 3.0);
+        c.validate().unwrap();
+        let nan: TrainConfig = toml::from_str("[model]\nobject_contact_weight = nan\n").unwrap();
+        assert!(nan.validate().is_err());
     }
 
     #[test]

@@ -267,6 +267,10 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                 Some(w) => m.with_rest_weight(w),
                 None => m,
             };
+            let m = match cfg.model.object_contact_weight {
+                Some(w) => m.with_object_contact_weight(w),
+                None => m,
+            };
             let m = init_contact_velocity(m, cfg, &reader)?;
             init_object_summary(m, cfg)?
         } else {
