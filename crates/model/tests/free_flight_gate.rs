@@ -1,7 +1,8 @@
 //! `dynamics.free_flight_gate`: an object out of reach of the floor and of every other object
 //! for the whole step moves exactly as a rigid body in free flight, whatever the network says;
 //! one near the floor, one about to meet another, and every object of a scene with a
-//! kinematic object are left to the network.
+//! kinematic object are left to the network. A flat plate flying low, whose bounding sphere
+//! would reach the floor, is out of reach by its lowest point.
 mod common;
 
 use dynaserve_model::{
@@ -20,6 +21,14 @@ fn cube(rng: &mut ChaCha8Rng, kinematic: bool) -> ObjectInput {
         friction: 0.5,
         restitution: 0.5,
         kinematic,
+    }
+}
+
+/// A plate of half extents 0.6 x 0.6 x 0.04 m (bounding radius 0.85 m).
+fn plate(rng: &mut ChaCha8Rng) -> ObjectInput {
+    ObjectInput {
+        reference: common::box_cloud(rng, 128, [0.6, 0.6, 0.04]),
+        ..cube(rng, false)
     }
 }
 
@@ -46,7 +55,8 @@ fn pose_gap(a: &Pose, b: &Pose) -> f32 {
 }
 
 /// Object 0 flies high and alone, object 1 rests on the floor far away, object 2 flies next
-/// to object 3 and is about to meet it.
+/// to object 3 and is about to meet it, object 4 (the plate) flies level 0.5 m above the
+/// floor, far from the others.
 fn state() -> SceneState {
     let turn = |a: f32| UnitQuaternion::from_euler_angles(0.1 * a, -0.2 * a, 0.3 * a);
     let pose = |x: f32, y: f32, z: f32, a: f32| Pose::from_parts(Vector3::new(x, y, z), turn(a));
@@ -56,12 +66,14 @@ fn state() -> SceneState {
             pose(4.0, 0.0, H, 0.0),
             pose(-4.0, 0.0, 2.0, 0.0),
             pose(-3.0, 0.0, 2.0, 0.0),
+            pose(0.0, 4.0, 0.5, 0.0),
         ],
         current: vec![
             pose(0.05, 0.02, 2.01, 0.1),
             pose(4.0, 0.0, H, 0.0),
             pose(-3.9, 0.0, 2.0, 0.1),
             pose(-3.1, 0.0, 2.0, 0.0),
+            pose(0.05, 4.0, 0.5, 0.1),
         ],
     }
 }
@@ -71,9 +83,10 @@ fn step(gate: bool, kinematic: bool, k: u32) -> (ModelConfig, Vec<Pose>) {
     cfg.dynamics.free_flight_gate = gate;
     let model = RigidFormer::new(cfg.clone(), 4, &Device::Cpu).unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(5);
-    let objects = (0..4)
+    let mut objects: Vec<ObjectInput> = (0..4)
         .map(|i| cube(&mut rng, kinematic && i == 1))
         .collect();
+    objects.push(plate(&mut rng));
     let scene = model.prepare(objects).unwrap();
     let state = state();
     let out = model
@@ -93,7 +106,7 @@ fn only_objects_out_of_reach_fly_ballistically() {
     for k in [1u32, 4] {
         let gaps = |gate: bool, kinematic: bool| -> Vec<f32> {
             let (cfg, out) = step(gate, kinematic, k);
-            (0..4)
+            (0..5)
                 .map(|i| pose_gap(&out[i], &ballistic(&cfg, &s.previous[i], &s.current[i], k)))
                 .collect()
         };
@@ -102,8 +115,8 @@ fn only_objects_out_of_reach_fly_ballistically() {
         let with_pusher = gaps(true, true);
         // The untrained network moves every object off its ballistic path...
         assert!(free.iter().all(|&g| g > 1e-4), "k {k}: {free:?}");
-        // ...except, with the gate, the one out of reach of everything.
-        assert!(gated[0] < 1e-5, "k {k}: {gated:?}");
+        // ...except, with the gate, the two out of reach of everything.
+        assert!(gated[0] < 1e-5 && gated[4] < 1e-5, "k {k}: {gated:?}");
         for i in 1..4 {
             assert_eq!(
                 gated[i], free[i],
@@ -112,5 +125,6 @@ fn only_objects_out_of_reach_fly_ballistically() {
         }
         // A kinematic object anywhere in the scene switches the gate off.
         assert_eq!(with_pusher[0], free[0], "k {k}: {with_pusher:?}");
+        assert_eq!(with_pusher[4], free[4], "k {k}: {with_pusher:?}");
     }
 }

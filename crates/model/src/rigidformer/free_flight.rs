@@ -9,9 +9,11 @@
 //! separation moves on a straight line over the step; the other body may also be deflected by
 //! a contact of its own within the step, taken as at most twice the scene's largest step
 //! displacement, or held up against gravity (a body resting on another does not fall), which
-//! adds the step's free fall. The floor is cleared when the sphere's lowest point is above it
-//! at both ends of the step (a free centre's height is a parabola opening downwards, lowest at
-//! an end).
+//! adds the step's free fall. The floor is cleared when the cloud's lowest point at t, lowered
+//! by the centre's drop over the step (a free centre's height is a parabola opening downwards,
+//! lowest at an end), by the most the rotation over the step can move a point (the angle times
+//! the radius: a chord is shorter than its arc) and by [`MARGIN_M`] plus a tenth of the radius,
+//! stays above it. A flat object flying low clears it where its bounding sphere would not.
 
 use nalgebra::Vector3;
 
@@ -54,10 +56,9 @@ pub(crate) fn free_flight(cfg: &ModelConfig, r: &SceneRequest<'_>) -> Vec<bool> 
     let deflect = 2.0 * step.iter().map(|s| s.norm()).fold(0.0, f64::max) + fall.norm();
     (0..m)
         .map(|i| {
-            let next = now[i] + step[i] + fall;
             let clears_floor = cfg
                 .ground_z
-                .is_none_or(|g| now[i].z.min(next.z) - reach[i] > g as f64);
+                .is_none_or(|g| lowest_over_step(r, i, step[i].z + fall.z) > g as f64);
             clears_floor
                 && (0..m).filter(|&j| j != i).all(|j| {
                     let gap = closest_on_segment(now[i] - now[j], step[i] - step[j]);
@@ -65,6 +66,24 @@ pub(crate) fn free_flight(cfg: &ModelConfig, r: &SceneRequest<'_>) -> Vec<bool> 
                 })
         })
         .collect()
+}
+
+/// A lower bound on the height of object `i`'s surface over the step, metres: its cloud's
+/// lowest point at t, plus `drop` (the centre's height change over the step) when negative,
+/// less the rotation's largest chord and the margin for the surface between points.
+fn lowest_over_step(r: &SceneRequest<'_>, i: usize, drop: f64) -> f64 {
+    let o = &r.scene.objects[i];
+    let (now, before) = (&r.current[i], &r.previous[i]);
+    let rot = now.unit_quaternion().cast::<f64>();
+    let lowest = o
+        .reference
+        .iter()
+        .map(|x| (rot * Vector3::from(*x).cast::<f64>()).z)
+        .fold(f64::INFINITY, f64::min)
+        + f64::from(now.translation[2]);
+    let angle = f64::from(now.unit_quaternion().angle_to(&before.unit_quaternion()));
+    let radius = f64::from(o.radius);
+    lowest + drop.min(0.0) - angle.min(2.0) * radius - (0.1 * radius + MARGIN_M)
 }
 
 /// Smallest norm of `d + s v` for `s` in `[0, 1]`, metres.
