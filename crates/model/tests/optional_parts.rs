@@ -174,3 +174,56 @@ fn a_coarse_output_unit_starts_at_zero_and_learns() {
     let err = RigidFormer::new(with, 8, &Device::Cpu).err().unwrap();
     assert!(err.to_string().contains("accel_coarse_scale"), "{err}");
 }
+
+/// A model deepened with new decoder blocks after blocks 1, 3 and 5 steps exactly as before
+/// (the old blocks moved to their new places, the new ones the identity), has the new blocks'
+/// parameters and its taps on the new blocks; bad indices are refused.
+#[test]
+fn a_deepened_model_computes_the_same_function() {
+    let a = RigidFormer::new_frozen(ModelConfig::small(), 5, &Device::Cpu).unwrap();
+    assert_eq!(
+        (a.config().blocks, &a.config().anchor_taps[..]),
+        (6, &[1, 3, 5][..])
+    );
+    let deep = a.deepened(&[1, 3, 5], 9, false).unwrap();
+    assert_eq!(deep.config().blocks, 9);
+    assert_eq!(deep.config().anchor_taps, vec![2, 5, 8]);
+    let per_block = a.parameter_count()
+        - RigidFormer::new_frozen(
+            ModelConfig {
+                blocks: 5,
+                anchor_taps: vec![1, 3, 4],
+                ..ModelConfig::small()
+            },
+            5,
+            &Device::Cpu,
+        )
+        .unwrap()
+        .parameter_count();
+    assert_eq!(deep.parameter_count(), a.parameter_count() + 3 * per_block);
+    for (seed, k) in [(1, 1), (2, 4)] {
+        let diff = max_pose_diff(&step(&a, seed, k), &step(&deep, seed, k));
+        assert!(diff < 1e-5, "seed {seed}, k {k}: differs by {diff}");
+    }
+    for bad in [&[][..], &[6][..], &[2, 2][..]] {
+        let err = a.deepened(bad, 9, false).err().unwrap().to_string();
+        assert!(err.contains("distinct indices below 6"), "{bad:?}: {err}");
+    }
+}
+
+/// The inserted block's zero output projection receives a gradient from the first backward
+/// pass, so training moves it off the identity.
+#[test]
+fn an_inserted_block_learns() {
+    let model = RigidFormer::new(ModelConfig::tiny(), 3, &Device::Cpu)
+        .unwrap()
+        .deepened(&[0], 4, true)
+        .unwrap();
+    assert_eq!(model.config().anchor_taps, vec![1, 2]);
+    let (objects, state) = random_scene(4, 3, 64);
+    let target = constant_velocity_targets(&state, 0.05);
+    let name = "decoder.blocks.1.attn.out.weight";
+    let (g, _) = one_step_gradient(&model, objects, &state, &target, 1, name);
+    let norm = squared_norm(&g);
+    assert!(norm > 0.0 && norm.is_finite(), "{name} gradient {norm}");
+}

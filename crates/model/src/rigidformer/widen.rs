@@ -1,6 +1,7 @@
-//! Widening a trained model's inputs: a 12-feature model becomes one that also reads the
-//! contact velocity, and a model without the object state summary one that reads it; each
-//! computes exactly the same function until training moves the new weights.
+//! Widening a trained model: a 12-feature model becomes one that also reads the
+//! contact velocity, a model without the object state summary one that reads it, and a
+//! model gets more decoder blocks; each computes exactly the same function until training
+//! moves the new weights.
 
 use std::collections::HashMap;
 
@@ -121,5 +122,83 @@ impl RigidFormer {
                 .with_fused_kernels(self.fused_kernels)
                 .with_scene_threads(self.scene_threads),
         )
+    }
+}
+
+/// Parameters of a decoder block (after `decoder.blocks.{l}.`) that a block inserted by
+/// [`RigidFormer::deepened`] starts at zero: the attention's output projection, the FiLM's
+/// last layer and the feed-forward's output, so the block adds nothing and modulates nothing.
+const IDENTITY_AT_START: [&str; 4] = [
+    "attn.out.weight",
+    "film.1.weight",
+    "film.1.bias",
+    "ffn.down.weight",
+];
+
+impl RigidFormer {
+    /// A deeper copy of this model: one new decoder block right after each block index in
+    /// `insert_after` (0-based, distinct, each below [`crate::ModelConfig::blocks`]). The new
+    /// blocks are drawn from `seed` with [`IDENTITY_AT_START`] zero, so each passes its input
+    /// through unchanged and the copy's outputs equal this model's; an anchor tap on a block
+    /// that gets a new one after it moves to the new block, so the anchors read the added
+    /// depth. Every other weight is copied. `trainable` keeps gradient tracking on the copy's
+    /// weights.
+    pub fn deepened(
+        &self,
+        insert_after: &[usize],
+        seed: u64,
+        trainable: bool,
+    ) -> Result<RigidFormer, ModelError> {
+        let old = self.config.blocks;
+        let mut after = insert_after.to_vec();
+        after.sort_unstable();
+        after.dedup();
+        if after.is_empty() || after.len() != insert_after.len() || after[after.len() - 1] >= old {
+            return Err(ModelError::InvalidInput(format!(
+                "blocks to insert after must be distinct indices below {old}, got {insert_after:?}"
+            )));
+        }
+        // New index of every old block, and the indices of the inserted ones.
+        let (mut moved, mut inserted) = (Vec::with_capacity(old), Vec::new());
+        for l in 0..old {
+            moved.push(l + inserted.len());
+            if after.contains(&l) {
+                inserted.push(l + inserted.len() + 1);
+            }
+        }
+        let mut config = self.config.clone();
+        config.blocks = old + inserted.len();
+        config.anchor_taps = config
+            .anchor_taps
+            .iter()
+            .map(|&t| moved[t] + usize::from(after.contains(&t)))
+            .collect();
+        config.validate()?;
+        let fresh = RigidFormer::new_frozen(config.clone(), seed, &self.device)?.weight_copies()?;
+        let block_of = |name: &str| -> Option<(usize, String)> {
+            let rest = name.strip_prefix("decoder.blocks.")?;
+            let (l, tail) = rest.split_once('.')?;
+            Some((l.parse().ok()?, tail.to_string()))
+        };
+        let mut tensors = HashMap::new();
+        for (name, t) in self.weight_copies()? {
+            match block_of(&name) {
+                Some((l, tail)) => tensors.insert(format!("decoder.blocks.{}.{tail}", moved[l]), t),
+                None => tensors.insert(name, t),
+            };
+        }
+        for (name, t) in fresh {
+            if let Some((l, tail)) = block_of(&name)
+                && inserted.contains(&l)
+            {
+                let t = if IDENTITY_AT_START.contains(&tail.as_str()) {
+                    t.zeros_like()?
+                } else {
+                    t
+                };
+                tensors.insert(name, t);
+            }
+        }
+        self.rebuilt(config, tensors, trainable)
     }
 }

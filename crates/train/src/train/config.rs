@@ -192,6 +192,11 @@ pub struct ModelSection {
     /// frame (`LossConfig::object_contact_weight`; a point within 0.1 m of another object's):
     /// unset keeps what the preset, config or `init` model has (1 unless set before).
     pub object_contact_weight: Option<f32>,
+    /// Deepens the `init` model before training: one new decoder block after each of these
+    /// block indices (0-based, distinct), each starting as the identity
+    /// (`RigidFormer::deepened`), so training starts from the same function with more depth.
+    /// Needs `init`; unset or empty keeps the depth.
+    pub insert_blocks_after: Option<Vec<usize>>,
 }
 
 impl Default for ModelSection {
@@ -210,6 +215,7 @@ impl Default for ModelSection {
             loss_beta: None,
             rest_weight: None,
             object_contact_weight: None,
+            insert_blocks_after: None,
         }
     }
 }
@@ -424,6 +430,15 @@ impl TrainConfig {
         {
             return bad("model.object_contact_weight must be finite and > 0");
         }
+        if self
+            .model
+            .insert_blocks_after
+            .as_ref()
+            .is_some_and(|v| !v.is_empty())
+            && self.model.init.is_none()
+        {
+            return bad("model.insert_blocks_after deepens the model.init model: set model.init");
+        }
         let o = &self.optim;
         if o.batch_size == 0 || o.iterations == 0 {
             return bad("optim.batch_size and optim.iterations must be >= 1");
@@ -519,6 +534,17 @@ mod tests {
         c.validate().unwrap();
         let nan: TrainConfig = toml::from_str("[model]\nobject_contact_weight = nan\n").unwrap();
         assert!(nan.validate().is_err());
+    }
+
+    #[test]
+    fn inserted_blocks_need_an_init_model() {
+        let c: TrainConfig = toml::from_str("[model]\ninsert_blocks_after = [1, 3]\n").unwrap();
+        let err = c.validate().unwrap_err().to_string();
+        assert!(err.contains("set model.init"), "{err}");
+        let c: TrainConfig =
+            toml::from_str("[model]\ninit = \"runs/x\"\ninsert_blocks_after = [1, 3]\n").unwrap();
+        assert_eq!(c.model.insert_blocks_after, Some(vec![1, 3]));
+        c.validate().unwrap();
     }
 
     #[test]

@@ -272,7 +272,19 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                 None => m,
             };
             let m = init_contact_velocity(m, cfg, &reader)?;
-            init_object_summary(m, cfg)?
+            let m = init_object_summary(m, cfg)?;
+            match cfg.model.insert_blocks_after.as_deref() {
+                Some(after) if !after.is_empty() => {
+                    let deep = m.deepened(after, cfg.model.seed, true)?;
+                    eprintln!(
+                        "deepened to {} decoder blocks (new ones after {after:?} start as the identity), anchor taps {:?}",
+                        deep.config().blocks,
+                        deep.config().anchor_taps
+                    );
+                    deep
+                }
+                _ => m,
+            }
         } else {
             let mut mc = cfg.model.model_config(Path::new("."))?;
             mc.dt_frame = reader.primary().manifest().dt_frame;
