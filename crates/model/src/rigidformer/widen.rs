@@ -138,11 +138,11 @@ const IDENTITY_AT_START: [&str; 4] = [
 impl RigidFormer {
     /// A deeper copy of this model: one new decoder block right after each block index in
     /// `insert_after` (0-based, distinct, each below [`crate::ModelConfig::blocks`]). The new
-    /// blocks are drawn from `seed` with [`IDENTITY_AT_START`] zero, so each passes its input
-    /// through unchanged and the copy's outputs equal this model's; an anchor tap on a block
-    /// that gets a new one after it moves to the new block, so the anchors read the added
-    /// depth. Every other weight is copied. `trainable` keeps gradient tracking on the copy's
-    /// weights.
+    /// blocks are drawn from `seed` with their attention output, FiLM output and feed-forward
+    /// output layers zero, so each passes its input through unchanged and the copy's outputs
+    /// equal this model's; an anchor tap on a block that gets a new one after it moves to the
+    /// new block, so the anchors read the added depth. Every other weight is copied.
+    /// `trainable` keeps gradient tracking on the copy's weights.
     pub fn deepened(
         &self,
         insert_after: &[usize],
