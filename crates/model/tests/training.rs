@@ -5,7 +5,8 @@ mod common;
 use candle_core::{Tensor, Var};
 use common::random_scene;
 use dynaserve_model::{
-    Device, KabschOp, ModelConfig, Pose, RigidFormer, SceneState, TrainItem, WorldModel,
+    Device, KabschOp, ModelConfig, Pose, PreparedScene, RigidFormer, SceneState, TrainItem,
+    WorldModel,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
@@ -435,6 +436,37 @@ fn kinematic_objects_add_nothing_to_the_loss() {
     assert!(err.contains("kinematic flags"), "{err}");
 }
 
+/// The training loss of one sample at step size 1.
+fn step_loss(
+    model: &RigidFormer,
+    scene: &PreparedScene,
+    state: &SceneState,
+    target: &[Pose],
+) -> f32 {
+    model
+        .train_forward(&[TrainItem {
+            scene,
+            state,
+            target,
+            dt_steps: 1,
+            kinematic: &[],
+        }])
+        .unwrap()
+        .loss
+        .to_scalar::<f32>()
+        .unwrap()
+}
+
+/// `loss` on the tiny configuration fails validation.
+fn refused(loss: dynaserve_model::LossConfig) -> bool {
+    ModelConfig {
+        loss,
+        ..ModelConfig::tiny()
+    }
+    .validate()
+    .is_err()
+}
+
 #[test]
 fn rest_weight_scales_only_objects_at_rest() {
     let plain = RigidFormer::new(ModelConfig::tiny(), 7, &Device::Cpu).unwrap();
@@ -449,18 +481,7 @@ fn rest_weight_scales_only_objects_at_rest() {
     let mut target = next_poses(&resting);
     target[0] = resting.current[0];
     let loss = |model: &RigidFormer, state: &SceneState, target: &[Pose]| {
-        model
-            .train_forward(&[TrainItem {
-                scene: &sc,
-                state,
-                target,
-                dt_steps: 1,
-                kinematic: &[],
-            }])
-            .unwrap()
-            .loss
-            .to_scalar::<f32>()
-            .unwrap()
+        step_loss(model, &sc, state, target)
     };
     let moving_target = next_poses(&st);
     assert_eq!(
@@ -473,14 +494,10 @@ fn rest_weight_scales_only_objects_at_rest() {
         loss(&weighted, &resting, &target),
     );
     assert!(b > a * 1.05, "resting object weighted: {a} -> {b}");
-    let bad = ModelConfig {
-        loss: dynaserve_model::LossConfig {
-            rest_weight: 0.0,
-            ..Default::default()
-        },
-        ..ModelConfig::tiny()
-    };
-    assert!(bad.validate().is_err());
+    assert!(refused(dynaserve_model::LossConfig {
+        rest_weight: 0.0,
+        ..Default::default()
+    }));
 }
 
 /// The object-contact weight raises the loss only when a moving object has a point within
@@ -513,20 +530,8 @@ fn object_contact_weight_scales_only_objects_touching_another() {
     // first two overlap.
     let apart = place(&apart, [[0.0, 0.0, 2.0], [4.0, 0.0, 2.0], [0.0, 4.0, 2.0]]);
     let touching = place(&apart, [[0.0, 0.0, 2.0], [0.3, 0.0, 2.0], [0.0, 4.0, 2.0]]);
-    let loss = |model: &RigidFormer, state: &SceneState| {
-        model
-            .train_forward(&[TrainItem {
-                scene: &sc,
-                state,
-                target: &next_poses(state),
-                dt_steps: 1,
-                kinematic: &[],
-            }])
-            .unwrap()
-            .loss
-            .to_scalar::<f32>()
-            .unwrap()
-    };
+    let loss =
+        |model: &RigidFormer, state: &SceneState| step_loss(model, &sc, state, &next_poses(state));
     assert_eq!(
         loss(&plain, &apart),
         loss(&weighted, &apart),
@@ -534,12 +539,8 @@ fn object_contact_weight_scales_only_objects_touching_another() {
     );
     let (a, b) = (loss(&plain, &touching), loss(&weighted, &touching));
     assert!(b > a * 1.5, "two of three objects touching: {a} -> {b}");
-    let bad = ModelConfig {
-        loss: dynaserve_model::LossConfig {
-            object_contact_weight: 0.0,
-            ..Default::default()
-        },
-        ..ModelConfig::tiny()
-    };
-    assert!(bad.validate().is_err());
+    assert!(refused(dynaserve_model::LossConfig {
+        object_contact_weight: 0.0,
+        ..Default::default()
+    }));
 }
