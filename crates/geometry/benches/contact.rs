@@ -8,14 +8,16 @@
 //! `fast` is the default entry point (parallel from `PARALLEL_MIN_POINTS` points, so for both
 //! scenes), `fast_parallel` the same search forced onto rayon's pool, `brute` the exhaustive
 //! reference.
-//! `contact/threshold/*` compares serial and parallel on growing touching stacks.
+//! `contact/threshold/*` compares serial and parallel on growing touching stacks;
+//! `normals/box/*` times surface normal estimation on one object's cloud.
 //!
 //! Run: `cargo bench -p dynaserve-geometry --bench contact`
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use dynaserve_geometry::contact::ContactWorkspace;
 use dynaserve_geometry::{
-    ContactConfig, Point, contact_features, contact_features_brute_force, kabsch,
+    ContactConfig, DEFAULT_NORMAL_NEIGHBOURS, Point, contact_features,
+    contact_features_brute_force, estimate_normals, kabsch,
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -183,5 +185,26 @@ fn bench_kabsch(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, bench_contact, bench_threshold, bench_kabsch);
+/// Normal estimation on one box of 1 m x 0.6 m x 0.4 m at the point counts training draws
+/// (96, 256), a client's usual count (512) and a dense cloud (2048).
+fn bench_normals(c: &mut Criterion) {
+    let mut group = c.benchmark_group("normals/box");
+    for n in [96usize, 256, 512, 2048] {
+        let mut rng = ChaCha8Rng::seed_from_u64(n as u64);
+        let mut points = Vec::new();
+        box_surface(&mut rng, [0.0; 3], [0.5, 0.3, 0.2], n, &mut points);
+        group.bench_with_input(BenchmarkId::from_parameter(n), &points, |b, pts| {
+            b.iter(|| estimate_normals(black_box(pts), DEFAULT_NORMAL_NEIGHBOURS).expect("normals"))
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(
+    benches,
+    bench_contact,
+    bench_threshold,
+    bench_kabsch,
+    bench_normals
+);
 criterion_main!(benches);

@@ -9,6 +9,7 @@ pub mod fps;
 pub mod kabsch;
 pub mod mesh;
 pub mod metrics;
+pub mod normals;
 pub mod quat;
 
 pub use contact::{
@@ -22,6 +23,7 @@ pub use metrics::{
     RmseAccumulator, momentum_drift_ratio, orientation_rmse_deg, rigidity_residual,
     translation_rmse,
 };
+pub use normals::{DEFAULT_NORMAL_NEIGHBOURS, estimate_normals};
 pub use quat::geodesic_angle;
 
 /// A point or displacement in metres.

@@ -20,14 +20,22 @@ pub const BASE_POINT_FEATURES: usize = 12;
 /// contact surface's increment relative to the point's own (3).
 pub const CONTACT_VELOCITY_FEATURES: usize = 3;
 
+/// Features appended after the base ones and the contact velocity (if on) when
+/// [`DynamicsConfig::surface_normals`] is on: the point's own outward normal (3), the normal of
+/// the surface its contact feature reaches (3) and its height above that surface's tangent
+/// plane (1).
+pub const SURFACE_NORMAL_FEATURES: usize = 7;
+
 /// Numbers per object in the object state summary ([`DynamicsConfig::object_summary`]).
 pub const OBJECT_SUMMARY_FEATURES: usize = 14;
 
 /// Affine normalisation of the per-point input features: `(raw - mean) / std`, one value per
-/// feature ([`DynamicsConfig::point_features`]: 12, or 15 with the contact velocity).
+/// feature ([`DynamicsConfig::point_features`]: 12, plus 3 with the contact velocity, plus 7
+/// with the surface normals).
 ///
 /// Layout: `[contact_x, contact_y, contact_z, v_x, v_y, v_z, r_x, r_y, r_z, ln(mass / 1 kg),
-/// friction, restitution]`, then `[cv_x, cv_y, cv_z]` with the contact velocity. Contact
+/// friction, restitution]`, then `[cv_x, cv_y, cv_z]` with the contact velocity, then `[n_x,
+/// n_y, n_z, m_x, m_y, m_z, gap]` with the surface normals (unit vectors; the gap in metres). Contact
 /// displacement, increment, offset and contact velocity are in metres (increments per step of
 /// `dt_steps` frames, or per frame with per-frame units); mass enters as its natural logarithm.
 /// The trainer fits these from data; the defaults are sensible for MOVi-like scenes.
@@ -62,12 +70,17 @@ impl Default for FeatureNormalization {
 
 impl FeatureNormalization {
     /// Default constants for the features `dynamics` selects (the contact velocity, if on,
-    /// gets mean 0 and the increment's scale).
+    /// gets mean 0 and the increment's scale; the surface normals mean 0 and scale 0.5, their
+    /// gap the contact feature's).
     pub fn defaults_for(dynamics: &DynamicsConfig) -> FeatureNormalization {
         let mut n = FeatureNormalization::default();
         if dynamics.contact_velocity {
             n.mean.extend([0.0; CONTACT_VELOCITY_FEATURES]);
             n.std.extend([0.05; CONTACT_VELOCITY_FEATURES]);
+        }
+        if dynamics.surface_normals {
+            n.mean.extend([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.1]);
+            n.std.extend([0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.1]);
         }
         n
     }
@@ -165,6 +178,16 @@ pub struct DynamicsConfig {
     /// its own increment for the ground), in the increment feature's units. Adds
     /// [`CONTACT_VELOCITY_FEATURES`] inputs after the base ones.
     pub contact_velocity: bool,
+    /// Surface normal features: per point, its outward normal estimated from the reference
+    /// cloud (a plane fitted to its nearest points, signed away from the centroid; world
+    /// frame), the normal of the surface its contact feature reaches (the nearest other
+    /// point's, `+z` for the ground, zero when nothing is within the contact radius) and its
+    /// height above that surface's tangent plane in metres (negative when it is behind it;
+    /// the contact radius when nothing is near). Between two sparsely sampled faces the
+    /// point-to-point distance is off by up to half the spacing of the points; the
+    /// point-to-plane height is not. Adds [`SURFACE_NORMAL_FEATURES`] inputs after the base
+    /// ones and the contact velocity. Absent in older `config.json` files, which means off.
+    pub surface_normals: bool,
     /// Extrapolate each object as a rigid body in the Verlet base: the base keeps the object's
     /// linear and angular velocity (`R_{t+k} = R_t R_{t-k}^T R_t`, centre `2 p_t - p_{t-k}`)
     /// instead of extrapolating every anchor linearly (`2 A_t - A_{t-k}`), which lags a
@@ -216,6 +239,7 @@ impl DynamicsConfig {
             per_frame_units: true,
             translation_invariant: true,
             contact_velocity: true,
+            surface_normals: false,
             rigid_extrapolation: true,
             object_summary: false,
             floor_base: false,
@@ -225,11 +249,17 @@ impl DynamicsConfig {
     }
 
     /// Number of per-point input features: [`BASE_POINT_FEATURES`], plus
-    /// [`CONTACT_VELOCITY_FEATURES`] with the contact velocity.
+    /// [`CONTACT_VELOCITY_FEATURES`] with the contact velocity, plus
+    /// [`SURFACE_NORMAL_FEATURES`] with the surface normals.
     pub fn point_features(&self) -> usize {
         BASE_POINT_FEATURES
             + if self.contact_velocity {
                 CONTACT_VELOCITY_FEATURES
+            } else {
+                0
+            }
+            + if self.surface_normals {
+                SURFACE_NORMAL_FEATURES
             } else {
                 0
             }
@@ -281,7 +311,7 @@ pub struct ModelConfig {
     pub contact_radius: f32,
     /// Height of the ground plane's top in metres, or `None` for no ground.
     pub ground_z: Option<f32>,
-    /// Normalisation of the per-point features (12, or 15 with the contact velocity).
+    /// Normalisation of the per-point features ([`DynamicsConfig::point_features`]).
     pub normalization: FeatureNormalization,
     /// Scale dividing relative point positions inside the encoder, metres.
     pub position_scale: f32,

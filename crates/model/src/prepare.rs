@@ -36,6 +36,9 @@ pub(crate) struct PreparedObject {
     pub anchor_d2: Vec<f32>,
     /// Centroid of the reference cloud, metres.
     pub centroid: [f32; 3],
+    /// Body-frame outward unit normals `[n, 3]` when the model reads surface normals
+    /// ([`crate::DynamicsConfig::surface_normals`]); empty otherwise.
+    pub normals: Vec<[f32; 3]>,
     /// Largest distance of a reference point from the body origin (the centre of mass),
     /// metres: the radius of a sphere about the centre holding the cloud in any attitude.
     pub radius: f32,
@@ -329,8 +332,14 @@ fn prepare_object(cfg: &ModelConfig, o: ObjectInput) -> Result<PreparedObject, S
         .iter()
         .map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt())
         .fold(0.0f32, f32::max);
+    let normals = if cfg.dynamics.surface_normals {
+        crate::rigidformer::features::body_normals(&o.reference)
+    } else {
+        Vec::new()
+    };
     Ok(PreparedObject {
         params: crate::rigidformer::features::object_params(o.mass, o.friction, o.restitution),
+        normals,
         radius,
         kinematic: o.kinematic,
         reference: o.reference,

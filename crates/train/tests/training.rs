@@ -211,9 +211,10 @@ fn resume_is_exact() {
 
 /// `model.contact_velocity = true` on a 12-feature `model.init` widens it: the run's model
 /// takes 15 features, keeps the 12 old normalisation constants and fits the 3 new ones; a
-/// model that has the inputs cannot lose them.
+/// model that has the inputs cannot lose them. `model.surface_normals = true` then widens
+/// that model to 22 features the same way.
 #[test]
-fn init_widens_a_model_for_the_contact_velocity() {
+fn init_widens_a_model_for_the_contact_velocity_and_the_surface_normals() {
     let dir = scratch("widen");
     let data = tiny_dataset(&dir);
     train_tiny_from(&data, &dir, "base", None, |c| {
@@ -242,6 +243,29 @@ fn init_widens_a_model_for_the_contact_velocity() {
 
     let err = train_tiny_from(&data, &dir, "narrow", Some("wide"), |c| {
         c.model.contact_velocity = Some(false)
+    })
+    .unwrap_err();
+    assert!(err.to_string().contains("cannot be removed"), "{err}");
+
+    train_tiny_from(&data, &dir, "normals", Some("wide"), |c| {
+        c.model.surface_normals = Some(true)
+    })
+    .unwrap();
+    let cfg = dynaserve_model::read_config(&dir.join("normals/checkpoint")).unwrap();
+    assert!(cfg.dynamics.surface_normals && cfg.dynamics.contact_velocity);
+    assert_eq!(cfg.point_features(), 22);
+    let (n, w) = (&cfg.normalization, &wide_cfg.normalization);
+    assert_eq!(n.mean[..15], w.mean[..]);
+    assert_eq!(n.std[..15], w.std[..]);
+    // The fitted gap (last feature): a mean between zero and the contact radius.
+    assert!(
+        n.mean[21] > 0.0 && n.mean[21] < cfg.contact_radius,
+        "{:?}",
+        n.mean
+    );
+    assert!(n.std[15..].iter().all(|s| s.is_finite() && *s >= 0.01));
+    let err = train_tiny_from(&data, &dir, "flat", Some("normals"), |c| {
+        c.model.surface_normals = Some(false)
     })
     .unwrap_err();
     assert!(err.to_string().contains("cannot be removed"), "{err}");

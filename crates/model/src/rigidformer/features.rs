@@ -1,15 +1,18 @@
 //! The per-point input features shared by the model and the trainer's normalisation fit:
 //! physical parameters, the frame features are measured from, the 12 base raw values, the
-//! optional contact velocity, and [`ScenePoints`], the one place a scene's points are placed
-//! in the world, searched for contacts and turned into raw features.
+//! optional contact velocity and surface normals, and [`ScenePoints`], the one place a scene's
+//! points are placed in the world, searched for contacts and turned into raw features.
 
-use dynaserve_geometry::{ContactConfig, ContactHit, ContactSource, Point, contact_hits};
+use dynaserve_geometry::{
+    ContactConfig, ContactHit, ContactSource, DEFAULT_NORMAL_NEIGHBOURS, Point, contact_hits,
+    estimate_normals,
+};
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 use crate::api::Pose;
 use crate::config::{
     BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig, ModelConfig,
-    OBJECT_SUMMARY_FEATURES,
+    OBJECT_SUMMARY_FEATURES, SURFACE_NORMAL_FEATURES,
 };
 
 /// Physical parameters as the model sees them: `[ln(mass / kg), friction, restitution]`.
@@ -98,6 +101,41 @@ pub fn contact_velocity(
     }
 }
 
+/// Body-frame outward normals of one object's reference cloud (`[n, 3]` metres in, `[n, 3]`
+/// unit vectors out), as [`DynamicsConfig::surface_normals`] uses them: a plane fitted to each
+/// point's [`DEFAULT_NORMAL_NEIGHBOURS`] nearest points, signed away from the centroid
+/// ([`estimate_normals`]). A cloud the estimator refuses (empty or not finite; validation
+/// refuses both first) gets `+z` everywhere.
+pub fn body_normals(reference: &[Point]) -> Vec<Point> {
+    estimate_normals(reference, DEFAULT_NORMAL_NEIGHBOURS)
+        .unwrap_or_else(|_| vec![[0.0, 0.0, 1.0]; reference.len()])
+}
+
+/// The surface normal features of point `q` of a scene ([`DynamicsConfig::surface_normals`]):
+/// its own world normal `normals[q]` (3), the normal of the surface its contact `hit` reaches
+/// (3: the nearest other point's world normal, `+z` for the ground, zero when nothing is within
+/// the contact radius) and its signed height above that surface's tangent plane, metres (1:
+/// minus the contact displacement along that normal, negative behind the plane; `radius` when
+/// nothing is near). `normals`: every point's unit normal at t, `[n, 3]`.
+pub fn surface_normal_features(
+    hit: &ContactHit,
+    q: usize,
+    normals: &[Point],
+    radius: f32,
+) -> [f32; SURFACE_NORMAL_FEATURES] {
+    let own = normals[q];
+    let (other, gap) = match hit.source {
+        ContactSource::Point(j) => {
+            let m = normals[j as usize];
+            let along: f32 = (0..3).map(|d| hit.displacement[d] * m[d]).sum();
+            (m, (-along).clamp(-radius, radius))
+        }
+        ContactSource::Ground => ([0.0, 0.0, 1.0], (-hit.displacement[2]).min(radius)),
+        ContactSource::Free => ([0.0; 3], radius),
+    };
+    [own[0], own[1], own[2], other[0], other[1], other[2], gap]
+}
+
 /// Heights in the object summary are divided by this, metres.
 pub const SUMMARY_HEIGHT_SCALE: f32 = 0.5;
 /// Heights in the object summary are clamped to this before scaling, metres: a body far above
@@ -178,6 +216,11 @@ pub struct ScenePoints {
     pub offsets: Vec<usize>,
     /// The contact search's result per point, `[n]` (radius and ground from the model).
     pub contact: Vec<ContactHit>,
+    /// Every point's outward unit normal at t, `[n, 3]`, when the model reads surface normals
+    /// ([`ScenePoints::with_normals`]); empty otherwise.
+    pub normals: Vec<Point>,
+    /// The model's contact radius, metres.
+    radius: f32,
 }
 
 impl ScenePoints {
@@ -217,21 +260,42 @@ impl ScenePoints {
             world_prev,
             offsets,
             contact,
+            normals: Vec::new(),
+            radius: cfg.contact_radius,
         }
+    }
+
+    /// Adds every point's world normal at t: each object's body-frame normals (`[n, 3]` unit
+    /// vectors, in the reference clouds' order, e.g. [`body_normals`]) turned by its `current`
+    /// pose. Needed by [`ScenePoints::raw_features`] when the model reads surface normals.
+    pub fn with_normals<'a>(
+        mut self,
+        body: impl IntoIterator<Item = &'a [Point]>,
+        current: &[Pose],
+    ) -> ScenePoints {
+        self.normals = Vec::with_capacity(self.world.len());
+        for (normals, now) in body.into_iter().zip(current) {
+            let (rc, _) = rotation_translation(now);
+            for m in normals {
+                let w = rc * Vector3::from(*m);
+                self.normals.push([w.x, w.y, w.z]);
+            }
+        }
+        self
     }
 
     /// Writes the raw (unnormalised) features of point `q` of the scene into `out`: the
     /// [`raw_point_features`] of its `reference` position (body frame, metres) and its
-    /// object's `params`, then, when `with_contact_velocity`, its [`contact_velocity`].
-    /// `out` holds [`BASE_POINT_FEATURES`] values, plus [`CONTACT_VELOCITY_FEATURES`] with
-    /// the contact velocity.
+    /// object's `params`, then the optional ones `dynamics` selects: its [`contact_velocity`]
+    /// and its [`surface_normal_features`] (which need [`ScenePoints::with_normals`]).
+    /// `out` holds [`DynamicsConfig::point_features`] values.
     pub fn raw_features(
         &self,
         q: usize,
         reference: Point,
         params: [f32; 3],
         frame: &FeatureFrame,
-        with_contact_velocity: bool,
+        dynamics: &DynamicsConfig,
         out: &mut [f32],
     ) {
         let hit = self.contact[q];
@@ -243,15 +307,24 @@ impl ScenePoints {
             params,
             frame,
         ));
-        if with_contact_velocity {
-            out[BASE_POINT_FEATURES..BASE_POINT_FEATURES + CONTACT_VELOCITY_FEATURES]
-                .copy_from_slice(&contact_velocity(
-                    hit.source,
-                    q,
-                    &self.world,
-                    &self.world_prev,
-                    frame,
-                ));
+        let mut at = BASE_POINT_FEATURES;
+        if dynamics.contact_velocity {
+            out[at..at + CONTACT_VELOCITY_FEATURES].copy_from_slice(&contact_velocity(
+                hit.source,
+                q,
+                &self.world,
+                &self.world_prev,
+                frame,
+            ));
+            at += CONTACT_VELOCITY_FEATURES;
+        }
+        if dynamics.surface_normals {
+            out[at..at + SURFACE_NORMAL_FEATURES].copy_from_slice(&surface_normal_features(
+                &hit,
+                q,
+                &self.normals,
+                self.radius,
+            ));
         }
     }
 }

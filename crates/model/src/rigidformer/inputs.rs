@@ -351,12 +351,18 @@ fn scene_chunk(
     let scene = r.scene;
     let m = scene.len();
     // World points at t and t-1 and their contacts.
-    let points = ScenePoints::new(
+    let mut points = ScenePoints::new(
         cfg,
         scene.objects.iter().map(|o| o.reference.as_slice()),
         &r.current,
         &r.previous,
     );
+    if cfg.dynamics.surface_normals {
+        points = points.with_normals(
+            scene.objects.iter().map(|o| o.normals.as_slice()),
+            &r.current,
+        );
+    }
     let ctx = ObjectContext {
         cfg,
         r,
@@ -415,7 +421,6 @@ impl ObjectContext<'_> {
         let inv_scale = 1.0 / cfg.position_scale;
         let norm = &cfg.normalization;
         let nf = cfg.point_features();
-        let with_cv = cfg.dynamics.contact_velocity;
         let rigid = cfg.dynamics.rigid_extrapolation;
         let points = self.points;
         let (world, offsets) = (&points.world, &points.offsets);
@@ -470,7 +475,14 @@ impl ObjectContext<'_> {
                 }
                 let row = base + i - row0;
                 let dst = &mut feats[row * nf..(row + 1) * nf];
-                points.raw_features(base + i, obj.reference[i], obj.params, &frame, with_cv, dst);
+                points.raw_features(
+                    base + i,
+                    obj.reference[i],
+                    obj.params,
+                    &frame,
+                    &cfg.dynamics,
+                    dst,
+                );
                 for ((v, m), is) in dst.iter_mut().zip(mean).zip(&inv_std) {
                     *v = (*v - m) * is;
                 }

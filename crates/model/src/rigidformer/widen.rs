@@ -1,5 +1,5 @@
 //! Widening a trained model: a 12-feature model becomes one that also reads the
-//! contact velocity, a model without the object state summary one that reads it, and a
+//! contact velocity, a model without surface normals one that reads them, a model without the object state summary one that reads it, and a
 //! model gets more decoder blocks; each computes exactly the same function until training
 //! moves the new weights.
 
@@ -10,7 +10,7 @@ use candle_core::Tensor;
 use super::RigidFormer;
 use super::encoder::POINT_INPUT_WEIGHT;
 use super::summary::SUMMARY_PARAMETERS;
-use crate::config::CONTACT_VELOCITY_FEATURES;
+use crate::config::{BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, SURFACE_NORMAL_FEATURES};
 use crate::layers::ParamStore;
 use crate::{FeatureNormalization, ModelError};
 
@@ -34,32 +34,80 @@ impl RigidFormer {
                 "the model already takes the contact velocity".into(),
             ));
         }
-        if extra.mean.len() != CONTACT_VELOCITY_FEATURES
-            || extra.std.len() != CONTACT_VELOCITY_FEATURES
-        {
+        let mut config = self.config.clone();
+        config.dynamics.contact_velocity = true;
+        self.with_zero_inputs(
+            config,
+            BASE_POINT_FEATURES,
+            CONTACT_VELOCITY_FEATURES,
+            "contact velocity",
+            extra,
+            trainable,
+        )
+    }
+
+    /// A copy of this model that also takes the surface normal features
+    /// ([`crate::DynamicsConfig::surface_normals`]), as
+    /// [`RigidFormer::widened_with_contact_velocity`] does for the contact velocity: the
+    /// encoder's first layer gets [`SURFACE_NORMAL_FEATURES`] zero input columns after the
+    /// existing ones, so the copy's outputs equal this model's, and `extra` (7 means and 7
+    /// scales) is appended to the normalisation. `trainable` keeps gradient tracking.
+    ///
+    /// Errors if the model already takes the surface normals or `extra` is malformed.
+    pub fn widened_with_surface_normals(
+        &self,
+        extra: &FeatureNormalization,
+        trainable: bool,
+    ) -> Result<RigidFormer, ModelError> {
+        if self.config.dynamics.surface_normals {
+            return Err(ModelError::InvalidInput(
+                "the model already takes the surface normals".into(),
+            ));
+        }
+        let mut config = self.config.clone();
+        config.dynamics.surface_normals = true;
+        let at = self.config.point_features();
+        self.with_zero_inputs(
+            config,
+            at,
+            SURFACE_NORMAL_FEATURES,
+            "surface normal",
+            extra,
+            trainable,
+        )
+    }
+
+    /// This model rebuilt as `config`, which reads `count` more point features at input
+    /// position `at`: zero encoder input columns and `extra`'s constants inserted there.
+    fn with_zero_inputs(
+        &self,
+        mut config: crate::ModelConfig,
+        at: usize,
+        count: usize,
+        what: &str,
+        extra: &FeatureNormalization,
+        trainable: bool,
+    ) -> Result<RigidFormer, ModelError> {
+        if extra.mean.len() != count || extra.std.len() != count {
             return Err(ModelError::InvalidInput(format!(
-                "contact velocity normalisation needs {CONTACT_VELOCITY_FEATURES} means and stds, got {} and {}",
+                "{what} normalisation needs {count} means and stds, got {} and {}",
                 extra.mean.len(),
                 extra.std.len()
             )));
         }
-        let mut config = self.config.clone();
-        config.dynamics.contact_velocity = true;
-        config.normalization.mean.extend_from_slice(&extra.mean);
-        config.normalization.std.extend_from_slice(&extra.std);
+        let norm = &mut config.normalization;
+        norm.mean.splice(at..at, extra.mean.iter().copied());
+        norm.std.splice(at..at, extra.std.iter().copied());
         config.validate()?;
         let mut tensors = self.weight_copies()?;
         let w = tensors.remove(POINT_INPUT_WEIGHT).ok_or_else(|| {
             ModelError::Internal(format!("the model has no parameter {POINT_INPUT_WEIGHT}"))
         })?;
-        let zeros = Tensor::zeros(
-            (w.dim(0)?, CONTACT_VELOCITY_FEATURES),
-            w.dtype(),
-            w.device(),
-        )?;
+        let zeros = Tensor::zeros((w.dim(0)?, count), w.dtype(), w.device())?;
+        let (before, after) = (w.narrow(1, 0, at)?, w.narrow(1, at, w.dim(1)? - at)?);
         tensors.insert(
             POINT_INPUT_WEIGHT.to_string(),
-            Tensor::cat(&[&w, &zeros], 1)?,
+            Tensor::cat(&[&before, &zeros, &after], 1)?.contiguous()?,
         );
         self.rebuilt(config, tensors, trainable)
     }

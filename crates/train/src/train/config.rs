@@ -161,6 +161,12 @@ pub struct ModelSection {
     /// normalisation constants are kept and the 3 new ones fitted from the training data).
     /// `false` on an `init` model that has them is an error.
     pub contact_velocity: Option<bool>,
+    /// The surface normal inputs (`DynamicsConfig::surface_normals`): unset keeps what the
+    /// preset, config or `init` model has. `true` on an `init` model without them widens it
+    /// (zero weights on the 7 new inputs, so it starts as the same function; its existing
+    /// normalisation constants are kept and the 7 new ones fitted from the training data).
+    /// `false` on an `init` model that has them is an error.
+    pub surface_normals: Option<bool>,
     /// The object state summary (`DynamicsConfig::object_summary`): unset keeps what the
     /// preset, config or `init` model has. `true` on an `init` model without it widens it
     /// (the summary MLP's last layer zero, so it starts as the same function; its first layer
@@ -208,6 +214,7 @@ impl Default for ModelSection {
             fit_normalization: true,
             init: None,
             contact_velocity: None,
+            surface_normals: None,
             object_summary: None,
             rigid_extrapolation: None,
             floor_base: None,
@@ -222,7 +229,7 @@ impl Default for ModelSection {
 
 impl ModelSection {
     /// The model configuration this section names (before normalisation fitting), with
-    /// `contact_velocity` (the normalisation then resized to its defaults),
+    /// `contact_velocity` and `surface_normals` (the normalisation then resized to its defaults),
     /// `object_summary`, `rigid_extrapolation`, `floor_base`, `relative_mass`, `loss_beta`,
     /// `rest_weight` and `object_contact_weight` applied.
     pub fn model_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {
@@ -248,10 +255,14 @@ impl ModelSection {
         if let Some(on) = self.object_summary {
             c.dynamics.object_summary = on;
         }
-        if let Some(cv) = self.contact_velocity
-            && cv != c.dynamics.contact_velocity
-        {
+        let inputs = c.dynamics.point_features();
+        if let Some(cv) = self.contact_velocity {
             c.dynamics.contact_velocity = cv;
+        }
+        if let Some(on) = self.surface_normals {
+            c.dynamics.surface_normals = on;
+        }
+        if c.dynamics.point_features() != inputs {
             c.normalization = FeatureNormalization::defaults_for(&c.dynamics);
         }
         Ok(c)
@@ -559,6 +570,21 @@ mod tests {
             off.dynamics.contact_velocity,
             preset.dynamics.contact_velocity
         );
+    }
+
+    #[test]
+    fn surface_normals_resize_the_named_configs_normalisation() {
+        let base = Path::new(".");
+        let c: TrainConfig = toml::from_str("[model]\nsurface_normals = true\n").unwrap();
+        let on = c.model.model_config(base).unwrap();
+        assert!(on.dynamics.surface_normals && on.dynamics.contact_velocity);
+        assert_eq!(on.normalization.len(), 22);
+        on.validate().unwrap();
+        let c: TrainConfig =
+            toml::from_str("[model]\nsurface_normals = true\ncontact_velocity = false\n").unwrap();
+        let without_cv = c.model.model_config(base).unwrap();
+        assert_eq!(without_cv.normalization.len(), 19);
+        without_cv.validate().unwrap();
     }
 
     #[test]

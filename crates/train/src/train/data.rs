@@ -18,7 +18,7 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-use dynaserve_model::{FeatureFrame, ScenePoints, object_params};
+use dynaserve_model::{FeatureFrame, ScenePoints, body_normals, object_params};
 use dynaserve_model::{
     FeatureNormalization, ModelConfig, ObjectInput, Pose, PreparedScene, SceneState, WorldModel,
 };
@@ -642,7 +642,7 @@ fn worker(
 
 /// Per-feature mean and standard deviation of the raw point features of `model` (contact
 /// displacement, per-step increment, offset from the reference cloud, `[ln mass, friction,
-/// restitution]`, then the contact velocity if the model takes it) over `c.norm_windows`
+/// restitution]`, then the contact velocity and the surface normals if the model takes them) over `c.norm_windows`
 /// augmented windows of each of the first `c.norm_scenes` scenes, computed by the model's own
 /// [`ScenePoints`]. Standard deviations are floored at 0.01 so constant features do not
 /// explode.
@@ -653,7 +653,6 @@ pub fn fit_normalization(
     seed: u64,
 ) -> Result<FeatureNormalization, TrainError> {
     let nf = model.point_features();
-    let with_cv = model.dynamics.contact_velocity;
     let mut sum = vec![0f64; nf];
     let mut sq = vec![0f64; nf];
     let mut raw = vec![0f32; nf];
@@ -670,12 +669,20 @@ pub fn fit_normalization(
         for w in 0..c.norm_windows {
             let mut rng = rng_for(seed, 4, (i * 1000 + w) as u64);
             let win = sample_window(&rec, c, &mut rng, false, i as u64)?;
-            let points = ScenePoints::new(
+            let mut points = ScenePoints::new(
                 model,
                 win.objects.iter().map(|o| o.reference.as_slice()),
                 &win.state.current,
                 &win.state.previous,
             );
+            if model.dynamics.surface_normals {
+                let body: Vec<Vec<[f32; 3]>> = win
+                    .objects
+                    .iter()
+                    .map(|o| body_normals(&o.reference))
+                    .collect();
+                points = points.with_normals(body.iter().map(Vec::as_slice), &win.state.current);
+            }
             for (j, o) in win.objects.iter().enumerate() {
                 let params = object_params(o.mass, o.friction, o.restitution);
                 let frame = FeatureFrame::new(
@@ -685,7 +692,7 @@ pub fn fit_normalization(
                 );
                 let first = points.offsets[j];
                 for (q, x) in (first..points.offsets[j + 1]).zip(&o.reference) {
-                    points.raw_features(q, *x, params, &frame, with_cv, &mut raw);
+                    points.raw_features(q, *x, params, &frame, &model.dynamics, &mut raw);
                     for f in 0..nf {
                         sum[f] += raw[f] as f64;
                         sq[f] += (raw[f] as f64).powi(2);

@@ -18,13 +18,14 @@ use std::time::Instant;
 
 use candle_core::Device;
 use dynaserve_model::{
-    BASE_POINT_FEATURES, FeatureNormalization, RigidFormer, TrainItem, WorldModel, load_rigidformer,
+    BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig, FeatureNormalization,
+    ModelError, RigidFormer, SURFACE_NORMAL_FEATURES, TrainItem, WorldModel, load_rigidformer,
 };
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
 
 use super::TrainError;
-use super::config::TrainConfig;
+use super::config::{ModelSection, TrainConfig};
 use super::data::{Loader, Sources, fit_normalization};
 use super::optim::{AdamW, learning_rate};
 use super::plot::{Series, line_chart};
@@ -149,36 +150,80 @@ pub fn plot_loss(out: &Path) -> Result<(), TrainError> {
     )
 }
 
-/// Applies `model.contact_velocity` to a model loaded from `model.init`: widens a model without
-/// the contact velocity inputs when asked (3 zero weight columns, the 3 new normalisation
-/// constants fitted from the training data like a fresh run's, the 12 old ones kept).
-fn init_contact_velocity(
-    m: RigidFormer,
+/// A group of optional per-point inputs a trained model can be widened with.
+struct InputGroup {
+    /// Its `[model]` option.
+    name: &'static str,
+    /// The option's value in a training config.
+    wanted: fn(&ModelSection) -> Option<bool>,
+    /// Its switch in a model's dynamics.
+    flag: fn(&mut DynamicsConfig) -> &mut bool,
+    /// Where its features start in the layout of a model that has them.
+    at: fn(&DynamicsConfig) -> usize,
+    /// How many features it adds.
+    count: usize,
+    /// The widening: zero weights on the new inputs, `extra` their normalisation.
+    widen: fn(&RigidFormer, &FeatureNormalization, bool) -> Result<RigidFormer, ModelError>,
+}
+
+/// The input groups `model.init` models can be widened with, in layout order.
+const INPUT_GROUPS: [InputGroup; 2] = [
+    InputGroup {
+        name: "contact_velocity",
+        wanted: |s| s.contact_velocity,
+        flag: |d| &mut d.contact_velocity,
+        at: |_| BASE_POINT_FEATURES,
+        count: CONTACT_VELOCITY_FEATURES,
+        widen: RigidFormer::widened_with_contact_velocity,
+    },
+    InputGroup {
+        name: "surface_normals",
+        wanted: |s| s.surface_normals,
+        flag: |d| &mut d.surface_normals,
+        at: |d| d.point_features() - SURFACE_NORMAL_FEATURES,
+        count: SURFACE_NORMAL_FEATURES,
+        widen: RigidFormer::widened_with_surface_normals,
+    },
+];
+
+/// Applies `model.contact_velocity` and `model.surface_normals` to a model loaded from
+/// `model.init`: widens a model without those inputs when asked (zero weight columns, so it
+/// starts as the same function; the new normalisation constants fitted from the training data
+/// like a fresh run's, the old ones kept). Removing inputs is an error.
+fn init_inputs(
+    mut m: RigidFormer,
     cfg: &TrainConfig,
     reader: &Sources,
 ) -> Result<RigidFormer, TrainError> {
-    let has = m.config().dynamics.contact_velocity;
-    match cfg.model.contact_velocity {
-        Some(true) if !has => {
-            let mut wide = m.config().clone();
-            wide.dynamics.contact_velocity = true;
-            wide.normalization = FeatureNormalization::defaults_for(&wide.dynamics);
-            let fitted = fit_normalization(reader, &cfg.data, &wide, cfg.run.seed)?;
-            let extra = FeatureNormalization {
-                mean: fitted.mean[BASE_POINT_FEATURES..].to_vec(),
-                std: fitted.std[BASE_POINT_FEATURES..].to_vec(),
-            };
-            eprintln!(
-                "widened for the contact velocity: fitted mean {:?} std {:?}",
-                extra.mean, extra.std
-            );
-            Ok(m.widened_with_contact_velocity(&extra, true)?)
+    for g in &INPUT_GROUPS {
+        let has = *(g.flag)(&mut m.config().dynamics.clone());
+        match (g.wanted)(&cfg.model) {
+            Some(true) if !has => {
+                let mut wide = m.config().clone();
+                *(g.flag)(&mut wide.dynamics) = true;
+                wide.normalization = FeatureNormalization::defaults_for(&wide.dynamics);
+                let fitted = fit_normalization(reader, &cfg.data, &wide, cfg.run.seed)?;
+                let at = (g.at)(&wide.dynamics);
+                let extra = FeatureNormalization {
+                    mean: fitted.mean[at..at + g.count].to_vec(),
+                    std: fitted.std[at..at + g.count].to_vec(),
+                };
+                eprintln!(
+                    "widened for model.{}: fitted mean {:?} std {:?}",
+                    g.name, extra.mean, extra.std
+                );
+                m = (g.widen)(&m, &extra, true)?;
+            }
+            Some(false) if has => {
+                return Err(TrainError::Config(format!(
+                    "model.{} = false, but the model.init model takes those inputs (inputs cannot be removed)",
+                    g.name
+                )));
+            }
+            _ => {}
         }
-        Some(false) if has => Err(TrainError::Config(
-            "model.contact_velocity = false, but the model.init model takes the contact velocity (inputs cannot be removed)".into(),
-        )),
-        _ => Ok(m),
     }
+    Ok(m)
 }
 
 /// Applies `model.object_summary` to a model loaded from `model.init`: widens a model without
@@ -271,7 +316,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                 Some(w) => m.with_object_contact_weight(w),
                 None => m,
             };
-            let m = init_contact_velocity(m, cfg, &reader)?;
+            let m = init_inputs(m, cfg, &reader)?;
             let m = init_object_summary(m, cfg)?;
             match cfg.model.insert_blocks_after.as_deref() {
                 Some(after) if !after.is_empty() => {
