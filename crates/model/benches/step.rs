@@ -10,7 +10,9 @@
 //! builders and the phase timer.
 //!
 //! `cargo bench -p dynaserve-model --bench step` (release). Phase medians are printed to
-//! stdout; criterion reports the totals.
+//! stdout; criterion reports the totals. `step_bundled_*` times the bundled default model's
+//! architecture (`models/rigidformer-small/config.json`, or the model directory in
+//! `DYNASERVE_BENCH_MODEL`) with random weights.
 
 use std::hint::black_box;
 use std::time::{Duration, Instant};
@@ -215,9 +217,17 @@ fn print_phases(label: &str, model: &RigidFormer, batch: &[StepItem<'_>], runs: 
 }
 
 fn bench_steps(c: &mut Criterion) {
+    // The bundled default model's architecture (or `DYNASERVE_BENCH_MODEL`'s), random weights:
+    // what the server runs unless told otherwise.
+    let dir = std::env::var_os("DYNASERVE_BENCH_MODEL").map_or_else(
+        || std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/rigidformer-small"),
+        std::path::PathBuf::from,
+    );
+    let bundled = dynaserve_model::read_config(&dir).expect("bundled model config");
     for (name, config) in [
         ("small", ModelConfig::small()),
         ("paper", ModelConfig::paper()),
+        ("bundled", bundled),
     ] {
         bench_steps_for(c, name, config);
     }
