@@ -102,9 +102,9 @@ pub fn contact_velocity(
 }
 
 /// Body-frame outward normals of one object's reference cloud (`[n, 3]` metres in, `[n, 3]`
-/// unit vectors out), as [`DynamicsConfig::surface_normals`] uses them: a plane fitted to each
-/// point's [`DEFAULT_NORMAL_NEIGHBOURS`] nearest points, signed away from the centroid
-/// ([`estimate_normals`]). A cloud the estimator refuses (empty or not finite; validation
+/// unit vectors out), as [`DynamicsConfig::surface_normals`] uses them: the flattest of the
+/// planes fitted to each point's 4, 6 and [`DEFAULT_NORMAL_NEIGHBOURS`] nearest points, signed
+/// away from the centroid ([`estimate_normals`]). A cloud the estimator refuses (empty or not finite; validation
 /// refuses both first) gets `+z` everywhere.
 pub fn body_normals(reference: &[Point]) -> Vec<Point> {
     estimate_normals(reference, DEFAULT_NORMAL_NEIGHBOURS)
@@ -116,21 +116,26 @@ pub fn body_normals(reference: &[Point]) -> Vec<Point> {
 /// (3: the nearest other point's world normal, `+z` for the ground, zero when nothing is within
 /// the contact radius) and its signed height above that surface's tangent plane, metres (1:
 /// minus the contact displacement along that normal, negative behind the plane; `radius` when
-/// nothing is near). `normals`: every point's unit normal at t, `[n, 3]`.
+/// nothing is near; heights clamped to +-`radius`). `normals`: every point's unit normal at t,
+/// `[n, 3]`; a point missing from it reads as a zero normal.
 pub fn surface_normal_features(
     hit: &ContactHit,
     q: usize,
     normals: &[Point],
     radius: f32,
 ) -> [f32; SURFACE_NORMAL_FEATURES] {
-    let own = normals[q];
+    let normal = |i: usize| normals.get(i).copied().unwrap_or([0.0; 3]);
+    let own = normal(q);
     let (other, gap) = match hit.source {
         ContactSource::Point(j) => {
-            let m = normals[j as usize];
+            let m = normal(j as usize);
             let along: f32 = (0..3).map(|d| hit.displacement[d] * m[d]).sum();
             (m, (-along).clamp(-radius, radius))
         }
-        ContactSource::Ground => ([0.0, 0.0, 1.0], (-hit.displacement[2]).min(radius)),
+        ContactSource::Ground => (
+            [0.0, 0.0, 1.0],
+            (-hit.displacement[2]).clamp(-radius, radius),
+        ),
         ContactSource::Free => ([0.0; 3], radius),
     };
     [own[0], own[1], own[2], other[0], other[1], other[2], gap]
