@@ -6,38 +6,18 @@ mod common;
 use std::path::Path;
 
 use common::{
-    constant_velocity_targets, max_pose_diff, one_step_gradient, random_scene, squared_norm,
+    FIRST_LAYER, constant_velocity_targets, first_layer_dims, max_pose_diff, one_step_gradient,
+    random_scene, squared_norm, step_random_scene,
 };
 use dynaserve_model::{
-    Device, FeatureNormalization, ModelConfig, RigidFormer, SceneState, StepItem, WorldModel,
-    load_rigidformer,
+    Device, FeatureNormalization, ModelConfig, RigidFormer, WorldModel, load_rigidformer,
 };
-
-const FIRST_LAYER: &str = "encoder.point.0.weight";
-
-fn first_layer_dims(model: &RigidFormer) -> Vec<usize> {
-    let vars = model.varmap().data().lock().unwrap();
-    vars[FIRST_LAYER].as_tensor().dims().to_vec()
-}
 
 fn extra() -> FeatureNormalization {
     FeatureNormalization {
         mean: vec![0.01, -0.02, 0.03],
         std: vec![0.05, 0.06, 0.07],
     }
-}
-
-fn step(model: &dyn WorldModel, seed: u64, dt_steps: u32) -> Vec<dynaserve_model::Pose> {
-    let (objects, state): (_, SceneState) = random_scene(seed, 4, 96);
-    let scene = model.prepare(objects).unwrap();
-    model
-        .step(&[StepItem {
-            scene: &scene,
-            state: &state,
-            dt_steps,
-        }])
-        .unwrap()
-        .remove(0)
 }
 
 /// A 12-feature checkpoint on disk (written as models were before the contact velocity, with
@@ -69,7 +49,10 @@ fn twelve_feature_checkpoint_reads_as_such_and_widens_without_change() {
         old.config().normalization.mean[..]
     );
     for (seed, k) in [(1, 1), (2, 4)] {
-        let (a, b) = (step(&old, seed, k), step(&wide, seed, k));
+        let (a, b) = (
+            step_random_scene(&old, seed, k),
+            step_random_scene(&wide, seed, k),
+        );
         let diff = max_pose_diff(&a, &b);
         assert!(
             diff < 1e-5,
@@ -101,7 +84,10 @@ fn widened_model_trains_its_new_columns_and_saves_as_fifteen_features() {
     cfg.normalization = FeatureNormalization::default();
     let old = RigidFormer::new(cfg, 9, &Device::Cpu).unwrap();
     let wide = old.widened_with_contact_velocity(&extra(), true).unwrap();
-    let diff = max_pose_diff(&step(&old, 3, 2), &step(&wide, 3, 2));
+    let diff = max_pose_diff(
+        &step_random_scene(&old, 3, 2),
+        &step_random_scene(&wide, 3, 2),
+    );
     assert!(diff < 1e-5, "widened model differs by {diff}");
 
     let (objects, state) = random_scene(4, 5, 64);
@@ -121,7 +107,10 @@ fn widened_model_trains_its_new_columns_and_saves_as_fifteen_features() {
     wide.save(&dir).unwrap();
     let back = load_rigidformer(&dir, &Device::Cpu, false).unwrap();
     assert_eq!(back.config(), wide.config());
-    let diff = max_pose_diff(&step(&wide, 5, 1), &step(&back, 5, 1));
+    let diff = max_pose_diff(
+        &step_random_scene(&wide, 5, 1),
+        &step_random_scene(&back, 5, 1),
+    );
     assert!(diff < 1e-6, "reloaded model differs by {diff}");
     std::fs::remove_dir_all(&dir).unwrap();
 

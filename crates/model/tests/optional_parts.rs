@@ -5,25 +5,13 @@ mod common;
 
 use common::{
     constant_velocity_targets, max_pose_diff, one_step_gradient, random_scene, squared_norm,
+    step_random_scene,
 };
 use dynaserve_model::{
-    Device, DynamicsConfig, FeatureFrame, ModelConfig, Pose, RigidFormer, SceneState, StepItem,
-    WorldModel, load_rigidformer, object_summary,
+    Device, DynamicsConfig, FeatureFrame, ModelConfig, Pose, RigidFormer, WorldModel,
+    load_rigidformer, object_summary,
 };
 use nalgebra::{UnitQuaternion, Vector3};
-
-fn step(model: &dyn WorldModel, seed: u64, dt_steps: u32) -> Vec<Pose> {
-    let (objects, state): (_, SceneState) = random_scene(seed, 4, 96);
-    let scene = model.prepare(objects).unwrap();
-    model
-        .step(&[StepItem {
-            scene: &scene,
-            state: &state,
-            dt_steps,
-        }])
-        .unwrap()
-        .remove(0)
-}
 
 /// The eight corners of a cube of half extent 0.1 m placed at `pose`.
 fn corners(pose: &Pose) -> Vec<[f32; 3]> {
@@ -111,9 +99,9 @@ fn a_model_gains_the_summary_as_the_same_function() {
         "the widened model has the summary's parameters"
     );
     for (seed, k) in [(1, 1), (2, 4)] {
-        let reference = step(&a, seed, k);
+        let reference = step_random_scene(&a, seed, k);
         for (name, model) in [("random", &b), ("widened", &wide)] {
-            let diff = max_pose_diff(&reference, &step(model, seed, k));
+            let diff = max_pose_diff(&reference, &step_random_scene(model, seed, k));
             assert!(diff < 1e-5, "{name}, seed {seed}, k {k}: differs by {diff}");
         }
     }
@@ -140,7 +128,10 @@ fn summary_layers_learn_and_save() {
     let back = load_rigidformer(&dir, &Device::Cpu, false).unwrap();
     std::fs::remove_dir_all(&dir).unwrap();
     assert!(back.config().dynamics.object_summary);
-    let diff = max_pose_diff(&step(&model, 6, 2), &step(&back, 6, 2));
+    let diff = max_pose_diff(
+        &step_random_scene(&model, 6, 2),
+        &step_random_scene(&back, 6, 2),
+    );
     assert!(diff < 1e-6, "reloaded model differs by {diff}");
 }
 
@@ -155,7 +146,10 @@ fn a_coarse_output_unit_starts_at_zero_and_learns() {
     let a = RigidFormer::new_frozen(plain, 8, &Device::Cpu).unwrap();
     let b = RigidFormer::new(with.clone(), 8, &Device::Cpu).unwrap();
     for (seed, k) in [(1, 1), (2, 3)] {
-        let diff = max_pose_diff(&step(&a, seed, k), &step(&b, seed, k));
+        let diff = max_pose_diff(
+            &step_random_scene(&a, seed, k),
+            &step_random_scene(&b, seed, k),
+        );
         assert!(diff < 1e-5, "seed {seed}, k {k}: differs by {diff}");
     }
     let (objects, state) = random_scene(4, 3, 64);
@@ -202,7 +196,10 @@ fn a_deepened_model_computes_the_same_function() {
         .parameter_count();
     assert_eq!(deep.parameter_count(), a.parameter_count() + 3 * per_block);
     for (seed, k) in [(1, 1), (2, 4)] {
-        let diff = max_pose_diff(&step(&a, seed, k), &step(&deep, seed, k));
+        let diff = max_pose_diff(
+            &step_random_scene(&a, seed, k),
+            &step_random_scene(&deep, seed, k),
+        );
         assert!(diff < 1e-5, "seed {seed}, k {k}: differs by {diff}");
     }
     for bad in [&[][..], &[6][..], &[2, 2][..]] {

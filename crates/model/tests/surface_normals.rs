@@ -5,16 +5,15 @@
 mod common;
 
 use common::{
-    constant_velocity_targets, max_pose_diff, one_step_gradient, random_scene, squared_norm,
+    FIRST_LAYER, constant_velocity_targets, first_layer_dims, max_pose_diff, one_step_gradient,
+    random_scene, squared_norm, step_random_scene,
 };
 use dynaserve_model::{
     BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, Device, FeatureFrame, FeatureNormalization,
-    ModelConfig, Pose, RigidFormer, SURFACE_NORMAL_FEATURES, ScenePoints, SceneState, StepItem,
-    WorldModel, body_normals, load_rigidformer,
+    ModelConfig, Pose, RigidFormer, SURFACE_NORMAL_FEATURES, ScenePoints, WorldModel, body_normals,
+    load_rigidformer,
 };
 use nalgebra::{UnitQuaternion, Vector3};
-
-const FIRST_LAYER: &str = "encoder.point.0.weight";
 
 /// A cube of half-side 0.1 m sampled on a 4 x 4 grid per face (spacing 0.05 m), body frame.
 fn cube() -> Vec<[f32; 3]> {
@@ -130,24 +129,6 @@ fn extra() -> FeatureNormalization {
     }
 }
 
-fn step(model: &dyn WorldModel, seed: u64, dt_steps: u32) -> Vec<Pose> {
-    let (objects, state): (_, SceneState) = random_scene(seed, 4, 96);
-    let scene = model.prepare(objects).unwrap();
-    model
-        .step(&[StepItem {
-            scene: &scene,
-            state: &state,
-            dt_steps,
-        }])
-        .unwrap()
-        .remove(0)
-}
-
-fn first_layer_inputs(model: &RigidFormer) -> usize {
-    let vars = model.varmap().data().lock().unwrap();
-    vars[FIRST_LAYER].as_tensor().dims()[1]
-}
-
 /// A trained-like model widened with the surface normals: same steps, the 7 new columns get
 /// a gradient, the old constants are kept, the copy round-trips through a checkpoint, and
 /// widening twice or with the wrong number of constants is refused.
@@ -156,7 +137,7 @@ fn widened_model_steps_the_same_and_trains_its_new_columns() {
     let old = RigidFormer::new(ModelConfig::tiny(), 9, &Device::Cpu).unwrap();
     assert!(!old.config().dynamics.surface_normals);
     let wide = old.widened_with_surface_normals(&extra(), true).unwrap();
-    assert_eq!(first_layer_inputs(&wide), 22);
+    assert_eq!(first_layer_dims(&wide)[1], 22);
     assert_eq!(wide.config().point_features(), 22);
     assert_eq!(
         wide.config().normalization.mean[..15],
@@ -164,7 +145,10 @@ fn widened_model_steps_the_same_and_trains_its_new_columns() {
     );
     assert_eq!(wide.config().normalization.std[15..], extra().std[..]);
     for (seed, k) in [(1, 1), (2, 4)] {
-        let diff = max_pose_diff(&step(&old, seed, k), &step(&wide, seed, k));
+        let diff = max_pose_diff(
+            &step_random_scene(&old, seed, k),
+            &step_random_scene(&wide, seed, k),
+        );
         assert!(
             diff < 1e-5,
             "seed {seed}, k {k}: widened model differs by {diff}"
@@ -185,7 +169,10 @@ fn widened_model_steps_the_same_and_trains_its_new_columns() {
     let back = load_rigidformer(&dir, &Device::Cpu, false).unwrap();
     std::fs::remove_dir_all(&dir).unwrap();
     assert_eq!(back.config(), wide.config());
-    let diff = max_pose_diff(&step(&wide, 5, 1), &step(&back, 5, 1));
+    let diff = max_pose_diff(
+        &step_random_scene(&wide, 5, 1),
+        &step_random_scene(&back, 5, 1),
+    );
     assert!(diff < 1e-6, "reloaded model differs by {diff}");
 
     let twice = wide.widened_with_surface_normals(&extra(), false);
@@ -207,16 +194,19 @@ fn contact_velocity_columns_go_before_the_normals() {
     cfg.dynamics.surface_normals = true;
     cfg.normalization = FeatureNormalization::defaults_for(&cfg.dynamics);
     let old = RigidFormer::new(cfg, 3, &Device::Cpu).unwrap();
-    assert_eq!(first_layer_inputs(&old), 19);
+    assert_eq!(first_layer_dims(&old)[1], 19);
     let cv = FeatureNormalization {
         mean: vec![0.0; 3],
         std: vec![0.05; 3],
     };
     let wide = old.widened_with_contact_velocity(&cv, false).unwrap();
-    assert_eq!(first_layer_inputs(&wide), 22);
+    assert_eq!(first_layer_dims(&wide)[1], 22);
     let n = &wide.config().normalization;
     assert_eq!(n.std[12..15], [0.05; 3]);
     assert_eq!(n.std[15..], old.config().normalization.std[12..]);
-    let diff = max_pose_diff(&step(&old, 7, 2), &step(&wide, 7, 2));
+    let diff = max_pose_diff(
+        &step_random_scene(&old, 7, 2),
+        &step_random_scene(&wide, 7, 2),
+    );
     assert!(diff < 1e-5, "widened model differs by {diff}");
 }

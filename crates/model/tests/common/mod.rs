@@ -1,7 +1,7 @@
 //! Scene generators shared by the integration tests.
 #![allow(dead_code)]
 
-use dynaserve_model::{ObjectInput, Pose, SceneState};
+use dynaserve_model::{ObjectInput, Pose, RigidFormer, SceneState, StepItem, WorldModel};
 use nalgebra::{UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -178,4 +178,27 @@ pub fn one_step_gradient(
         .unwrap_or_else(|| panic!("{name} received no gradient"))
         .clone();
     (g, grads)
+}
+
+/// One step of `dt_steps` frames of `random_scene(seed, 4, 96)` by `model`: the next poses.
+pub fn step_random_scene(model: &dyn WorldModel, seed: u64, dt_steps: u32) -> Vec<Pose> {
+    let (objects, state) = random_scene(seed, 4, 96);
+    let scene = model.prepare(objects).unwrap();
+    model
+        .step(&[StepItem {
+            scene: &scene,
+            state: &state,
+            dt_steps,
+        }])
+        .unwrap()
+        .remove(0)
+}
+
+/// Name of the encoder's first layer, whose input columns are the point features.
+pub const FIRST_LAYER: &str = "encoder.point.0.weight";
+
+/// Shape of `model`'s encoder first-layer weight, `[out, point features]`.
+pub fn first_layer_dims(model: &RigidFormer) -> Vec<usize> {
+    let vars = model.varmap().data().lock().unwrap();
+    vars[FIRST_LAYER].as_tensor().dims().to_vec()
 }
