@@ -227,6 +227,65 @@ pub struct DynamicsConfig {
     pub free_flight_gate: bool,
 }
 
+/// An optional group of per-point inputs, in layout order after the base features: the
+/// one place that knows each group's switch, size and position.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum InputGroup {
+    /// [`DynamicsConfig::contact_velocity`]: [`CONTACT_VELOCITY_FEATURES`] inputs.
+    ContactVelocity,
+    /// [`DynamicsConfig::surface_normals`]: [`SURFACE_NORMAL_FEATURES`] inputs.
+    SurfaceNormals,
+}
+
+impl InputGroup {
+    /// Every group, in layout order.
+    pub const ALL: [InputGroup; 2] = [InputGroup::ContactVelocity, InputGroup::SurfaceNormals];
+
+    /// Name for messages, e.g. "contact velocity".
+    pub fn name(self) -> &'static str {
+        match self {
+            InputGroup::ContactVelocity => "contact velocity",
+            InputGroup::SurfaceNormals => "surface normals",
+        }
+    }
+
+    /// Number of per-point features the group adds.
+    pub fn count(self) -> usize {
+        match self {
+            InputGroup::ContactVelocity => CONTACT_VELOCITY_FEATURES,
+            InputGroup::SurfaceNormals => SURFACE_NORMAL_FEATURES,
+        }
+    }
+
+    /// Whether `dynamics` switches the group on.
+    pub fn enabled(self, dynamics: &DynamicsConfig) -> bool {
+        match self {
+            InputGroup::ContactVelocity => dynamics.contact_velocity,
+            InputGroup::SurfaceNormals => dynamics.surface_normals,
+        }
+    }
+
+    /// Switches the group on or off in `dynamics`.
+    pub fn set(self, dynamics: &mut DynamicsConfig, on: bool) {
+        match self {
+            InputGroup::ContactVelocity => dynamics.contact_velocity = on,
+            InputGroup::SurfaceNormals => dynamics.surface_normals = on,
+        }
+    }
+
+    /// Index of the group's first feature in the layout of `dynamics` (where it is or would
+    /// be): after the base features and every enabled group before it.
+    pub fn offset(self, dynamics: &DynamicsConfig) -> usize {
+        BASE_POINT_FEATURES
+            + InputGroup::ALL
+                .iter()
+                .take_while(|&&g| g != self)
+                .filter(|g| g.enabled(dynamics))
+                .map(|g| g.count())
+                .sum::<usize>()
+    }
+}
+
 /// Index of the `ln(mass / kg)` feature among the per-point features (see
 /// [`FeatureNormalization`]).
 pub const LN_MASS_FEATURE: usize = 9;
@@ -253,16 +312,11 @@ impl DynamicsConfig {
     /// [`SURFACE_NORMAL_FEATURES`] with the surface normals.
     pub fn point_features(&self) -> usize {
         BASE_POINT_FEATURES
-            + if self.contact_velocity {
-                CONTACT_VELOCITY_FEATURES
-            } else {
-                0
-            }
-            + if self.surface_normals {
-                SURFACE_NORMAL_FEATURES
-            } else {
-                0
-            }
+            + InputGroup::ALL
+                .iter()
+                .filter(|g| g.enabled(self))
+                .map(|g| g.count())
+                .sum::<usize>()
     }
 
     /// Divisor of the per-point increment feature at step size `k` frames.
@@ -674,6 +728,19 @@ mod tests {
 
     /// A `config.json` written before the contact velocity (no such key, 12 constants) reads
     /// as a 12-feature model.
+    #[test]
+    fn input_groups_sit_after_the_base_features_in_layout_order() {
+        let mut d = DynamicsConfig::default();
+        assert_eq!(InputGroup::SurfaceNormals.offset(&d), BASE_POINT_FEATURES);
+        InputGroup::ContactVelocity.set(&mut d, true);
+        assert!(d.contact_velocity);
+        assert_eq!(InputGroup::ContactVelocity.offset(&d), BASE_POINT_FEATURES);
+        assert_eq!(InputGroup::SurfaceNormals.offset(&d), 15);
+        InputGroup::SurfaceNormals.set(&mut d, true);
+        assert_eq!(d.point_features(), 22);
+        assert_eq!(FeatureNormalization::defaults_for(&d).len(), 22);
+    }
+
     #[test]
     fn configs_without_contact_velocity_read_as_twelve_features() {
         let mut old = serde_json::to_value(ModelConfig::small()).unwrap();

@@ -26,7 +26,7 @@ pub use batching::PassBudget;
 pub use checkpoint::{load_model, load_rigidformer, read_config};
 pub use config::{
     BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig, FeatureNormalization,
-    LN_MASS_FEATURE, LossConfig, ModelConfig, OBJECT_SUMMARY_FEATURES, PreparedKey,
+    InputGroup, LN_MASS_FEATURE, LossConfig, ModelConfig, OBJECT_SUMMARY_FEATURES, PreparedKey,
     SURFACE_NORMAL_FEATURES,
 };
 pub use error::ModelError;

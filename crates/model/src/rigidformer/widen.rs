@@ -10,14 +10,14 @@ use candle_core::Tensor;
 use super::RigidFormer;
 use super::encoder::POINT_INPUT_WEIGHT;
 use super::summary::SUMMARY_PARAMETERS;
-use crate::config::{BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, SURFACE_NORMAL_FEATURES};
+use crate::config::InputGroup;
 use crate::layers::ParamStore;
 use crate::{FeatureNormalization, ModelError};
 
 impl RigidFormer {
     /// A copy of this model that also takes the contact velocity features
     /// ([`crate::DynamicsConfig::contact_velocity`]). The encoder's first layer gets
-    /// [`CONTACT_VELOCITY_FEATURES`] zero input columns, so the copy's outputs equal this
+    /// [`crate::CONTACT_VELOCITY_FEATURES`] zero input columns, so the copy's outputs equal this
     /// model's; every other weight and the existing normalisation constants are copied, and
     /// `extra` (the new features' `mean` and `std`, 3 values each) is appended to the
     /// normalisation. `trainable` keeps gradient tracking on the copy's weights.
@@ -29,27 +29,13 @@ impl RigidFormer {
         extra: &FeatureNormalization,
         trainable: bool,
     ) -> Result<RigidFormer, ModelError> {
-        if self.config.dynamics.contact_velocity {
-            return Err(ModelError::InvalidInput(
-                "the model already takes the contact velocity".into(),
-            ));
-        }
-        let mut config = self.config.clone();
-        config.dynamics.contact_velocity = true;
-        self.with_zero_inputs(
-            config,
-            BASE_POINT_FEATURES,
-            CONTACT_VELOCITY_FEATURES,
-            "contact velocity",
-            extra,
-            trainable,
-        )
+        self.widened_with_inputs(InputGroup::ContactVelocity, extra, trainable)
     }
 
     /// A copy of this model that also takes the surface normal features
     /// ([`crate::DynamicsConfig::surface_normals`]), as
     /// [`RigidFormer::widened_with_contact_velocity`] does for the contact velocity: the
-    /// encoder's first layer gets [`SURFACE_NORMAL_FEATURES`] zero input columns after the
+    /// encoder's first layer gets [`crate::SURFACE_NORMAL_FEATURES`] zero input columns after the
     /// existing ones, so the copy's outputs equal this model's, and `extra` (7 means and 7
     /// scales) is appended to the normalisation. `trainable` keeps gradient tracking.
     ///
@@ -59,35 +45,28 @@ impl RigidFormer {
         extra: &FeatureNormalization,
         trainable: bool,
     ) -> Result<RigidFormer, ModelError> {
-        if self.config.dynamics.surface_normals {
-            return Err(ModelError::InvalidInput(
-                "the model already takes the surface normals".into(),
-            ));
-        }
-        let mut config = self.config.clone();
-        config.dynamics.surface_normals = true;
-        let at = self.config.point_features();
-        self.with_zero_inputs(
-            config,
-            at,
-            SURFACE_NORMAL_FEATURES,
-            "surface normal",
-            extra,
-            trainable,
-        )
+        self.widened_with_inputs(InputGroup::SurfaceNormals, extra, trainable)
     }
 
-    /// This model rebuilt as `config`, which reads `count` more point features at input
-    /// position `at`: zero encoder input columns and `extra`'s constants inserted there.
-    fn with_zero_inputs(
+    /// A copy of this model that also takes the input `group`: zero encoder input columns and
+    /// `extra`'s constants (`group.count()` means and scales) inserted at the group's place in
+    /// the layout ([`InputGroup::offset`]), so the copy computes this model's function.
+    /// `trainable` keeps gradient tracking on the copy's weights.
+    ///
+    /// Errors if the model already takes the group or `extra` is malformed.
+    pub fn widened_with_inputs(
         &self,
-        mut config: crate::ModelConfig,
-        at: usize,
-        count: usize,
-        what: &str,
+        group: InputGroup,
         extra: &FeatureNormalization,
         trainable: bool,
     ) -> Result<RigidFormer, ModelError> {
+        let what = group.name();
+        if group.enabled(&self.config.dynamics) {
+            return Err(ModelError::InvalidInput(format!(
+                "the model already takes the {what}"
+            )));
+        }
+        let count = group.count();
         if extra.mean.len() != count || extra.std.len() != count {
             return Err(ModelError::InvalidInput(format!(
                 "{what} normalisation needs {count} means and stds, got {} and {}",
@@ -95,6 +74,9 @@ impl RigidFormer {
                 extra.std.len()
             )));
         }
+        let at = group.offset(&self.config.dynamics);
+        let mut config = self.config.clone();
+        group.set(&mut config.dynamics, true);
         let norm = &mut config.normalization;
         norm.mean.splice(at..at, extra.mean.iter().copied());
         norm.std.splice(at..at, extra.std.iter().copied());

@@ -18,14 +18,13 @@ use std::time::Instant;
 
 use candle_core::Device;
 use dynaserve_model::{
-    BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig, FeatureNormalization,
-    ModelError, RigidFormer, SURFACE_NORMAL_FEATURES, TrainItem, WorldModel, load_rigidformer,
+    FeatureNormalization, InputGroup, RigidFormer, TrainItem, WorldModel, load_rigidformer,
 };
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
 
 use super::TrainError;
-use super::config::{ModelSection, TrainConfig};
+use super::config::TrainConfig;
 use super::data::{Loader, Sources, fit_normalization};
 use super::optim::{AdamW, learning_rate};
 use super::plot::{Series, line_chart};
@@ -150,42 +149,6 @@ pub fn plot_loss(out: &Path) -> Result<(), TrainError> {
     )
 }
 
-/// A group of optional per-point inputs a trained model can be widened with.
-struct InputGroup {
-    /// Its `[model]` option.
-    name: &'static str,
-    /// The option's value in a training config.
-    wanted: fn(&ModelSection) -> Option<bool>,
-    /// Its switch in a model's dynamics.
-    flag: fn(&mut DynamicsConfig) -> &mut bool,
-    /// Where its features start in the layout of a model that has them.
-    at: fn(&DynamicsConfig) -> usize,
-    /// How many features it adds.
-    count: usize,
-    /// The widening: zero weights on the new inputs, `extra` their normalisation.
-    widen: fn(&RigidFormer, &FeatureNormalization, bool) -> Result<RigidFormer, ModelError>,
-}
-
-/// The input groups `model.init` models can be widened with, in layout order.
-const INPUT_GROUPS: [InputGroup; 2] = [
-    InputGroup {
-        name: "contact_velocity",
-        wanted: |s| s.contact_velocity,
-        flag: |d| &mut d.contact_velocity,
-        at: |_| BASE_POINT_FEATURES,
-        count: CONTACT_VELOCITY_FEATURES,
-        widen: RigidFormer::widened_with_contact_velocity,
-    },
-    InputGroup {
-        name: "surface_normals",
-        wanted: |s| s.surface_normals,
-        flag: |d| &mut d.surface_normals,
-        at: |d| d.point_features() - SURFACE_NORMAL_FEATURES,
-        count: SURFACE_NORMAL_FEATURES,
-        widen: RigidFormer::widened_with_surface_normals,
-    },
-];
-
 /// Applies `model.contact_velocity` and `model.surface_normals` to a model loaded from
 /// `model.init`: widens a model without those inputs when asked (zero weight columns, so it
 /// starts as the same function; the new normalisation constants fitted from the training data
@@ -195,29 +158,32 @@ fn init_inputs(
     cfg: &TrainConfig,
     reader: &Sources,
 ) -> Result<RigidFormer, TrainError> {
-    for g in &INPUT_GROUPS {
-        let has = *(g.flag)(&mut m.config().dynamics.clone());
-        match (g.wanted)(&cfg.model) {
+    let options = [
+        ("contact_velocity", cfg.model.contact_velocity),
+        ("surface_normals", cfg.model.surface_normals),
+    ];
+    for (group, (option, wanted)) in InputGroup::ALL.into_iter().zip(options) {
+        let has = group.enabled(&m.config().dynamics);
+        match wanted {
             Some(true) if !has => {
                 let mut wide = m.config().clone();
-                *(g.flag)(&mut wide.dynamics) = true;
+                group.set(&mut wide.dynamics, true);
                 wide.normalization = FeatureNormalization::defaults_for(&wide.dynamics);
                 let fitted = fit_normalization(reader, &cfg.data, &wide, cfg.run.seed)?;
-                let at = (g.at)(&wide.dynamics);
+                let at = group.offset(&wide.dynamics);
                 let extra = FeatureNormalization {
-                    mean: fitted.mean[at..at + g.count].to_vec(),
-                    std: fitted.std[at..at + g.count].to_vec(),
+                    mean: fitted.mean[at..at + group.count()].to_vec(),
+                    std: fitted.std[at..at + group.count()].to_vec(),
                 };
                 eprintln!(
-                    "widened for model.{}: fitted mean {:?} std {:?}",
-                    g.name, extra.mean, extra.std
+                    "widened for model.{option}: fitted mean {:?} std {:?}",
+                    extra.mean, extra.std
                 );
-                m = (g.widen)(&m, &extra, true)?;
+                m = m.widened_with_inputs(group, &extra, true)?;
             }
             Some(false) if has => {
                 return Err(TrainError::Config(format!(
-                    "model.{} = false, but the model.init model takes those inputs (inputs cannot be removed)",
-                    g.name
+                    "model.{option} = false, but the model.init model takes those inputs (inputs cannot be removed)"
                 )));
             }
             _ => {}
