@@ -3,8 +3,6 @@
 //! and a widened model saves and loads as a 15-feature checkpoint.
 mod common;
 
-use std::path::Path;
-
 use common::{
     FIRST_LAYER, constant_velocity_targets, first_layer_dims, max_pose_diff, one_step_gradient,
     random_scene, squared_norm, step_random_scene,
@@ -59,20 +57,6 @@ fn twelve_feature_checkpoint_reads_as_such_and_widens_without_change() {
             "seed {seed}, k {k}: widened model differs by {diff}"
         );
     }
-}
-
-/// The shipped checkpoint was trained with the contact velocity: it reads as 15 features with
-/// 15 normalisation constants, and widening it again is refused.
-#[test]
-fn shipped_checkpoint_takes_the_contact_velocity() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/rigidformer-small");
-    let shipped = load_rigidformer(&dir, &Device::Cpu, false).unwrap();
-    assert!(shipped.config().dynamics.contact_velocity);
-    assert_eq!(shipped.config().point_features(), 15);
-    assert_eq!(first_layer_dims(&shipped)[1], 15);
-    assert_eq!(shipped.config().normalization.mean.len(), 15);
-    let again = shipped.widened_with_contact_velocity(&extra(), false);
-    assert!(again.err().unwrap().to_string().contains("already"));
 }
 
 /// A random 12-feature model widened for training: same outputs, every parameter (the new

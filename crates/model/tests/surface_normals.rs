@@ -1,7 +1,8 @@
 //! The surface normal inputs: between two sparsely sampled faces the point-to-plane height is
 //! the true gap where the point-to-point distance is not; the ground and empty space read as
 //! documented; a trained model widened with them computes the same steps, its new weight
-//! columns receive gradients, and it saves and loads with them.
+//! columns receive gradients, and it saves and loads with them; the shipped checkpoint reads
+//! with both optional input groups.
 mod common;
 
 use common::{
@@ -10,8 +11,8 @@ use common::{
 };
 use dynaserve_model::{
     BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, Device, FeatureFrame, FeatureNormalization,
-    ModelConfig, Pose, RigidFormer, SURFACE_NORMAL_FEATURES, ScenePoints, WorldModel, body_normals,
-    load_rigidformer,
+    ModelConfig, ObjectInput, Pose, RigidFormer, SURFACE_NORMAL_FEATURES, ScenePoints, SceneState,
+    StepItem, WorldModel, body_normals, load_rigidformer,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 
@@ -209,4 +210,56 @@ fn contact_velocity_columns_go_before_the_normals() {
         &step_random_scene(&wide, 7, 2),
     );
     assert!(diff < 1e-5, "widened model differs by {diff}");
+}
+
+/// The shipped checkpoint was trained with both optional input groups: it reads as 22
+/// features (the contact velocity's 3 after the base 12, the normals' 7 after them) with 22
+/// normalisation constants, widening it again for either group is refused, and it steps a
+/// scene whose clouds are too small for a fitted plane (the normals fall back to the radial
+/// direction) to finite poses.
+#[test]
+fn shipped_checkpoint_takes_the_contact_velocity_and_the_normals() {
+    let dir =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/rigidformer-small");
+    let shipped = load_rigidformer(&dir, &Device::Cpu, false).unwrap();
+    let dynamics = &shipped.config().dynamics;
+    assert!(dynamics.contact_velocity && dynamics.surface_normals);
+    let width = BASE_POINT_FEATURES + CONTACT_VELOCITY_FEATURES + SURFACE_NORMAL_FEATURES;
+    assert_eq!(width, 22);
+    assert_eq!(shipped.config().point_features(), width);
+    assert_eq!(first_layer_dims(&shipped)[1], width);
+    assert_eq!(shipped.config().normalization.mean.len(), width);
+    let again = shipped.widened_with_surface_normals(&extra(), false);
+    assert!(again.err().unwrap().to_string().contains("already"));
+    let cv = FeatureNormalization {
+        mean: vec![0.0; CONTACT_VELOCITY_FEATURES],
+        std: vec![1.0; CONTACT_VELOCITY_FEATURES],
+    };
+    let again = shipped.widened_with_contact_velocity(&cv, false);
+    assert!(again.err().unwrap().to_string().contains("already"));
+    // Two objects of two points each: no plane fits, the estimator's fallback is used.
+    let tiny = || ObjectInput {
+        reference: vec![[-0.05, 0.0, 0.0], [0.05, 0.0, 0.0]],
+        mass: 1.0,
+        friction: 0.5,
+        restitution: 0.2,
+        kinematic: false,
+    };
+    let prepared = shipped.prepare(vec![tiny(), tiny()]).unwrap();
+    let at = |x: f32, z: f32| Pose::from_parts(Vector3::new(x, 0.0, z), UnitQuaternion::identity());
+    let state = SceneState {
+        previous: vec![at(0.0, 0.3), at(0.5, 0.3)],
+        current: vec![at(0.0, 0.29), at(0.5, 0.29)],
+    };
+    let next = shipped
+        .step(&[StepItem {
+            scene: &prepared,
+            state: &state,
+            dt_steps: 1,
+        }])
+        .unwrap()
+        .remove(0);
+    for pose in &next {
+        assert!(pose.translation.iter().all(|v| v.is_finite()), "{pose:?}");
+    }
 }
