@@ -216,6 +216,9 @@ fn least_spread_direction(a: &Matrix3<f64>, lambda: f64) -> Option<Vector3<f64>>
 
 #[cfg(test)]
 mod tests {
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
     use super::*;
 
     fn dot(a: Point, b: Point) -> f32 {
@@ -291,13 +294,8 @@ mod tests {
 
     #[test]
     fn closed_form_eigen_matches_an_iterative_decomposition() {
-        let mut seed = 7u64;
-        let mut next = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let mut next = || rng.random::<f64>() - 0.5;
         for case in 0..200 {
             // Covariances of flattened random clouds: one small spread, as on a surface.
             let flat = if case % 2 == 0 { 1e-3 } else { 0.3 };
@@ -362,13 +360,8 @@ mod tests {
     #[test]
     fn tree_search_picks_the_exhaustive_neighbours() {
         let grid: Vec<Point> = cube_faces(0.5, 12).into_iter().map(|s| s.0).collect();
-        let mut seed = 11u64;
-        let mut next = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 40) as f32 / (1u64 << 24) as f32 - 0.5
-        };
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let mut next = || rng.random::<f32>() - 0.5;
         let random: Vec<Point> = (0..500).map(|_| [next(), next(), next()]).collect();
         for (name, points) in [("grid", grid), ("random", random)] {
             assert!(points.len() > EXHAUSTIVE_SEARCH_MAX_POINTS);
