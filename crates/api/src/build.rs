@@ -316,7 +316,7 @@ pub fn build_scene(
     }
     Ok(BuiltScene {
         objects,
-        state: SceneState { previous, current },
+        state: SceneState::new(previous, current),
     })
 }
 

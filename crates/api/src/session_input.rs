@@ -201,6 +201,7 @@ mod tests {
         let mut s = SceneState {
             previous: vec![at(0.0), at(5.0)],
             current: vec![at(0.0), at(5.0)],
+            earlier: None,
         };
         let moving = ObjectState {
             object: 1,
@@ -230,6 +231,7 @@ mod tests {
         let state = SceneState {
             previous: vec![at(0.0), at(1.0), at(2.0)],
             current: vec![at(0.1), at(1.1), at(2.1)],
+            earlier: None,
         };
         let mut out = vec![at(0.2), at(1.2), at(2.2)];
         drive(&mut out, &state, &[true, false, true], &[(2, at(3.0))]);

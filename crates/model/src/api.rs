@@ -68,14 +68,21 @@ pub struct ObjectInput {
     pub kinematic: bool,
 }
 
-/// The two most recent poses of every object, `dt_steps` frames apart: the state a step
-/// advances. `previous[j]` and `current[j]` belong to object `j`.
+/// The two most recent poses of every object, `dt_steps` frames apart, and optionally the
+/// poses one step before those: the state a step advances. `previous[j]`, `current[j]` and
+/// `earlier[j]` belong to object `j`.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SceneState {
     /// Poses one step (`dt_steps` frames) before `current`.
     pub previous: Vec<Pose>,
     /// The latest poses.
     pub current: Vec<Pose>,
+    /// Poses one step before `previous` (`2 dt_steps` frames before `current`), when known:
+    /// a model with history inputs ([`crate::DynamicsConfig::history`]) reads from them how
+    /// the motion changed over the previous step; others ignore them. `None` (absent in JSON)
+    /// reads as unknown. [`SceneState::advance`] fills it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub earlier: Option<Vec<Pose>>,
 }
 
 impl SceneState {
@@ -106,13 +113,23 @@ impl SceneState {
                 Pose::from_parts(p, back * pose.unit_quaternion())
             })
             .collect();
-        Ok(SceneState { previous, current })
+        Ok(SceneState::new(previous, current))
     }
 
-    /// Moves the state one step on: `current` becomes `previous` and `next` (the poses the
-    /// step produced, one per object) becomes `current`.
+    /// A state of two poses per object (`previous` one step before `current`), nothing earlier.
+    pub fn new(previous: Vec<Pose>, current: Vec<Pose>) -> SceneState {
+        SceneState {
+            previous,
+            current,
+            earlier: None,
+        }
+    }
+
+    /// Moves the state one step on: `previous` becomes `earlier`, `current` becomes
+    /// `previous` and `next` (the poses the step produced, one per object) becomes `current`.
     pub fn advance(&mut self, next: Vec<Pose>) {
-        self.previous = std::mem::replace(&mut self.current, next);
+        let previous = std::mem::replace(&mut self.current, next);
+        self.earlier = Some(std::mem::replace(&mut self.previous, previous));
     }
 
     /// Number of objects.

@@ -26,16 +26,22 @@ pub const CONTACT_VELOCITY_FEATURES: usize = 3;
 /// plane (1).
 pub const SURFACE_NORMAL_FEATURES: usize = 7;
 
+/// Features appended after the base ones, the contact velocity and the surface normals (each
+/// if on) when [`DynamicsConfig::history`] is on: the point's acceleration over the previous
+/// two steps beyond free fall (3).
+pub const HISTORY_FEATURES: usize = 3;
+
 /// Numbers per object in the object state summary ([`DynamicsConfig::object_summary`]).
 pub const OBJECT_SUMMARY_FEATURES: usize = 14;
 
 /// Affine normalisation of the per-point input features: `(raw - mean) / std`, one value per
 /// feature ([`DynamicsConfig::point_features`]: 12, plus 3 with the contact velocity, plus 7
-/// with the surface normals).
+/// with the surface normals, plus 3 with the history).
 ///
 /// Layout: `[contact_x, contact_y, contact_z, v_x, v_y, v_z, r_x, r_y, r_z, ln(mass / 1 kg),
 /// friction, restitution]`, then `[cv_x, cv_y, cv_z]` with the contact velocity, then `[n_x,
-/// n_y, n_z, m_x, m_y, m_z, gap]` with the surface normals (unit vectors; the gap in metres). Contact
+/// n_y, n_z, m_x, m_y, m_z, gap]` with the surface normals (unit vectors; the gap in metres), then
+/// `[a_x, a_y, a_z]` with the history (metres per frame^2 with per-frame units). Contact
 /// displacement, increment, offset and contact velocity are in metres (increments per step of
 /// `dt_steps` frames, or per frame with per-frame units); mass enters as its natural logarithm.
 /// The trainer fits these from data; the defaults are sensible for MOVi-like scenes.
@@ -81,6 +87,10 @@ impl FeatureNormalization {
         if dynamics.surface_normals {
             n.mean.extend([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.1]);
             n.std.extend([0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.1]);
+        }
+        if dynamics.history {
+            n.mean.extend([0.0; HISTORY_FEATURES]);
+            n.std.extend([0.01; HISTORY_FEATURES]);
         }
         n
     }
@@ -188,6 +198,14 @@ pub struct DynamicsConfig {
     /// point-to-plane height is not. Adds [`SURFACE_NORMAL_FEATURES`] inputs after the base
     /// ones and the contact velocity. Absent in older `config.json` files, which means off.
     pub surface_normals: bool,
+    /// History inputs: per point, how its motion changed over the previous step, from the
+    /// poses one step before the previous ones ([`crate::SceneState::earlier`]): `(x_t - 2
+    /// x_{t-k} + x_{t-2k} - g (k dt_frame)^2) / d^2` with `d` the increment divisor (metres per
+    /// frame^2 with per-frame units; zero in free flight), zero when those poses are not
+    /// known. At a contact two poses cannot tell how a body moves at t (its velocity changed
+    /// within the last step); the third tells how it changed. Adds [`HISTORY_FEATURES`]
+    /// inputs after the surface normals. Absent in older `config.json` files, which means off.
+    pub history: bool,
     /// Extrapolate each object as a rigid body in the Verlet base: the base keeps the object's
     /// linear and angular velocity (`R_{t+k} = R_t R_{t-k}^T R_t`, centre `2 p_t - p_{t-k}`)
     /// instead of extrapolating every anchor linearly (`2 A_t - A_{t-k}`), which lags a
@@ -235,17 +253,24 @@ pub enum InputGroup {
     ContactVelocity,
     /// [`DynamicsConfig::surface_normals`]: [`SURFACE_NORMAL_FEATURES`] inputs.
     SurfaceNormals,
+    /// [`DynamicsConfig::history`]: [`HISTORY_FEATURES`] inputs.
+    History,
 }
 
 impl InputGroup {
     /// Every group, in layout order.
-    pub const ALL: [InputGroup; 2] = [InputGroup::ContactVelocity, InputGroup::SurfaceNormals];
+    pub const ALL: [InputGroup; 3] = [
+        InputGroup::ContactVelocity,
+        InputGroup::SurfaceNormals,
+        InputGroup::History,
+    ];
 
     /// Name for messages, e.g. "contact velocity".
     pub fn name(self) -> &'static str {
         match self {
             InputGroup::ContactVelocity => "contact velocity",
             InputGroup::SurfaceNormals => "surface normals",
+            InputGroup::History => "history",
         }
     }
 
@@ -254,6 +279,7 @@ impl InputGroup {
         match self {
             InputGroup::ContactVelocity => CONTACT_VELOCITY_FEATURES,
             InputGroup::SurfaceNormals => SURFACE_NORMAL_FEATURES,
+            InputGroup::History => HISTORY_FEATURES,
         }
     }
 
@@ -262,6 +288,7 @@ impl InputGroup {
         match self {
             InputGroup::ContactVelocity => dynamics.contact_velocity,
             InputGroup::SurfaceNormals => dynamics.surface_normals,
+            InputGroup::History => dynamics.history,
         }
     }
 
@@ -270,6 +297,7 @@ impl InputGroup {
         match self {
             InputGroup::ContactVelocity => dynamics.contact_velocity = on,
             InputGroup::SurfaceNormals => dynamics.surface_normals = on,
+            InputGroup::History => dynamics.history = on,
         }
     }
 
@@ -299,6 +327,7 @@ impl DynamicsConfig {
             translation_invariant: true,
             contact_velocity: true,
             surface_normals: false,
+            history: false,
             rigid_extrapolation: true,
             object_summary: false,
             floor_base: false,
@@ -309,7 +338,8 @@ impl DynamicsConfig {
 
     /// Number of per-point input features: [`BASE_POINT_FEATURES`], plus
     /// [`CONTACT_VELOCITY_FEATURES`] with the contact velocity, plus
-    /// [`SURFACE_NORMAL_FEATURES`] with the surface normals.
+    /// [`SURFACE_NORMAL_FEATURES`] with the surface normals, plus [`HISTORY_FEATURES`] with the
+    /// history.
     pub fn point_features(&self) -> usize {
         BASE_POINT_FEATURES
             + InputGroup::ALL

@@ -351,19 +351,26 @@ fn prepare_object(cfg: &ModelConfig, o: ObjectInput) -> Result<PreparedObject, S
     })
 }
 
-/// Validates a scene state against its prepared scene and normalises the quaternions.
+/// Validates a scene state against its prepared scene and normalises the quaternions
+/// (`earlier` too, when given).
 pub(crate) fn validate_state(
     scene: &PreparedScene,
     state: &SceneState,
     dt_steps: u32,
     what: &str,
-) -> Result<(Vec<Pose>, Vec<Pose>), ModelError> {
+) -> Result<SceneState, ModelError> {
     let m = scene.len();
     if state.current.len() != m || state.previous.len() != m {
         return Err(ModelError::InvalidInput(format!(
             "{what}: scene has {m} objects but the state has {} current and {} previous poses",
             state.current.len(),
             state.previous.len()
+        )));
+    }
+    if let Some(earlier) = state.earlier.as_ref().filter(|e| e.len() != m) {
+        return Err(ModelError::InvalidInput(format!(
+            "{what}: scene has {m} objects but the state has {} earlier poses",
+            earlier.len()
         )));
     }
     if dt_steps == 0 || dt_steps > MAX_DT_STEPS {
@@ -380,10 +387,14 @@ pub(crate) fn validate_state(
             })
             .collect()
     };
-    Ok((
-        norm(&state.previous, "previous")?,
-        norm(&state.current, "current")?,
-    ))
+    Ok(SceneState {
+        previous: norm(&state.previous, "previous")?,
+        current: norm(&state.current, "current")?,
+        earlier: match &state.earlier {
+            Some(e) => Some(norm(e, "earlier")?),
+            None => None,
+        },
+    })
 }
 
 /// The model's domain check of one pose: a finite translation within [`MAX_WORLD_EXTENT`]

@@ -75,6 +75,7 @@ fn state() -> SceneState {
             pose(-3.1, 0.0, 2.0, 0.0),
             pose(0.05, 4.0, 0.5, 0.1),
         ],
+        earlier: None,
     }
 }
 

@@ -250,6 +250,7 @@ fn shipped_checkpoint_takes_the_contact_velocity_and_the_normals() {
     let state = SceneState {
         previous: vec![at(0.0, 0.3), at(0.5, 0.3)],
         current: vec![at(0.0, 0.29), at(0.5, 0.29)],
+        earlier: None,
     };
     let next = shipped
         .step(&[StepItem {

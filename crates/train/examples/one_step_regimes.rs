@@ -47,6 +47,7 @@ fn main() {
             let state = SceneState {
                 previous: pose(t - 1),
                 current: pose(t),
+                earlier: t.checked_sub(2).map(pose),
             };
             let out = model
                 .step(&[StepItem {

@@ -434,6 +434,105 @@ fn pushforward_keeps_the_window_stream_and_resumes_exactly() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// `data.history` adds the recorded poses at `t - 2k` to a window without changing anything
+/// else it draws (the pushforward's first recorded frame is that frame too); `history_drop`
+/// leaves them out of training windows only; `model.history` widens a `model.init` model
+/// (three fitted constants after the old ones) and is refused without `data.history`.
+#[test]
+fn history_windows_carry_the_frame_before_and_widen_a_model() {
+    use dynaserve_train::train::data::sample_window;
+    use rand::SeedableRng;
+
+    let dir = scratch("history");
+    let (data, scenes) = tiny_scenes(&dir);
+    let mut plain = tiny_config(&data, &dir.join("unused"), 1).data;
+    plain.step_sizes = vec![1, 2, 4];
+    plain.pushforward = 1.0;
+    let history = dynaserve_train::train::config::DataConfig {
+        history: true,
+        ..plain.clone()
+    };
+    let dropped = dynaserve_train::train::config::DataConfig {
+        history_drop: 1.0,
+        ..history.clone()
+    };
+    let mut carried = 0;
+    for seed in 0..24 {
+        let window = |c, noise| {
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+            sample_window(
+                &scenes[seed as usize % scenes.len()],
+                c,
+                &mut rng,
+                noise,
+                seed,
+            )
+            .unwrap()
+        };
+        let (a, b) = (window(&plain, true), window(&history, true));
+        assert_eq!(a.state.earlier, None);
+        assert_eq!(
+            (
+                &a.state.previous,
+                &a.state.current,
+                &a.target,
+                &a.pushforward
+            ),
+            (
+                &b.state.previous,
+                &b.state.current,
+                &b.target,
+                &b.pushforward
+            )
+        );
+        if let Some(earlier) = &b.state.earlier {
+            carried += 1;
+            assert_eq!(earlier.len(), b.target.len());
+            assert_ne!(earlier, &b.state.previous);
+            if let Some(frames) = &b.pushforward {
+                assert_eq!(&frames[0], earlier, "the recorded frame at t - 2k");
+            }
+        }
+        assert_eq!(window(&dropped, true).state.earlier, None);
+        assert_eq!(
+            window(&dropped, false).state.earlier.is_some(),
+            window(&history, false).state.earlier.is_some(),
+            "validation windows keep their history"
+        );
+    }
+    assert!(carried > 0, "no window had a frame at t - 2k");
+
+    train_tiny_from(&data, &dir, "base", None, |_| {}).unwrap();
+    let base = dynaserve_model::read_config(&dir.join("base/checkpoint")).unwrap();
+    let err = train_tiny_from(&data, &dir, "blind", Some("base"), |c| {
+        c.model.history = Some(true)
+    })
+    .unwrap_err();
+    assert!(err.to_string().contains("data.history"), "{err}");
+    train_tiny_from(&data, &dir, "wide", Some("base"), |c| {
+        c.model.history = Some(true);
+        c.data.history = true;
+        c.data.history_drop = 0.2;
+    })
+    .unwrap();
+    let wide = dynaserve_model::read_config(&dir.join("wide/checkpoint")).unwrap();
+    assert!(wide.dynamics.history);
+    let width = base.point_features();
+    assert_eq!(
+        wide.point_features(),
+        width + dynaserve_model::HISTORY_FEATURES
+    );
+    let n = &wide.normalization;
+    assert_eq!(n.mean[..width], base.normalization.mean[..]);
+    assert!(n.std[width..].iter().all(|s| s.is_finite() && *s >= 0.01));
+    assert!(
+        n.mean[width..].iter().any(|m| *m != 0.0),
+        "fitted: {:?}",
+        n.mean
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// `data.points_per_scene` draws each object's cloud once per scene: two windows of one scene
 /// (different window draws) show the same points, another scene key gives another subset, and
 /// without the option the windows' clouds differ.

@@ -1,6 +1,6 @@
 //! The per-point input features shared by the model and the trainer's normalisation fit:
 //! physical parameters, the frame features are measured from, the 12 base raw values, the
-//! optional contact velocity and surface normals, and [`ScenePoints`], the one place a scene's
+//! optional contact velocity, surface normals and history, and [`ScenePoints`], the one place a scene's
 //! points are placed in the world, searched for contacts and turned into raw features.
 
 use dynaserve_geometry::{
@@ -11,7 +11,7 @@ use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 use crate::api::Pose;
 use crate::config::{
-    BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig, ModelConfig,
+    BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig, HISTORY_FEATURES, ModelConfig,
     OBJECT_SUMMARY_FEATURES, SURFACE_NORMAL_FEATURES,
 };
 
@@ -141,6 +141,23 @@ pub fn surface_normal_features(
     [own[0], own[1], own[2], other[0], other[1], other[2], gap]
 }
 
+/// The history features of one point ([`DynamicsConfig::history`]): how its motion changed
+/// over the previous step beyond free fall, `(x_t - 2 x_{t-k} + x_{t-2k} - fall) / d^2` with
+/// `d = frame.increment_divisor` (metres per frame^2 with per-frame units). `world`,
+/// `world_prev` and `world_earlier`: the point at t, t - k and t - 2k, metres; `fall`: free
+/// fall over one step, `g (k dt_frame)^2`, metres. Zero for a body in free flight (up to its
+/// spin's centripetal term) and for the constant velocity a missing earlier pose stands for.
+pub fn history_features(
+    world: Point,
+    world_prev: Point,
+    world_earlier: Point,
+    fall: [f32; 3],
+    frame: &FeatureFrame,
+) -> [f32; HISTORY_FEATURES] {
+    let inv = 1.0 / (frame.increment_divisor * frame.increment_divisor);
+    [0, 1, 2].map(|d| (world[d] - 2.0 * world_prev[d] + world_earlier[d] - fall[d]) * inv)
+}
+
 /// Heights in the object summary are divided by this, metres.
 pub const SUMMARY_HEIGHT_SCALE: f32 = 0.5;
 /// Heights in the object summary are clamped to this before scaling, metres: a body far above
@@ -209,8 +226,8 @@ pub(crate) fn rotation_translation(p: &Pose) -> (Matrix3<f32>, Vector3<f32>) {
     )
 }
 
-/// A scene's points in the world at t and t-1, object after object, with every point's
-/// contact hit: what the raw point features of one step are measured on.
+/// A scene's points in the world at t and t-1 (and t-2 when known), object after object, with
+/// every point's contact hit: what the raw point features of one step are measured on.
 #[derive(Clone, Debug)]
 pub struct ScenePoints {
     /// Every point at t, `[n, 3]` metres.
@@ -224,6 +241,12 @@ pub struct ScenePoints {
     /// Every point's outward unit normal at t, `[n, 3]`, when the model reads surface normals
     /// ([`ScenePoints::with_normals`]); empty otherwise.
     pub normals: Vec<Point>,
+    /// Every point one step before t - 1, `[n, 3]` metres, when the model reads the history
+    /// and the earlier poses are known ([`ScenePoints::with_history`]); empty otherwise, which
+    /// reads as zero history features.
+    pub world_earlier: Vec<Point>,
+    /// Free fall over one step, `g (k dt_frame)^2` metres, set with `world_earlier`.
+    fall: [f32; 3],
     /// The model's contact radius, metres.
     radius: f32,
 }
@@ -266,8 +289,34 @@ impl ScenePoints {
             offsets,
             contact,
             normals: Vec::new(),
+            world_earlier: Vec::new(),
+            fall: [0.0; 3],
             radius: cfg.contact_radius,
         }
+    }
+
+    /// Adds every point's world position one step before t - 1: each object's `references`
+    /// (body frame, metres, as given to [`ScenePoints::new`]) placed at its `earlier` pose.
+    /// `dt_steps` is the step size in frames (for the free fall `cfg` gives). Needed by
+    /// [`ScenePoints::raw_features`] for non-zero history features.
+    pub fn with_history<'a>(
+        mut self,
+        cfg: &ModelConfig,
+        references: impl IntoIterator<Item = &'a [Point]>,
+        earlier: &[Pose],
+        dt_steps: u32,
+    ) -> ScenePoints {
+        self.world_earlier = Vec::with_capacity(self.world.len());
+        for (reference, before) in references.into_iter().zip(earlier) {
+            let (r, p) = rotation_translation(before);
+            for x in reference {
+                let w = r * Vector3::from(*x) + p;
+                self.world_earlier.push([w.x, w.y, w.z]);
+            }
+        }
+        let h = dt_steps.max(1) as f32 * cfg.dt_frame;
+        self.fall = cfg.gravity.map(|g| g * h * h);
+        self
     }
 
     /// Adds every point's world normal at t: each object's body-frame normals (`[n, 3]` unit
@@ -291,8 +340,9 @@ impl ScenePoints {
 
     /// Writes the raw (unnormalised) features of point `q` of the scene into `out`: the
     /// [`raw_point_features`] of its `reference` position (body frame, metres) and its
-    /// object's `params`, then the optional ones `dynamics` selects: its [`contact_velocity`]
-    /// and its [`surface_normal_features`] (which need [`ScenePoints::with_normals`]).
+    /// object's `params`, then the optional ones `dynamics` selects: its [`contact_velocity`],
+    /// its [`surface_normal_features`] (which need [`ScenePoints::with_normals`]) and its
+    /// [`history_features`] (zero without [`ScenePoints::with_history`]).
     /// `out` holds [`DynamicsConfig::point_features`] values.
     pub fn raw_features(
         &self,
@@ -330,6 +380,16 @@ impl ScenePoints {
                 &self.normals,
                 self.radius,
             ));
+            at += SURFACE_NORMAL_FEATURES;
+        }
+        if dynamics.history {
+            let history = match self.world_earlier.get(q) {
+                Some(&earlier) => {
+                    history_features(self.world[q], self.world_prev[q], earlier, self.fall, frame)
+                }
+                None => [0.0; HISTORY_FEATURES],
+            };
+            out[at..at + HISTORY_FEATURES].copy_from_slice(&history);
         }
     }
 }

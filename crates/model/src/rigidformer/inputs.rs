@@ -20,6 +20,8 @@ pub(crate) struct SceneRequest<'a> {
     pub scene: &'a PreparedScene,
     pub previous: Vec<Pose>,
     pub current: Vec<Pose>,
+    /// Poses one step before `previous`, when known (read by history inputs only).
+    pub earlier: Option<Vec<Pose>>,
     pub dt_steps: u32,
 }
 
@@ -363,6 +365,14 @@ fn scene_chunk(
             &r.current,
         );
     }
+    if let (true, Some(earlier)) = (cfg.dynamics.history, &r.earlier) {
+        points = points.with_history(
+            cfg,
+            scene.objects.iter().map(|o| o.reference.as_slice()),
+            earlier,
+            r.dt_steps,
+        );
+    }
     let ctx = ObjectContext {
         cfg,
         r,
@@ -673,6 +683,7 @@ mod tests {
                 scene: &scene,
                 previous,
                 current: current.clone(),
+                earlier: None,
                 dt_steps: k,
             }],
         )

@@ -291,11 +291,12 @@ impl RigidFormer {
             .map(|(i, it)| {
                 let what = format!("batch[{i}]");
                 check_prepared_for(&self.config, it.scene, &what)?;
-                let (previous, current) = validate_state(it.scene, it.state, it.dt_steps, &what)?;
+                let state = validate_state(it.scene, it.state, it.dt_steps, &what)?;
                 Ok(SceneRequest {
                     scene: it.scene,
-                    previous,
-                    current,
+                    previous: state.previous,
+                    current: state.current,
+                    earlier: state.earlier,
                     dt_steps: it.dt_steps,
                 })
             })

@@ -68,7 +68,7 @@ impl RigidFormer {
         for (i, it) in items.iter().enumerate() {
             let what = format!("train[{i}]");
             super::check_prepared_for(&self.config, it.scene, &what)?;
-            let (previous, current) = validate_state(it.scene, it.state, it.dt_steps, &what)?;
+            let state = validate_state(it.scene, it.state, it.dt_steps, &what)?;
             if it.target.len() != it.scene.len() {
                 return Err(ModelError::InvalidInput(format!(
                     "{what}: {} target poses for {} objects",
@@ -92,8 +92,9 @@ impl RigidFormer {
             }
             requests.push(SceneRequest {
                 scene: it.scene,
-                previous,
-                current,
+                previous: state.previous,
+                current: state.current,
+                earlier: state.earlier,
                 dt_steps: it.dt_steps,
             });
         }

@@ -125,7 +125,12 @@ impl RigidSteps {
 /// [`MAX_WORLD_EXTENT`] metres, a rotation that is not a usable quaternion), naming the object;
 /// `None` for a usable state. The message holds only this scene's data.
 pub fn state_problem(state: &SceneState) -> Option<String> {
-    for (which, poses) in [("previous", &state.previous), ("current", &state.current)] {
+    let earlier = state.earlier.as_deref().unwrap_or_default();
+    for (which, poses) in [
+        ("earlier", earlier),
+        ("previous", &state.previous[..]),
+        ("current", &state.current[..]),
+    ] {
         for (j, p) in poses.iter().enumerate() {
             if !pose_in_domain(p) {
                 return Some(format!(

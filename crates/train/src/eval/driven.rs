@@ -69,8 +69,7 @@ pub fn driven_rollout_batch(
                     }
                 }
             }
-            let s = &mut states[i];
-            s.previous = std::mem::replace(&mut s.current, poses.clone());
+            states[i].advance(poses.clone());
             out[i].push(poses);
         }
     }

@@ -210,13 +210,7 @@ impl<'a> Evaluator<'a> {
                     })?;
                     rollouts.push((req.observed, out));
                 } else {
-                    rollouts.push((
-                        SceneState {
-                            previous: Vec::new(),
-                            current: Vec::new(),
-                        },
-                        Vec::new(),
-                    ));
+                    rollouts.push((SceneState::new(Vec::new(), Vec::new()), Vec::new()));
                 }
             }
             let long = match extra_long {

@@ -24,7 +24,8 @@ pub fn poses_at(scene: &SceneRecord, t: usize) -> Result<Vec<Pose>, EvalError> {
         .collect()
 }
 
-/// The observed state for step size `k`: poses at frames `start - k` and `start`.
+/// The observed state for step size `k`: poses at frames `start - k` and `start`, and at
+/// `start - 2k` when the scene has it (read by models with history inputs only).
 pub fn observed_state(scene: &SceneRecord, start: usize, k: u32) -> Result<SceneState, EvalError> {
     let k = k as usize;
     if k == 0 || k > start {
@@ -35,5 +36,9 @@ pub fn observed_state(scene: &SceneRecord, start: usize, k: u32) -> Result<Scene
     Ok(SceneState {
         previous: poses_at(scene, start - k)?,
         current: poses_at(scene, start)?,
+        earlier: match start.checked_sub(2 * k) {
+            Some(f) => Some(poses_at(scene, f)?),
+            None => None,
+        },
     })
 }

@@ -340,13 +340,13 @@ pub(super) fn score_scene(
             let windows: Vec<ProjectionWindow> = (0..long_steps)
                 .step_by(projection_every)
                 .map(|i| ProjectionWindow {
-                    state: SceneState {
-                        previous: match i {
+                    state: SceneState::new(
+                        match i {
                             0 => observed.previous.clone(),
                             _ => rollout_pose(observed, rollout, i - 1).to_vec(),
                         },
-                        current: rollout_pose(observed, rollout, i).to_vec(),
-                    },
+                        rollout_pose(observed, rollout, i).to_vec(),
+                    ),
                     next: rollout[i].clone(),
                     dt_steps: 1,
                 })

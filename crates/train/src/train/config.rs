@@ -85,6 +85,13 @@ pub struct DataConfig {
     /// impact, a pusher's first touch) instead of uniformly; see [`super::events`]. The other
     /// samples, and validation windows, stay uniform. 0 disables.
     pub event_share: f32,
+    /// Windows carry the poses one step before the observed ones (`t - 2k`, noised like them)
+    /// as `SceneState::earlier`, for models with history inputs; windows with `t < 2k` have
+    /// none. Off keeps two observed frames (and every earlier configuration's sample stream).
+    pub history: bool,
+    /// Probability that a window's earlier poses are left out (the history then reads as
+    /// unknown, as on the first step of a rollout from two poses), with `history`.
+    pub history_drop: f32,
     /// Batches the loader thread prepares ahead of the trainer.
     pub prefetch: usize,
     /// Scenes read to fit the feature normalisation before training.
@@ -129,6 +136,8 @@ impl Default for DataConfig {
             pushforward: 0.0,
             pushforward_steps: 1,
             event_share: 0.0,
+            history: false,
+            history_drop: 0.0,
             prefetch: 8,
             norm_scenes: 200,
             norm_windows: 4,
@@ -167,6 +176,11 @@ pub struct ModelSection {
     /// normalisation constants are kept and the 7 new ones fitted from the training data).
     /// `false` on an `init` model that has them is an error.
     pub surface_normals: Option<bool>,
+    /// The history inputs (`DynamicsConfig::history`): unset keeps what the preset, config or
+    /// `init` model has. `true` on an `init` model without them widens it (zero weights on the
+    /// 3 new inputs; the 3 new normalisation constants fitted from the training data). Needs
+    /// `data.history`. `false` on an `init` model that has them is an error.
+    pub history: Option<bool>,
     /// The object state summary (`DynamicsConfig::object_summary`): unset keeps what the
     /// preset, config or `init` model has. `true` on an `init` model without it widens it
     /// (the summary MLP's last layer zero, so it starts as the same function; its first layer
@@ -215,6 +229,7 @@ impl Default for ModelSection {
             init: None,
             contact_velocity: None,
             surface_normals: None,
+            history: None,
             object_summary: None,
             rigid_extrapolation: None,
             floor_base: None,
@@ -229,7 +244,7 @@ impl Default for ModelSection {
 
 impl ModelSection {
     /// The model configuration this section names (before normalisation fitting), with
-    /// `contact_velocity` and `surface_normals` (the normalisation then resized to its defaults),
+    /// `contact_velocity`, `surface_normals` and `history` (the normalisation then resized to its defaults),
     /// `object_summary`, `rigid_extrapolation`, `floor_base`, `relative_mass`, `loss_beta`,
     /// `rest_weight` and `object_contact_weight` applied.
     pub fn model_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {
@@ -261,6 +276,9 @@ impl ModelSection {
         }
         if let Some(on) = self.surface_normals {
             c.dynamics.surface_normals = on;
+        }
+        if let Some(on) = self.history {
+            c.dynamics.history = on;
         }
         if c.dynamics.point_features() != inputs {
             c.normalization = FeatureNormalization::defaults_for(&c.dynamics);
@@ -421,6 +439,14 @@ impl TrainConfig {
         }
         if !(0.0..=1.0).contains(&d.event_share) {
             return bad("data.event_share must be a fraction in [0, 1]");
+        }
+        if !(0.0..=1.0).contains(&d.history_drop) {
+            return bad("data.history_drop must be a probability in [0, 1]");
+        }
+        if self.model.history == Some(true) && !d.history {
+            return bad(
+                "model.history = true needs data.history = true (else its inputs are always zero)",
+            );
         }
         DataConfig::check_mix(&d.mix, 1 + d.extra.len())?;
         if d.prefetch == 0 {

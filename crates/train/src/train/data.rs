@@ -37,7 +37,8 @@ use super::config::DataConfig;
 pub struct Window {
     /// Objects with their (sub-sampled) body-frame clouds and parameters.
     pub objects: Vec<ObjectInput>,
-    /// Observed poses at `t - dt_steps` and `t` (possibly noised).
+    /// Observed poses at `t - dt_steps` and `t` (possibly noised), and at `t - 2 dt_steps`
+    /// with [`DataConfig::history`].
     pub state: SceneState,
     /// Ground-truth poses at `t + dt_steps`.
     pub target: Vec<Pose>,
@@ -170,6 +171,11 @@ pub fn sample_window(
     let mut objects = Vec::with_capacity(order.len());
     let mut previous = Vec::with_capacity(order.len());
     let mut current = Vec::with_capacity(order.len());
+    let mut earlier = Vec::with_capacity(order.len());
+    // Drawn only with the option, so configurations without it keep their sample streams.
+    let with_history = c.history
+        && t >= 2 * ku
+        && !(noise && c.history_drop > 0.0 && rng.random::<f32>() < c.history_drop);
     let mut target = Vec::with_capacity(order.len());
     let kinematic = order.iter().map(|&j| scene.objects[j].kinematic).collect();
     for &j in &order {
@@ -222,8 +228,12 @@ pub fn sample_window(
         });
         let mut prev = pose_at(o, t - ku);
         let mut cur = pose_at(o, t);
+        let mut before = with_history.then(|| pose_at(o, t - 2 * ku));
         if noise && (c.noise_position > 0.0 || c.noise_rotation > 0.0) {
-            for pose in [&mut prev, &mut cur] {
+            for pose in [Some(&mut prev), Some(&mut cur), before.as_mut()]
+                .into_iter()
+                .flatten()
+            {
                 let mut p = Vector3::from(pose.translation);
                 for d in 0..3 {
                     let e: f32 = StandardNormal.sample(rng);
@@ -235,6 +245,7 @@ pub fn sample_window(
         }
         previous.push(prev);
         current.push(cur);
+        earlier.extend(before);
         target.push(pose_at(o, t + ku));
     }
     // Drawn last and only when enabled, so configurations without it keep their streams.
@@ -254,7 +265,11 @@ pub fn sample_window(
             });
     Ok(Window {
         objects,
-        state: SceneState { previous, current },
+        state: SceneState {
+            previous,
+            current,
+            earlier: with_history.then_some(earlier),
+        },
         target,
         dt_steps: k,
         kinematic,
@@ -642,7 +657,7 @@ fn worker(
 
 /// Per-feature mean and standard deviation of the raw point features of `model` (contact
 /// displacement, per-step increment, offset from the reference cloud, `[ln mass, friction,
-/// restitution]`, then the contact velocity and the surface normals if the model takes them) over `c.norm_windows`
+/// restitution]`, then the contact velocity, the surface normals and the history if the model takes them) over `c.norm_windows`
 /// augmented windows of each of the first `c.norm_scenes` scenes, computed by the model's own
 /// [`ScenePoints`]. Standard deviations are floored at 0.01 so constant features do not
 /// explode.
@@ -675,6 +690,14 @@ pub fn fit_normalization(
                 &win.state.current,
                 &win.state.previous,
             );
+            if let (true, Some(earlier)) = (model.dynamics.history, &win.state.earlier) {
+                points = points.with_history(
+                    model,
+                    win.objects.iter().map(|o| o.reference.as_slice()),
+                    earlier,
+                    win.dt_steps,
+                );
+            }
             if model.dynamics.surface_normals {
                 let body: Vec<Vec<[f32; 3]>> = win
                     .objects

@@ -11,6 +11,8 @@ use super::data::Sample;
 /// all such samples in one batched pass per step, and makes its predictions the sample's
 /// observed poses: after one step the current pose, after two both (the previous one is then
 /// the first step's prediction). Kinematic objects keep their recorded poses at every step.
+/// The first step has no earlier poses (as a rollout's first step from two poses); after two
+/// steps a sample that carries earlier poses gets the recorded ones before its new previous.
 /// Returns how many samples were replaced.
 pub fn apply(model: &RigidFormer, samples: &mut [Sample]) -> Result<usize, TrainError> {
     // The recorded poses move out of the samples: they are used once.
@@ -27,10 +29,7 @@ pub fn apply(model: &RigidFormer, samples: &mut [Sample]) -> Result<usize, Train
     // Per chosen sample: the state the next step starts from, and its first predicted frame.
     let mut states: Vec<SceneState> = recorded
         .iter()
-        .map(|r| SceneState {
-            previous: r[0].clone(),
-            current: r[1].clone(),
-        })
+        .map(|r| SceneState::new(r[0].clone(), r[1].clone()))
         .collect();
     for step in 0..steps {
         // Samples with fewer recorded frames than `steps + 1` stop early.
@@ -65,16 +64,19 @@ pub fn apply(model: &RigidFormer, samples: &mut [Sample]) -> Result<usize, Train
                     }
                 })
                 .collect();
-            let st = &mut states[c];
-            st.previous = std::mem::replace(&mut st.current, next);
+            states[c].advance(next);
         }
     }
     for (c, &i) in chosen.iter().enumerate() {
         let s = &mut samples[i];
         let st = &states[c];
-        // After one step the previous pose is the recorded (noised) one: keep the sample's.
+        // After one step the previous (and earlier) poses are the recorded (noised) ones: keep
+        // the sample's.
         if recorded[c].len() > 2 {
             s.state.previous = st.previous.clone();
+            if s.state.earlier.is_some() {
+                s.state.earlier = st.earlier.clone();
+            }
         }
         s.state.current = st.current.clone();
     }

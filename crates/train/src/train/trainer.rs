@@ -149,7 +149,7 @@ pub fn plot_loss(out: &Path) -> Result<(), TrainError> {
     )
 }
 
-/// Applies `model.contact_velocity` and `model.surface_normals` to a model loaded from
+/// Applies `model.contact_velocity`, `model.surface_normals` and `model.history` to a model loaded from
 /// `model.init`: widens a model without those inputs when asked (zero weight columns, so it
 /// starts as the same function; the new normalisation constants fitted from the training data
 /// like a fresh run's, the old ones kept). Removing inputs is an error.
@@ -161,6 +161,7 @@ fn init_inputs(
     let options = [
         ("contact_velocity", cfg.model.contact_velocity),
         ("surface_normals", cfg.model.surface_normals),
+        ("history", cfg.model.history),
     ];
     for (group, (option, wanted)) in InputGroup::ALL.into_iter().zip(options) {
         let has = group.enabled(&m.config().dynamics);
