@@ -45,7 +45,9 @@ pub fn kinematic_mask(indices: &[u32], objects: usize) -> Result<Vec<bool>, Fiel
 
 /// Overwrites the listed objects' states in `state` (each object at most once; `field` names
 /// the list, e.g. `objects`). A velocity is turned into a previous pose `dt_seconds` earlier.
-/// Nothing is changed when any entry is invalid.
+/// The poses one step before (`earlier`, which history inputs read) no longer belong to the
+/// new motion, so when any object is overwritten they are dropped for the whole scene: its
+/// next step reads as a rollout's first. Nothing is changed when any entry is invalid.
 pub fn apply_states(
     state: &mut SceneState,
     objects: &[ObjectState],
@@ -61,6 +63,9 @@ pub fn apply_states(
         let now = check_pose(&o.pose, &format!("{f}.pose"))?;
         let before = previous_pose(now, &o.motion, dt_seconds, &f)?;
         updates.push((j, before, now));
+    }
+    if !updates.is_empty() {
+        state.earlier = None;
     }
     for (j, before, now) in updates {
         state.previous[j] = before;
@@ -201,8 +206,10 @@ mod tests {
         let mut s = SceneState {
             previous: vec![at(0.0), at(5.0)],
             current: vec![at(0.0), at(5.0)],
-            earlier: None,
+            earlier: Some(vec![at(0.0), at(5.0)]),
         };
+        apply_states(&mut s, &[], 0.5, "objects").unwrap();
+        assert!(s.earlier.is_some(), "an empty list changes nothing");
         let moving = ObjectState {
             object: 1,
             pose: at(2.0),
@@ -212,9 +219,11 @@ mod tests {
             },
         };
         apply_states(&mut s, &[moving], 0.5, "objects").unwrap();
+        assert_eq!(s.earlier, None, "the step before belongs to the old motion");
         assert_eq!(s.current[1], at(2.0));
         assert!((s.previous[1].translation[0] - 1.5).abs() < 1e-6);
         assert_eq!(s.current[0], at(0.0));
+        s.earlier = Some(s.previous.clone());
         let before = s.clone();
         let twice = [moving, moving];
         assert_eq!(

@@ -65,9 +65,10 @@ fn scene_bytes(s: &PreparedScene) -> usize {
         .sum()
 }
 
-/// Bytes of one session's own state (two poses per object and bookkeeping).
+/// Bytes of one session's own state (three poses per object: the step before, previous and
+/// current; and bookkeeping).
 fn state_bytes(objects: usize) -> usize {
-    objects * 2 * std::mem::size_of::<dynaserve_model::Pose>() + 512
+    objects * 3 * std::mem::size_of::<dynaserve_model::Pose>() + 512
 }
 
 /// What a call holding a session may change.
