@@ -93,6 +93,11 @@ pub struct EvalArgs {
     /// Evaluate the model only at its nominal point count (no 768-point or occluded variant).
     #[arg(long)]
     pub no_variants: bool,
+    /// Show the predictors only frames s - k and s (t - k and t in the regime table), as a
+    /// client that sends two poses, not the frame before them that a model with history
+    /// inputs reads on its first step.
+    #[arg(long)]
+    pub two_frames: bool,
     /// Do not evaluate the static and ballistic baselines next to the model.
     #[arg(long)]
     pub no_baselines: bool,
@@ -138,6 +143,7 @@ impl EvalArgs {
             long_rollout_steps: self.long_steps,
             projection_every: self.projection_every,
             resting: (!self.no_resting).then(RestingOptions::default),
+            two_frames: self.two_frames,
             ..EvalOptions::default()
         }
     }

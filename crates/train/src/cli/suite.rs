@@ -84,6 +84,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         step_sizes: args.step_sizes.clone(),
         window_stride: args.window_stride,
         gravity,
+        two_frames: args.two_frames,
     };
     let bar = ProgressBar::new((scenes.len() * predictors.len()) as u64);
     bar.set_style(

@@ -16,7 +16,7 @@ use super::scoring::{Tally, score_scene};
 use super::{
     ContactHistory, ContactSpread, CurvePoint, DatasetInfo, DriftReport, EvalError, EvalOptions,
     EvalReport, HorizonReport, LongRolloutReport, Predictor, RestingReport, RolloutRequest,
-    ShapeDrift, StepSizeReport, observed_state,
+    ShapeDrift, StepSizeReport, observed_frames,
 };
 
 /// Scenes evaluated per parallel batch when streaming a dataset.
@@ -172,7 +172,7 @@ impl<'a> Evaluator<'a> {
                 if p.steps > 0 {
                     requests.push(RolloutRequest {
                         scene: s,
-                        observed: observed_state(s, start, p.k)?,
+                        observed: observed_frames(s, start, p.k, self.opts.two_frames)?,
                         dt_steps: p.k,
                         steps: p.steps,
                     });
@@ -181,7 +181,7 @@ impl<'a> Evaluator<'a> {
             if let Some(n) = extra_long {
                 requests.push(RolloutRequest {
                     scene: s,
-                    observed: observed_state(s, start, 1)?,
+                    observed: observed_frames(s, start, 1, self.opts.two_frames)?,
                     dt_steps: 1,
                     steps: n,
                 });

@@ -24,6 +24,21 @@ pub fn poses_at(scene: &SceneRecord, t: usize) -> Result<Vec<Pose>, EvalError> {
         .collect()
 }
 
+/// [`observed_state`], with the poses before the last two withheld when `two_frames` (as for a
+/// client that sends two poses).
+pub fn observed_frames(
+    scene: &SceneRecord,
+    start: usize,
+    k: u32,
+    two_frames: bool,
+) -> Result<SceneState, EvalError> {
+    let mut state = observed_state(scene, start, k)?;
+    if two_frames {
+        state.earlier = None;
+    }
+    Ok(state)
+}
+
 /// The observed state for step size `k`: poses at frames `start - k` and `start`, and at
 /// `start - 2k` when the scene has it (read by models with history inputs only).
 pub fn observed_state(scene: &SceneRecord, start: usize, k: u32) -> Result<SceneState, EvalError> {

@@ -59,7 +59,7 @@ mod table;
 pub use baselines::{Ballistic, Static};
 pub use error::EvalError;
 pub use evaluator::{evaluate_dataset, evaluate_dataset_many, evaluate_scenes};
-pub use frames::{observed_state, poses_at};
+pub use frames::{observed_frames, observed_state, poses_at};
 pub use model::{ModelPredictor, Occlusion, PointSelection};
 pub use options::{
     DEFAULT_HORIZONS_S, DEFAULT_LONG_ROLLOUT_STEPS, DEFAULT_PROJECTION_EVERY, DEFAULT_START_FRAME,

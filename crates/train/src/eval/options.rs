@@ -32,6 +32,10 @@ pub struct EvalOptions {
     /// Gravity of the scenes, m/s^2: it tells a bounce between two frames from free flight in
     /// the per-object error by contact. A dataset's manifest overrides it.
     pub gravity: [f32; 3],
+    /// Observe only frames `s - k` and `s`, not `s - 2k` (which a model with history inputs
+    /// reads on its first step), as a client that sends two poses.
+    #[serde(default)]
+    pub two_frames: bool,
 }
 
 impl Default for EvalOptions {
@@ -45,6 +49,7 @@ impl Default for EvalOptions {
             projection_every: DEFAULT_PROJECTION_EVERY,
             resting: Some(RestingOptions::default()),
             gravity: [0.0, 0.0, -10.0],
+            two_frames: false,
         }
     }
 }

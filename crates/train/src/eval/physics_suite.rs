@@ -24,7 +24,7 @@ use super::regimes::{
     RegimeErrors, contact_flags, floor_impact, regime, windows,
 };
 use super::scenario_figures::{Sample, scene_samples};
-use super::{DEFAULT_START_FRAME, EvalError, Predictor, RolloutRequest, observed_state};
+use super::{DEFAULT_START_FRAME, EvalError, Predictor, RolloutRequest, observed_frames};
 
 /// Seed of the generated suite (the training splits use seeds 0 to 2).
 pub const DEFAULT_SUITE_SEED: u64 = 7;
@@ -164,6 +164,10 @@ pub struct SuiteOptions {
     pub window_stride: usize,
     /// Gravity of the data, m/s^2.
     pub gravity: [f32; 3],
+    /// Observe only two frames per window, not the one before them (see
+    /// [`super::EvalOptions::two_frames`]).
+    #[serde(default)]
+    pub two_frames: bool,
 }
 
 impl Default for SuiteOptions {
@@ -173,6 +177,7 @@ impl Default for SuiteOptions {
             step_sizes: vec![1, 2, 4],
             window_stride: 1,
             gravity: [0.0, 0.0, -10.0],
+            two_frames: false,
         }
     }
 }
@@ -391,7 +396,7 @@ fn run_predictor(
             .map(|&i| {
                 Ok(RolloutRequest {
                     scene: &scenes[i].scene,
-                    observed: observed_state(&scenes[i].scene, s, 1)?,
+                    observed: observed_frames(&scenes[i].scene, s, 1, opts.two_frames)?,
                     dt_steps: 1,
                     steps,
                 })
@@ -431,7 +436,7 @@ fn run_predictor(
                 .map(|&(_, k, t)| {
                     Ok(RolloutRequest {
                         scene: &sc.scene,
-                        observed: observed_state(&sc.scene, t, k)?,
+                        observed: observed_frames(&sc.scene, t, k, opts.two_frames)?,
                         dt_steps: k,
                         steps: 1,
                     })

@@ -144,3 +144,25 @@ fn model_batches_match_single_rollouts_and_report_the_projection() {
     let report = evaluate_scenes(&plain, &[a], &opts).unwrap();
     assert_eq!(report.long_rollout.unwrap().projection_residual_m, None);
 }
+
+/// The observed state carries frame `s - 2k` when the scene has it, and withholds it for
+/// `two_frames` (a client that sends two poses).
+#[test]
+fn observed_frames_carry_the_frame_before_unless_two_are_asked_for() {
+    let s = scene(2, 12, |j, t| {
+        pose(
+            Vector3::new(j as f64, 0.0, 2.0 - 0.05 * t * t),
+            UnitQuaternion::identity(),
+        )
+    });
+    let three = observed_frames(&s, 4, 2, false).unwrap();
+    assert_eq!(three.earlier, Some(poses_at(&s, 0).unwrap()));
+    assert_eq!(three.previous, poses_at(&s, 2).unwrap());
+    assert_eq!(observed_frames(&s, 4, 2, true).unwrap().earlier, None);
+    // Frame 4 - 2 * 4 does not exist: two frames, whatever is asked.
+    assert_eq!(observed_frames(&s, 4, 4, false).unwrap().earlier, None);
+    assert_eq!(
+        observed_frames(&s, 4, 2, true).unwrap().current,
+        three.current
+    );
+}
