@@ -435,9 +435,11 @@ fn pushforward_keeps_the_window_stream_and_resumes_exactly() {
 }
 
 /// `data.history` adds the recorded poses at `t - 2k` to a window without changing anything
-/// else it draws (the pushforward's first recorded frame is that frame too); `history_drop`
-/// leaves them out of training windows only; `model.history` widens a `model.init` model
-/// (three fitted constants after the old ones) and is refused without `data.history`.
+/// else it draws when there is no input noise (with noise, each object's earlier pose draws
+/// its own after the other two); the pushforward's first recorded frame is that frame too;
+/// `history_drop` leaves them out of training windows only; `model.history` widens a
+/// `model.init` model (three fitted constants after the old ones) and is refused without
+/// `data.history`.
 #[test]
 fn history_windows_carry_the_frame_before_and_widen_a_model() {
     use dynaserve_train::train::data::sample_window;

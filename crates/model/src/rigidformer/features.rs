@@ -1,7 +1,8 @@
 //! The per-point input features shared by the model and the trainer's normalisation fit:
 //! physical parameters, the frame features are measured from, the 12 base raw values, the
-//! optional contact velocity, surface normals and history, and [`ScenePoints`], the one place a scene's
-//! points are placed in the world, searched for contacts and turned into raw features.
+//! optional contact velocity, surface normals and history, and [`ScenePoints`], the one place
+//! a scene's points are placed in the world, searched for contacts and turned into raw
+//! features.
 
 use dynaserve_geometry::{
     ContactConfig, ContactHit, ContactSource, DEFAULT_NORMAL_NEIGHBOURS, Point, contact_hits,
@@ -146,7 +147,8 @@ pub fn surface_normal_features(
 /// `d = frame.increment_divisor` (metres per frame^2 with per-frame units). `world`,
 /// `world_prev` and `world_earlier`: the point at t, t - k and t - 2k, metres; `fall`: free
 /// fall over one step, `g (k dt_frame)^2`, metres. Zero for a body in free flight (up to its
-/// spin's centripetal term) and for the constant velocity a missing earlier pose stands for.
+/// spin's centripetal term); a point whose earlier pose is unknown reads zero as well
+/// ([`ScenePoints::raw_features`]), not this of any pose.
 pub fn history_features(
     world: Point,
     world_prev: Point,

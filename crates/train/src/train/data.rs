@@ -657,8 +657,9 @@ fn worker(
 
 /// Per-feature mean and standard deviation of the raw point features of `model` (contact
 /// displacement, per-step increment, offset from the reference cloud, `[ln mass, friction,
-/// restitution]`, then the contact velocity, the surface normals and the history if the model takes them) over `c.norm_windows`
-/// augmented windows of each of the first `c.norm_scenes` scenes, computed by the model's own
+/// restitution]`, then the contact velocity, the surface normals and the history if the
+/// model takes them) over `c.norm_windows` augmented windows of each of the first
+/// `c.norm_scenes` scenes, computed by the model's own
 /// [`ScenePoints`]. Standard deviations are floored at 0.01 so constant features do not
 /// explode.
 pub fn fit_normalization(
