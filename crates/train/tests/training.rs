@@ -36,6 +36,35 @@ fn tiny_scenes(dir: &Path) -> (PathBuf, Vec<dynaserve_sim::SceneRecord>) {
     (data, scenes)
 }
 
+/// [`tiny_scenes`] with the data configuration of the window tests: [`tiny_config`]'s, step
+/// sizes 1, 2 and 4.
+fn window_scenes(
+    dir: &Path,
+) -> (
+    PathBuf,
+    Vec<dynaserve_sim::SceneRecord>,
+    dynaserve_train::train::config::DataConfig,
+) {
+    let (data, scenes) = tiny_scenes(dir);
+    let mut c = tiny_config(&data, &dir.join("unused"), 1).data;
+    c.step_sizes = vec![1, 2, 4];
+    (data, scenes, c)
+}
+
+/// Window number `seed` under `c`: scene `seed` modulo the scene count, drawn from a generator
+/// seeded by `seed`; `noise` as `sample_window`'s (a training window's augmentation).
+fn seeded_window(
+    scenes: &[dynaserve_sim::SceneRecord],
+    c: &dynaserve_train::train::config::DataConfig,
+    seed: u64,
+    noise: bool,
+) -> dynaserve_train::train::data::Window {
+    use rand::SeedableRng;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let scene = &scenes[seed as usize % scenes.len()];
+    dynaserve_train::train::data::sample_window(scene, c, &mut rng, noise, seed).unwrap()
+}
+
 fn tiny_config(data: &Path, out: &Path, iterations: u64) -> TrainConfig {
     let mut c = TrainConfig::default();
     c.data.train = data.to_path_buf();
@@ -323,30 +352,16 @@ fn init_widens_a_model_for_the_object_summary() {
 #[test]
 fn pushforward_keeps_the_window_stream_and_resumes_exactly() {
     use dynaserve_model::WorldModel;
-    use dynaserve_train::train::data::sample_window;
-    use rand::SeedableRng;
 
     let dir = scratch("pushforward");
-    let (data, scenes) = tiny_scenes(&dir);
-    let mut plain = tiny_config(&data, &dir.join("unused"), 1).data;
-    plain.step_sizes = vec![1, 2, 4];
+    let (data, scenes, plain) = window_scenes(&dir);
     let pushed = dynaserve_train::train::config::DataConfig {
         pushforward: 1.0,
         ..plain.clone()
     };
     let mut with_poses = 0;
     for seed in 0..24 {
-        let window = |c| {
-            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-            sample_window(
-                &scenes[seed as usize % scenes.len()],
-                c,
-                &mut rng,
-                true,
-                seed,
-            )
-            .unwrap()
-        };
+        let window = |c| seeded_window(&scenes, c, seed, true);
         let (a, b) = (window(&plain), window(&pushed));
         assert!(a.pushforward.is_none());
         assert_eq!(
@@ -383,15 +398,7 @@ fn pushforward_keeps_the_window_stream_and_resumes_exactly() {
     .unwrap();
     let mut checked = 0;
     for seed in 0..24 {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-        let w = sample_window(
-            &scenes[seed as usize % scenes.len()],
-            &two,
-            &mut rng,
-            true,
-            seed,
-        )
-        .unwrap();
+        let w = seeded_window(&scenes, &two, seed, true);
         let Some(frames) = w.pushforward.clone() else {
             continue;
         };
@@ -442,13 +449,8 @@ fn pushforward_keeps_the_window_stream_and_resumes_exactly() {
 /// `data.history`.
 #[test]
 fn history_windows_carry_the_frame_before_and_widen_a_model() {
-    use dynaserve_train::train::data::sample_window;
-    use rand::SeedableRng;
-
     let dir = scratch("history");
-    let (data, scenes) = tiny_scenes(&dir);
-    let mut plain = tiny_config(&data, &dir.join("unused"), 1).data;
-    plain.step_sizes = vec![1, 2, 4];
+    let (data, scenes, mut plain) = window_scenes(&dir);
     plain.pushforward = 1.0;
     let history = dynaserve_train::train::config::DataConfig {
         history: true,
@@ -460,17 +462,7 @@ fn history_windows_carry_the_frame_before_and_widen_a_model() {
     };
     let mut carried = 0;
     for seed in 0..24 {
-        let window = |c, noise| {
-            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-            sample_window(
-                &scenes[seed as usize % scenes.len()],
-                c,
-                &mut rng,
-                noise,
-                seed,
-            )
-            .unwrap()
-        };
+        let window = |c, noise| seeded_window(&scenes, c, seed, noise);
         let (a, b) = (window(&plain, true), window(&history, true));
         assert_eq!(a.state.earlier, None);
         assert_eq!(
