@@ -14,6 +14,9 @@ pub enum BaselineKind {
     Static,
     /// Constant angular velocity, free flight under the data's gravity, inelastic floor.
     Ballistic,
+    /// rapier restarted from the observed frames: the exact shapes, materials and floor, the
+    /// velocity from the two frames (how predictable the scenes are from what a model sees).
+    Rapier,
 }
 
 /// Scenario suites `dynaserve eval --suite` knows.
@@ -101,6 +104,11 @@ pub struct EvalArgs {
     /// Do not evaluate the static and ballistic baselines next to the model.
     #[arg(long)]
     pub no_baselines: bool,
+    /// Also evaluate rapier restarted from the observed frames next to the model (the
+    /// `rapier` baseline; simulates every rollout: 40 s on 200 MOVi-B scenes, minutes in the
+    /// suite's regime table, which restarts it at every window).
+    #[arg(long)]
+    pub rapier: bool,
     /// Steps of the k = 1 stability rollout (0 turns it off).
     #[arg(long, default_value_t = DEFAULT_LONG_ROLLOUT_STEPS)]
     pub long_steps: usize,

@@ -11,8 +11,9 @@ use dynaserve_sim::DatasetReader;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::eval::{
-    Ballistic, ModelPredictor, Occlusion, PlotStyle, PointSelection, Predictor, Static, SuiteEntry,
-    SuiteReport, evaluate_dataset_many, format_markdown, format_suite, plot_errors,
+    Ballistic, ModelPredictor, Occlusion, PlotStyle, PointSelection, Predictor, RapierRestart,
+    Static, SuiteEntry, SuiteReport, evaluate_dataset_many, format_markdown, format_suite,
+    plot_errors,
 };
 
 mod args;
@@ -46,6 +47,11 @@ fn write_file(path: &Path, text: &str) -> anyhow::Result<()> {
 /// Runs `dynaserve eval`: progress on stderr, the summary on stdout, JSON, Markdown and the
 /// plot to the requested files.
 pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
+    if args.rapier && args.model.is_none() {
+        anyhow::bail!(
+            "--rapier adds the rapier restart beside a --model; alone, it is --baseline rapier"
+        );
+    }
     if let (Some(model), [data]) = (&args.model, args.data.as_slice())
         && crate::physi::eval::is_physi_model(model)
     {
@@ -81,6 +87,10 @@ pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
         (Some(BaselineKind::Ballistic), None) => {
             predictors.push(Entry::baseline("ballistic", Box::new(ballistic)))
         }
+        (Some(BaselineKind::Rapier), None) => predictors.push(Entry::baseline(
+            "rapier-restart",
+            Box::new(RapierRestart::from_manifest(reader.manifest())?),
+        )),
         (None, Some(dir)) => {
             let model =
                 dynaserve_model::load_rigidformer(dir, &dynaserve_model::Device::Cpu, false)
@@ -115,6 +125,12 @@ pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
             if !args.no_baselines {
                 predictors.push(Entry::baseline("static", Box::new(Static)));
                 predictors.push(Entry::baseline("ballistic", Box::new(ballistic)));
+            }
+            if args.rapier {
+                predictors.push(Entry::baseline(
+                    "rapier-restart",
+                    Box::new(RapierRestart::from_manifest(reader.manifest())?),
+                ));
             }
         }
         _ => anyhow::bail!("give exactly one of --baseline and --model"),
@@ -241,6 +257,15 @@ mod tests {
             ])
             .is_err()
         );
+        // The simulator as a baseline alone, or as a column beside a model (not beside another
+        // baseline).
+        let rapier = Cli::try_parse_from(["eval", "--baseline", "rapier", "--data", "d"]).unwrap();
+        assert_eq!(rapier.eval.baseline, Some(BaselineKind::Rapier));
+        let beside = Cli::try_parse_from(["eval", "--model", "m", "--data", "d", "--rapier"]);
+        assert!(beside.unwrap().eval.rapier);
+        let alone = ["eval", "--baseline", "static", "--data", "d", "--rapier"];
+        let err = run_eval(Cli::try_parse_from(alone).unwrap().eval).unwrap_err();
+        assert!(err.to_string().contains("--baseline rapier"), "{err}");
     }
 
     #[test]

@@ -9,7 +9,9 @@ use indicatif::{ProgressBar, ProgressStyle};
 use super::args::{BaselineKind, EvalArgs};
 use crate::eval::physics_report::{format_physics_markdown, format_physics_text};
 use crate::eval::physics_suite::{SuiteOptions, generate_suite, load_suite, run_suite, window_csv};
-use crate::eval::{Ballistic, ModelPredictor, PointSelection, Predictor, Static, driven};
+use crate::eval::{
+    Ballistic, ModelPredictor, PointSelection, Predictor, RapierRestart, Static, driven,
+};
 
 /// Reference points per object of generated suite scenes (as in the datasets).
 const SUITE_POINTS: usize = 1024;
@@ -59,6 +61,9 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         (Some(BaselineKind::Ballistic), None) => {
             predictors.push(("ballistic".into(), Box::new(ballistic)))
         }
+        (Some(BaselineKind::Rapier), None) => {
+            predictors.push(("rapier-restart".into(), Box::new(rapier(args, gravity)?)))
+        }
         (None, Some(dir)) => {
             let model =
                 dynaserve_model::load_rigidformer(dir, &dynaserve_model::Device::Cpu, false)
@@ -75,6 +80,9 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
                 if scenes.iter().any(|s| driven::has_kinematic(&s.scene)) {
                     predictors.push(("static".into(), Box::new(Static)));
                 }
+            }
+            if args.rapier {
+                predictors.push(("rapier-restart".into(), Box::new(rapier(args, gravity)?)));
             }
         }
         _ => anyhow::bail!("give exactly one of --baseline and --model"),
@@ -132,4 +140,24 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// The rapier restart for the suite's scenes: the conditions of the `--data` directories (which
+/// must agree), or the generators' own for the generated suite.
+fn rapier(args: &EvalArgs, gravity: [f32; 3]) -> anyhow::Result<RapierRestart> {
+    let mut found: Option<RapierRestart> = None;
+    for dir in &args.data {
+        let reader = dynaserve_sim::DatasetReader::open(dir)
+            .with_context(|| format!("opening dataset {}", dir.display()))?;
+        let here = RapierRestart::from_manifest(reader.manifest())?;
+        match &found {
+            Some(first) if *first != here => anyhow::bail!(
+                "{} was recorded under other conditions (shapes, floor or timing) than the first --data directory; the rapier restart needs one",
+                dir.display()
+            ),
+            Some(_) => {}
+            None => found = Some(here),
+        }
+    }
+    Ok(found.unwrap_or_else(|| RapierRestart::movi(gravity)))
 }

@@ -49,6 +49,7 @@ pub mod physics_report;
 pub mod physics_suite;
 pub mod plot;
 mod predictor;
+pub mod rapier_restart;
 pub mod regimes;
 pub mod report;
 mod results;
@@ -67,6 +68,7 @@ pub use options::{
 };
 pub use plot::{PlotStyle, plot_errors};
 pub use predictor::{Predictor, ProjectionWindow, RolloutRequest};
+pub use rapier_restart::RapierRestart;
 pub use report::{SuiteEntry, SuiteReport, format_markdown, format_suite};
 pub use results::{
     ContactHistory, ContactSpread, CurvePoint, DatasetInfo, DriftReport, EvalReport, HorizonReport,

@@ -4,6 +4,7 @@
 //! - `baselines`: pooled errors, the static and ballistic baselines, horizons, options,
 //!   misbehaving predictors and curves;
 //! - `models`: a world model through the evaluation path and on simulated data, batched;
+//! - `rapier_restart`: the simulator restarted from the observed frames;
 //! - `rollouts`: resting drift, long rollouts past the data and occlusion;
 //! - `suite`: the suite reports, printed and plotted.
 
@@ -16,6 +17,7 @@ use nalgebra::{UnitQuaternion, Vector3};
 
 mod baselines;
 mod models;
+mod rapier_restart;
 mod rollouts;
 mod suite;
 
