@@ -31,7 +31,13 @@ fn main() {
         .unwrap_or(40);
     let cfg = SimConfig::default();
     let generator = Generator::movi_b();
-    let (dt, h, n) = (cfg.dt_frame(), cfg.dt_step(), cfg.substeps as f32);
+    // rapier integrates each physics step in as many substeps as it has solver iterations.
+    let per_step = cfg.solver_iterations.max(1) as f32;
+    let (dt, h, n) = (
+        cfg.dt_frame(),
+        cfg.dt_step() / per_step,
+        cfg.substeps as f32 * per_step,
+    );
     // Per regime: squared error from two frames, from the true velocity, from three frames, count.
     let mut acc = [[0f64; 4]; REGIMES.len()];
     for s in 0..scenes {
@@ -84,7 +90,7 @@ fn main() {
                 };
                 for d in 0..3 {
                     let two_frames = 2.0 * x[t][d] - x[t - 1][d] + g[d] * dt * dt;
-                    // Symplectic Euler over n steps of h: v grows by g h before each move.
+                    // Symplectic Euler over n substeps of h: v grows by g h before each move.
                     let true_v = x[t][d] + vel[i][t][d] * dt + g[d] * h * h * n * (n + 1.0) / 2.0;
                     // Constant acceleration, measured over frames t - 2, t - 1, t.
                     let three_frames = 3.0 * x[t][d] - 3.0 * x[t - 1][d] + x[t - 2][d];
