@@ -297,6 +297,32 @@ impl ScenePoints {
         }
     }
 
+    /// The points a model with `cfg` reads for one step: [`ScenePoints::new`], then the
+    /// surface normals ([`ScenePoints::with_normals`]) and the history
+    /// ([`ScenePoints::with_history`], when `earlier` poses are known) that its dynamics
+    /// switches ask for. `normals` gives each object's body-frame normals (`[n, 3]` unit
+    /// vectors in the clouds' order) and is called only when the model reads them.
+    #[allow(clippy::too_many_arguments)]
+    pub fn for_model<N: AsRef<[Point]>>(
+        cfg: &ModelConfig,
+        references: &[&[Point]],
+        normals: impl FnOnce() -> Vec<N>,
+        current: &[Pose],
+        previous: &[Pose],
+        earlier: Option<&[Pose]>,
+        dt_steps: u32,
+    ) -> ScenePoints {
+        let mut points = ScenePoints::new(cfg, references.iter().copied(), current, previous);
+        if cfg.dynamics.surface_normals {
+            let body = normals();
+            points = points.with_normals(body.iter().map(AsRef::as_ref), current);
+        }
+        if let (true, Some(earlier)) = (cfg.dynamics.history, earlier) {
+            points = points.with_history(cfg, references.iter().copied(), earlier, dt_steps);
+        }
+        points
+    }
+
     /// Adds every point's world position one step before t - 1: each object's `references`
     /// (body frame, metres, as given to [`ScenePoints::new`]) placed at its `earlier` pose.
     /// `dt_steps` is the step size in frames (for the free fall `cfg` gives). Needed by

@@ -352,27 +352,21 @@ fn scene_chunk(
 ) -> Vec<SceneChunk> {
     let scene = r.scene;
     let m = scene.len();
-    // World points at t and t-1 and their contacts.
-    let mut points = ScenePoints::new(
+    // World points at t and t-1 (t-2 for history) and their contacts.
+    let references: Vec<&[[f32; 3]]> = scene
+        .objects
+        .iter()
+        .map(|o| o.reference.as_slice())
+        .collect();
+    let points = ScenePoints::for_model(
         cfg,
-        scene.objects.iter().map(|o| o.reference.as_slice()),
+        &references,
+        || scene.objects.iter().map(|o| o.normals.as_slice()).collect(),
         &r.current,
         &r.previous,
+        r.earlier.as_deref(),
+        r.dt_steps,
     );
-    if cfg.dynamics.surface_normals {
-        points = points.with_normals(
-            scene.objects.iter().map(|o| o.normals.as_slice()),
-            &r.current,
-        );
-    }
-    if let (true, Some(earlier)) = (cfg.dynamics.history, &r.earlier) {
-        points = points.with_history(
-            cfg,
-            scene.objects.iter().map(|o| o.reference.as_slice()),
-            earlier,
-            r.dt_steps,
-        );
-    }
     let ctx = ObjectContext {
         cfg,
         r,

@@ -685,28 +685,17 @@ pub fn fit_normalization(
         for w in 0..c.norm_windows {
             let mut rng = rng_for(seed, 4, (i * 1000 + w) as u64);
             let win = sample_window(&rec, c, &mut rng, false, i as u64)?;
-            let mut points = ScenePoints::new(
+            let references: Vec<&[[f32; 3]]> =
+                win.objects.iter().map(|o| o.reference.as_slice()).collect();
+            let points = ScenePoints::for_model(
                 model,
-                win.objects.iter().map(|o| o.reference.as_slice()),
+                &references,
+                || references.iter().map(|r| body_normals(r)).collect(),
                 &win.state.current,
                 &win.state.previous,
+                win.state.earlier.as_deref(),
+                win.dt_steps,
             );
-            if let (true, Some(earlier)) = (model.dynamics.history, &win.state.earlier) {
-                points = points.with_history(
-                    model,
-                    win.objects.iter().map(|o| o.reference.as_slice()),
-                    earlier,
-                    win.dt_steps,
-                );
-            }
-            if model.dynamics.surface_normals {
-                let body: Vec<Vec<[f32; 3]>> = win
-                    .objects
-                    .iter()
-                    .map(|o| body_normals(&o.reference))
-                    .collect();
-                points = points.with_normals(body.iter().map(Vec::as_slice), &win.state.current);
-            }
             for (j, o) in win.objects.iter().enumerate() {
                 let params = object_params(o.mass, o.friction, o.restitution);
                 let frame = FeatureFrame::new(
