@@ -150,3 +150,32 @@ pub fn state_problem(state: &SceneState) -> Option<String> {
 pub fn pose_in_domain(p: &Pose) -> bool {
     dynaserve_model::normalise_pose(p).is_ok()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn at(x: f32) -> Pose {
+        Pose {
+            translation: [x, 0.0, 1.0],
+            rotation: [0.0, 0.0, 0.0, 1.0],
+        }
+    }
+
+    #[test]
+    fn a_state_outside_the_domain_is_named_by_object_and_pose() {
+        let fine = SceneState::new(vec![at(0.0), at(1.0)], vec![at(0.0), at(1.1)]);
+        assert_eq!(state_problem(&fine), None);
+        let far = 2.0 * MAX_WORLD_EXTENT;
+        let mut current = fine.clone();
+        current.current[1] = at(far);
+        let said = state_problem(&current).unwrap();
+        assert!(said.starts_with("objects[1]: current pose"), "{said}");
+        let mut earlier = fine.clone();
+        earlier.earlier = Some(vec![at(f32::NAN), at(1.0)]);
+        let said = state_problem(&earlier).unwrap();
+        assert!(said.starts_with("objects[0]: earlier pose"), "{said}");
+        earlier.earlier = Some(vec![at(0.0), at(0.9)]);
+        assert_eq!(state_problem(&earlier), None);
+    }
+}
