@@ -31,12 +31,10 @@ fn main() {
         .unwrap_or(40);
     let cfg = SimConfig::default();
     let generator = Generator::movi_b();
-    // rapier integrates each physics step in as many substeps as it has solver iterations.
-    let per_step = cfg.solver_iterations.max(1) as f32;
     let (dt, h, n) = (
         cfg.dt_frame(),
-        cfg.dt_step() / per_step,
-        cfg.substeps as f32 * per_step,
+        cfg.dt_substep(),
+        cfg.integration_substeps() as f32,
     );
     // Per regime: squared error from two frames, from the true velocity, from three frames, count.
     let mut acc = [[0f64; 4]; REGIMES.len()];

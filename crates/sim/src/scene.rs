@@ -15,7 +15,7 @@ use rapier3d::prelude::{
     CoefficientCombineRule, ColliderBuilder, ColliderHandle, PhysicsWorld, RigidBodyBuilder,
     RigidBodyHandle, RigidBodyType, SharedShape,
 };
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::shapes::Shape;
 use crate::{Result, SimError};
@@ -73,7 +73,7 @@ impl ObjectSpec {
 }
 
 /// Static floor: a large box whose top face is the plane `z = 0`.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FloorSpec {
     /// Friction coefficient.
     pub friction: f32,
@@ -136,6 +136,18 @@ impl SimConfig {
     /// Physics step, seconds.
     pub fn dt_step(&self) -> f32 {
         1.0 / self.physics_hz as f32
+    }
+
+    /// One integration substep, seconds: rapier 0.36 integrates each physics step in as many
+    /// substeps as it has solver iterations, so free flight over a frame is
+    /// [`SimConfig::integration_substeps`] symplectic Euler steps of this length.
+    pub fn dt_substep(&self) -> f32 {
+        self.dt_step() / self.solver_iterations.max(1) as f32
+    }
+
+    /// Integration substeps per recorded frame (see [`SimConfig::dt_substep`]).
+    pub fn integration_substeps(&self) -> u32 {
+        self.substeps * self.solver_iterations.max(1) as u32
     }
 
     fn validate(&self) -> Result<()> {

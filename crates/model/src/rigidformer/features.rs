@@ -302,7 +302,6 @@ impl ScenePoints {
     /// ([`ScenePoints::with_history`], when `earlier` poses are known) that its dynamics
     /// switches ask for. `normals` gives each object's body-frame normals (`[n, 3]` unit
     /// vectors in the clouds' order) and is called only when the model reads them.
-    #[allow(clippy::too_many_arguments)]
     pub fn for_model<N: AsRef<[Point]>>(
         cfg: &ModelConfig,
         references: &[&[Point]],

@@ -64,7 +64,8 @@ impl Ballistic {
     }
 }
 
-fn check_state(scene: &SceneRecord, observed: &SceneState) -> Result<(), EvalError> {
+/// Refuses an observed state whose pose counts are not the scene's object count.
+pub(super) fn check_state(scene: &SceneRecord, observed: &SceneState) -> Result<(), EvalError> {
     let n = scene.objects.len();
     if observed.previous.len() != n || observed.current.len() != n {
         return Err(EvalError::Invalid(format!(
@@ -76,7 +77,8 @@ fn check_state(scene: &SceneRecord, observed: &SceneState) -> Result<(), EvalErr
     Ok(())
 }
 
-fn unit(q: [f32; 4], what: &str, j: usize) -> Result<UnitQuaternion<f64>, EvalError> {
+/// Object `j`'s `what` rotation as a unit quaternion, or an error naming it.
+pub(super) fn unit(q: [f32; 4], what: &str, j: usize) -> Result<UnitQuaternion<f64>, EvalError> {
     quat::to_unit_quaternion(quat::to_f64(q))
         .map_err(|e| EvalError::Invalid(format!("object {j} {what} rotation: {e}")))
 }

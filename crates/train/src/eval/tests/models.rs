@@ -49,6 +49,30 @@ fn dataset_evaluation_on_real_simulated_scenes() {
     let reader = DatasetReader::open(&dir).unwrap();
     let ballistic = Ballistic::from_manifest(reader.manifest());
     assert_eq!(ballistic.gravity, [0.0, 0.0, -10.0]);
+    // The rapier restart reads the shapes by name, the floor and the timing from the manifest.
+    let rapier = RapierRestart::from_manifest(reader.manifest()).unwrap();
+    assert_eq!(rapier.shapes, dynaserve_sim::ShapeKind::MOVI_A.to_vec());
+    use dynaserve_sim::materials::MOVI_FLOOR;
+    assert_eq!(rapier.floor, MOVI_FLOOR);
+    assert_eq!(
+        (
+            rapier.physics_hz,
+            rapier.substeps_per_frame,
+            rapier.solver_iterations
+        ),
+        (240, 10, 4)
+    );
+    let mut rough = reader.manifest().clone();
+    rough.generator_parameters["floor"]["friction"] = serde_json::json!(0.9);
+    let floor = RapierRestart::from_manifest(&rough).unwrap().floor;
+    assert_eq!(
+        (floor.friction, floor.restitution),
+        (0.9, MOVI_FLOOR.restitution)
+    );
+    let mut unknown = reader.manifest().clone();
+    unknown.shapes[1].name = "teapot".into();
+    let err = RapierRestart::from_manifest(&unknown).unwrap_err();
+    assert!(err.to_string().contains("\"teapot\""), "{err}");
     let opts = EvalOptions::default();
     let calls = std::sync::atomic::AtomicUsize::new(0);
     let progress = |_done: usize| {
