@@ -31,17 +31,25 @@ pub const SURFACE_NORMAL_FEATURES: usize = 7;
 /// two steps beyond free fall (3).
 pub const HISTORY_FEATURES: usize = 3;
 
+/// Features appended after every other optional group (each if on) when
+/// [`DynamicsConfig::approach`] is on: the speed at which the point closes on the surface its
+/// contact feature reaches (1), the fraction of the step before it would reach it (1) and how
+/// far behind it a free step would carry it (1).
+pub const APPROACH_FEATURES: usize = 3;
+
 /// Numbers per object in the object state summary ([`DynamicsConfig::object_summary`]).
 pub const OBJECT_SUMMARY_FEATURES: usize = 14;
 
 /// Affine normalisation of the per-point input features: `(raw - mean) / std`, one value per
 /// feature ([`DynamicsConfig::point_features`]: 12, plus 3 with the contact velocity, plus 7
-/// with the surface normals, plus 3 with the history).
+/// with the surface normals, plus 3 with the history, plus 3 with the approach).
 ///
 /// Layout: `[contact_x, contact_y, contact_z, v_x, v_y, v_z, r_x, r_y, r_z, ln(mass / 1 kg),
 /// friction, restitution]`, then `[cv_x, cv_y, cv_z]` with the contact velocity, then `[n_x,
 /// n_y, n_z, m_x, m_y, m_z, gap]` with the surface normals (unit vectors; the gap in metres), then
-/// `[a_x, a_y, a_z]` with the history (metres per frame^2 with per-frame units). Contact
+/// `[a_x, a_y, a_z]` with the history (metres per frame^2 with per-frame units), then
+/// `[closing, reach, depth]` with the approach (metres per frame, a fraction of the step,
+/// metres per frame with per-frame units). Contact
 /// displacement, increment, offset and contact velocity are in metres (increments per step of
 /// `dt_steps` frames, or per frame with per-frame units); mass enters as its natural logarithm.
 /// The trainer fits these from data; the defaults are sensible for MOVi-like scenes.
@@ -77,7 +85,7 @@ impl Default for FeatureNormalization {
 impl FeatureNormalization {
     /// Default constants for the features `dynamics` selects (the contact velocity, if on,
     /// gets mean 0 and the increment's scale; the surface normals mean 0 and scale 0.5, their
-    /// gap the contact feature's).
+    /// gap the contact feature's; the approach's speeds the increment's scale).
     pub fn defaults_for(dynamics: &DynamicsConfig) -> FeatureNormalization {
         let mut n = FeatureNormalization::default();
         if dynamics.contact_velocity {
@@ -91,6 +99,10 @@ impl FeatureNormalization {
         if dynamics.history {
             n.mean.extend([0.0; HISTORY_FEATURES]);
             n.std.extend([0.01; HISTORY_FEATURES]);
+        }
+        if dynamics.approach {
+            n.mean.extend([0.0, 1.0, 0.0]);
+            n.std.extend([0.05, 0.3, 0.05]);
         }
         n
     }
@@ -206,6 +218,18 @@ pub struct DynamicsConfig {
     /// within the last step); the third tells how it changed. Adds [`HISTORY_FEATURES`]
     /// inputs after the surface normals. Absent in older `config.json` files, which means off.
     pub history: bool,
+    /// Approach inputs: per point, from its contact feature's surface (the nearest other
+    /// point's tangent plane, or the ground) and the contact velocity, the speed at which it
+    /// closes on that surface along its normal (metres per step, divided by the increment
+    /// divisor), the fraction of the step before a free step would reach the surface (0 when
+    /// it is there, 1 when it does not reach it within the step) and how far behind the surface
+    /// the free step would end (metres, divided by the increment divisor; 0 when it does not
+    /// reach it). The network could form these from the contact velocity, the normal and the
+    /// height, but only as products and a quotient; at a fast impact they say when within the
+    /// step the surfaces meet and how much motion the contact has to take away. Adds
+    /// [`APPROACH_FEATURES`] inputs after the history. Absent in older `config.json` files,
+    /// which means off.
+    pub approach: bool,
     /// Extrapolate each object as a rigid body in the Verlet base: the base keeps the object's
     /// linear and angular velocity (`R_{t+k} = R_t R_{t-k}^T R_t`, centre `2 p_t - p_{t-k}`)
     /// instead of extrapolating every anchor linearly (`2 A_t - A_{t-k}`), which lags a
@@ -255,14 +279,17 @@ pub enum InputGroup {
     SurfaceNormals,
     /// [`DynamicsConfig::history`]: [`HISTORY_FEATURES`] inputs.
     History,
+    /// [`DynamicsConfig::approach`]: [`APPROACH_FEATURES`] inputs.
+    Approach,
 }
 
 impl InputGroup {
     /// Every group, in layout order.
-    pub const ALL: [InputGroup; 3] = [
+    pub const ALL: [InputGroup; 4] = [
         InputGroup::ContactVelocity,
         InputGroup::SurfaceNormals,
         InputGroup::History,
+        InputGroup::Approach,
     ];
 
     /// Name for messages, e.g. "contact velocity".
@@ -271,6 +298,7 @@ impl InputGroup {
             InputGroup::ContactVelocity => "contact velocity",
             InputGroup::SurfaceNormals => "surface normals",
             InputGroup::History => "history",
+            InputGroup::Approach => "approach",
         }
     }
 
@@ -280,6 +308,7 @@ impl InputGroup {
             InputGroup::ContactVelocity => CONTACT_VELOCITY_FEATURES,
             InputGroup::SurfaceNormals => SURFACE_NORMAL_FEATURES,
             InputGroup::History => HISTORY_FEATURES,
+            InputGroup::Approach => APPROACH_FEATURES,
         }
     }
 
@@ -289,6 +318,7 @@ impl InputGroup {
             InputGroup::ContactVelocity => dynamics.contact_velocity,
             InputGroup::SurfaceNormals => dynamics.surface_normals,
             InputGroup::History => dynamics.history,
+            InputGroup::Approach => dynamics.approach,
         }
     }
 
@@ -298,6 +328,7 @@ impl InputGroup {
             InputGroup::ContactVelocity => dynamics.contact_velocity = on,
             InputGroup::SurfaceNormals => dynamics.surface_normals = on,
             InputGroup::History => dynamics.history = on,
+            InputGroup::Approach => dynamics.approach = on,
         }
     }
 
@@ -328,6 +359,7 @@ impl DynamicsConfig {
             contact_velocity: true,
             surface_normals: false,
             history: false,
+            approach: false,
             rigid_extrapolation: true,
             object_summary: false,
             floor_base: false,
@@ -339,7 +371,7 @@ impl DynamicsConfig {
     /// Number of per-point input features: [`BASE_POINT_FEATURES`], plus
     /// [`CONTACT_VELOCITY_FEATURES`] with the contact velocity, plus
     /// [`SURFACE_NORMAL_FEATURES`] with the surface normals, plus [`HISTORY_FEATURES`] with the
-    /// history.
+    /// history, plus [`APPROACH_FEATURES`] with the approach.
     pub fn point_features(&self) -> usize {
         BASE_POINT_FEATURES
             + InputGroup::ALL
@@ -347,6 +379,12 @@ impl DynamicsConfig {
                 .filter(|g| g.enabled(self))
                 .map(|g| g.count())
                 .sum::<usize>()
+    }
+
+    /// Whether the features need every point's surface normal (the surface normal or the
+    /// approach inputs).
+    pub fn reads_normals(&self) -> bool {
+        self.surface_normals || self.approach
     }
 
     /// Divisor of the per-point increment feature at step size `k` frames.

@@ -332,7 +332,7 @@ fn prepare_object(cfg: &ModelConfig, o: ObjectInput) -> Result<PreparedObject, S
         .iter()
         .map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt())
         .fold(0.0f32, f32::max);
-    let normals = if cfg.dynamics.surface_normals {
+    let normals = if cfg.dynamics.reads_normals() {
         crate::rigidformer::features::body_normals(&o.reference)
     } else {
         Vec::new()

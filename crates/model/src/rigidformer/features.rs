@@ -1,6 +1,7 @@
 //! The per-point input features shared by the model and the trainer's normalisation fit:
 //! physical parameters, the frame features are measured from, the 12 base raw values, the
-//! optional contact velocity, surface normals and history, and [`ScenePoints`], the one place
+//! optional contact velocity, surface normals, history and approach, and [`ScenePoints`], the
+//! one place
 //! a scene's points are placed in the world, searched for contacts and turned into raw
 //! features.
 
@@ -12,8 +13,8 @@ use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 use crate::api::Pose;
 use crate::config::{
-    BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig, HISTORY_FEATURES, ModelConfig,
-    OBJECT_SUMMARY_FEATURES, SURFACE_NORMAL_FEATURES,
+    APPROACH_FEATURES, BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig,
+    HISTORY_FEATURES, ModelConfig, OBJECT_SUMMARY_FEATURES, SURFACE_NORMAL_FEATURES,
 };
 
 /// Physical parameters as the model sees them: `[ln(mass / kg), friction, restitution]`.
@@ -158,6 +159,43 @@ pub fn history_features(
 ) -> [f32; HISTORY_FEATURES] {
     let inv = 1.0 / (frame.increment_divisor * frame.increment_divisor);
     [0, 1, 2].map(|d| (world[d] - 2.0 * world_prev[d] + world_earlier[d] - fall[d]) * inv)
+}
+
+/// The approach features of one point ([`DynamicsConfig::approach`]) from its
+/// [`contact_velocity`] `cv` and its [`surface_normal_features`] `normals` (the surface its
+/// contact reaches: that surface's normal at `[3..6]`, the point's height above its tangent
+/// plane at `[6]`, metres), with `divisor = frame.increment_divisor`:
+/// `[closing, reach, depth]`. `closing = cv . m` is the speed at which the point nears the
+/// surface along its normal `m` (metres per step divided by `divisor`, positive when
+/// approaching); over the step it travels `closing * divisor` towards a surface `gap` away.
+/// `reach` is the fraction of the step before it gets there, `gap / (closing * divisor)` in
+/// [0, 1] (0 when it is already at or behind the surface, 1 when it does not get there within
+/// the step or recedes); `depth` how far behind the surface the step would end,
+/// `max(0, closing * divisor - gap) / divisor`, at most `radius / divisor`. A point with no
+/// surface within the contact radius (a zero normal) reads `[0, 1, 0]`.
+pub fn approach_features(
+    cv: [f32; CONTACT_VELOCITY_FEATURES],
+    normals: &[f32; SURFACE_NORMAL_FEATURES],
+    radius: f32,
+    frame: &FeatureFrame,
+) -> [f32; APPROACH_FEATURES] {
+    let m = [normals[3], normals[4], normals[5]];
+    if m == [0.0; 3] {
+        return [0.0, 1.0, 0.0];
+    }
+    let gap = normals[6];
+    let d = frame.increment_divisor;
+    let closing = cv[0] * m[0] + cv[1] * m[1] + cv[2] * m[2];
+    let travel = closing * d;
+    let reach = if gap <= 0.0 {
+        0.0
+    } else if travel > gap {
+        gap / travel
+    } else {
+        1.0
+    };
+    let depth = (travel - gap).clamp(0.0, radius) / d;
+    [closing, reach, depth]
 }
 
 /// Heights in the object summary are divided by this, metres.
@@ -312,7 +350,7 @@ impl ScenePoints {
         dt_steps: u32,
     ) -> ScenePoints {
         let mut points = ScenePoints::new(cfg, references.iter().copied(), current, previous);
-        if cfg.dynamics.surface_normals {
+        if cfg.dynamics.reads_normals() {
             let body = normals();
             points = points.with_normals(body.iter().map(AsRef::as_ref), current);
         }
@@ -368,8 +406,9 @@ impl ScenePoints {
     /// Writes the raw (unnormalised) features of point `q` of the scene into `out`: the
     /// [`raw_point_features`] of its `reference` position (body frame, metres) and its
     /// object's `params`, then the optional ones `dynamics` selects: its [`contact_velocity`],
-    /// its [`surface_normal_features`] (which need [`ScenePoints::with_normals`]) and its
-    /// [`history_features`] (zero without [`ScenePoints::with_history`]).
+    /// its [`surface_normal_features`] (which need [`ScenePoints::with_normals`]), its
+    /// [`history_features`] (zero without [`ScenePoints::with_history`]) and its
+    /// [`approach_features`] (which need [`ScenePoints::with_normals`]).
     /// `out` holds [`DynamicsConfig::point_features`] values.
     pub fn raw_features(
         &self,
@@ -390,23 +429,14 @@ impl ScenePoints {
             frame,
         ));
         let mut at = BASE_POINT_FEATURES;
+        let cv = || contact_velocity(hit.source, q, &self.world, &self.world_prev, frame);
+        let normals = || surface_normal_features(&hit, q, &self.normals, self.radius);
         if dynamics.contact_velocity {
-            out[at..at + CONTACT_VELOCITY_FEATURES].copy_from_slice(&contact_velocity(
-                hit.source,
-                q,
-                &self.world,
-                &self.world_prev,
-                frame,
-            ));
+            out[at..at + CONTACT_VELOCITY_FEATURES].copy_from_slice(&cv());
             at += CONTACT_VELOCITY_FEATURES;
         }
         if dynamics.surface_normals {
-            out[at..at + SURFACE_NORMAL_FEATURES].copy_from_slice(&surface_normal_features(
-                &hit,
-                q,
-                &self.normals,
-                self.radius,
-            ));
+            out[at..at + SURFACE_NORMAL_FEATURES].copy_from_slice(&normals());
             at += SURFACE_NORMAL_FEATURES;
         }
         if dynamics.history {
@@ -417,6 +447,15 @@ impl ScenePoints {
                 None => [0.0; HISTORY_FEATURES],
             };
             out[at..at + HISTORY_FEATURES].copy_from_slice(&history);
+            at += HISTORY_FEATURES;
+        }
+        if dynamics.approach {
+            out[at..at + APPROACH_FEATURES].copy_from_slice(&approach_features(
+                cv(),
+                &normals(),
+                self.radius,
+                frame,
+            ));
         }
     }
 }

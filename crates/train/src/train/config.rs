@@ -181,6 +181,11 @@ pub struct ModelSection {
     /// 3 new inputs; the 3 new normalisation constants fitted from the training data). Needs
     /// `data.history`. `false` on an `init` model that has them is an error.
     pub history: Option<bool>,
+    /// The approach inputs (`DynamicsConfig::approach`): unset keeps what the preset, config
+    /// or `init` model has. `true` on an `init` model without them widens it (zero weights on
+    /// the 3 new inputs; the 3 new normalisation constants fitted from the training data).
+    /// `false` on an `init` model that has them is an error.
+    pub approach: Option<bool>,
     /// The object state summary (`DynamicsConfig::object_summary`): unset keeps what the
     /// preset, config or `init` model has. `true` on an `init` model without it widens it
     /// (the summary MLP's last layer zero, so it starts as the same function; its first layer
@@ -230,6 +235,7 @@ impl Default for ModelSection {
             contact_velocity: None,
             surface_normals: None,
             history: None,
+            approach: None,
             object_summary: None,
             rigid_extrapolation: None,
             floor_base: None,
@@ -244,7 +250,8 @@ impl Default for ModelSection {
 
 impl ModelSection {
     /// The model configuration this section names (before normalisation fitting), with
-    /// `contact_velocity`, `surface_normals` and `history` (the normalisation then resized to its defaults),
+    /// `contact_velocity`, `surface_normals`, `history` and `approach` (the normalisation then
+    /// resized to its defaults),
     /// `object_summary`, `rigid_extrapolation`, `floor_base`, `relative_mass`, `loss_beta`,
     /// `rest_weight` and `object_contact_weight` applied.
     pub fn model_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {
@@ -279,6 +286,9 @@ impl ModelSection {
         }
         if let Some(on) = self.history {
             c.dynamics.history = on;
+        }
+        if let Some(on) = self.approach {
+            c.dynamics.approach = on;
         }
         if c.dynamics.point_features() != inputs {
             c.normalization = FeatureNormalization::defaults_for(&c.dynamics);

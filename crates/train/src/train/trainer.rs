@@ -149,7 +149,8 @@ pub fn plot_loss(out: &Path) -> Result<(), TrainError> {
     )
 }
 
-/// Applies `model.contact_velocity`, `model.surface_normals` and `model.history` to a model loaded from
+/// Applies `model.contact_velocity`, `model.surface_normals`, `model.history` and
+/// `model.approach` to a model loaded from
 /// `model.init`: widens a model without those inputs when asked (zero weight columns, so it
 /// starts as the same function; the new normalisation constants fitted from the training data
 /// like a fresh run's, the old ones kept). Removing inputs is an error.
@@ -162,6 +163,7 @@ fn init_inputs(
         ("contact_velocity", cfg.model.contact_velocity),
         ("surface_normals", cfg.model.surface_normals),
         ("history", cfg.model.history),
+        ("approach", cfg.model.approach),
     ];
     for (group, (option, wanted)) in InputGroup::ALL.into_iter().zip(options) {
         let has = group.enabled(&m.config().dynamics);
