@@ -295,6 +295,36 @@ fn mass_is_unit_volume_times_density_times_scale_cubed() {
     }
 }
 
+/// An object built from its mass gets the density that gives that mass in rapier, and a
+/// mass that is not positive or a shape without volume is refused by name.
+#[test]
+fn an_object_of_a_given_mass_weighs_that_in_the_simulation() {
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let cube = Shape::unit(ShapeKind::Cube, &mut rng).unwrap();
+    let o = ObjectSpec::rigid_of_mass(cube.clone(), 0, 0.5, 2.0, 0.4, 0.3).unwrap();
+    // A cube of side 0.5 m holds 0.125 m^3: 16 kg per m^3 makes it 2 kg.
+    assert!((o.material.density - 16.0).abs() < 1e-3, "{:?}", o.material);
+    assert_eq!((o.material.friction, o.material.restitution), (0.4, 0.3));
+    let spec = SceneSpec {
+        objects: vec![ObjectSpec {
+            position: [0.0, 0.0, 1.0],
+            ..o
+        }],
+        floor: MOVI_FLOOR,
+        gravity: [0.0, 0.0, -10.0],
+        settle_steps: 0,
+        kinematic: Vec::new(),
+    };
+    let traj = simulate_observed(&spec, &SimConfig::default(), |_, _| {}).unwrap();
+    assert!((traj.masses[0] - 2.0).abs() < 1e-3, "{:?}", traj.masses);
+    for mass in [0.0, -1.0, f32::NAN] {
+        let e = ObjectSpec::rigid_of_mass(cube.clone(), 0, 0.5, mass, 0.4, 0.3).unwrap_err();
+        assert!(e.to_string().contains("mass must be positive"), "{e}");
+    }
+    let e = ObjectSpec::rigid_of_mass(cube, 0, 0.0, 1.0, 0.4, 0.3).unwrap_err();
+    assert!(e.to_string().contains("spans no volume"), "{e}");
+}
+
 #[test]
 fn spawns_follow_kubric_rules() {
     let p = match Generator::movi_b() {

@@ -17,9 +17,7 @@ use rapier3d::math::{Rotation, Vector};
 use serde::{Deserialize, Serialize};
 
 use crate::materials::MOVI_FLOOR;
-use crate::scene::{
-    FloorSpec, KinematicPath, Material, ObjectSpec, SceneSpec, SimConfig, simulate,
-};
+use crate::scene::{FloorSpec, KinematicPath, ObjectSpec, SceneSpec, SimConfig, simulate};
 use crate::shapes::{Part, Polytope, Shape, ShapeKind};
 use crate::{Result, SimError};
 
@@ -155,13 +153,6 @@ fn object_spec(o: &json::ObjectSpec, i: usize, dt_step: f32) -> Result<ObjectSpe
         kind: ShapeKind::Hull,
         parts: vec![Part::Polytope(hull)],
     };
-    let (volume, _) = shape.volume_and_centroid()?;
-    if !(o.mass.is_finite() && o.mass > 0.0) {
-        return Err(field("mass must be positive"));
-    }
-    if !(volume.is_finite() && volume > 0.0) {
-        return Err(field("its points span no volume"));
-    }
     for (name, v) in [("friction", o.friction), ("restitution", o.restitution)] {
         if !(v.is_finite() && v >= 0.0) {
             return Err(field(&format!("{name} must be finite and non-negative")));
@@ -189,21 +180,17 @@ fn object_spec(o: &json::ObjectSpec, i: usize, dt_step: f32) -> Result<ObjectSpe
     if linvel.iter().chain(&angvel).any(|c| !c.is_finite()) {
         return Err(field("velocity must be finite"));
     }
+    let rigid = ObjectSpec::rigid_of_mass(shape, 0, 1.0, o.mass, o.friction, o.restitution)
+        .map_err(|e| match e {
+            SimError::Invalid(m) => field(&m),
+            e => e,
+        })?;
     Ok(ObjectSpec {
-        shape,
-        shape_id: 0,
-        scale: 1.0,
-        material: Material {
-            friction: o.friction,
-            restitution: o.restitution,
-            density: o.mass / volume,
-        },
-        material_kind: 0,
         position: pose.translation,
         rotation,
         linvel,
         angvel,
-        held_until_settled: false,
+        ..rigid
     })
 }
 

@@ -19,7 +19,7 @@
 
 use dynaserve_model::{Pose, SceneState};
 use dynaserve_sim::materials::MOVI_FLOOR;
-use dynaserve_sim::scene::{FloorSpec, Material, simulate};
+use dynaserve_sim::scene::{FloorSpec, simulate};
 use dynaserve_sim::shapes::{Part, Polytope};
 use dynaserve_sim::{KinematicPath, Manifest, ObjectSpec, SceneRecord, SceneSpec, Shape};
 use dynaserve_sim::{ShapeKind, SimConfig};
@@ -127,25 +127,15 @@ impl RapierRestart {
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
             (Shape::unit(kind, &mut rng)?, sx)
         };
-        let (volume, _) = shape.scaled(scale).volume_and_centroid()?;
-        if !(volume > 0.0 && o.mass > 0.0) {
-            return Err(bad(format!("volume {volume} m^3, mass {} kg", o.mass)));
-        }
+        let rigid =
+            ObjectSpec::rigid_of_mass(shape, o.shape_id, scale, o.mass, o.friction, o.restitution)
+                .map_err(|e| bad(e.to_string()))?;
         Ok(ObjectSpec {
-            shape,
-            shape_id: o.shape_id,
-            scale,
-            material: Material {
-                friction: o.friction,
-                restitution: o.restitution,
-                density: o.mass / volume,
-            },
-            material_kind: 0,
             position: pose.translation,
             rotation: pose.rotation,
             linvel: velocity.0,
             angvel: velocity.1,
-            held_until_settled: false,
+            ..rigid
         })
     }
 }

@@ -99,5 +99,5 @@ fn rapier_restart_names_what_it_cannot_rebuild() {
     refused(&|o| o.shape_id = 10, "shape_id 10 is not in the shape list");
     refused(&|o| o.material = 1, "only rigid objects");
     refused(&|o| o.scale = [1.0, 2.0, 1.0], "not uniform");
-    refused(&|o| o.mass = 0.0, "mass 0 kg");
+    refused(&|o| o.mass = 0.0, "mass must be positive (0 kg)");
 }
