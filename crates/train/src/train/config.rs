@@ -621,6 +621,14 @@ mod tests {
         let without_cv = c.model.model_config(base).unwrap();
         assert_eq!(without_cv.normalization.len(), 19);
         without_cv.validate().unwrap();
+        // The approach inputs come last: 3 more, with their own default constants.
+        let c: TrainConfig =
+            toml::from_str("[model]\nsurface_normals = true\napproach = true\n").unwrap();
+        let approach = c.model.model_config(base).unwrap();
+        assert!(approach.dynamics.approach);
+        assert_eq!(approach.normalization.len(), 25);
+        assert_eq!(approach.normalization.mean[22..], [0.0, 1.0, 0.0]);
+        approach.validate().unwrap();
     }
 
     #[test]
