@@ -2,7 +2,7 @@
 //! the true gap where the point-to-point distance is not; the ground and empty space read as
 //! documented; a trained model widened with them computes the same steps, its new weight
 //! columns receive gradients, and it saves and loads with them; the shipped checkpoint reads
-//! with both optional input groups.
+//! with them, the contact velocity and the approach.
 mod common;
 
 use common::{
@@ -10,9 +10,10 @@ use common::{
     random_scene, squared_norm, step_random_scene,
 };
 use dynaserve_model::{
-    BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, Device, FeatureFrame, FeatureNormalization,
-    ModelConfig, ObjectInput, Pose, RigidFormer, SURFACE_NORMAL_FEATURES, ScenePoints, SceneState,
-    StepItem, WorldModel, body_normals, load_rigidformer,
+    APPROACH_FEATURES, BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, Device, FeatureFrame,
+    FeatureNormalization, InputGroup, ModelConfig, ObjectInput, Pose, RigidFormer,
+    SURFACE_NORMAL_FEATURES, ScenePoints, SceneState, StepItem, WorldModel, body_normals,
+    load_rigidformer,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 
@@ -212,20 +213,24 @@ fn contact_velocity_columns_go_before_the_normals() {
     assert!(diff < 1e-5, "widened model differs by {diff}");
 }
 
-/// The shipped checkpoint was trained with both optional input groups: it reads as 22
-/// features (the contact velocity's 3 after the base 12, the normals' 7 after them) with 22
-/// normalisation constants, widening it again for either group is refused, and it steps a
-/// scene whose clouds are too small for a fitted plane (the normals fall back to the radial
-/// direction) to finite poses.
+/// The shipped checkpoint was trained with three optional input groups: it reads as 25
+/// features (the contact velocity's 3 after the base 12, the normals' 7 after them, the
+/// approach's 3 last) with 25 normalisation constants, widening it again for any of them is
+/// refused, and it steps a scene whose clouds are too small for a fitted plane (the normals
+/// fall back to the radial direction) to finite poses.
 #[test]
-fn shipped_checkpoint_takes_the_contact_velocity_and_the_normals() {
+fn shipped_checkpoint_takes_the_contact_velocity_the_normals_and_the_approach() {
     let dir =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/rigidformer-small");
     let shipped = load_rigidformer(&dir, &Device::Cpu, false).unwrap();
     let dynamics = &shipped.config().dynamics;
-    assert!(dynamics.contact_velocity && dynamics.surface_normals);
-    let width = BASE_POINT_FEATURES + CONTACT_VELOCITY_FEATURES + SURFACE_NORMAL_FEATURES;
-    assert_eq!(width, 22);
+    assert!(dynamics.contact_velocity && dynamics.surface_normals && dynamics.approach);
+    assert!(!dynamics.history);
+    let width = BASE_POINT_FEATURES
+        + CONTACT_VELOCITY_FEATURES
+        + SURFACE_NORMAL_FEATURES
+        + APPROACH_FEATURES;
+    assert_eq!(width, 25);
     assert_eq!(shipped.config().point_features(), width);
     assert_eq!(first_layer_dims(&shipped)[1], width);
     assert_eq!(shipped.config().normalization.mean.len(), width);
@@ -236,6 +241,12 @@ fn shipped_checkpoint_takes_the_contact_velocity_and_the_normals() {
         std: vec![1.0; CONTACT_VELOCITY_FEATURES],
     };
     let again = shipped.widened_with_contact_velocity(&cv, false);
+    assert!(again.err().unwrap().to_string().contains("already"));
+    let approach = FeatureNormalization {
+        mean: vec![0.0; APPROACH_FEATURES],
+        std: vec![1.0; APPROACH_FEATURES],
+    };
+    let again = shipped.widened_with_inputs(InputGroup::Approach, &approach, false);
     assert!(again.err().unwrap().to_string().contains("already"));
     // Two objects of two points each: no plane fits, the estimator's fallback is used.
     let tiny = || ObjectInput {
