@@ -3,7 +3,7 @@
 //! pushed; a written split stores the kinematic flags and documents them.
 
 use dynaserve_sim::generators::{GenerateOptions, Generator, generate_scene};
-use dynaserve_sim::scenarios::Scenario;
+use dynaserve_sim::scenarios::{Scenario, ScenarioParameters};
 use dynaserve_sim::writer::generate_dataset;
 use dynaserve_sim::{DatasetReader, SceneLabel};
 
@@ -61,6 +61,63 @@ fn the_pusher_follows_its_path_exactly_and_pushes_the_objects_it_meets() {
         }
         // The path starts behind the first object and runs through it.
         let pushed = distance(objects[0].positions[0], objects[0].positions[100]);
+        assert!(
+            pushed > 0.2,
+            "scene {index}: first object pushed {pushed} m"
+        );
+    }
+}
+
+/// With jitter the pusher's velocity changes from frame to frame by up to the jitter per axis
+/// on top of its smooth path (which changes it by far less), the scene is otherwise drawn the
+/// same, and the pusher still pushes.
+#[test]
+fn a_jittered_pusher_changes_velocity_every_frame_within_its_bound() {
+    let mut p = ScenarioParameters::new(vec![Scenario::Push]);
+    p.push_jitter = 0.8;
+    let mut jittered = GenerateOptions::new(Generator::scenarios(p), 0, "test", 2);
+    jittered.points = 64;
+    let smooth = options(2);
+    let dt = 1.0 / 24.0;
+    // The largest frame-to-frame change of the pusher's horizontal velocity, m/s.
+    let largest_change = |positions: &[[f32; 3]]| -> f32 {
+        (2..positions.len())
+            .flat_map(|t| {
+                (0..2).map(move |c| {
+                    let v1 = (positions[t][c] - positions[t - 1][c]) / dt;
+                    let v0 = (positions[t - 1][c] - positions[t - 2][c]) / dt;
+                    (v1 - v0).abs()
+                })
+            })
+            .fold(0.0, f32::max)
+    };
+    for index in 0..2 {
+        let (a, b) = (
+            generate_scene(&smooth, index).unwrap(),
+            generate_scene(&jittered, index).unwrap(),
+        );
+        let n = a.record.objects.len();
+        assert_eq!(b.record.objects.len(), n);
+        for j in 0..n - 1 {
+            assert_eq!(
+                a.record.objects[j].positions[0],
+                b.record.objects[j].positions[0]
+            );
+        }
+        let (ps, pj) = (
+            &a.record.objects[n - 1].positions,
+            &b.record.objects[n - 1].positions,
+        );
+        let (cs, cj) = (largest_change(ps), largest_change(pj));
+        assert!(cs < 0.3, "scene {index}: smooth path changes by {cs} m/s");
+        assert!(
+            cj > 0.8 && cj <= 2.0 * 0.8 + cs + 1e-3,
+            "scene {index}: jittered pusher changes by {cj} m/s"
+        );
+        let pushed = distance(
+            b.record.objects[0].positions[0],
+            b.record.objects[0].positions[100],
+        );
         assert!(
             pushed > 0.2,
             "scene {index}: first object pushed {pushed} m"

@@ -65,7 +65,7 @@ pub enum SimCommand {
     StackHit(ScenarioArgs),
     /// Physics scenario: 1-3 objects on the floor pushed by a kinematic pusher (the last
     /// object, marked kinematic) following a random smooth path through them.
-    Push(ScenarioArgs),
+    Push(PushArgs),
     /// Physics scenario: 1-2 round objects (cylinder, cone, mug) lying on their side, set
     /// rolling along the floor until they stop.
     Roll(ScenarioArgs),
@@ -140,6 +140,18 @@ pub struct RestArgs {
     pub tower_scale: Option<Vec<f32>>,
 }
 
+/// Options of `dynaserve sim push`.
+#[derive(Args, Debug, Clone)]
+pub struct PushArgs {
+    /// Shared scenario options.
+    #[command(flatten)]
+    pub scenario: ScenarioArgs,
+    /// Largest change of the pusher's velocity from frame to frame on top of its smooth path,
+    /// m/s per horizontal axis (0: the smooth path alone).
+    #[arg(long, default_value_t = 0.0)]
+    pub jitter: f32,
+}
+
 /// Options of `dynaserve sim wrecking-ball`.
 #[derive(Args, Debug, Clone)]
 pub struct WreckingBallArgs {
@@ -200,7 +212,11 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
         SimCommand::Slide(a) => a.run(ScenarioParameters::new(vec![Scenario::Slide])),
         SimCommand::Collide(a) => a.run(ScenarioParameters::new(vec![Scenario::Collide])),
         SimCommand::StackHit(a) => a.run(ScenarioParameters::new(vec![Scenario::StackHit])),
-        SimCommand::Push(a) => a.run(ScenarioParameters::new(vec![Scenario::Push])),
+        SimCommand::Push(a) => {
+            let mut p = ScenarioParameters::new(vec![Scenario::Push]);
+            p.push_jitter = a.jitter;
+            a.scenario.run(p)
+        }
         SimCommand::Roll(a) => a.run(ScenarioParameters::new(vec![Scenario::Roll])),
         SimCommand::PhysicsMix(a) => a.run(ScenarioParameters::new(Scenario::ALL.to_vec())),
         SimCommand::MeshD1(a) => mesh_cli::run_generate(MeshSet::D1, &a),

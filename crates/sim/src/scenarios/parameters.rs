@@ -275,6 +275,12 @@ pub struct ScenarioParameters {
     /// Length of the path beyond the last object's bounding circle, metres (longer than the
     /// pusher travels in a scene, so it never stops).
     pub push_tail: f32,
+    /// Largest change of the pusher's velocity from frame to frame on top of its path, m/s:
+    /// every frame adds a velocity drawn uniformly in `[-push_jitter, push_jitter]` per
+    /// horizontal axis to its path's for that frame (the offsets accumulate), as a planner
+    /// that picks a new pusher velocity at every step does. 0 (the default) keeps the smooth
+    /// path and draws nothing.
+    pub push_jitter: f32,
 }
 
 impl ScenarioParameters {
@@ -341,6 +347,7 @@ impl ScenarioParameters {
             push_speed: [0.5, 1.5],
             push_ramp: 0.5,
             push_tail: 8.0,
+            push_jitter: 0.0,
         }
     }
 
@@ -432,6 +439,9 @@ impl ScenarioParameters {
         }
         if let Some(m) = &self.material_ranges {
             m.validate()?;
+        }
+        if !(self.push_jitter.is_finite() && self.push_jitter >= 0.0) {
+            return bad("push_jitter must be finite and non-negative");
         }
         if !(0.0..=1.0).contains(&self.collide_air_fraction) {
             return bad("collide_air_fraction must be in [0, 1]");

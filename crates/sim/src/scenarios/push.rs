@@ -7,7 +7,8 @@
 //! object's centre shifted sideways by up to `push_lateral` of its bounding radius, and a point
 //! `push_tail` beyond the last one. The pusher keeps its starting yaw and travels along the spline by
 //! arc length at a speed that ramps up linearly from rest over `push_ramp` seconds to a cruise
-//! speed drawn from `push_speed`.
+//! speed drawn from `push_speed`. With `push_jitter` its velocity also changes at random from
+//! frame to frame, as a planner's pusher does.
 
 use std::f32::consts::TAU;
 
@@ -136,10 +137,17 @@ pub(super) fn sample_push<R: Rng + ?Sized>(
     let speed = uniform(rng, p.push_speed);
     let cfg = SimConfig::default();
     let dt = cfg.dt_frame();
+    // Drawn only with jitter, so scenes without it keep their random streams.
+    let mut offset = [0.0f32; 2];
     let poses = (1..cfg.frames)
         .map(|f| {
             let xy = path.at(travelled(f as f32 * dt, speed, p.push_ramp));
-            ([xy[0], xy[1], z], rotation)
+            if p.push_jitter > 0.0 {
+                for o in &mut offset {
+                    *o += dt * rng.random_range(-p.push_jitter..=p.push_jitter);
+                }
+            }
+            ([xy[0] + offset[0], xy[1] + offset[1], z], rotation)
         })
         .collect();
     objects.push(pusher);
