@@ -302,6 +302,17 @@ impl InputGroup {
         }
     }
 
+    /// Key of the group's switch in configurations, e.g. "contact_velocity" (the
+    /// [`DynamicsConfig`] field and the training config's `[model]` option).
+    pub fn key(self) -> &'static str {
+        match self {
+            InputGroup::ContactVelocity => "contact_velocity",
+            InputGroup::SurfaceNormals => "surface_normals",
+            InputGroup::History => "history",
+            InputGroup::Approach => "approach",
+        }
+    }
+
     /// Number of per-point features the group adds.
     pub fn count(self) -> usize {
         match self {

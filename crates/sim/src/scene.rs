@@ -61,12 +61,27 @@ pub struct ObjectSpec {
 }
 
 impl ObjectSpec {
-    /// A rigid object of `shape` (unit shape, body frame, scaled by `scale`) that weighs `mass`
-    /// kilograms (its density is the mass over the scaled shape's volume), with contact
-    /// `friction` and `restitution`, at rest at the origin in the identity orientation: set
-    /// `position`, `rotation`, `linvel` and `angvel` after. `shape_id` is its index in the
-    /// dataset's shape list. Refuses a mass that is not positive and finite, and a shape that
-    /// spans no volume.
+    /// A rigid object of `shape` (unit shape, body frame, scaled by `scale`) with `material`,
+    /// at rest at the origin in the identity orientation: set `position`, `rotation`, `linvel`
+    /// and `angvel` after. `shape_id` is its index in the dataset's shape list.
+    pub fn rigid(shape: Shape, shape_id: i32, scale: f32, material: Material) -> ObjectSpec {
+        ObjectSpec {
+            shape,
+            shape_id,
+            scale,
+            material,
+            material_kind: 0,
+            position: [0.0; 3],
+            rotation: [0.0, 0.0, 0.0, 1.0],
+            linvel: [0.0; 3],
+            angvel: [0.0; 3],
+            held_until_settled: false,
+        }
+    }
+
+    /// [`ObjectSpec::rigid`] that weighs `mass` kilograms (its density is the mass over the
+    /// scaled shape's volume), with contact `friction` and `restitution`. Refuses a mass that
+    /// is not positive and finite, and a shape that spans no volume.
     pub fn rigid_of_mass(
         shape: Shape,
         shape_id: i32,
@@ -86,22 +101,12 @@ impl ObjectSpec {
                 "its shape spans no volume ({volume} m^3)"
             )));
         }
-        Ok(ObjectSpec {
-            shape,
-            shape_id,
-            scale,
-            material: Material {
-                friction,
-                restitution,
-                density: mass / volume,
-            },
-            material_kind: 0,
-            position: [0.0; 3],
-            rotation: [0.0, 0.0, 0.0, 1.0],
-            linvel: [0.0; 3],
-            angvel: [0.0; 3],
-            held_until_settled: false,
-        })
+        let material = Material {
+            friction,
+            restitution,
+            density: mass / volume,
+        };
+        Ok(ObjectSpec::rigid(shape, shape_id, scale, material))
     }
 
     /// The scaled shape in the body frame.

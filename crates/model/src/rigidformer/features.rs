@@ -429,14 +429,22 @@ impl ScenePoints {
             frame,
         ));
         let mut at = BASE_POINT_FEATURES;
-        let cv = || contact_velocity(hit.source, q, &self.world, &self.world_prev, frame);
-        let normals = || surface_normal_features(&hit, q, &self.normals, self.radius);
-        if dynamics.contact_velocity {
-            out[at..at + CONTACT_VELOCITY_FEATURES].copy_from_slice(&cv());
+        // Each computed once per point, for its own group and for the approach.
+        let cv = (dynamics.contact_velocity || dynamics.approach)
+            .then(|| contact_velocity(hit.source, q, &self.world, &self.world_prev, frame));
+        let normals = dynamics
+            .reads_normals()
+            .then(|| surface_normal_features(&hit, q, &self.normals, self.radius));
+        if dynamics.contact_velocity
+            && let Some(cv) = &cv
+        {
+            out[at..at + CONTACT_VELOCITY_FEATURES].copy_from_slice(cv);
             at += CONTACT_VELOCITY_FEATURES;
         }
-        if dynamics.surface_normals {
-            out[at..at + SURFACE_NORMAL_FEATURES].copy_from_slice(&normals());
+        if dynamics.surface_normals
+            && let Some(normals) = &normals
+        {
+            out[at..at + SURFACE_NORMAL_FEATURES].copy_from_slice(normals);
             at += SURFACE_NORMAL_FEATURES;
         }
         if dynamics.history {
@@ -449,10 +457,12 @@ impl ScenePoints {
             out[at..at + HISTORY_FEATURES].copy_from_slice(&history);
             at += HISTORY_FEATURES;
         }
-        if dynamics.approach {
+        if dynamics.approach
+            && let (Some(cv), Some(normals)) = (cv, &normals)
+        {
             out[at..at + APPROACH_FEATURES].copy_from_slice(&approach_features(
-                cv(),
-                &normals(),
+                cv,
+                normals,
                 self.radius,
                 frame,
             ));

@@ -56,18 +56,7 @@ pub(super) fn draw_object<R: Rng + ?Sized>(
         Some(m) => m.draw(rng),
         None => p.materials[rng.random_range(0..p.materials.len())].1,
     };
-    Ok(ObjectSpec {
-        shape,
-        shape_id: shape_id as i32,
-        scale,
-        material,
-        material_kind: 0,
-        position: [0.0; 3],
-        rotation: [0.0, 0.0, 0.0, 1.0],
-        linvel: [0.0; 3],
-        angvel: [0.0; 3],
-        held_until_settled: false,
-    })
+    Ok(ObjectSpec::rigid(shape, shape_id as i32, scale, material))
 }
 
 /// Bounds of an object's collider at `rotation` about its centre of mass: (min, max), metres.

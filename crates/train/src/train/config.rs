@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use dynaserve_model::{FeatureNormalization, ModelConfig};
+use dynaserve_model::{FeatureNormalization, InputGroup, ModelConfig};
 use serde::{Deserialize, Serialize};
 
 use super::TrainError;
@@ -278,22 +278,26 @@ impl ModelSection {
             c.dynamics.object_summary = on;
         }
         let inputs = c.dynamics.point_features();
-        if let Some(cv) = self.contact_velocity {
-            c.dynamics.contact_velocity = cv;
-        }
-        if let Some(on) = self.surface_normals {
-            c.dynamics.surface_normals = on;
-        }
-        if let Some(on) = self.history {
-            c.dynamics.history = on;
-        }
-        if let Some(on) = self.approach {
-            c.dynamics.approach = on;
+        for group in InputGroup::ALL {
+            if let Some(on) = self.input_switch(group) {
+                group.set(&mut c.dynamics, on);
+            }
         }
         if c.dynamics.point_features() != inputs {
             c.normalization = FeatureNormalization::defaults_for(&c.dynamics);
         }
         Ok(c)
+    }
+
+    /// This section's switch for an optional input group (`contact_velocity`,
+    /// `surface_normals`, `history`, `approach`): unset keeps what the model has.
+    pub fn input_switch(&self, group: InputGroup) -> Option<bool> {
+        match group {
+            InputGroup::ContactVelocity => self.contact_velocity,
+            InputGroup::SurfaceNormals => self.surface_normals,
+            InputGroup::History => self.history,
+            InputGroup::Approach => self.approach,
+        }
     }
 
     fn named_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {

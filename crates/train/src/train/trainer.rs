@@ -159,13 +159,8 @@ fn init_inputs(
     cfg: &TrainConfig,
     reader: &Sources,
 ) -> Result<RigidFormer, TrainError> {
-    let options = [
-        ("contact_velocity", cfg.model.contact_velocity),
-        ("surface_normals", cfg.model.surface_normals),
-        ("history", cfg.model.history),
-        ("approach", cfg.model.approach),
-    ];
-    for (group, (option, wanted)) in InputGroup::ALL.into_iter().zip(options) {
+    for group in InputGroup::ALL {
+        let (option, wanted) = (group.key(), cfg.model.input_switch(group));
         let has = group.enabled(&m.config().dynamics);
         match wanted {
             Some(true) if !has => {
