@@ -561,3 +561,89 @@ async fn a_kinematic_objects_mass_changes_nothing_under_relative_mass() {
     server.shutdown();
     server.wait().await.unwrap();
 }
+
+/// The box's pose after one HTTP session step of `push_scene` on `model` (served from
+/// `dir`), the pusher starting at x = -0.45 m with its previous pose at `pusher_before` and
+/// driven to `pusher_to`.
+async fn box_after_one_push(
+    dir: &std::path::Path,
+    model: &str,
+    pusher_before: f32,
+    pusher_to: f32,
+) -> Pose {
+    let server = start(dir, |_| {}).await;
+    let mut scene = push_scene();
+    let at = |x: f32| json::Pose {
+        translation: [x, 0.0, 0.2],
+        rotation: [0.0, 0.0, 0.0, 1.0],
+    };
+    scene.objects[1].previous_pose = Some(at(pusher_before));
+    let created = post_json(
+        server.http_addr,
+        "/v1/sessions",
+        &json::CreateSessionRequest {
+            model: model.to_string(),
+            scene,
+            dt_steps: 1,
+            kinematic: vec![1],
+        },
+    )
+    .await;
+    assert_eq!(created.status, 201, "{}", created.text());
+    let info: json::SessionInfo = created.json();
+    let r = post_json(
+        server.http_addr,
+        &format!("/v1/sessions/{}/step", info.session_id),
+        &json::StepRequest {
+            steps: 1,
+            actions: vec![json::Action {
+                kinematic: vec![json::ObjectPose {
+                    object: 1,
+                    pose: at(pusher_to),
+                }],
+            }],
+            timeout_ms: 0,
+        },
+    )
+    .await;
+    assert_eq!(r.status, 200, "{}", r.text());
+    let out: json::StepResponse = r.json();
+    assert_eq!(
+        out.frames[0].poses[1],
+        at(pusher_to),
+        "the pusher follows its path"
+    );
+    server.shutdown();
+    server.wait().await.unwrap();
+    let p = out.frames[0].poses[0];
+    Pose {
+        translation: p.translation,
+        rotation: p.rotation,
+    }
+}
+
+/// With `dynamics.kinematic_lead` a session step reads the pusher's coming pose: a pusher at
+/// rest driven 5 cm moves the box exactly as, without the lead, a pusher already moving 5 cm
+/// per step does; without the lead the pusher at rest is seen at rest (another answer).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_led_session_step_reads_the_pushers_coming_pose() {
+    let led = random_model_with("led", 43, |c| c.dynamics.kinematic_lead = true);
+    let plain = random_model_with("plain", 43, |c| c.dynamics.kinematic_lead = false);
+    let diff = |a: &Pose, b: &Pose| {
+        (0..3)
+            .map(|d| (a.translation[d] - b.translation[d]).abs())
+            .chain((0..4).map(|d| (a.rotation[d] - b.rotation[d]).abs()))
+            .fold(0.0f32, f32::max)
+    };
+    let starting = box_after_one_push(&led.dir, &led.name, -0.45, -0.40).await;
+    let moving = box_after_one_push(&plain.dir, &plain.name, -0.50, -0.40).await;
+    let seen_at_rest = box_after_one_push(&plain.dir, &plain.name, -0.45, -0.40).await;
+    assert!(
+        diff(&starting, &moving) < 1e-6,
+        "{starting:?} against {moving:?}"
+    );
+    assert!(
+        diff(&starting, &seen_at_rest) > 1e-6,
+        "the lead changed nothing: {starting:?}"
+    );
+}

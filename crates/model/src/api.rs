@@ -132,6 +132,41 @@ impl SceneState {
         self.earlier = Some(std::mem::replace(&mut self.previous, previous));
     }
 
+    /// The state as a step reads it when the kinematic objects' poses after the step are
+    /// known ([`crate::DynamicsConfig::kinematic_lead`]): each object flagged in `kinematic`
+    /// gets the `previous` (and, when known, `earlier`) poses from which constant motion
+    /// arrives at `next` (the rigid-body extrapolation run backwards: centre `2 p_t - p_{t+k}`,
+    /// rotation `R_t R_{t+k}^T R_t`), so its increments are the coming one, not the last.
+    /// Other objects are unchanged. `kinematic` and `next` have one entry per object (a
+    /// shorter slice leaves the objects past its end unchanged).
+    pub fn lead_kinematic(&self, kinematic: &[bool], next: &[Pose]) -> SceneState {
+        let mut led = self.clone();
+        let back = |from: &Pose, to: &Pose| {
+            let (pf, pt) = (
+                Vector3::from(from.translation),
+                Vector3::from(to.translation),
+            );
+            let (rf, rt) = (from.unit_quaternion(), to.unit_quaternion());
+            Pose::from_parts(2.0 * pf - pt, rf * rt.inverse() * rf)
+        };
+        for (j, (&k, n)) in kinematic.iter().zip(next).enumerate() {
+            let Some(now) = self.current.get(j) else {
+                break;
+            };
+            if !k {
+                continue;
+            }
+            let previous = back(now, n);
+            if let Some(e) = led.earlier.as_mut().and_then(|e| e.get_mut(j)) {
+                *e = back(&previous, now);
+            }
+            if let Some(p) = led.previous.get_mut(j) {
+                *p = previous;
+            }
+        }
+        led
+    }
+
     /// Number of objects.
     pub fn len(&self) -> usize {
         self.current.len()
@@ -196,4 +231,53 @@ pub fn rollout(
         out.push(next);
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pose(x: f32, yaw: f32) -> Pose {
+        Pose::from_parts(
+            Vector3::new(x, 0.5, 0.2),
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw),
+        )
+    }
+
+    #[test]
+    fn a_led_kinematic_object_moves_on_at_its_coming_increment() {
+        let state = SceneState {
+            previous: vec![pose(0.0, 0.0), pose(1.0, 0.0)],
+            current: vec![pose(0.1, 0.0), pose(1.0, 0.0)],
+            earlier: Some(vec![pose(-0.1, 0.0), pose(1.0, 0.0)]),
+        };
+        // The kinematic object (1), at rest so far, is about to move 0.2 m and turn 0.3 rad.
+        let next = [pose(0.3, 0.0), pose(1.2, 0.3)];
+        let led = state.lead_kinematic(&[false, true], &next);
+        let close = |a: &Pose, b: &Pose| {
+            let dt = (Vector3::from(a.translation) - Vector3::from(b.translation)).norm();
+            dt < 1e-6 && a.unit_quaternion().angle_to(&b.unit_quaternion()) < 1e-5
+        };
+        assert!(
+            close(&led.previous[1], &pose(0.8, -0.3)),
+            "{:?}",
+            led.previous[1]
+        );
+        assert!(close(&led.earlier.as_ref().unwrap()[1], &pose(0.6, -0.6)));
+        // The dynamic object and the current poses are untouched.
+        assert_eq!(led.previous[0], state.previous[0]);
+        assert_eq!(
+            led.earlier.as_ref().unwrap()[0],
+            state.earlier.as_ref().unwrap()[0]
+        );
+        assert_eq!(led.current, state.current);
+        // An unknown earlier stays unknown.
+        let short = SceneState::new(state.previous.clone(), state.current.clone());
+        assert!(
+            short
+                .lead_kinematic(&[false, true], &next)
+                .earlier
+                .is_none()
+        );
+    }
 }

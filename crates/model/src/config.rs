@@ -267,6 +267,15 @@ pub struct DynamicsConfig {
     /// kinematic body's next pose is not known to the model). Inference only; absent in
     /// older `config.json` files, which means off.
     pub free_flight_gate: bool,
+    /// Kinematic lead: where a kinematic object's pose after the step is known (a session
+    /// `Step` with actions, a driven evaluation), its previous and earlier poses are replaced
+    /// before the step by those of constant motion into that pose
+    /// ([`crate::SceneState::lead_kinematic`]), so every feature that reads its motion (its own
+    /// increment, the contact velocity of the points it touches) reads the motion it is about
+    /// to make rather than the one it just made. A pusher whose velocity changes every step is
+    /// otherwise seen a step late. Applied by the callers, not by the step itself; absent in
+    /// older `config.json` files, which means off.
+    pub kinematic_lead: bool,
 }
 
 /// An optional group of per-point inputs, in layout order after the base features: the
@@ -376,6 +385,7 @@ impl DynamicsConfig {
             floor_base: false,
             relative_mass: false,
             free_flight_gate: false,
+            kinematic_lead: false,
         }
     }
 

@@ -200,6 +200,13 @@ impl RigidFormer {
         self
     }
 
+    /// Switches the kinematic lead ([`crate::DynamicsConfig::kinematic_lead`]); the weights
+    /// are unchanged (a kinematic object's increments then read its coming motion).
+    pub fn with_kinematic_lead(mut self, on: bool) -> RigidFormer {
+        self.config.dynamics.kinematic_lead = on;
+        self
+    }
+
     /// Sets the Smooth L1 transition point of the training loss ([`crate::LossConfig::beta`],
     /// in units of the loss scale). Inference is unaffected; fine-tuning then weighs errors
     /// below the new point linearly instead of quadratically (or the reverse).

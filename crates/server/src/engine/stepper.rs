@@ -81,11 +81,18 @@ impl Stepper {
 
     /// Queues the next step; `more_steps` says another will follow right after it.
     pub(crate) fn submit(&self, more_steps: bool) -> StepReply {
+        self.submit_from(self.state.clone(), more_steps)
+    }
+
+    /// Queues the next step computed from `state` instead of the stepper's own (the same
+    /// scene seen differently, e.g. [`SceneState::lead_kinematic`]); [`Stepper::accept`] still
+    /// advances the stepper's own state.
+    pub(crate) fn submit_from(&self, state: SceneState, more_steps: bool) -> StepReply {
         let (reply, rx) = oneshot::channel();
         self.entry.scheduler.submit(Job {
             item: SceneStep {
                 scene: self.scene.clone(),
-                state: self.state.clone(),
+                state,
                 dt_steps: self.dt_steps,
             },
             priority: self.priority,

@@ -15,7 +15,8 @@ pub fn has_kinematic(scene: &SceneRecord) -> bool {
 
 /// Rolls every request forward from frame `starts[i]` (the frame of its `observed.current`),
 /// one step of `dt_steps` frames at a time, the kinematic objects driven along their recorded
-/// poses. Entry `i` of the result answers `requests[i]` as [`Predictor::rollout_batch`] does:
+/// poses (read before the step too by a predictor that [`Predictor::leads_kinematic`]).
+/// Entry `i` of the result answers `requests[i]` as [`Predictor::rollout_batch`] does:
 /// `[steps][objects]`. A request without kinematic objects is stepped the same way, nothing
 /// replaced.
 pub fn driven_rollout_batch(
@@ -36,19 +37,30 @@ pub fn driven_rollout_batch(
         .map(|r| Vec::with_capacity(r.steps))
         .collect();
     let most = requests.iter().map(|r| r.steps).max().unwrap_or(0);
+    let lead = predictor.leads_kinematic();
     for step in 0..most {
         let live: Vec<usize> = (0..requests.len())
             .filter(|&i| step < requests[i].steps)
             .collect();
+        let frame_after = |i: usize| starts[i] + (step + 1) * requests[i].dt_steps as usize;
         let batch: Vec<RolloutRequest<'_>> = live
             .iter()
-            .map(|&i| RolloutRequest {
-                scene: requests[i].scene,
-                observed: states[i].clone(),
-                dt_steps: requests[i].dt_steps,
-                steps: 1,
+            .map(|&i| {
+                let r = &requests[i];
+                let observed = if lead && has_kinematic(r.scene) {
+                    let flags: Vec<bool> = r.scene.objects.iter().map(|o| o.kinematic).collect();
+                    states[i].lead_kinematic(&flags, &poses_at(r.scene, frame_after(i))?)
+                } else {
+                    states[i].clone()
+                };
+                Ok(RolloutRequest {
+                    scene: r.scene,
+                    observed,
+                    dt_steps: r.dt_steps,
+                    steps: 1,
+                })
             })
-            .collect();
+            .collect::<Result<_, EvalError>>()?;
         let next = predictor.rollout_batch(&batch)?;
         for (&i, rollout) in live.iter().zip(next) {
             let r = &requests[i];
@@ -60,9 +72,8 @@ pub fn driven_rollout_batch(
                     scene: i,
                     message: "returned no step".into(),
                 })?;
-            let frame = starts[i] + (step + 1) * r.dt_steps as usize;
             if has_kinematic(r.scene) {
-                let given = poses_at(r.scene, frame)?;
+                let given = poses_at(r.scene, frame_after(i))?;
                 for ((p, g), o) in poses.iter_mut().zip(given).zip(&r.scene.objects) {
                     if o.kinematic {
                         *p = g;

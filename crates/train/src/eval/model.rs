@@ -229,6 +229,10 @@ impl Predictor for ModelPredictor {
             .ok_or_else(|| EvalError::Invalid("internal: no rollout returned".into()))
     }
 
+    fn leads_kinematic(&self) -> bool {
+        self.model.config().dynamics.kinematic_lead
+    }
+
     /// All requests advance together: step `i` of every request that has one is computed in
     /// one [`WorldModel::step`] call (which splits it into passes under its object budget).
     fn rollout_batch(

@@ -39,6 +39,14 @@ pub trait Predictor: Sync {
             .collect()
     }
 
+    /// Whether the predictor reads a kinematic object's coming pose before the step
+    /// ([`dynaserve_model::DynamicsConfig::kinematic_lead`]); driven rollouts
+    /// ([`super::driven`]) then give it the states with the kinematic objects led. False for
+    /// the baselines.
+    fn leads_kinematic(&self) -> bool {
+        false
+    }
+
     /// Rigidity residual before the projection to a rigid motion, for predictors that have
     /// one: for each window (a state and the predictor's own next poses) and each object, the
     /// root-mean-square distance in metres between the predicted points before projection and

@@ -203,6 +203,11 @@ pub struct ModelSection {
     /// config or `init` model has; set, it switches it on any of them (an `init` model keeps
     /// its weights and learns from the scaled masses).
     pub relative_mass: Option<bool>,
+    /// Kinematic lead (`DynamicsConfig::kinematic_lead`): unset keeps what the preset, config
+    /// or `init` model has; set, it switches it on any of them. On, a training window's
+    /// kinematic objects are seen moving at the increment into their recorded next pose
+    /// (`SceneState::lead_kinematic`), as a server session with actions shows them.
+    pub kinematic_lead: Option<bool>,
     /// The Smooth L1 transition point of the loss (`LossConfig::beta`, in units of its
     /// 1 mm scale): unset keeps what the preset, config or `init` model has. Errors below it
     /// pull quadratically (weakly), errors above it linearly; a smaller value gives the
@@ -240,6 +245,7 @@ impl Default for ModelSection {
             rigid_extrapolation: None,
             floor_base: None,
             relative_mass: None,
+            kinematic_lead: None,
             loss_beta: None,
             rest_weight: None,
             object_contact_weight: None,
@@ -252,7 +258,8 @@ impl ModelSection {
     /// The model configuration this section names (before normalisation fitting), with
     /// `contact_velocity`, `surface_normals`, `history` and `approach` (the normalisation then
     /// resized to its defaults),
-    /// `object_summary`, `rigid_extrapolation`, `floor_base`, `relative_mass`, `loss_beta`,
+    /// `object_summary`, `rigid_extrapolation`, `floor_base`, `relative_mass`,
+    /// `kinematic_lead`, `loss_beta`,
     /// `rest_weight` and `object_contact_weight` applied.
     pub fn model_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {
         let mut c = self.named_config(base)?;
@@ -264,6 +271,9 @@ impl ModelSection {
         }
         if let Some(on) = self.relative_mass {
             c.dynamics.relative_mass = on;
+        }
+        if let Some(on) = self.kinematic_lead {
+            c.dynamics.kinematic_lead = on;
         }
         if let Some(beta) = self.loss_beta {
             c.loss.beta = beta;
@@ -545,6 +555,17 @@ mod tests {
         );
         let r24 = TrainConfig::from_file(&dir.join("rigidformer-small-r24.toml")).unwrap();
         assert_eq!(r24.model.relative_mass, Some(true));
+        let r43 = TrainConfig::from_file(&dir.join("rigidformer-small-r43.toml")).unwrap();
+        assert_eq!(r43.model.kinematic_lead, Some(true));
+        let lead = r43.model.model_config(Path::new(".")).unwrap();
+        assert!(lead.dynamics.kinematic_lead);
+        assert!(
+            !ModelSection::default()
+                .model_config(Path::new("."))
+                .unwrap()
+                .dynamics
+                .kinematic_lead
+        );
     }
 
     #[test]

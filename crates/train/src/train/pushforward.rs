@@ -26,6 +26,7 @@ pub fn apply(model: &RigidFormer, samples: &mut [Sample]) -> Result<usize, Train
         return Ok(0);
     }
     let steps = recorded.iter().map(|r| r.len() - 1).max().unwrap_or(1);
+    let lead = model.config().dynamics.kinematic_lead;
     // Per chosen sample: the state the next step starts from, and its first predicted frame.
     let mut states: Vec<SceneState> = recorded
         .iter()
@@ -36,11 +37,24 @@ pub fn apply(model: &RigidFormer, samples: &mut [Sample]) -> Result<usize, Train
         let active: Vec<usize> = (0..chosen.len())
             .filter(|&c| step < recorded[c].len() - 1)
             .collect();
+        let seen: Vec<SceneState> = active
+            .iter()
+            .map(|&c| {
+                let s = &samples[chosen[c]];
+                if !lead {
+                    return states[c].clone();
+                }
+                // The kinematic objects' recorded poses after this step (`next` below).
+                let after = recorded[c].get(step + 2).unwrap_or(&s.state.current);
+                states[c].lead_kinematic(&s.kinematic, after)
+            })
+            .collect();
         let items: Vec<StepItem<'_>> = active
             .iter()
-            .map(|&c| StepItem {
+            .zip(&seen)
+            .map(|(&c, state)| StepItem {
                 scene: &samples[chosen[c]].scene,
-                state: &states[c],
+                state,
                 dt_steps: samples[chosen[c]].dt_steps,
             })
             .collect();

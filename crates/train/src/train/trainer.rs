@@ -268,6 +268,10 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                 Some(on) => m.with_relative_mass(on),
                 None => m,
             };
+            let m = match cfg.model.kinematic_lead {
+                Some(on) => m.with_kinematic_lead(on),
+                None => m,
+            };
             let m = match cfg.model.loss_beta {
                 Some(beta) => m.with_loss_beta(beta),
                 None => m,
@@ -402,6 +406,11 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                 )));
             }
             super::pushforward::apply(&model, &mut batch.samples)?;
+            if model.config().dynamics.kinematic_lead {
+                for s in batch.samples.iter_mut() {
+                    s.state = s.state.lead_kinematic(&s.kinematic, &s.target);
+                }
+            }
             let items: Vec<TrainItem<'_>> = batch
                 .samples
                 .iter()

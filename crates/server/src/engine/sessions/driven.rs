@@ -20,7 +20,8 @@ use crate::error::ApiError;
 use crate::scheduler::Priority;
 
 /// One stream of steps from a session's state: the model's output for kinematic objects is
-/// replaced by the given poses before the state advances ([`drive`]). Frame step indices and
+/// replaced by the given poses before the state advances ([`drive`]); a model with
+/// `dynamics.kinematic_lead` reads those poses before the step too. Frame step indices and
 /// times count from `base_step`.
 pub(crate) struct Driven {
     stepper: Stepper,
@@ -77,7 +78,17 @@ impl Driven {
         targets: &Targets,
         more_steps: bool,
     ) -> Result<Frame, ApiError> {
-        let mut done = match self.stepper.submit(more_steps).await {
+        let reply = if self.session.entry.model().config().dynamics.kinematic_lead {
+            // The poses the kinematic objects are driven to, read by the step in advance.
+            let state = self.stepper.state();
+            let mut next = state.current.clone();
+            drive(&mut next, state, &self.kinematic, targets);
+            self.stepper
+                .submit_from(state.lead_kinematic(&self.kinematic, &next), more_steps)
+        } else {
+            self.stepper.submit(more_steps)
+        };
+        let mut done = match reply.await {
             Ok(Ok(done)) => done,
             Ok(Err(e)) => return Err(step_error(e)),
             Err(_) => return Err(ApiError::unavailable("server shutting down")),
