@@ -123,23 +123,31 @@ def parse_seeds(text: str) -> list[int]:
     return seeds
 
 
-def summary(results: list[tuple[float, float]]) -> str:
-    """One line over ``(planned, random)`` rapier-replayed final distances (m), one pair per
-    seed: the means, the medians and on how many seeds the plan ended closer to the goal than
-    the random path."""
-    planned = np.array([r[0] for r in results])
-    random_d = np.array([r[1] for r in results])
+def summary(results: list[tuple[float, float, float, float]]) -> str:
+    """Two lines over per-seed ``(planned, random, planned_off, random_off)``: the
+    rapier-replayed final distances to the goal (m; their means, medians and on how many seeds
+    the plan ended closer than the random path), then how far the model's forecast of the box's
+    final position was from rapier's (m; means and medians), for the executed plans and for
+    the random paths. Planning exploits forecast errors, so the first of those is usually the
+    larger."""
+    r = np.array(results, dtype=float)
+    planned, random_d, planned_off, random_off = r.T
     wins = int((planned < random_d).sum())
     return (
         f"over {len(results)} seeds (rapier replay): planned mean {planned.mean():.3f} m, "
         f"median {np.median(planned):.3f} m; random plan mean {random_d.mean():.3f} m, "
-        f"median {np.median(random_d):.3f} m; planned closer than random on {wins} of {len(results)}"
+        f"median {np.median(random_d):.3f} m; planned closer than random on {wins} of {len(results)}\n"
+        f"the model's final box position against rapier's: planned paths off by mean "
+        f"{planned_off.mean():.3f} m (median {np.median(planned_off):.3f}), random paths by mean "
+        f"{random_off.mean():.3f} m (median {np.median(random_off):.3f})"
     )
 
 
 def plan(client: Any, args: argparse.Namespace, seed: int, dt_frame: float, binary: Optional[str]):
     """Plans one push (scene and sampling from ``seed``) and prints the distances; returns the
-    rapier-replayed final distances ``(planned, random)`` in m, or ``None`` without a binary."""
+    rapier-replayed final distances ``(planned, random)`` and how far the model's final box
+    position was from rapier's on each path ``(planned_off, random_off)``, in m, or ``None``
+    without a binary."""
     rng = np.random.default_rng(seed)
     goal = np.array(args.goal)
     bodies = scene(seed)
@@ -172,13 +180,15 @@ def plan(client: Any, args: argparse.Namespace, seed: int, dt_frame: float, bina
         # Warm start: shift the plan by the executed steps.
         mean = np.concatenate([mean[args.execute :], np.zeros((args.execute, 2))])
         std = np.full((args.horizon, 2), args.speed / 2)
-    planned = float(np.linalg.norm(session.state()["poses"][BOX, :2] - goal))
+    model_end = session.state()["poses"][BOX, :2]
+    planned = float(np.linalg.norm(model_end - goal))
 
     steps = args.rounds * args.execute
     v = rng.uniform(-args.speed, args.speed, size=(steps, 2))
     random_path = path_from(start[PUSHER, :2], v, dt_frame)
     baseline.step(steps, kinematic={PUSHER: random_path})
-    random_d = float(np.linalg.norm(baseline.state()["poses"][BOX, :2] - goal))
+    random_end = baseline.state()["poses"][BOX, :2]
+    random_d = float(np.linalg.norm(random_end - goal))
     session.delete()
     baseline.delete()
 
@@ -191,12 +201,12 @@ def plan(client: Any, args: argparse.Namespace, seed: int, dt_frame: float, bina
     if binary is None:
         print("rapier replay skipped: no dynaserve binary (build it or give --dynaserve)")
         return None
-    rapier = [
-        float(np.linalg.norm(replay(binary, bodies, p, dt_frame)[-1, BOX, :2] - goal))
-        for p in (np.concatenate(executed), random_path)
-    ]
+    truth = [replay(binary, bodies, p, dt_frame)[-1, BOX, :2] for p in (np.concatenate(executed), random_path)]
+    rapier = [float(np.linalg.norm(t - goal)) for t in truth]
+    off = [float(np.linalg.norm(t - m)) for t, m in zip(truth, (model_end, random_end))]
     print(f"final distance to the goal (rapier replay): planned {rapier[0]:.3f} m, random plan {rapier[1]:.3f} m")
-    return rapier[0], rapier[1]
+    print(f"the model's final box position against rapier's: planned {off[0]:.3f} m off, random plan {off[1]:.3f} m off")
+    return rapier[0], rapier[1], off[0], off[1]
 
 
 def main() -> None:

@@ -38,11 +38,13 @@ class Seeds(unittest.TestCase):
                 planner.parse_seeds(text)
 
     def test_summary_counts_the_plans_closer_than_random(self):
-        line = planner.summary([(0.10, 0.30), (0.20, 0.10), (0.30, 0.35)])
+        line = planner.summary([(0.10, 0.30, 0.05, 0.01), (0.20, 0.10, 0.02, 0.03), (0.30, 0.35, 0.11, 0.02)])
         self.assertIn("over 3 seeds", line)
         self.assertIn("planned mean 0.200 m, median 0.200 m", line)
         self.assertIn("random plan mean 0.250 m, median 0.300 m", line)
         self.assertIn("planned closer than random on 2 of 3", line)
+        self.assertIn("planned paths off by mean 0.060 m (median 0.050)", line)
+        self.assertIn("random paths by mean 0.020 m (median 0.020)", line)
 
 
 if __name__ == "__main__":
