@@ -62,7 +62,7 @@ def path_from(start_xy: np.ndarray, velocities: np.ndarray, dt: float) -> np.nda
     return poses
 
 
-def approach_cost(traj: np.ndarray, paths: np.ndarray, goal: np.ndarray) -> np.ndarray:
+def side_cost(traj: np.ndarray, paths: np.ndarray, goal: np.ndarray) -> np.ndarray:
     """How close each candidate's pusher comes to the box's pushing side ``[candidates]``, m:
     the smallest distance over the horizon between the pusher (``paths``: ``[candidates,
     steps, 7]``) and the point just behind the predicted box (``traj``: ``[candidates, steps,
@@ -170,8 +170,8 @@ def plan(client: Any, args: argparse.Namespace, seed: int, dt_frame: float, bina
             calls += 1
             sent += client.last_request_bytes
             cost = np.linalg.norm(traj[:, -1, BOX, :2] - goal, axis=1)
-            if args.approach_weight > 0:
-                cost += args.approach_weight * approach_cost(traj, np.array(paths), goal)
+            if args.side_weight > 0:
+                cost += args.side_weight * side_cost(traj, np.array(paths), goal)
             elite = v[np.argsort(cost)[: max(2, args.samples // 8)]]
             mean, std = elite.mean(axis=0), elite.std(axis=0) + 0.05
         best = path_from(here[PUSHER, :2], mean, dt_frame)
@@ -221,10 +221,13 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=2, help="CEM iterations per round")
     ap.add_argument("--speed", type=float, default=0.8, help="largest pusher speed, m/s")
     ap.add_argument(
+        "--side-weight",
         "--approach-weight",
+        dest="side_weight",
         type=float,
         default=0.5,
-        help="weight of the pusher's distance to the box's pushing side in the cost (0: goal distance only)",
+        help="weight of the pusher's distance to the box's pushing side in the cost (0: goal distance "
+        "only; --approach-weight is its former name)",
     )
     ap.add_argument("--seed", type=int, default=0, help="the scene's and the sampler's seed")
     ap.add_argument(

@@ -12,7 +12,7 @@ planner = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(planner)
 
 
-class ApproachCost(unittest.TestCase):
+class SideCost(unittest.TestCase):
     def test_zero_behind_the_box_and_larger_on_the_wrong_side(self):
         goal = np.array([1.0, 0.0])
         steps = 3
@@ -21,7 +21,7 @@ class ApproachCost(unittest.TestCase):
         paths = np.zeros((2, steps, 7))
         paths[0, :, 0] = [behind - 0.2, behind - 0.1, behind]  # reaches the pushing side
         paths[1, :, 0] = [-behind, -behind + 0.1, -behind + 0.2]  # stays on the goal side
-        cost = planner.approach_cost(traj, paths, goal)
+        cost = planner.side_cost(traj, paths, goal)
         self.assertAlmostEqual(cost[0], 0.0, places=9)
         self.assertAlmostEqual(cost[1], 2 * -behind, places=9)
 
