@@ -1,7 +1,8 @@
 //! The physics suite on real rapier `push` scenes: the pusher is driven along its recorded path
 //! in every rollout and enters no error, the static baseline is "the pushed objects stay
-//! still" (its final error is how far rapier pushed them), and the shipped checkpoint runs
-//! through the push figures.
+//! still" (its final error is how far rapier pushed them), the shipped checkpoint runs
+//! through the push figures, and with `dynamics.kinematic_lead` it reads the pusher's recorded
+//! next pose.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -154,4 +155,52 @@ fn the_shipped_checkpoint_runs_through_the_push_figures() {
             row.group, row.predictors[0].mean, row.predictors[1].mean
         );
     }
+}
+
+/// A frame of the first push scene where the pusher's speed changes enough for the lead to move
+/// the pushed object's step by about 4e-5 m (the twenty-second release, scanned over frames
+/// 4-76: 1e-7 to 4e-5 m; the pusher follows a smooth path, so its coming and last increments
+/// differ little). Re-scan when the checkpoint is replaced.
+const LEAD_START: usize = 34;
+
+/// With `dynamics.kinematic_lead` a driven rollout's step reads the pusher's recorded next
+/// pose: the shipped checkpoint with the lead switched on steps exactly as the same checkpoint
+/// without it does from the led state, and the lead changes the state, so it changes the
+/// step.
+#[test]
+fn a_leading_predictor_steps_from_the_pushers_recorded_next_pose() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/rigidformer-small");
+    let load = || {
+        dynaserve_model::load_rigidformer(&dir, &dynaserve_model::Device::Cpu, false)
+            .expect("the shipped checkpoint loads")
+    };
+    let plain = ModelPredictor::from_rigidformer(Arc::new(load().with_kinematic_lead(false)));
+    let led = ModelPredictor::from_rigidformer(Arc::new(load().with_kinematic_lead(true)));
+    assert!(led.leads_kinematic() && !plain.leads_kinematic());
+    let scene = &scenes()[0].scene;
+    let observed = observed_state(scene, LEAD_START, 1).unwrap();
+    let request = RolloutRequest {
+        scene,
+        observed: observed.clone(),
+        dt_steps: 1,
+        steps: 1,
+    };
+    let driven = driven_rollout_batch(&led, &[request], &[LEAD_START]).unwrap();
+    let flags: Vec<bool> = scene.objects.iter().map(|o| o.kinematic).collect();
+    let next = dynaserve_train::eval::poses_at(scene, LEAD_START + 1).unwrap();
+    let led_state = observed.lead_kinematic(&flags, &next);
+    assert_ne!(
+        led_state.previous, observed.previous,
+        "the pusher moved at constant speed"
+    );
+    let by_hand = plain.rollout(scene, &led_state, 1, 1).unwrap();
+    let unled = plain.rollout(scene, &observed, 1, 1).unwrap();
+    let pushed = flags.iter().position(|k| !k).unwrap();
+    let d = |a: &[dynaserve_model::Pose], b: &[dynaserve_model::Pose]| {
+        distance(a[pushed].translation, b[pushed].translation)
+    };
+    assert!(d(&driven[0][0], &by_hand[0]) < 1e-7);
+    let moved = d(&driven[0][0], &unled[0]);
+    println!("the lead moved the pushed object's step by {moved:.2e} m");
+    assert!(moved > 1e-5, "the lead changed nothing ({moved:.2e} m)");
 }
