@@ -241,7 +241,7 @@ fn relative_mass_sees_ratios_only() {
         max_pose_diff(&a, &a37) > 1e-6,
         "absolute masses had no effect"
     );
-    let relative = tiny().with_relative_mass(true);
+    let relative = tiny().with_settings(|d, _| d.relative_mass = true).unwrap();
     let r = step1(&relative, objects.clone(), &state, 1);
     for factor in [0.01, 37.0, 1.0e3] {
         let diff = max_pose_diff(&r, &step1(&relative, scaled(&[factor]), &state, 1));
@@ -385,4 +385,23 @@ fn invalid_inputs_give_clear_errors() {
     let a = step(&state, 1).unwrap();
     let b = step(&scaled, 1).unwrap();
     assert!(max_pose_diff(&a[0], &b[0]) < 1e-5);
+}
+
+/// `with_settings` changes the switches that leave the weights alone and refuses those that
+/// change the network's inputs.
+#[test]
+fn settings_edits_may_not_switch_inputs() {
+    let m = tiny()
+        .with_settings(|d, l| {
+            d.floor_base = !d.floor_base;
+            l.rest_weight = 3.0;
+        })
+        .unwrap();
+    assert_eq!(m.config().loss.rest_weight, 3.0);
+    assert!(tiny().with_settings(|d, _| d.history = !d.history).is_err());
+    assert!(
+        tiny()
+            .with_settings(|d, _| d.object_summary = !d.object_summary)
+            .is_err()
+    );
 }

@@ -474,7 +474,8 @@ fn rest_weight_scales_only_objects_at_rest() {
     let plain = RigidFormer::new(ModelConfig::tiny(), 7, &Device::Cpu).unwrap();
     let weighted = RigidFormer::new(ModelConfig::tiny(), 7, &Device::Cpu)
         .unwrap()
-        .with_rest_weight(4.0);
+        .with_settings(|_, l| l.rest_weight = 4.0)
+        .unwrap();
     let (objs, st) = random_scene(10, 3, 40);
     let sc = plain.prepare(objs).unwrap();
     // Object 0 rests (three equal poses); the others move.
@@ -509,7 +510,8 @@ fn object_contact_weight_scales_only_objects_touching_another() {
     let plain = RigidFormer::new(ModelConfig::tiny(), 8, &Device::Cpu).unwrap();
     let weighted = RigidFormer::new(ModelConfig::tiny(), 8, &Device::Cpu)
         .unwrap()
-        .with_object_contact_weight(4.0);
+        .with_settings(|_, l| l.object_contact_weight = 4.0)
+        .unwrap();
     let (objs, apart) = random_scene(11, 3, 40);
     let sc = plain.prepare(objs).unwrap();
     let place = |state: &SceneState, positions: [[f32; 3]; 3]| {

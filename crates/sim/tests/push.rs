@@ -68,9 +68,10 @@ fn the_pusher_follows_its_path_exactly_and_pushes_the_objects_it_meets() {
     }
 }
 
-/// With jitter the pusher's velocity changes from frame to frame by up to the jitter per axis
-/// on top of its smooth path (which changes it by far less), the scene is otherwise drawn the
-/// same, and the pusher still pushes.
+/// With jitter the pusher's velocity is drawn afresh every frame within the jitter of its
+/// smooth path's, so from frame to frame it changes by more than the jitter somewhere and never
+/// by more than twice it plus the path's own change (far less); the scene is otherwise drawn
+/// the same, and the pusher still pushes.
 #[test]
 fn a_jittered_pusher_changes_velocity_every_frame_within_its_bound() {
     let mut p = ScenarioParameters::new(vec![Scenario::Push]);

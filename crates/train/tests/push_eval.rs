@@ -174,8 +174,11 @@ fn a_leading_predictor_steps_from_the_pushers_recorded_next_pose() {
         dynaserve_model::load_rigidformer(&dir, &dynaserve_model::Device::Cpu, false)
             .expect("the shipped checkpoint loads")
     };
-    let plain = ModelPredictor::from_rigidformer(Arc::new(load().with_kinematic_lead(false)));
-    let led = ModelPredictor::from_rigidformer(Arc::new(load().with_kinematic_lead(true)));
+    let lead = |on: bool| {
+        let m = load().with_settings(|d, _| d.kinematic_lead = on).unwrap();
+        ModelPredictor::from_rigidformer(Arc::new(m))
+    };
+    let (plain, led) = (lead(false), lead(true));
     assert!(led.leads_kinematic() && !plain.leads_kinematic());
     let scene = &scenes()[0].scene;
     let observed = observed_state(scene, LEAD_START, 1).unwrap();

@@ -176,57 +176,29 @@ impl RigidFormer {
         self
     }
 
-    /// Switches the rigid Verlet base ([`crate::DynamicsConfig::rigid_extrapolation`]) on or
-    /// off. No weight changes, but the network's output now adds to another base: a model
-    /// trained with the other base needs fine-tuning before it predicts well.
-    pub fn with_rigid_extrapolation(mut self, on: bool) -> RigidFormer {
-        self.config.dynamics.rigid_extrapolation = on;
-        self
-    }
-
-    /// Switches the floor-aware Verlet base ([`crate::DynamicsConfig::floor_base`]) on or off.
-    /// No weight changes; a model trained with the other base needs fine-tuning where the two
-    /// differ (bodies touching or landing on the floor).
-    pub fn with_floor_base(mut self, on: bool) -> RigidFormer {
-        self.config.dynamics.floor_base = on;
-        self
-    }
-
-    /// Switches scene-relative mass ([`crate::DynamicsConfig::relative_mass`]) on or off. No
-    /// weight changes; a model trained with absolute masses needs fine-tuning, having learnt
-    /// how the data couple mass and size.
-    pub fn with_relative_mass(mut self, on: bool) -> RigidFormer {
-        self.config.dynamics.relative_mass = on;
-        self
-    }
-
-    /// Switches the kinematic lead ([`crate::DynamicsConfig::kinematic_lead`]); the weights
-    /// are unchanged (a kinematic object's increments then read its coming motion).
-    pub fn with_kinematic_lead(mut self, on: bool) -> RigidFormer {
-        self.config.dynamics.kinematic_lead = on;
-        self
-    }
-
-    /// Sets the Smooth L1 transition point of the training loss ([`crate::LossConfig::beta`],
-    /// in units of the loss scale). Inference is unaffected; fine-tuning then weighs errors
-    /// below the new point linearly instead of quadratically (or the reverse).
-    pub fn with_loss_beta(mut self, beta: f32) -> RigidFormer {
-        self.config.loss.beta = beta;
-        self
-    }
-
-    /// Sets the factor on the training loss of objects at rest in their window
-    /// ([`crate::LossConfig::rest_weight`]). Inference is unaffected.
-    pub fn with_rest_weight(mut self, weight: f32) -> RigidFormer {
-        self.config.loss.rest_weight = weight;
-        self
-    }
-
-    /// Sets the factor on the training loss of moving objects touching another object
-    /// ([`crate::LossConfig::object_contact_weight`]). Inference is unaffected.
-    pub fn with_object_contact_weight(mut self, weight: f32) -> RigidFormer {
-        self.config.loss.object_contact_weight = weight;
-        self
+    /// Changes, through `edit`, any switch of the dynamics and the loss that leaves the weights'
+    /// shapes alone (the Verlet bases, scene-relative mass, the kinematic lead, the free-flight
+    /// gate, the loss's constants): the one way a trainer applies a configuration's switches to
+    /// a loaded model. Refuses an edit that turns an input group or the object summary on or
+    /// off, which changes the network's inputs (widen the model for those:
+    /// [`RigidFormer::widened_with_inputs`], [`RigidFormer::widened_with_object_summary`]).
+    pub fn with_settings(
+        mut self,
+        edit: impl FnOnce(&mut crate::DynamicsConfig, &mut crate::LossConfig),
+    ) -> Result<RigidFormer, ModelError> {
+        let before = self.config.dynamics.clone();
+        edit(&mut self.config.dynamics, &mut self.config.loss);
+        let d = &self.config.dynamics;
+        let inputs_changed = crate::InputGroup::ALL
+            .iter()
+            .any(|g| g.enabled(d) != g.enabled(&before));
+        if inputs_changed || d.object_summary != before.object_summary {
+            return Err(ModelError::InvalidInput(
+                "a settings edit may not switch an input group or the object summary (they need widening)"
+                    .into(),
+            ));
+        }
+        Ok(self)
     }
 
     /// Sets the model's name (normally its checkpoint directory name).

@@ -146,8 +146,8 @@ pub struct PushArgs {
     /// Shared scenario options.
     #[command(flatten)]
     pub scenario: ScenarioArgs,
-    /// Largest change of the pusher's velocity from frame to frame on top of its smooth path,
-    /// m/s per horizontal axis (0: the smooth path alone).
+    /// Largest deviation of the pusher's velocity from its smooth path's, drawn afresh every
+    /// frame, m/s per horizontal axis (0: the smooth path alone).
     #[arg(long, default_value_t = 0.0)]
     pub jitter: f32,
 }

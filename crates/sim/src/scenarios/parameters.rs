@@ -275,11 +275,12 @@ pub struct ScenarioParameters {
     /// Length of the path beyond the last object's bounding circle, metres (longer than the
     /// pusher travels in a scene, so it never stops).
     pub push_tail: f32,
-    /// Largest change of the pusher's velocity from frame to frame on top of its path, m/s:
-    /// every frame adds a velocity drawn uniformly in `[-push_jitter, push_jitter]` per
-    /// horizontal axis to its path's for that frame (the offsets accumulate), as a planner
-    /// that picks a new pusher velocity at every step does. 0 (the default) keeps the smooth
-    /// path and draws nothing.
+    /// Largest deviation of the pusher's velocity from its path's, m/s per horizontal axis:
+    /// every frame adds a velocity drawn uniformly in `[-push_jitter, push_jitter]` per axis to
+    /// its path's for that frame (the position offsets accumulate), drawn afresh each frame, so
+    /// from one frame to the next the velocity changes by up to twice this, as a planner that
+    /// picks a new pusher velocity at every step does. 0 (the default) keeps the smooth path
+    /// and draws nothing.
     pub push_jitter: f32,
 }
 

@@ -38,32 +38,48 @@ pub fn driven_rollout_batch(
         .collect();
     let most = requests.iter().map(|r| r.steps).max().unwrap_or(0);
     let lead = predictor.leads_kinematic();
+    // Per request: its kinematic flags, or `None` when it has no kinematic object.
+    let kinematic: Vec<Option<Vec<bool>>> = requests
+        .iter()
+        .map(|r| {
+            has_kinematic(r.scene).then(|| r.scene.objects.iter().map(|o| o.kinematic).collect())
+        })
+        .collect();
     for step in 0..most {
         let live: Vec<usize> = (0..requests.len())
             .filter(|&i| step < requests[i].steps)
             .collect();
-        let frame_after = |i: usize| starts[i] + (step + 1) * requests[i].dt_steps as usize;
-        let batch: Vec<RolloutRequest<'_>> = live
+        // The recorded poses after this step of every live request with kinematic objects.
+        let given: Vec<Option<Vec<Pose>>> = live
             .iter()
             .map(|&i| {
                 let r = &requests[i];
-                let observed = if lead && has_kinematic(r.scene) {
-                    let flags: Vec<bool> = r.scene.objects.iter().map(|o| o.kinematic).collect();
-                    states[i].lead_kinematic(&flags, &poses_at(r.scene, frame_after(i))?)
-                } else {
-                    states[i].clone()
+                let frame = starts[i] + (step + 1) * r.dt_steps as usize;
+                kinematic[i]
+                    .as_ref()
+                    .map(|_| poses_at(r.scene, frame))
+                    .transpose()
+            })
+            .collect::<Result<_, EvalError>>()?;
+        let batch: Vec<RolloutRequest<'_>> = live
+            .iter()
+            .zip(&given)
+            .map(|(&i, given)| {
+                let r = &requests[i];
+                let observed = match (&kinematic[i], given) {
+                    (Some(flags), Some(next)) if lead => states[i].lead_kinematic(flags, next),
+                    _ => states[i].clone(),
                 };
-                Ok(RolloutRequest {
+                RolloutRequest {
                     scene: r.scene,
                     observed,
                     dt_steps: r.dt_steps,
                     steps: 1,
-                })
+                }
             })
-            .collect::<Result<_, EvalError>>()?;
+            .collect();
         let next = predictor.rollout_batch(&batch)?;
-        for (&i, rollout) in live.iter().zip(next) {
-            let r = &requests[i];
+        for ((&i, rollout), given) in live.iter().zip(next).zip(given) {
             let mut poses = rollout
                 .into_iter()
                 .next()
@@ -72,10 +88,9 @@ pub fn driven_rollout_batch(
                     scene: i,
                     message: "returned no step".into(),
                 })?;
-            if has_kinematic(r.scene) {
-                let given = poses_at(r.scene, frame_after(i))?;
-                for ((p, g), o) in poses.iter_mut().zip(given).zip(&r.scene.objects) {
-                    if o.kinematic {
+            if let (Some(flags), Some(given)) = (&kinematic[i], given) {
+                for ((p, g), &k) in poses.iter_mut().zip(given).zip(flags) {
+                    if k {
                         *p = g;
                     }
                 }

@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use dynaserve_model::{FeatureNormalization, InputGroup, ModelConfig};
+use dynaserve_model::{DynamicsConfig, FeatureNormalization, InputGroup, LossConfig, ModelConfig};
 use serde::{Deserialize, Serialize};
 
 use super::TrainError;
@@ -255,35 +255,42 @@ impl Default for ModelSection {
 }
 
 impl ModelSection {
-    /// The model configuration this section names (before normalisation fitting), with
-    /// `contact_velocity`, `surface_normals`, `history` and `approach` (the normalisation then
-    /// resized to its defaults),
-    /// `object_summary`, `rigid_extrapolation`, `floor_base`, `relative_mass`,
-    /// `kinematic_lead`, `loss_beta`,
-    /// `rest_weight` and `object_contact_weight` applied.
-    pub fn model_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {
-        let mut c = self.named_config(base)?;
+    /// Sets the switches that leave the weights' shapes alone, where this section sets them:
+    /// `rigid_extrapolation`, `floor_base`, `relative_mass`, `kinematic_lead`, `loss_beta`,
+    /// `rest_weight` and `object_contact_weight`. The one list of them, for a named
+    /// configuration ([`ModelSection::model_config`]) and for an `init` model
+    /// (`RigidFormer::with_settings`) alike.
+    pub fn apply_settings(&self, dynamics: &mut DynamicsConfig, loss: &mut LossConfig) {
         if let Some(on) = self.rigid_extrapolation {
-            c.dynamics.rigid_extrapolation = on;
+            dynamics.rigid_extrapolation = on;
         }
         if let Some(on) = self.floor_base {
-            c.dynamics.floor_base = on;
+            dynamics.floor_base = on;
         }
         if let Some(on) = self.relative_mass {
-            c.dynamics.relative_mass = on;
+            dynamics.relative_mass = on;
         }
         if let Some(on) = self.kinematic_lead {
-            c.dynamics.kinematic_lead = on;
+            dynamics.kinematic_lead = on;
         }
         if let Some(beta) = self.loss_beta {
-            c.loss.beta = beta;
+            loss.beta = beta;
         }
         if let Some(w) = self.rest_weight {
-            c.loss.rest_weight = w;
+            loss.rest_weight = w;
         }
         if let Some(w) = self.object_contact_weight {
-            c.loss.object_contact_weight = w;
+            loss.object_contact_weight = w;
         }
+    }
+
+    /// The model configuration this section names (before normalisation fitting), with
+    /// `contact_velocity`, `surface_normals`, `history` and `approach` (the normalisation then
+    /// resized to its defaults), `object_summary` and [`ModelSection::apply_settings`]
+    /// applied.
+    pub fn model_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {
+        let mut c = self.named_config(base)?;
+        self.apply_settings(&mut c.dynamics, &mut c.loss);
         if let Some(on) = self.object_summary {
             c.dynamics.object_summary = on;
         }

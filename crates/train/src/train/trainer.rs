@@ -256,34 +256,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                 )));
             }
             eprintln!("initialised from {}", init.display());
-            let m = match cfg.model.rigid_extrapolation {
-                Some(on) => m.with_rigid_extrapolation(on),
-                None => m,
-            };
-            let m = match cfg.model.floor_base {
-                Some(on) => m.with_floor_base(on),
-                None => m,
-            };
-            let m = match cfg.model.relative_mass {
-                Some(on) => m.with_relative_mass(on),
-                None => m,
-            };
-            let m = match cfg.model.kinematic_lead {
-                Some(on) => m.with_kinematic_lead(on),
-                None => m,
-            };
-            let m = match cfg.model.loss_beta {
-                Some(beta) => m.with_loss_beta(beta),
-                None => m,
-            };
-            let m = match cfg.model.rest_weight {
-                Some(w) => m.with_rest_weight(w),
-                None => m,
-            };
-            let m = match cfg.model.object_contact_weight {
-                Some(w) => m.with_object_contact_weight(w),
-                None => m,
-            };
+            let m = m.with_settings(|d, l| cfg.model.apply_settings(d, l))?;
             let m = init_inputs(m, cfg, &reader)?;
             let m = init_object_summary(m, cfg)?;
             match cfg.model.insert_blocks_after.as_deref() {
@@ -407,7 +380,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
             }
             super::pushforward::apply(&model, &mut batch.samples)?;
             if model.config().dynamics.kinematic_lead {
-                for s in batch.samples.iter_mut() {
+                for s in batch.samples.iter_mut().filter(|s| s.kinematic.contains(&true)) {
                     s.state = s.state.lead_kinematic(&s.kinematic, &s.target);
                 }
             }
