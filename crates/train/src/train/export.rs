@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use candle_core::{DType, Device, Tensor};
 use dynaserve_model::checkpoint::{CONFIG_FILE, WEIGHTS_FILE};
-use dynaserve_model::{TrainedRanges, load_model, load_rigidformer, read_config};
+use dynaserve_model::{ModelConfig, TrainedRanges, load_model, load_rigidformer, read_config};
 use dynaserve_sim::dataset::DatasetReader;
 
 use super::TrainError;
@@ -125,16 +125,25 @@ pub fn export(o: &ExportOptions) -> Result<(), TrainError> {
         .into_iter()
         .map(|(k, v)| Ok((k, v.to_dtype(o.dtype)?)))
         .collect::<Result<HashMap<_, _>, TrainError>>()?;
-    std::fs::create_dir_all(&o.out).map_err(io(&o.out))?;
     let mut config = read_config(&ckpt)?;
     config.trained_ranges =
         trained_ranges(&ckpt, config.trained_ranges, config.dynamics.relative_mass)?;
-    let cfg_dst = o.out.join(CONFIG_FILE);
-    let text = serde_json::to_string_pretty(&config)
+    write_model(&o.out, &config, &weights)
+}
+
+/// Writes `config` and `weights` as a model directory (an existing `card.md` is kept) and
+/// checks that the directory loads as a model.
+pub(super) fn write_model(
+    out: &Path,
+    config: &ModelConfig,
+    weights: &HashMap<String, Tensor>,
+) -> Result<(), TrainError> {
+    std::fs::create_dir_all(out).map_err(io(out))?;
+    let cfg_dst = out.join(CONFIG_FILE);
+    let text = serde_json::to_string_pretty(config)
         .map_err(|e| TrainError::Config(format!("config.json: {e}")))?;
     std::fs::write(&cfg_dst, text + "\n").map_err(io(&cfg_dst))?;
-    candle_core::safetensors::save(&weights, o.out.join(WEIGHTS_FILE))?;
-    // The directory must load as a model.
-    load_model(&o.out, &Device::Cpu)?;
+    candle_core::safetensors::save(weights, out.join(WEIGHTS_FILE))?;
+    load_model(out, &Device::Cpu)?;
     Ok(())
 }

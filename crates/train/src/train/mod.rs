@@ -1,5 +1,5 @@
 //! RigidFormer training: `dynaserve train --config FILE [--resume]` and
-//! `dynaserve train export`.
+//! `dynaserve train export` and `dynaserve train average`.
 //!
 //! - [`config`]: the documented configuration (TOML or JSON);
 //! - [`data`]: the streaming loader (worker thread, windows, augmentation) and the fit of the
@@ -10,8 +10,10 @@
 //! - [`run_dir`]: a run directory's checkpoint swap, resume point and log truncation, shared
 //!   with PhysiFormer runs;
 //! - [`mod@export`]: a checkpoint written as a model directory;
+//! - [`mod@average`]: model directories of one architecture averaged into one;
 //! - [`plot`]: PNG line charts.
 
+pub mod average;
 pub mod config;
 pub mod data;
 pub mod events;
@@ -26,6 +28,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
+pub use average::{AverageOptions, average};
 pub use config::TrainConfig;
 pub use export::{ExportOptions, export};
 pub use trainer::{TrainOptions, TrainSummary, train};
@@ -64,11 +67,12 @@ pub enum TrainError {
     Plot(String),
 }
 
-/// `dynaserve train`: train from a configuration, or export a run's checkpoint.
+/// `dynaserve train`: train from a configuration, export a run's checkpoint, or average
+/// model directories.
 #[derive(clap::Args, Debug)]
 #[command(args_conflicts_with_subcommands = true)]
 pub struct TrainArgs {
-    /// Export a checkpoint instead of training.
+    /// Export a checkpoint or average models instead of training.
     #[command(subcommand)]
     pub action: Option<TrainAction>,
     /// Training configuration, TOML (`.toml`) or JSON (docs/training.md lists every knob).
@@ -101,6 +105,31 @@ pub enum TrainAction {
         #[arg(long, default_value = "f32")]
         dtype: String,
     },
+    /// Write the mean of several model directories' weights as one model directory. The
+    /// models must share their architecture, inputs and normalisation, and should be
+    /// fine-tuned from one common checkpoint; check the result with `dynaserve eval`.
+    Average {
+        /// A model directory (`config.json`, `model.safetensors`); give it two or more times.
+        /// The first one's training and serving settings are kept.
+        #[arg(long = "model", required = true, num_args = 1)]
+        models: Vec<PathBuf>,
+        /// Output model directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// Stored weight type: f32, f16 or bf16.
+        #[arg(long, default_value = "f32")]
+        dtype: String,
+    },
+}
+
+/// The weight type named by `--dtype`.
+fn parse_dtype(name: &str) -> anyhow::Result<candle_core::DType> {
+    Ok(match name {
+        "f32" => candle_core::DType::F32,
+        "f16" => candle_core::DType::F16,
+        "bf16" => candle_core::DType::BF16,
+        other => anyhow::bail!("--dtype {other:?} is not one of f32, f16, bf16"),
+    })
 }
 
 /// Sets `flag` on SIGINT (Ctrl-C) or SIGTERM, from a small signal thread.
@@ -140,30 +169,39 @@ pub fn stop_on_signals(flag: Arc<AtomicBool>) -> std::io::Result<()> {
 
 /// Runs `dynaserve train` with parsed arguments.
 pub fn run_cli(args: TrainArgs) -> anyhow::Result<()> {
-    if let Some(TrainAction::Export {
-        run,
-        out,
-        ema,
-        dtype,
-    }) = args.action
-    {
-        let dtype = match dtype.as_str() {
-            "f32" => candle_core::DType::F32,
-            "f16" => candle_core::DType::F16,
-            "bf16" => candle_core::DType::BF16,
-            other => anyhow::bail!("--dtype {other:?} is not one of f32, f16, bf16"),
-        };
-        export(&ExportOptions {
+    match args.action {
+        Some(TrainAction::Export {
             run,
-            out: out.clone(),
+            out,
             ema,
             dtype,
-        })?;
-        println!("exported to {}", out.display());
-        return Ok(());
+        }) => {
+            export(&ExportOptions {
+                run,
+                out: out.clone(),
+                ema,
+                dtype: parse_dtype(&dtype)?,
+            })?;
+            println!("exported to {}", out.display());
+            return Ok(());
+        }
+        Some(TrainAction::Average { models, out, dtype }) => {
+            let n = models.len();
+            average(&AverageOptions {
+                models,
+                out: out.clone(),
+                dtype: parse_dtype(&dtype)?,
+            })?;
+            println!(
+                "the mean of {n} models' weights written to {}",
+                out.display()
+            );
+            return Ok(());
+        }
+        None => {}
     }
     let Some(path) = args.config else {
-        anyhow::bail!("dynaserve train needs --config FILE (or the export subcommand)");
+        anyhow::bail!("dynaserve train needs --config FILE (or the export or average subcommand)");
     };
     if crate::physi::train::is_physi_config(&path) {
         let stop = Arc::new(AtomicBool::new(false));
