@@ -40,17 +40,27 @@ const SETTINGS: [&str; 3] = [
 /// The configuration as JSON without [`SETTINGS`] and `trained_ranges`: two models whose
 /// weights can be averaged have equal values here.
 fn weight_meaning(config: &ModelConfig) -> Result<serde_json::Value, TrainError> {
-    let mut v = serde_json::to_value(config)
-        .map_err(|e| TrainError::Config(format!("config.json: {e}")))?;
-    if let Some(map) = v.as_object_mut() {
-        map.remove("trained_ranges");
-        map.remove("loss");
-        if let Some(dynamics) = map.get_mut("dynamics").and_then(|d| d.as_object_mut()) {
-            dynamics.remove("kinematic_lead");
-            dynamics.remove("free_flight_gate");
+    let mut v = to_json(config)?;
+    for path in SETTINGS.iter().chain(&["trained_ranges"]) {
+        let (parent, key) = match path.rsplit_once('.') {
+            Some((parent, key)) => (at_mut(&mut v, parent), key),
+            None => (Some(&mut v), *path),
+        };
+        if let Some(map) = parent.and_then(|p| p.as_object_mut()) {
+            map.remove(key);
         }
     }
     Ok(v)
+}
+
+/// `config` as a JSON value.
+fn to_json(config: &ModelConfig) -> Result<serde_json::Value, TrainError> {
+    serde_json::to_value(config).map_err(|e| TrainError::Config(format!("config.json: {e}")))
+}
+
+/// The value at a dotted path of a JSON object, mutably.
+fn at_mut<'a>(v: &'a mut serde_json::Value, path: &str) -> Option<&'a mut serde_json::Value> {
+    path.split('.').try_fold(v, |v, key| v.get_mut(key))
 }
 
 /// The value at a dotted path of a JSON object (`"dynamics.kinematic_lead"`).
@@ -117,8 +127,7 @@ pub fn average(o: &AverageOptions) -> Result<(), TrainError> {
                 diff.join(", ")
             )));
         }
-        let other = serde_json::to_value(config)
-            .map_err(|e| TrainError::Config(format!("config.json: {e}")))?;
+        let other = to_json(config)?;
         for field in SETTINGS {
             if at(&reference, field) != at(&other, field) {
                 eprintln!(
