@@ -1,5 +1,5 @@
-//! RigidFormer training: `dynaserve train --config FILE [--resume]` and
-//! `dynaserve train export` and `dynaserve train average`.
+//! RigidFormer training: `dynaserve train --config FILE [--resume]`, `dynaserve train export`
+//! and `dynaserve train average`.
 //!
 //! - [`config`]: the documented configuration (TOML or JSON);
 //! - [`data`]: the streaming loader (worker thread, windows, augmentation) and the fit of the
