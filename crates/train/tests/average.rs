@@ -1,7 +1,7 @@
 //! `dynaserve train average`: the written weights are the element-wise mean, the first
 //! model's settings are kept, and models whose weights mean different things are refused.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use candle_core::{DType, Device};
 use dynaserve_model::checkpoint::WEIGHTS_FILE;
@@ -23,21 +23,23 @@ fn options(models: Vec<PathBuf>, out: PathBuf) -> AverageOptions {
     }
 }
 
+/// A tiny random-weight model of `config` (weights from `seed`) saved in `dir`.
+fn save_tiny(config: ModelConfig, seed: u64, dir: &Path) {
+    RigidFormer::new(config, seed, &Device::Cpu)
+        .unwrap()
+        .save(dir)
+        .unwrap();
+}
+
 #[test]
 fn the_average_is_the_mean_of_the_weights_with_the_first_models_settings() {
     let dir = scratch("mean");
     let (a, b, out) = (dir.join("a"), dir.join("b"), dir.join("out"));
-    RigidFormer::new(ModelConfig::tiny(), 1, &Device::Cpu)
-        .unwrap()
-        .save(&a)
-        .unwrap();
+    save_tiny(ModelConfig::tiny(), 1, &a);
     let mut led = ModelConfig::tiny();
     led.dynamics.kinematic_lead = true;
     led.loss.rest_weight = 3.0;
-    RigidFormer::new(led, 2, &Device::Cpu)
-        .unwrap()
-        .save(&b)
-        .unwrap();
+    save_tiny(led, 2, &b);
 
     average(&options(vec![a.clone(), b.clone()], out.clone())).unwrap();
 
@@ -77,17 +79,11 @@ fn the_average_is_the_mean_of_the_weights_with_the_first_models_settings() {
 fn models_whose_weights_mean_different_things_are_refused() {
     let dir = scratch("refuse");
     let (a, b, out) = (dir.join("a"), dir.join("b"), dir.join("out"));
-    RigidFormer::new(ModelConfig::tiny(), 1, &Device::Cpu)
-        .unwrap()
-        .save(&a)
-        .unwrap();
+    save_tiny(ModelConfig::tiny(), 1, &a);
     let mut other = ModelConfig::tiny();
     // The same shapes, but the outputs are read differently.
     other.dynamics.rigid_extrapolation = !other.dynamics.rigid_extrapolation;
-    RigidFormer::new(other, 2, &Device::Cpu)
-        .unwrap()
-        .save(&b)
-        .unwrap();
+    save_tiny(other, 2, &b);
 
     let err = average(&options(vec![a.clone(), b], out.clone())).unwrap_err();
     assert!(

@@ -11,8 +11,7 @@ use std::collections::HashMap;
 use std::path::PathBuf;
 
 use candle_core::{DType, Device, Tensor};
-use dynaserve_model::checkpoint::WEIGHTS_FILE;
-use dynaserve_model::{ModelConfig, TrainedRanges, read_config};
+use dynaserve_model::{ModelConfig, TrainedRanges, WorldModel, load_rigidformer};
 
 use super::TrainError;
 use super::export::write_model;
@@ -29,43 +28,28 @@ pub struct AverageOptions {
 }
 
 /// Configuration fields that only decide how a model is trained or served, not what its
-/// weights mean: they may differ between the averaged models, and the first model's values
-/// are written (a warning names each difference). `trained_ranges` are joined instead.
+/// weights mean, as JSON pointers: they may differ between the averaged models, and the first
+/// model's values are written (a warning names each difference). `trained_ranges` are joined
+/// instead.
 const SETTINGS: [&str; 3] = [
-    "loss",
-    "dynamics.kinematic_lead",
-    "dynamics.free_flight_gate",
+    "/loss",
+    "/dynamics/kinematic_lead",
+    "/dynamics/free_flight_gate",
 ];
 
-/// The configuration as JSON without [`SETTINGS`] and `trained_ranges`: two models whose
-/// weights can be averaged have equal values here.
-fn weight_meaning(config: &ModelConfig) -> Result<serde_json::Value, TrainError> {
-    let mut v = to_json(config)?;
-    for path in SETTINGS.iter().chain(&["trained_ranges"]) {
-        let (parent, key) = match path.rsplit_once('.') {
-            Some((parent, key)) => (at_mut(&mut v, parent), key),
-            None => (Some(&mut v), *path),
-        };
-        if let Some(map) = parent.and_then(|p| p.as_object_mut()) {
+/// `config` as JSON, and the same without [`SETTINGS`] and `trained_ranges`: two models whose
+/// weights can be averaged have equal values in the second.
+fn config_json(config: &ModelConfig) -> Result<(serde_json::Value, serde_json::Value), TrainError> {
+    let whole = serde_json::to_value(config)
+        .map_err(|e| TrainError::Config(format!("config.json: {e}")))?;
+    let mut meaning = whole.clone();
+    for pointer in SETTINGS.iter().chain(&["/trained_ranges"]) {
+        let (parent, key) = pointer.rsplit_once('/').unwrap_or(("", pointer));
+        if let Some(map) = meaning.pointer_mut(parent).and_then(|p| p.as_object_mut()) {
             map.remove(key);
         }
     }
-    Ok(v)
-}
-
-/// `config` as a JSON value.
-fn to_json(config: &ModelConfig) -> Result<serde_json::Value, TrainError> {
-    serde_json::to_value(config).map_err(|e| TrainError::Config(format!("config.json: {e}")))
-}
-
-/// The value at a dotted path of a JSON object, mutably.
-fn at_mut<'a>(v: &'a mut serde_json::Value, path: &str) -> Option<&'a mut serde_json::Value> {
-    path.split('.').try_fold(v, |v, key| v.get_mut(key))
-}
-
-/// The value at a dotted path of a JSON object (`"dynamics.kinematic_lead"`).
-fn at<'a>(v: &'a serde_json::Value, path: &str) -> Option<&'a serde_json::Value> {
-    path.split('.').try_fold(v, |v, key| v.get(key))
+    Ok((whole, meaning))
 }
 
 /// Names the top-level (or `dynamics.*`) fields in which `a` and `b` differ.
@@ -94,8 +78,9 @@ fn differing_fields(a: &serde_json::Value, b: &serde_json::Value) -> Vec<String>
 
 /// Writes the element-wise mean of the weights of `o.models` (computed in f64) as a model
 /// directory with the first model's configuration, its trained ranges joined over all, and
-/// checks that it loads. Refuses models whose configurations differ beyond the training and
-/// serving settings, or whose weights differ in names or shapes.
+/// checks that it loads. Every model is loaded as the server loads it (names, shapes and
+/// values checked against its configuration); models whose configurations differ beyond the
+/// training and serving settings are refused, so the weights line up name for name.
 pub fn average(o: &AverageOptions) -> Result<(), TrainError> {
     if o.models.len() < 2 {
         return Err(TrainError::Config(
@@ -108,17 +93,15 @@ pub fn average(o: &AverageOptions) -> Result<(), TrainError> {
             o.dtype
         )));
     }
-    let configs = o
+    let models = o
         .models
         .iter()
-        .map(|d| read_config(d))
+        .map(|d| load_rigidformer(d, &Device::Cpu, false))
         .collect::<Result<Vec<_>, _>>()?;
-    let first = &configs[0];
-    let meaning = weight_meaning(first)?;
-    let reference =
-        serde_json::to_value(first).map_err(|e| TrainError::Config(format!("config.json: {e}")))?;
-    for (dir, config) in o.models.iter().zip(&configs).skip(1) {
-        let diff = differing_fields(&meaning, &weight_meaning(config)?);
+    let (reference, meaning) = config_json(models[0].config())?;
+    for (dir, model) in o.models.iter().zip(&models).skip(1) {
+        let (other, other_meaning) = config_json(model.config())?;
+        let diff = differing_fields(&meaning, &other_meaning);
         if !diff.is_empty() {
             return Err(TrainError::Config(format!(
                 "{} differs from {} in {}: its weights do not mean the same",
@@ -127,58 +110,45 @@ pub fn average(o: &AverageOptions) -> Result<(), TrainError> {
                 diff.join(", ")
             )));
         }
-        let other = to_json(config)?;
         for field in SETTINGS {
-            if at(&reference, field) != at(&other, field) {
+            if reference.pointer(field) != other.pointer(field) {
                 eprintln!(
-                    "warning: {} has another {field}; the average takes {}'s",
+                    "warning: {} has another {}; the average takes {}'s",
                     dir.display(),
+                    field[1..].replace('/', "."),
                     o.models[0].display()
                 );
             }
         }
     }
-    let sets = o
-        .models
+    let params = models
         .iter()
-        .map(|d| candle_core::safetensors::load(d.join(WEIGHTS_FILE), &Device::Cpu))
+        .map(|m| {
+            m.varmap()
+                .data()
+                .lock()
+                .map(|vars| vars.clone())
+                .map_err(|_| TrainError::Config("parameter map lock poisoned".into()))
+        })
         .collect::<Result<Vec<_>, _>>()?;
     let mut weights: HashMap<String, Tensor> = HashMap::new();
-    for (name, t0) in &sets[0] {
-        let mut sum = t0.to_dtype(DType::F64)?;
-        for (dir, set) in o.models.iter().zip(&sets).skip(1) {
-            let t = set.get(name).ok_or_else(|| {
-                TrainError::Config(format!("{} has no weight {name}", dir.display()))
+    for (name, first) in &params[0] {
+        let mut sum = first.as_tensor().to_dtype(DType::F64)?;
+        for other in &params[1..] {
+            // Equal configurations build equal parameter sets; the loader checked the shapes.
+            let v = other.get(name).ok_or_else(|| {
+                TrainError::Config(format!("{name} is missing from one of the models"))
             })?;
-            if t.dims() != t0.dims() {
-                return Err(TrainError::Config(format!(
-                    "{name} is {:?} in {} but {:?} in {}",
-                    t.dims(),
-                    dir.display(),
-                    t0.dims(),
-                    o.models[0].display()
-                )));
-            }
-            sum = (sum + t.to_dtype(DType::F64)?)?;
+            sum = (sum + v.as_tensor().to_dtype(DType::F64)?)?;
         }
-        let mean = (sum / sets.len() as f64)?.to_dtype(o.dtype)?;
+        let mean = (sum / params.len() as f64)?.to_dtype(o.dtype)?;
         weights.insert(name.clone(), mean);
     }
-    for (dir, set) in o.models.iter().zip(&sets).skip(1) {
-        if let Some(extra) = set.keys().find(|k| !sets[0].contains_key(*k)) {
-            return Err(TrainError::Config(format!(
-                "{} has a weight {extra} that {} has not",
-                dir.display(),
-                o.models[0].display()
-            )));
-        }
-    }
-    let mut config = first.clone();
-    let mass_relative = config.dynamics.relative_mass;
+    let mut config = models[0].config().clone();
     config.trained_ranges = TrainedRanges::seen(
         None,
-        configs.iter().filter_map(|c| c.trained_ranges),
-        mass_relative,
+        models.iter().filter_map(|m| m.config().trained_ranges),
+        config.dynamics.relative_mass,
     );
     write_model(&o.out, &config, &weights)
 }
