@@ -85,6 +85,12 @@ pub struct DataConfig {
     /// impact, a pusher's first touch) instead of uniformly; see [`super::events`]. The other
     /// samples, and validation windows, stay uniform. 0 disables.
     pub event_share: f32,
+    /// Fraction of the samples whose window frame is drawn from the end of an object's
+    /// motion (the last frames of a roll, slide or tumble and the first steps at rest; see
+    /// [`super::stops`]) instead of uniformly, among the samples `event_share` leaves
+    /// uniform. Scenes where no object stops are drawn uniformly. Validation windows stay
+    /// uniform. 0 disables.
+    pub stop_share: f32,
     /// Windows carry the poses one step before the observed ones (`t - 2k`, noised like them)
     /// as `SceneState::earlier`, for models with history inputs; windows with `t < 2k` have
     /// none. Off keeps two observed frames (and every earlier configuration's sample stream).
@@ -136,6 +142,7 @@ impl Default for DataConfig {
             pushforward: 0.0,
             pushforward_steps: 1,
             event_share: 0.0,
+            stop_share: 0.0,
             history: false,
             history_drop: 0.0,
             prefetch: 8,
@@ -470,6 +477,9 @@ impl TrainConfig {
         }
         if !(0.0..=1.0).contains(&d.event_share) {
             return bad("data.event_share must be a fraction in [0, 1]");
+        }
+        if !(0.0..=1.0).contains(&d.stop_share) {
+            return bad("data.stop_share must be a fraction in [0, 1]");
         }
         if !(0.0..=1.0).contains(&d.history_drop) {
             return bad("data.history_drop must be a probability in [0, 1]");

@@ -145,10 +145,16 @@ pub fn sample_window(
     // The event draw happens only when enabled, so configurations without it keep their
     // sample streams.
     let weighted = noise && c.event_share > 0.0 && rng.random::<f32>() < c.event_share;
-    let t = match weighted
-        .then(|| super::events::draw_frame(scene, ku, rng))
-        .flatten()
-    {
+    // Likewise the stop draw, among the samples the event draw leaves.
+    let stopping = noise && !weighted && c.stop_share > 0.0 && rng.random::<f32>() < c.stop_share;
+    let drawn = if weighted {
+        super::events::draw_frame(scene, ku, rng)
+    } else if stopping {
+        super::stops::draw_frame(scene, ku, rng)
+    } else {
+        None
+    };
+    let t = match drawn {
         Some(t) => t,
         None => rng.random_range(ku..=frames - 1 - ku),
     };

@@ -5,6 +5,7 @@
 //! - [`data`]: the streaming loader (worker thread, windows, augmentation) and the fit of the
 //!   feature normalisation;
 //! - [`events`]: event-weighted choice of a window's frame (impacts, first touches);
+//! - [`stops`]: windows at the end of an object's motion (rolls, slides and tumbles that stop);
 //! - [`optim`]: learning-rate schedule, gradient clipping, AdamW with per-parameter decay;
 //! - [`trainer`]: the loop, its checkpoints, resume, CSV log and loss curve;
 //! - [`run_dir`]: a run directory's checkpoint swap, resume point and log truncation, shared
@@ -22,6 +23,7 @@ pub mod optim;
 pub mod plot;
 pub mod pushforward;
 pub mod run_dir;
+pub mod stops;
 pub mod trainer;
 
 use std::path::PathBuf;
