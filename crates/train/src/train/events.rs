@@ -19,18 +19,20 @@ use rand_chacha::ChaCha8Rng;
 /// chance, and a scene without any event is drawn uniformly.
 pub const SURPRISE_FLOOR: f32 = 5e-4;
 
+/// Frames of `scene`'s record (its first object's) if it holds a window at step `k` frames
+/// (`k >= 1`, at least `2k + 1` frames); `None` otherwise.
+pub(crate) fn window_frames(scene: &SceneRecord, k: usize) -> Option<usize> {
+    let frames = scene.objects.first()?.positions.len();
+    (k >= 1 && frames > 2 * k).then_some(frames)
+}
+
 /// Surprise (metres) of every candidate frame `t` in `k..=frames - 1 - k` of `scene` at step
 /// `k` frames, in that order; frames with `t < 2k` (no earlier window) score 0. Kinematic
 /// objects are skipped: their path is given, not predicted.
 pub fn surprise(scene: &SceneRecord, k: usize) -> Vec<f32> {
-    let frames = scene
-        .objects
-        .first()
-        .map(|o| o.positions.len())
-        .unwrap_or(0);
-    if k == 0 || frames < 2 * k + 1 {
+    let Some(frames) = window_frames(scene, k) else {
         return Vec::new();
-    }
+    };
     let accel = |p: &[[f32; 3]], t: usize| -> [f32; 3] {
         std::array::from_fn(|d| p[t + k][d] - 2.0 * p[t][d] + p[t - k][d])
     };
@@ -74,7 +76,7 @@ pub fn draw_frame(scene: &SceneRecord, k: usize, rng: &mut ChaCha8Rng) -> Option
 #[cfg(test)]
 mod tests {
     use super::*;
-    use dynaserve_sim::ObjectRecord;
+    use crate::train::test_records::object;
     use rand::SeedableRng;
 
     /// One object falling under gravity that hits the floor at frame 30 and rests; a second,
@@ -95,18 +97,6 @@ mod tests {
         let jerky: Vec<[f32; 3]> = (0..frames)
             .map(|f| [if f % 7 == 0 { 1.0 } else { 0.0 }, 5.0, 0.5])
             .collect();
-        let object = |positions: Vec<[f32; 3]>, kinematic: bool| ObjectRecord {
-            rotations: vec![[0.0, 0.0, 0.0, 1.0]; positions.len()],
-            positions,
-            reference_points: vec![[0.0; 3]],
-            mass: 1.0,
-            friction: 0.5,
-            restitution: 0.2,
-            scale: [1.0; 3],
-            shape_id: 0,
-            material: 0,
-            kinematic,
-        };
         SceneRecord {
             objects: vec![object(falling, false), object(jerky, true)],
             dt_frame: dt,

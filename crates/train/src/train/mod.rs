@@ -24,6 +24,8 @@ pub mod plot;
 pub mod pushforward;
 pub mod run_dir;
 pub mod stops;
+#[cfg(test)]
+mod test_records;
 pub mod trainer;
 
 use std::path::PathBuf;

@@ -53,14 +53,9 @@ pub fn stop_frame(object: &ObjectRecord) -> Option<usize> {
 /// objects at step `k` frames, one entry per object and frame, so a frame where two objects
 /// stop counts twice. Empty if no object stops or the scene is too short for step `k`.
 pub fn stop_windows(scene: &SceneRecord, k: usize) -> Vec<usize> {
-    let frames = scene
-        .objects
-        .first()
-        .map(|o| o.positions.len())
-        .unwrap_or(0);
-    if k == 0 || frames < 2 * k + 1 {
+    let Some(frames) = super::events::window_frames(scene, k) else {
         return Vec::new();
-    }
+    };
     let (lo, hi) = (k, frames - 1 - k);
     scene
         .objects
@@ -84,6 +79,7 @@ pub fn draw_frame(scene: &SceneRecord, k: usize, rng: &mut ChaCha8Rng) -> Option
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::train::test_records::object;
     use rand::SeedableRng;
 
     /// An object sliding along x that friction stops at frame 40 of 60, one that never moves,
@@ -103,18 +99,6 @@ mod tests {
         let pusher: Vec<[f32; 3]> = (0..frames)
             .map(|f| [0.0, 3.0 + 0.1 * f.min(20) as f32, 0.1])
             .collect();
-        let object = |positions: Vec<[f32; 3]>, kinematic: bool| ObjectRecord {
-            rotations: vec![[0.0, 0.0, 0.0, 1.0]; positions.len()],
-            positions,
-            reference_points: vec![[0.0; 3]],
-            mass: 1.0,
-            friction: 0.5,
-            restitution: 0.2,
-            scale: [1.0; 3],
-            shape_id: 0,
-            material: 0,
-            kinematic,
-        };
         SceneRecord {
             objects: vec![
                 object(slide, false),
