@@ -574,6 +574,10 @@ mod tests {
         assert_eq!(r24.model.relative_mass, Some(true));
         let r43 = TrainConfig::from_file(&dir.join("rigidformer-small-r43.toml")).unwrap();
         assert_eq!(r43.model.kinematic_lead, Some(true));
+        let r48 = TrainConfig::from_file(&dir.join("rigidformer-small-r48.toml")).unwrap();
+        assert_eq!(r48.data.stop_share, 0.3);
+        let over: TrainConfig = toml::from_str("[data]\nstop_share = 1.5\n").unwrap();
+        assert!(over.validate().is_err());
         let lead = r43.model.model_config(Path::new(".")).unwrap();
         assert!(lead.dynamics.kinematic_lead);
         assert!(

@@ -162,6 +162,35 @@ mod tests {
         }
     }
 
+    /// Training windows under `stop_share = 1` all end at or after the slide's stop window
+    /// (its target is no earlier than frame `s - STOP_LEAD_FRAMES + k`); uniform ones do not.
+    #[test]
+    fn the_share_moves_training_windows_to_the_stop() {
+        let scene = slide_scene();
+        let s = stop_frame(&scene.objects[0]).unwrap();
+        let earliest = scene.objects[0].positions[s - STOP_LEAD_FRAMES + 1][0];
+        let mut c = crate::train::config::DataConfig {
+            rotate_z: false,
+            shuffle_objects: false,
+            ..Default::default()
+        };
+        let targets = |c: &crate::train::config::DataConfig| -> Vec<f32> {
+            (0..64u64)
+                .map(|i| {
+                    let mut rng = ChaCha8Rng::seed_from_u64(i);
+                    let w =
+                        crate::train::data::sample_window(&scene, c, &mut rng, true, i).unwrap();
+                    w.target[0].translation[0]
+                })
+                .collect()
+        };
+        assert!(targets(&c).iter().any(|&x| x < earliest - 1e-6));
+        c.stop_share = 1.0;
+        for x in targets(&c) {
+            assert!(x >= earliest - 1e-6, "target at x = {x}, before {earliest}");
+        }
+    }
+
     #[test]
     fn scenes_without_a_stop_give_no_frame() {
         let mut scene = slide_scene();
