@@ -384,52 +384,54 @@ fn pushforward_keeps_the_window_stream_and_resumes_exactly() {
     }
     assert!(with_poses > 0, "no window qualified for pushforward");
 
-    // Two steps: three recorded frames ending at t - k, and the model's own predictions
-    // replace both observed poses of the sample (kinematic objects excepted).
-    let two = dynaserve_train::train::config::DataConfig {
-        pushforward_steps: 2,
-        ..pushed.clone()
-    };
+    // n steps (2 and 4): n + 1 recorded frames ending at t - k, and the model's own
+    // predictions replace both observed poses of the sample (kinematic objects excepted).
     let model = dynaserve_model::RigidFormer::new(
         dynaserve_model::ModelConfig::tiny(),
         0,
         &candle_core::Device::Cpu,
     )
     .unwrap();
-    let mut checked = 0;
-    for seed in 0..24 {
-        let w = seeded_window(&scenes, &two, seed, true);
-        let Some(frames) = w.pushforward.clone() else {
-            continue;
+    for n in [2usize, 4] {
+        let steps = dynaserve_train::train::config::DataConfig {
+            pushforward_steps: n as u32,
+            ..pushed.clone()
         };
-        assert_eq!(frames.len(), 3);
-        assert_eq!(frames[2], w.state.previous);
-        let mut samples = vec![dynaserve_train::train::data::Sample {
-            scene: model.prepare(w.objects).unwrap(),
-            state: w.state.clone(),
-            target: w.target.clone(),
-            dt_steps: w.dt_steps,
-            kinematic: w.kinematic.clone(),
-            pushforward: Some(frames.clone()),
-        }];
-        assert_eq!(
-            dynaserve_train::train::pushforward::apply(&model, &mut samples).unwrap(),
-            1
-        );
-        let s = &samples[0];
-        assert!(s.pushforward.is_none());
-        for (j, kinematic) in w.kinematic.iter().enumerate() {
-            if *kinematic {
-                assert_eq!(s.state.previous[j], frames[2][j]);
-                assert_eq!(s.state.current[j], w.state.current[j]);
-            } else {
-                assert_ne!(s.state.previous[j], frames[2][j]);
-                assert_ne!(s.state.current[j], w.state.current[j]);
+        let mut checked = 0;
+        for seed in 0..24 {
+            let w = seeded_window(&scenes, &steps, seed, true);
+            let Some(frames) = w.pushforward.clone() else {
+                continue;
+            };
+            assert_eq!(frames.len(), n + 1);
+            assert_eq!(frames[n], w.state.previous);
+            let mut samples = vec![dynaserve_train::train::data::Sample {
+                scene: model.prepare(w.objects).unwrap(),
+                state: w.state.clone(),
+                target: w.target.clone(),
+                dt_steps: w.dt_steps,
+                kinematic: w.kinematic.clone(),
+                pushforward: Some(frames.clone()),
+            }];
+            assert_eq!(
+                dynaserve_train::train::pushforward::apply(&model, &mut samples).unwrap(),
+                1
+            );
+            let s = &samples[0];
+            assert!(s.pushforward.is_none());
+            for (j, kinematic) in w.kinematic.iter().enumerate() {
+                if *kinematic {
+                    assert_eq!(s.state.previous[j], frames[n][j]);
+                    assert_eq!(s.state.current[j], w.state.current[j]);
+                } else {
+                    assert_ne!(s.state.previous[j], frames[n][j]);
+                    assert_ne!(s.state.current[j], w.state.current[j]);
+                }
             }
+            checked += 1;
         }
-        checked += 1;
+        assert!(checked > 0, "no window qualified for {n}-step pushforward");
     }
-    assert!(checked > 0, "no window qualified for two-step pushforward");
 
     let config = |name: &str| {
         let mut c = tiny_config(&data, &dir.join(name), 4);

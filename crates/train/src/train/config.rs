@@ -75,10 +75,11 @@ pub struct DataConfig {
     /// recorded pose at `t + k`, so the model learns to correct the errors it makes itself in
     /// a rollout. Only samples with `t >= 2k` qualify. 0 disables.
     pub pushforward: f32,
-    /// Model steps of a pushforward sample (1 or 2). With 2 the model steps from the recorded
-    /// poses at `t - 3k` and `t - 2k` to `t - k`, then from there to `t`, and both observed
-    /// poses of the sample are its own predictions, as in a rollout past its second step;
-    /// samples need `t >= 3k`. 1 (the default) replaces only the current pose.
+    /// Model steps `n` of a pushforward sample (1 to [`MAX_PUSHFORWARD_STEPS`]). With `n >= 2`
+    /// the model steps from the recorded poses at `t - (n + 1)k` and `t - nk` to `t - (n - 1)k`,
+    /// then on from its own predictions to `t`, and both observed poses of the sample are its
+    /// own, as in a rollout past its `n`-th step; samples need `t >= (n + 1)k`. 1 (the default)
+    /// replaces only the current pose.
     pub pushforward_steps: u32,
     /// Fraction of the samples whose window frame is drawn with probability proportional to
     /// its surprise (how far the objects' acceleration departs from the window before's: an
@@ -122,6 +123,10 @@ impl DataConfig {
         Ok(())
     }
 }
+
+/// Most model steps a pushforward sample may take (`DataConfig::pushforward_steps`); each is
+/// one more inference pass over the chosen samples.
+pub const MAX_PUSHFORWARD_STEPS: u32 = 8;
 
 impl Default for DataConfig {
     fn default() -> Self {
@@ -472,8 +477,10 @@ impl TrainConfig {
         if !(0.0..=1.0).contains(&d.pushforward) {
             return bad("data.pushforward must be a probability in [0, 1]");
         }
-        if !(1..=2).contains(&d.pushforward_steps) {
-            return bad("data.pushforward_steps must be 1 or 2");
+        if !(1..=MAX_PUSHFORWARD_STEPS).contains(&d.pushforward_steps) {
+            return bad(&format!(
+                "data.pushforward_steps must be 1 to {MAX_PUSHFORWARD_STEPS}"
+            ));
         }
         if !(0.0..=1.0).contains(&d.event_share) {
             return bad("data.event_share must be a fraction in [0, 1]");
