@@ -583,8 +583,24 @@ mod tests {
         assert_eq!(r43.model.kinematic_lead, Some(true));
         let r48 = TrainConfig::from_file(&dir.join("rigidformer-small-r48.toml")).unwrap();
         assert_eq!(r48.data.stop_share, 0.3);
-        let over: TrainConfig = toml::from_str("[data]\nstop_share = 1.5\n").unwrap();
-        assert!(over.validate().is_err());
+        let refused = |text: &str, field: &str| {
+            let c: TrainConfig = toml::from_str(text).unwrap();
+            let e = c.validate().unwrap_err().to_string();
+            assert!(
+                e.contains(field),
+                "{text:?} refused for another reason: {e}"
+            );
+        };
+        refused("[data]\nstop_share = 1.5\n", "stop_share");
+        let r50 = TrainConfig::from_file(&dir.join("rigidformer-small-r50.toml")).unwrap();
+        assert_eq!(r50.data.pushforward_steps, 6);
+        refused(
+            &format!(
+                "[data]\npushforward_steps = {}\n",
+                MAX_PUSHFORWARD_STEPS + 1
+            ),
+            "pushforward_steps",
+        );
         let lead = r43.model.model_config(Path::new(".")).unwrap();
         assert!(lead.dynamics.kinematic_lead);
         assert!(
