@@ -205,3 +205,37 @@ async fn predict_returns_every_kth_frame_matching_rollouts() {
     server.shutdown();
     server.wait().await.unwrap();
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_ensemble_directory_is_served_as_one_model_stepping_the_members_mean() {
+    let (a, b) = (random_model("member-a", 11), random_model("member-b", 12));
+    let tmp = TempDir::new("ensemble");
+    let dir = tmp.0.join("rigidformer-pair");
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = serde_json::json!({
+        "architecture": "rigidformer-ensemble",
+        "members": [a.dir, b.dir],
+    });
+    std::fs::write(dir.join("config.json"), config.to_string()).unwrap();
+    let server = start(&dir, |_| {}).await;
+    let req = rollout_request("rigidformer-pair", scene(5, 3, 48), 20);
+    let mut c = client(&server).await;
+    let frames = c.rollout_collect(&req).await.unwrap();
+    // The served rollout is the in-process ensemble's, one mean step after another ...
+    let ensemble = load(&dir);
+    assert_eq!(ensemble.name(), "rigidformer-pair");
+    let diff = max_diff(&frames, &in_process(&*ensemble, &req));
+    assert!(diff <= 1e-5, "max difference {diff}");
+    // ... and neither member's alone.
+    for member in [&a, &b] {
+        let alone = in_process(&*load(&member.dir), &req);
+        let apart = max_diff(&frames, &alone);
+        assert!(
+            apart > 1e-4,
+            "{} alone gives the ensemble's rollout",
+            member.name
+        );
+    }
+    server.shutdown();
+    server.wait().await.unwrap();
+}

@@ -85,19 +85,25 @@ pub fn load_rigidformer(
     RigidFormer::from_store(dir_name(dir, "rigidformer"), config, store, device)
 }
 
-/// Loads the checkpoint in `dir` for inference on `device`.
+/// Loads the checkpoint in `dir` for inference on `device`: a RigidFormer, or an ensemble of
+/// them (`crate::ensemble`), by `config.json`'s `architecture`.
 ///
 /// Errors ([`ModelError::Checkpoint`]) name the missing file, the unparsable config, the
 /// corrupted weights file, or the first tensor whose name, shape, dtype or values do not match.
 pub fn load_model(dir: &Path, device: &Device) -> Result<Arc<dyn WorldModel>, ModelError> {
-    let config = read_config(dir)?;
-    if config.architecture != crate::config::RIGIDFORMER {
-        return Err(ModelError::Checkpoint(format!(
-            "unknown architecture {:?}",
-            config.architecture
-        )));
+    /// Just the family of a `config.json`.
+    #[derive(serde::Deserialize)]
+    struct Family {
+        architecture: String,
     }
-    Ok(Arc::new(load_rigidformer(dir, device, false)?))
+    let family: Family = parse_config(dir, "configuration")?;
+    match family.architecture.as_str() {
+        crate::config::RIGIDFORMER => Ok(Arc::new(load_rigidformer(dir, device, false)?)),
+        crate::ensemble::ENSEMBLE => Ok(Arc::new(crate::ensemble::Ensemble::load(dir, device)?)),
+        other => Err(ModelError::Checkpoint(format!(
+            "unknown architecture {other:?}"
+        ))),
+    }
 }
 
 /// Writes the checkpoint files every model family shares into `dir` (created if needed):

@@ -617,6 +617,44 @@ impl ModelConfig {
         }
     }
 
+    /// The first setting (its `config.json` name) in which `other` serves scenes differently
+    /// from `self`, or `None`: the frame interval, gravity and ground, the request limits and
+    /// nominal point count, everything a prepared scene depends on (the [`PreparedKey`], the
+    /// scene-relative mass and whether normals are estimated) and whether the caller leads
+    /// kinematic objects. Two such models can step one prepared scene from one state; their
+    /// sizes, input features, normalisation and loss may differ.
+    pub fn serving_mismatch(&self, other: &ModelConfig) -> Option<&'static str> {
+        let (a, b) = (&self.dynamics, &other.dynamics);
+        [
+            ("dt_frame", self.dt_frame == other.dt_frame),
+            ("gravity", self.gravity == other.gravity),
+            ("ground_z", self.ground_z == other.ground_z),
+            (
+                "points_per_object",
+                self.points_per_object == other.points_per_object,
+            ),
+            (
+                "max_points_per_object",
+                self.max_points_per_object == other.max_points_per_object,
+            ),
+            ("max_objects", self.max_objects == other.max_objects),
+            ("anchors", self.anchors == other.anchors),
+            ("sa_centres", self.sa_centres == other.sa_centres),
+            ("sa_neighbours", self.sa_neighbours == other.sa_neighbours),
+            ("dynamics.relative_mass", a.relative_mass == b.relative_mass),
+            (
+                "dynamics.surface_normals or dynamics.approach (normals estimated)",
+                a.reads_normals() == b.reads_normals(),
+            ),
+            (
+                "dynamics.kinematic_lead",
+                a.kinematic_lead == b.kinematic_lead,
+            ),
+        ]
+        .into_iter()
+        .find_map(|(name, same)| (!same).then_some(name))
+    }
+
     /// Number of per-point input features (see [`DynamicsConfig::point_features`]).
     pub fn point_features(&self) -> usize {
         self.dynamics.point_features()

@@ -10,6 +10,7 @@ pub mod api;
 pub mod batching;
 pub mod checkpoint;
 pub mod config;
+pub mod ensemble;
 pub mod error;
 pub mod kernels;
 pub mod layers;
@@ -29,6 +30,7 @@ pub use config::{
     FeatureNormalization, HISTORY_FEATURES, InputGroup, LN_MASS_FEATURE, LossConfig, ModelConfig,
     OBJECT_SUMMARY_FEATURES, PreparedKey, SURFACE_NORMAL_FEATURES,
 };
+pub use ensemble::Ensemble;
 pub use error::ModelError;
 pub use kernels::kabsch::{self as kabsch_op, KabschOp};
 pub use layers::Mode;

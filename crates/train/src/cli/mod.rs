@@ -4,7 +4,6 @@
 
 use std::cell::RefCell;
 use std::path::Path;
-use std::sync::Arc;
 
 use anyhow::Context;
 use dynaserve_sim::DatasetReader;
@@ -92,10 +91,8 @@ pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
             Box::new(RapierRestart::from_manifest(reader.manifest())?),
         )),
         (None, Some(dir)) => {
-            let model =
-                dynaserve_model::load_rigidformer(dir, &dynaserve_model::Device::Cpu, false)
-                    .with_context(|| format!("loading model {}", dir.display()))?;
-            let base = ModelPredictor::from_rigidformer(Arc::new(model));
+            let base = ModelPredictor::load(dir)
+                .with_context(|| format!("loading model {}", dir.display()))?;
             let nominal = match args.points_per_object {
                 Some(n) => base.clone().with_points_per_object(n),
                 None => base.clone().with_points(PointSelection::Nominal),

@@ -1,8 +1,6 @@
 //! `dynaserve eval --suite physics`: builds the predictors, generates (or reads) the physics
 //! suite, scores it with progress on stderr, prints the summary and writes JSON and Markdown.
 
-use std::sync::Arc;
-
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -65,10 +63,8 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             predictors.push(("rapier-restart".into(), Box::new(rapier(args, gravity)?)))
         }
         (None, Some(dir)) => {
-            let model =
-                dynaserve_model::load_rigidformer(dir, &dynaserve_model::Device::Cpu, false)
-                    .with_context(|| format!("loading model {}", dir.display()))?;
-            let base = ModelPredictor::from_rigidformer(Arc::new(model));
+            let base = ModelPredictor::load(dir)
+                .with_context(|| format!("loading model {}", dir.display()))?;
             let model = match args.points_per_object {
                 Some(n) => base.with_points_per_object(n),
                 None => base.with_points(PointSelection::Nominal),

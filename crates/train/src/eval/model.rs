@@ -126,6 +126,20 @@ impl ModelPredictor {
         }
     }
 
+    /// Loads the checkpoint directory `dir` on the CPU: a RigidFormer through
+    /// [`ModelPredictor::from_rigidformer`], any other model (an ensemble) through
+    /// [`ModelPredictor::new`].
+    pub fn load(dir: &std::path::Path) -> Result<ModelPredictor, dynaserve_model::ModelError> {
+        let device = dynaserve_model::Device::Cpu;
+        if dynaserve_model::read_config(dir).is_ok() {
+            let model = dynaserve_model::load_rigidformer(dir, &device, false)?;
+            return Ok(ModelPredictor::from_rigidformer(Arc::new(model)));
+        }
+        Ok(ModelPredictor::new(dynaserve_model::load_model(
+            dir, &device,
+        )?))
+    }
+
     /// Passes only the first `n` reference points of each object (at least 1).
     pub fn with_points_per_object(self, n: usize) -> ModelPredictor {
         self.with_points(PointSelection::Count(n.max(1)))

@@ -1,0 +1,171 @@
+//! Ensembles: several RigidFormer checkpoints of one configuration served as one model whose
+//! every step is the mean of the members' steps.
+//!
+//! An ensemble directory holds a `config.json` of the form
+//! `{"architecture": "rigidformer-ensemble", "members": ["a", "b"]}` (member directories,
+//! relative to the ensemble's own directory, or absolute) and a `card.md`. Each member is an
+//! ordinary checkpoint directory. Members must serve scenes alike
+//! ([`ModelConfig::serving_mismatch`]: frame interval, gravity, limits, what a prepared scene
+//! depends on, the kinematic lead), so that a scene prepared once by the first member serves
+//! all of them; their sizes, input features and normalisation may differ, so releases of
+//! different architectures can be combined. The ensemble reports the first member's
+//! configuration (its trained ranges among it).
+//!
+//! A step runs every member from the same state and averages the new poses object by object:
+//! the arithmetic mean of the translations and the normalised sum of the rotations' unit
+//! quaternions, each first put on the first member's hemisphere (`q` and `-q` are one
+//! rotation). For rotations a few degrees apart, as members' one-step predictions are, that sum
+//! is the rotation mean to well under a thousandth of a degree. The rollout continues from the
+//! mean, so the members never drift apart. Averaging predictions, unlike averaging weights
+//! (`dynaserve train average`), needs no shared training history; it costs one network pass
+//! per member.
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use serde::Deserialize;
+
+use crate::checkpoint::{dir_name, load_rigidformer, parse_config};
+use crate::rigidformer::RigidFormer;
+use crate::{ModelConfig, ModelError, ObjectInput, Pose, PreparedScene, StepItem, WorldModel};
+
+/// `architecture` of an ensemble directory's `config.json`.
+pub const ENSEMBLE: &str = "rigidformer-ensemble";
+
+/// Most members an ensemble may list (each costs one network pass per step).
+pub const MAX_MEMBERS: usize = 8;
+
+/// The `config.json` of an ensemble directory.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EnsembleConfig {
+    /// Always [`ENSEMBLE`].
+    pub architecture: String,
+    /// Member checkpoint directories, relative to the ensemble directory (1 to
+    /// [`MAX_MEMBERS`]).
+    pub members: Vec<PathBuf>,
+}
+
+/// RigidFormer checkpoints of one configuration whose steps are averaged (module docs).
+pub struct Ensemble {
+    name: String,
+    members: Vec<RigidFormer>,
+}
+
+impl Ensemble {
+    /// Builds an ensemble of already loaded members; fails if there are none, more than
+    /// [`MAX_MEMBERS`], or one serves scenes differently from the first
+    /// ([`ModelConfig::serving_mismatch`]).
+    pub fn new(name: impl Into<String>, members: Vec<RigidFormer>) -> Result<Ensemble, ModelError> {
+        let name = name.into();
+        if members.is_empty() || members.len() > MAX_MEMBERS {
+            return Err(ModelError::Checkpoint(format!(
+                "ensemble {name:?} has {} members; it needs 1 to {MAX_MEMBERS}",
+                members.len()
+            )));
+        }
+        for (i, m) in members.iter().enumerate().skip(1) {
+            if let Some(field) = members[0].config().serving_mismatch(m.config()) {
+                return Err(ModelError::Checkpoint(format!(
+                    "ensemble {name:?}: member {i} ({}) differs from member 0 ({}) in {field}; \
+                     members must step the same scenes from the same states",
+                    m.name(),
+                    members[0].name()
+                )));
+            }
+        }
+        Ok(Ensemble { name, members })
+    }
+
+    /// Loads the ensemble directory `dir` (module docs) with its members' weights on `device`.
+    pub fn load(dir: &Path, device: &crate::Device) -> Result<Ensemble, ModelError> {
+        let config: EnsembleConfig = parse_config(dir, "ensemble configuration")?;
+        if config.architecture != ENSEMBLE {
+            return Err(ModelError::Checkpoint(format!(
+                "{}: architecture {:?} is not {ENSEMBLE:?}",
+                dir.display(),
+                config.architecture
+            )));
+        }
+        if config.members.is_empty() || config.members.len() > MAX_MEMBERS {
+            return Err(ModelError::Checkpoint(format!(
+                "{}: an ensemble lists 1 to {MAX_MEMBERS} members, this one {}",
+                dir.display(),
+                config.members.len()
+            )));
+        }
+        let members = config
+            .members
+            .iter()
+            .map(|m| {
+                let member = dir.join(m);
+                load_rigidformer(&member, device, false).map_err(|e| {
+                    ModelError::Checkpoint(format!("ensemble member {}: {e}", member.display()))
+                })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Ensemble::new(dir_name(dir, ENSEMBLE), members)
+    }
+
+    /// The members, in the order of `config.json`.
+    pub fn members(&self) -> &[RigidFormer] {
+        &self.members
+    }
+}
+
+/// The mean of several predictions of one object's pose (module docs); `poses` is not empty.
+pub fn mean_pose(poses: &[Pose]) -> Pose {
+    let n = poses.len().max(1) as f32;
+    let translation = poses
+        .iter()
+        .fold(Vector3::zeros(), |s, p| s + Vector3::from(p.translation))
+        / n;
+    let first = poses.first().map(|p| p.unit_quaternion().into_inner());
+    let sum = poses
+        .iter()
+        .fold(Quaternion::new(0.0, 0.0, 0.0, 0.0), |s, p| {
+            let q = p.unit_quaternion().into_inner();
+            match first {
+                Some(f) if q.dot(&f) < 0.0 => s - q,
+                _ => s + q,
+            }
+        });
+    // The sum of unit quaternions on one hemisphere is never zero.
+    let rotation = UnitQuaternion::try_new(sum, 1e-12).unwrap_or_else(UnitQuaternion::identity);
+    Pose::from_parts(translation, rotation)
+}
+
+impl WorldModel for Ensemble {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn config(&self) -> &ModelConfig {
+        self.members[0].config()
+    }
+
+    fn prepare(&self, objects: Vec<ObjectInput>) -> Result<PreparedScene, ModelError> {
+        // Members prepare scenes alike (`Ensemble::new`), so the first one's serves all.
+        self.members[0].prepare(objects)
+    }
+
+    fn step(&self, batch: &[StepItem<'_>]) -> Result<Vec<Vec<Pose>>, ModelError> {
+        let outputs = self
+            .members
+            .iter()
+            .map(|m| m.step(batch))
+            .collect::<Result<Vec<_>, _>>()?;
+        let mut poses = Vec::with_capacity(self.members.len());
+        Ok((0..batch.len())
+            .map(|scene| {
+                (0..batch[scene].scene.len())
+                    .map(|object| {
+                        poses.clear();
+                        poses.extend(outputs.iter().map(|o| o[scene][object]));
+                        mean_pose(&poses)
+                    })
+                    .collect()
+            })
+            .collect())
+    }
+}

@@ -1,0 +1,163 @@
+//! Ensembles of RigidFormer checkpoints: loading, the mean step and clear errors.
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::{max_pose_diff, random_scene};
+use dynaserve_model::ensemble::{MAX_MEMBERS, mean_pose};
+use dynaserve_model::{
+    Device, ModelConfig, Pose, RigidFormer, StepItem, WorldModel, load_model, load_rigidformer,
+};
+use nalgebra::{UnitQuaternion, Vector3};
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!(
+        "dynaserve-model-ensemble-{name}-{}",
+        std::process::id()
+    ));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+/// Saves tiny members with the given seeds as `dir/m<seed>` and writes an ensemble
+/// `config.json` listing `members`.
+fn ensemble_dir(dir: &Path, seeds: &[u64], members: &[&str]) {
+    for &seed in seeds {
+        RigidFormer::new(ModelConfig::tiny(), seed, &Device::Cpu)
+            .unwrap()
+            .save(&dir.join(format!("m{seed}")))
+            .unwrap();
+    }
+    let config = serde_json::json!({"architecture": "rigidformer-ensemble", "members": members});
+    std::fs::write(dir.join("config.json"), config.to_string()).unwrap();
+}
+
+fn step(model: &dyn WorldModel) -> Vec<Pose> {
+    let (o, s) = random_scene(21, 4, 80);
+    let scene = model.prepare(o).unwrap();
+    model
+        .step(&[StepItem {
+            scene: &scene,
+            state: &s,
+            dt_steps: 2,
+        }])
+        .unwrap()
+        .pop()
+        .unwrap()
+}
+
+fn err(dir: &Path) -> String {
+    match load_model(dir, &Device::Cpu) {
+        Ok(_) => panic!("loading {} should fail", dir.display()),
+        Err(e) => e.to_string(),
+    }
+}
+
+#[test]
+fn an_ensemble_steps_to_the_mean_of_its_members() {
+    let dir = tmp("mean");
+    ensemble_dir(&dir, &[1, 2], &["m1", "m2"]);
+    let ensemble = load_model(&dir, &Device::Cpu).unwrap();
+    assert_eq!(ensemble.name(), dir.file_name().unwrap().to_str().unwrap());
+    let members: Vec<RigidFormer> = ["m1", "m2"]
+        .iter()
+        .map(|m| load_rigidformer(&dir.join(m), &Device::Cpu, false).unwrap())
+        .collect();
+    assert_eq!(ensemble.config(), members[0].config());
+    let (a, b) = (step(&members[0]), step(&members[1]));
+    // Two differently initialised networks disagree, so the test sees the averaging.
+    assert!(max_pose_diff(&a, &b) > 1e-4, "members agree");
+    let mean: Vec<Pose> = a
+        .iter()
+        .zip(&b)
+        .map(|(p, q)| mean_pose(&[*p, *q]))
+        .collect();
+    let got = step(ensemble.as_ref());
+    assert!(max_pose_diff(&got, &mean) < 1e-6, "{got:?} vs {mean:?}");
+    // One member alone is that member.
+    let single = dir.join("single");
+    std::fs::create_dir_all(&single).unwrap();
+    let config = serde_json::json!({"architecture": "rigidformer-ensemble", "members": ["../m2"]});
+    std::fs::write(single.join("config.json"), config.to_string()).unwrap();
+    let one = load_model(&single, &Device::Cpu).unwrap();
+    assert!(max_pose_diff(&step(one.as_ref()), &b) < 1e-7);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_mean_pose_averages_translations_and_rotations() {
+    let yaw = |x: f32, angle: f32| {
+        Pose::from_parts(
+            Vector3::new(x, 1.0, 0.5),
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), angle),
+        )
+    };
+    let mean = mean_pose(&[yaw(0.0, 0.1), yaw(1.0, 0.3)]);
+    assert!((mean.translation[0] - 0.5).abs() < 1e-6);
+    let expected = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.2);
+    assert!(mean.unit_quaternion().angle_to(&expected) < 1e-5);
+    // `-q` is the same rotation as `q` and must not cancel it.
+    let mut flipped = yaw(1.0, 0.3);
+    flipped.rotation = flipped.rotation.map(|c| -c);
+    let again = mean_pose(&[yaw(0.0, 0.1), flipped]);
+    assert!(again.unit_quaternion().angle_to(&expected) < 1e-5);
+    // A single pose is itself.
+    let one = mean_pose(&[yaw(0.2, 0.7)]);
+    assert!(max_pose_diff(&[one], &[yaw(0.2, 0.7)]) < 1e-6);
+}
+
+#[test]
+fn bad_ensembles_are_refused_with_the_reason() {
+    let dir = tmp("bad");
+    ensemble_dir(&dir, &[3], &[]);
+    let e = err(&dir);
+    assert!(e.contains("1 to") && e.contains("members"), "{e}");
+    let many = vec!["m3"; MAX_MEMBERS + 1];
+    ensemble_dir(&dir, &[], &many);
+    assert!(err(&dir).contains(&format!("this one {}", MAX_MEMBERS + 1)));
+    // A member that is not there is named.
+    ensemble_dir(&dir, &[], &["m3", "missing"]);
+    let e = err(&dir);
+    assert!(
+        e.contains("ensemble member") && e.contains("missing"),
+        "{e}"
+    );
+    // Members of other sizes serve alike and are accepted; a member on another frame
+    // interval is refused by name.
+    RigidFormer::new(
+        ModelConfig {
+            width: 64,
+            ..ModelConfig::tiny()
+        },
+        4,
+        &Device::Cpu,
+    )
+    .unwrap()
+    .save(&dir.join("wide"))
+    .unwrap();
+    ensemble_dir(&dir, &[], &["m3", "wide"]);
+    let mixed = load_model(&dir, &Device::Cpu).unwrap();
+    assert_eq!(step(mixed.as_ref()).len(), 4);
+    RigidFormer::new(
+        ModelConfig {
+            dt_frame: 1.0 / 60.0,
+            ..ModelConfig::tiny()
+        },
+        5,
+        &Device::Cpu,
+    )
+    .unwrap()
+    .save(&dir.join("fast"))
+    .unwrap();
+    ensemble_dir(&dir, &[], &["m3", "fast"]);
+    let e = err(&dir);
+    assert!(e.contains("dt_frame") && e.contains("fast"), "{e}");
+    // Unknown fields are refused rather than ignored.
+    std::fs::write(
+        dir.join("config.json"),
+        r#"{"architecture": "rigidformer-ensemble", "members": ["m3"], "weights": [1]}"#,
+    )
+    .unwrap();
+    assert!(err(&dir).contains("not a valid ensemble configuration"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
