@@ -43,6 +43,9 @@ impl Drop for TempDir {
 /// The shipped checkpoint, when present.
 pub const SHIPPED: &str = "models/rigidformer-small";
 
+/// The shipped ensemble of the shipped checkpoint and the twentieth release.
+pub const SHIPPED_ENSEMBLE: &str = "models/ensembles/rigidformer-small-ensemble";
+
 /// A model checkpoint directory for the tests: the shipped trained checkpoint when it exists
 /// (or `DYNASERVE_TEST_MODEL` names one), otherwise a randomly initialised tiny RigidFormer
 /// saved to a temporary directory. Either way the server loads real weights from disk.
