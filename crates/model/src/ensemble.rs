@@ -155,6 +155,14 @@ impl WorldModel for Ensemble {
             .iter()
             .map(|m| m.step(batch))
             .collect::<Result<Vec<_>, _>>()?;
+        let shaped = |o: &Vec<Vec<Pose>>| {
+            o.len() == batch.len() && o.iter().zip(batch).all(|(s, it)| s.len() == it.scene.len())
+        };
+        if !outputs.iter().all(shaped) {
+            return Err(ModelError::Internal(
+                "an ensemble member returned another number of scenes or objects".into(),
+            ));
+        }
         let mut poses = Vec::with_capacity(self.members.len());
         Ok((0..batch.len())
             .map(|scene| {

@@ -1,21 +1,10 @@
 //! Checkpoint round trips and clear errors on corrupted or mismatched checkpoints.
 mod common;
 
-use std::path::{Path, PathBuf};
-
-use common::{max_pose_diff, random_scene};
+use common::{load_error, max_pose_diff, random_scene, tmp_dir};
 use dynaserve_model::{
     DType, Device, ModelConfig, RigidFormer, StepItem, WorldModel, load_model, load_rigidformer,
 };
-
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!(
-        "dynaserve-model-ckpt-{name}-{}",
-        std::process::id()
-    ));
-    let _ = std::fs::remove_dir_all(&d);
-    d
-}
 
 fn outputs(model: &dyn WorldModel) -> Vec<Vec<dynaserve_model::Pose>> {
     let (o, s) = random_scene(12, 4, 80);
@@ -29,17 +18,10 @@ fn outputs(model: &dyn WorldModel) -> Vec<Vec<dynaserve_model::Pose>> {
         .unwrap()
 }
 
-fn err(dir: &Path) -> String {
-    match load_model(dir, &Device::Cpu) {
-        Ok(_) => panic!("loading {} should fail", dir.display()),
-        Err(e) => e.to_string(),
-    }
-}
-
 #[test]
 fn save_load_round_trip_is_identical() {
     let model = RigidFormer::new(ModelConfig::tiny(), 5, &Device::Cpu).unwrap();
-    let dir = tmp("roundtrip");
+    let dir = tmp_dir("ckpt", "roundtrip");
     model.save(&dir).unwrap();
     assert!(dir.join("card.md").exists());
     // Loaded as it was saved (trainable): the same network to the bit.
@@ -62,7 +44,7 @@ fn save_load_round_trip_is_identical() {
 fn half_precision_weights_load_into_f32() {
     let model = RigidFormer::new(ModelConfig::tiny(), 6, &Device::Cpu).unwrap();
     for dtype in [DType::F16, DType::BF16] {
-        let dir = tmp(&format!("{dtype:?}"));
+        let dir = tmp_dir("ckpt", &format!("{dtype:?}"));
         model.save_with_dtype(&dir, dtype).unwrap();
         let loaded = load_model(&dir, &Device::Cpu).unwrap();
         let (a, b) = (outputs(&model), outputs(loaded.as_ref()));
@@ -75,15 +57,15 @@ fn half_precision_weights_load_into_f32() {
 #[test]
 fn corrupted_and_mismatched_checkpoints_give_clear_errors() {
     let model = RigidFormer::new(ModelConfig::tiny(), 7, &Device::Cpu).unwrap();
-    let dir = tmp("bad");
+    let dir = tmp_dir("ckpt", "bad");
     model.save(&dir).unwrap();
     let weights = std::fs::read(dir.join("model.safetensors")).unwrap();
     let config = std::fs::read_to_string(dir.join("config.json")).unwrap();
 
     // Missing directory / files.
-    assert!(err(&dir.join("nope")).contains("config.json"));
+    assert!(load_error(&dir.join("nope")).contains("config.json"));
     std::fs::remove_file(dir.join("model.safetensors")).unwrap();
-    assert!(err(&dir).contains("model.safetensors"));
+    assert!(load_error(&dir).contains("model.safetensors"));
 
     // Truncated, garbage and empty weights.
     for bytes in [
@@ -92,25 +74,25 @@ fn corrupted_and_mismatched_checkpoints_give_clear_errors() {
         Vec::new(),
     ] {
         std::fs::write(dir.join("model.safetensors"), bytes).unwrap();
-        let e = err(&dir);
+        let e = load_error(&dir);
         assert!(e.contains("corrupted"), "{e}");
     }
     // Flipped header length.
     let mut flipped = weights.clone();
     flipped[0..8].copy_from_slice(&u64::MAX.to_le_bytes());
     std::fs::write(dir.join("model.safetensors"), flipped).unwrap();
-    assert!(err(&dir).contains("corrupted"));
+    assert!(load_error(&dir).contains("corrupted"));
     std::fs::write(dir.join("model.safetensors"), &weights).unwrap();
 
     // Broken or inconsistent configs.
     std::fs::write(dir.join("config.json"), "{ \"width\": ").unwrap();
-    assert!(err(&dir).contains("not a valid configuration"));
+    assert!(load_error(&dir).contains("not a valid configuration"));
     std::fs::write(
         dir.join("config.json"),
         config.replace("\"rigidformer\"", "\"other\""),
     )
     .unwrap();
-    assert!(err(&dir).contains("architecture"));
+    assert!(load_error(&dir).contains("architecture"));
     // A config of another size than the weights: names the first mismatched tensor's shape.
     let wider = serde_json::to_string(&ModelConfig {
         width: 64,
@@ -118,7 +100,7 @@ fn corrupted_and_mismatched_checkpoints_give_clear_errors() {
     })
     .unwrap();
     std::fs::write(dir.join("config.json"), wider).unwrap();
-    let e = err(&dir);
+    let e = load_error(&dir);
     assert!(e.contains("has shape") && e.contains("needs"), "{e}");
     // More blocks than stored: a missing tensor is named.
     let deeper = serde_json::to_string(&ModelConfig {
@@ -127,7 +109,7 @@ fn corrupted_and_mismatched_checkpoints_give_clear_errors() {
     })
     .unwrap();
     std::fs::write(dir.join("config.json"), deeper).unwrap();
-    let e = err(&dir);
+    let e = load_error(&dir);
     assert!(
         e.contains("has no tensor") && e.contains("decoder.blocks.2"),
         "{e}"
@@ -140,7 +122,7 @@ fn corrupted_and_mismatched_checkpoints_give_clear_errors() {
     })
     .unwrap();
     std::fs::write(dir.join("config.json"), shallower).unwrap();
-    let e = err(&dir);
+    let e = load_error(&dir);
     assert!(e.contains("does not use"), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

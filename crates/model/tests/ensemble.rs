@@ -1,23 +1,14 @@
 //! Ensembles of RigidFormer checkpoints: loading, the mean step and clear errors.
 mod common;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-use common::{max_pose_diff, random_scene};
+use common::{load_error, max_pose_diff, random_scene, tmp_dir};
 use dynaserve_model::ensemble::{MAX_MEMBERS, mean_pose};
 use dynaserve_model::{
     Device, ModelConfig, Pose, RigidFormer, StepItem, WorldModel, load_model, load_rigidformer,
 };
 use nalgebra::{UnitQuaternion, Vector3};
-
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!(
-        "dynaserve-model-ensemble-{name}-{}",
-        std::process::id()
-    ));
-    let _ = std::fs::remove_dir_all(&d);
-    d
-}
 
 /// Saves tiny members with the given seeds as `dir/m<seed>` and writes an ensemble
 /// `config.json` listing `members`.
@@ -46,16 +37,9 @@ fn step(model: &dyn WorldModel) -> Vec<Pose> {
         .unwrap()
 }
 
-fn err(dir: &Path) -> String {
-    match load_model(dir, &Device::Cpu) {
-        Ok(_) => panic!("loading {} should fail", dir.display()),
-        Err(e) => e.to_string(),
-    }
-}
-
 #[test]
 fn an_ensemble_steps_to_the_mean_of_its_members() {
-    let dir = tmp("mean");
+    let dir = tmp_dir("ensemble", "mean");
     ensemble_dir(&dir, &[1, 2], &["m1", "m2"]);
     let ensemble = load_model(&dir, &Device::Cpu).unwrap();
     assert_eq!(ensemble.name(), dir.file_name().unwrap().to_str().unwrap());
@@ -108,16 +92,16 @@ fn the_mean_pose_averages_translations_and_rotations() {
 
 #[test]
 fn bad_ensembles_are_refused_with_the_reason() {
-    let dir = tmp("bad");
+    let dir = tmp_dir("ensemble", "bad");
     ensemble_dir(&dir, &[3], &[]);
-    let e = err(&dir);
+    let e = load_error(&dir);
     assert!(e.contains("1 to") && e.contains("members"), "{e}");
     let many = vec!["m3"; MAX_MEMBERS + 1];
     ensemble_dir(&dir, &[], &many);
-    assert!(err(&dir).contains(&format!("this one {}", MAX_MEMBERS + 1)));
+    assert!(load_error(&dir).contains(&format!("this one {}", MAX_MEMBERS + 1)));
     // A member that is not there is named.
     ensemble_dir(&dir, &[], &["m3", "missing"]);
-    let e = err(&dir);
+    let e = load_error(&dir);
     assert!(
         e.contains("ensemble member") && e.contains("missing"),
         "{e}"
@@ -150,7 +134,7 @@ fn bad_ensembles_are_refused_with_the_reason() {
     .save(&dir.join("fast"))
     .unwrap();
     ensemble_dir(&dir, &[], &["m3", "fast"]);
-    let e = err(&dir);
+    let e = load_error(&dir);
     assert!(e.contains("dt_frame") && e.contains("fast"), "{e}");
     // Unknown fields are refused rather than ignored.
     std::fs::write(
@@ -158,6 +142,6 @@ fn bad_ensembles_are_refused_with_the_reason() {
         r#"{"architecture": "rigidformer-ensemble", "members": ["m3"], "weights": [1]}"#,
     )
     .unwrap();
-    assert!(err(&dir).contains("not a valid ensemble configuration"));
+    assert!(load_error(&dir).contains("not a valid ensemble configuration"));
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -202,3 +202,22 @@ pub fn first_layer_dims(model: &RigidFormer) -> Vec<usize> {
     let vars = model.varmap().data().lock().unwrap();
     vars[FIRST_LAYER].as_tensor().dims().to_vec()
 }
+
+/// A fresh (removed if present) directory path under the system temporary directory, unique to
+/// this test process: `dynaserve-model-<tag>-<name>-<pid>`.
+pub fn tmp_dir(tag: &str, name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!(
+        "dynaserve-model-{tag}-{name}-{}",
+        std::process::id()
+    ));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+/// The message of the error `load_model` gives for `dir`; panics if it loads.
+pub fn load_error(dir: &std::path::Path) -> String {
+    match dynaserve_model::load_model(dir, &dynaserve_model::Device::Cpu) {
+        Ok(_) => panic!("loading {} should fail", dir.display()),
+        Err(e) => e.to_string(),
+    }
+}
