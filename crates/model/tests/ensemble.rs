@@ -3,10 +3,10 @@ mod common;
 
 use std::path::Path;
 
-use common::{load_error, max_pose_diff, random_scene, tmp_dir};
+use common::{load_error, max_pose_diff, step_random_scene, tmp_dir};
 use dynaserve_model::ensemble::{MAX_MEMBERS, mean_pose};
 use dynaserve_model::{
-    Device, ModelConfig, Pose, RigidFormer, StepItem, WorldModel, load_model, load_rigidformer,
+    Device, ModelConfig, Pose, RigidFormer, WorldModel, load_model, load_rigidformer,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 
@@ -23,18 +23,9 @@ fn ensemble_dir(dir: &Path, seeds: &[u64], members: &[&str]) {
     std::fs::write(dir.join("config.json"), config.to_string()).unwrap();
 }
 
+/// One step of a random four-object scene, the same for every model of a test.
 fn step(model: &dyn WorldModel) -> Vec<Pose> {
-    let (o, s) = random_scene(21, 4, 80);
-    let scene = model.prepare(o).unwrap();
-    model
-        .step(&[StepItem {
-            scene: &scene,
-            state: &s,
-            dt_steps: 2,
-        }])
-        .unwrap()
-        .pop()
-        .unwrap()
+    step_random_scene(model, 21, 2)
 }
 
 #[test]
@@ -108,31 +99,29 @@ fn bad_ensembles_are_refused_with_the_reason() {
     );
     // Members of other sizes serve alike and are accepted; a member on another frame
     // interval is refused by name.
-    RigidFormer::new(
+    let save = |name: &str, config: ModelConfig| {
+        RigidFormer::new(config, 4, &Device::Cpu)
+            .unwrap()
+            .save(&dir.join(name))
+            .unwrap()
+    };
+    save(
+        "wide",
         ModelConfig {
             width: 64,
             ..ModelConfig::tiny()
         },
-        4,
-        &Device::Cpu,
-    )
-    .unwrap()
-    .save(&dir.join("wide"))
-    .unwrap();
+    );
     ensemble_dir(&dir, &[], &["m3", "wide"]);
     let mixed = load_model(&dir, &Device::Cpu).unwrap();
     assert_eq!(step(mixed.as_ref()).len(), 4);
-    RigidFormer::new(
+    save(
+        "fast",
         ModelConfig {
             dt_frame: 1.0 / 60.0,
             ..ModelConfig::tiny()
         },
-        5,
-        &Device::Cpu,
-    )
-    .unwrap()
-    .save(&dir.join("fast"))
-    .unwrap();
+    );
     ensemble_dir(&dir, &[], &["m3", "fast"]);
     let e = load_error(&dir);
     assert!(e.contains("dt_frame") && e.contains("fast"), "{e}");
