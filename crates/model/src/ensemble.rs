@@ -41,12 +41,12 @@ pub const MAX_MEMBERS: usize = 8;
 pub struct EnsembleConfig {
     /// Always [`ENSEMBLE`].
     pub architecture: String,
-    /// Member checkpoint directories, relative to the ensemble directory (1 to
+    /// Member checkpoint directories, relative to the ensemble directory or absolute (1 to
     /// [`MAX_MEMBERS`]).
     pub members: Vec<PathBuf>,
 }
 
-/// RigidFormer checkpoints of one configuration whose steps are averaged (module docs).
+/// RigidFormer checkpoints that serve scenes alike, whose steps are averaged (module docs).
 pub struct Ensemble {
     name: String,
     members: Vec<RigidFormer>,
