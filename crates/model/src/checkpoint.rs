@@ -73,6 +73,18 @@ pub(crate) fn dir_name(dir: &Path, fallback: &str) -> String {
         .unwrap_or_else(|| fallback.into())
 }
 
+/// The `architecture` field of a checkpoint directory's `config.json` (`rigidformer`,
+/// `rigidformer-ensemble`, `physiformer`), read without parsing the rest.
+pub fn read_architecture(dir: &Path) -> Result<String, ModelError> {
+    /// Just the family of a `config.json`.
+    #[derive(serde::Deserialize)]
+    struct Family {
+        architecture: String,
+    }
+    let family: Family = parse_config(dir, "configuration")?;
+    Ok(family.architecture)
+}
+
 /// Loads a RigidFormer checkpoint; `trainable` keeps gradient tracking on the weights.
 pub fn load_rigidformer(
     dir: &Path,
@@ -91,13 +103,7 @@ pub fn load_rigidformer(
 /// Errors ([`ModelError::Checkpoint`]) name the missing file, the unparsable config, the
 /// corrupted weights file, or the first tensor whose name, shape, dtype or values do not match.
 pub fn load_model(dir: &Path, device: &Device) -> Result<Arc<dyn WorldModel>, ModelError> {
-    /// Just the family of a `config.json`.
-    #[derive(serde::Deserialize)]
-    struct Family {
-        architecture: String,
-    }
-    let family: Family = parse_config(dir, "configuration")?;
-    match family.architecture.as_str() {
+    match read_architecture(dir)?.as_str() {
         crate::config::RIGIDFORMER => Ok(Arc::new(load_rigidformer(dir, device, false)?)),
         crate::ensemble::ENSEMBLE => Ok(Arc::new(crate::ensemble::Ensemble::load(dir, device)?)),
         other => Err(ModelError::Checkpoint(format!(

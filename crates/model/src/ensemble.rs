@@ -58,12 +58,7 @@ impl Ensemble {
     /// ([`ModelConfig::serving_mismatch`]).
     pub fn new(name: impl Into<String>, members: Vec<RigidFormer>) -> Result<Ensemble, ModelError> {
         let name = name.into();
-        if members.is_empty() || members.len() > MAX_MEMBERS {
-            return Err(ModelError::Checkpoint(format!(
-                "ensemble {name:?} has {} members; it needs 1 to {MAX_MEMBERS}",
-                members.len()
-            )));
-        }
+        check_member_count(&name, members.len())?;
         for (i, m) in members.iter().enumerate().skip(1) {
             if let Some(field) = members[0].config().serving_mismatch(m.config()) {
                 return Err(ModelError::Checkpoint(format!(
@@ -87,13 +82,8 @@ impl Ensemble {
                 config.architecture
             )));
         }
-        if config.members.is_empty() || config.members.len() > MAX_MEMBERS {
-            return Err(ModelError::Checkpoint(format!(
-                "{}: an ensemble lists 1 to {MAX_MEMBERS} members, this one {}",
-                dir.display(),
-                config.members.len()
-            )));
-        }
+        // Checked before any member's weights are read.
+        check_member_count(&dir.display().to_string(), config.members.len())?;
         let members = config
             .members
             .iter()
@@ -111,6 +101,16 @@ impl Ensemble {
     pub fn members(&self) -> &[RigidFormer] {
         &self.members
     }
+}
+
+/// Refuses an ensemble (`what` names it) of `n` members unless `1 <= n <= MAX_MEMBERS`.
+fn check_member_count(what: &str, n: usize) -> Result<(), ModelError> {
+    if n == 0 || n > MAX_MEMBERS {
+        return Err(ModelError::Checkpoint(format!(
+            "{what}: an ensemble lists 1 to {MAX_MEMBERS} members, this one {n}"
+        )));
+    }
+    Ok(())
 }
 
 /// The mean of several predictions of one object's pose (module docs); `poses` is not empty.

@@ -24,7 +24,7 @@ pub mod trained_ranges;
 
 pub use api::{ObjectInput, Pose, SceneState, StepItem, WorldModel, rollout};
 pub use batching::PassBudget;
-pub use checkpoint::{load_model, load_rigidformer, read_config};
+pub use checkpoint::{load_model, load_rigidformer, read_architecture, read_config};
 pub use config::{
     APPROACH_FEATURES, BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig,
     FeatureNormalization, HISTORY_FEATURES, InputGroup, LN_MASS_FEATURE, LossConfig, ModelConfig,

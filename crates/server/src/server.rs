@@ -124,15 +124,7 @@ pub fn load_all(dirs: &[PathBuf]) -> anyhow::Result<Models> {
 
 /// The `architecture` field of a checkpoint directory's config.json.
 fn architecture_of(dir: &Path) -> anyhow::Result<String> {
-    let path = dir.join(dynaserve_model::checkpoint::CONFIG_FILE);
-    let text =
-        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
-    let v: serde_json::Value =
-        serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
-    Ok(v.get("architecture")
-        .and_then(|a| a.as_str())
-        .unwrap_or_default()
-        .to_string())
+    dynaserve_model::read_architecture(dir).with_context(|| format!("reading {}", dir.display()))
 }
 
 /// Loads RigidFormer model directories on the CPU.

@@ -131,7 +131,7 @@ impl ModelPredictor {
     /// [`ModelPredictor::new`].
     pub fn load(dir: &std::path::Path) -> Result<ModelPredictor, dynaserve_model::ModelError> {
         let device = dynaserve_model::Device::Cpu;
-        if dynaserve_model::read_config(dir).is_ok() {
+        if dynaserve_model::read_architecture(dir)? == dynaserve_model::config::RIGIDFORMER {
             let model = dynaserve_model::load_rigidformer(dir, &device, false)?;
             return Ok(ModelPredictor::from_rigidformer(Arc::new(model)));
         }
