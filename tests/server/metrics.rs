@@ -49,6 +49,10 @@ async fn metrics_are_listed_before_the_first_request_and_parse() {
         .await
         .json();
     assert_eq!(models.models[0].name, m.name);
+    assert!(
+        models.models[0].members.is_empty(),
+        "a single network has no members"
+    );
     let doc: serde_json::Value = http(server.http_addr, "GET", "/openapi.json", &[], None)
         .await
         .json();
@@ -75,6 +79,7 @@ async fn metrics_are_listed_before_the_first_request_and_parse() {
     );
     let list = client(&server).await.list_models().await.unwrap();
     assert_eq!(list[0].name, m.name);
+    assert!(list[0].members.is_empty());
     server.shutdown();
     server.wait().await.unwrap();
 }

@@ -220,6 +220,15 @@ async fn an_ensemble_directory_is_served_as_one_model_stepping_the_members_mean(
     let server = start(&dir, |_| {}).await;
     let req = rollout_request("rigidformer-pair", scene(5, 3, 48), 20);
     let mut c = client(&server).await;
+    // Both model lists name the members, in order, beside the first member's configuration.
+    let members = vec![a.name.clone(), b.name.clone()];
+    let listed = c.list_models().await.unwrap();
+    assert_eq!(listed[0].members, members);
+    assert_eq!(listed[0].architecture, "rigidformer");
+    let models: json::ListModelsResponse = http(server.http_addr, "GET", "/v1/models", &[], None)
+        .await
+        .json();
+    assert_eq!(models.models[0].members, members);
     let frames = c.rollout_collect(&req).await.unwrap();
     // The served rollout is the in-process ensemble's, one mean step after another ...
     let ensemble = load(&dir);

@@ -296,7 +296,8 @@ def _f32(x: float) -> float:
 
 def model_info(m: pb.ModelInfo) -> Dict[str, Any]:
     """A ``ModelInfo`` message as the HTTP API's ``ModelInfo`` document (``gravity`` a ``[3]``
-    list, ``config`` the parsed ``config.json``; PhysiFormer limits only when set)."""
+    list, ``config`` the parsed ``config.json``; PhysiFormer limits and an ensemble's
+    ``members`` only when set)."""
     d: Dict[str, Any] = {
         "name": m.name,
         "architecture": m.architecture,
@@ -315,6 +316,8 @@ def model_info(m: pb.ModelInfo) -> Dict[str, Any]:
             d[key] = int(getattr(m, key))
     if m.box_half_extent:
         d["box_half_extent"] = _f32(m.box_half_extent)
+    if m.members:
+        d["members"] = list(m.members)
     return d
 
 

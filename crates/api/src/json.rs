@@ -301,6 +301,10 @@ pub struct ModelInfo {
     /// PhysiFormer models: half extent `e` of the closed box `[-e, e]^3`, metres.
     #[serde(default, skip_serializing_if = "is_zero_f32")]
     pub box_half_extent: f32,
+    /// RigidFormer ensembles: names of the member networks, whose predicted poses every step
+    /// averages (`config` is the first member's; absent for a single network).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub members: Vec<String>,
 }
 
 fn is_zero_f32(v: &f32) -> bool {

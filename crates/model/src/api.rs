@@ -203,6 +203,11 @@ pub trait WorldModel: Send + Sync {
     /// Advances every scene of `batch` by one step in one pass. `output[i][j]` is the new pose
     /// of object `j` of scene `i`, `batch[i].dt_steps` frames after `batch[i].state.current`.
     fn step(&self, batch: &[StepItem<'_>]) -> Result<Vec<Vec<Pose>>, ModelError>;
+    /// Names of the networks whose predictions each step averages (an ensemble's members, in
+    /// order); empty for a single network.
+    fn member_names(&self) -> Vec<String> {
+        Vec::new()
+    }
 }
 
 /// Rolls a scene forward `steps` steps of `dt_steps` frames from `state`, calling

@@ -9,7 +9,8 @@
 //! depends on, the kinematic lead), so that a scene prepared once by the first member serves
 //! all of them; their sizes, input features and normalisation may differ, so releases of
 //! different architectures can be combined. The ensemble reports the first member's
-//! configuration (its trained ranges among it).
+//! configuration (its trained ranges among it) and its members' names
+//! ([`WorldModel::member_names`]).
 //!
 //! A step runs every member from the same state and averages the new poses object by object:
 //! the arithmetic mean of the translations and the normalised sum of the rotations' unit
@@ -175,5 +176,9 @@ impl WorldModel for Ensemble {
                     .collect()
             })
             .collect())
+    }
+
+    fn member_names(&self) -> Vec<String> {
+        self.members.iter().map(|m| m.name().to_string()).collect()
     }
 }

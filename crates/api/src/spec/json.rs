@@ -186,6 +186,7 @@ impl ModelInfo {
             default_denoise_steps: v.default_denoise_steps,
             max_samples: v.max_samples,
             box_half_extent: v.box_half_extent,
+            members: v.members,
         }
     }
 }

@@ -190,6 +190,9 @@ pub enum ModelKind {
         config: ModelConfig,
         /// Request limits.
         limits: Limits,
+        /// Names of an ensemble's member networks, whose predicted poses each step averages
+        /// (`config` is the first member's); empty for a single network.
+        members: Vec<String>,
     },
     /// A PhysiFormer: Generate.
     Physi {

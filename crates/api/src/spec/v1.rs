@@ -185,8 +185,13 @@ impl ModelInfo {
             ..v1::ModelInfo::default()
         };
         match &self.kind {
-            ModelKind::Rigid { config, limits: l } => {
+            ModelKind::Rigid {
+                config,
+                limits: l,
+                members,
+            } => {
                 out.architecture = config.architecture.clone();
+                out.members = members.clone();
                 out.dt_frame = f64::from(config.dt_frame);
                 out.default_points = l.default_points as u32;
                 out.max_objects = l.caps.max_objects as u32;

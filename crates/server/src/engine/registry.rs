@@ -37,6 +37,7 @@ impl ModelEntry {
         let name = model.name().to_string();
         let config = model.config().clone();
         let limits = Limits::new(caps, &config);
+        let members = model.member_names();
         let dt_frame = f64::from(config.dt_frame);
         let scheduler = Scheduler::start(
             Arc::new(RigidSteps::new(model)),
@@ -46,7 +47,11 @@ impl ModelEntry {
         Ok(ModelEntry {
             info: ModelInfo {
                 name: name.clone(),
-                kind: ModelKind::Rigid { config, limits },
+                kind: ModelKind::Rigid {
+                    config,
+                    limits,
+                    members,
+                },
             },
             name,
             scheduler,
