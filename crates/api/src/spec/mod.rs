@@ -178,6 +178,9 @@ pub struct ModelInfo {
     pub name: String,
     /// Its family, configuration and limits.
     pub kind: ModelKind,
+    /// Names of an ensemble's member networks, whose predicted poses each step averages (the
+    /// configuration is the first member's); empty for a single network.
+    pub members: Vec<String>,
 }
 
 /// The family of a resident model, with its configuration (architecture, data conventions)
@@ -190,9 +193,6 @@ pub enum ModelKind {
         config: ModelConfig,
         /// Request limits.
         limits: Limits,
-        /// Names of an ensemble's member networks, whose predicted poses each step averages
-        /// (`config` is the first member's); empty for a single network.
-        members: Vec<String>,
     },
     /// A PhysiFormer: Generate.
     Physi {

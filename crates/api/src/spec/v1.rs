@@ -182,16 +182,12 @@ impl ModelInfo {
         let mut out = v1::ModelInfo {
             name: self.name.clone(),
             config_json: self.config_json().to_string(),
+            members: self.members.clone(),
             ..v1::ModelInfo::default()
         };
         match &self.kind {
-            ModelKind::Rigid {
-                config,
-                limits: l,
-                members,
-            } => {
+            ModelKind::Rigid { config, limits: l } => {
                 out.architecture = config.architecture.clone();
-                out.members = members.clone();
                 out.dt_frame = f64::from(config.dt_frame);
                 out.default_points = l.default_points as u32;
                 out.max_objects = l.caps.max_objects as u32;

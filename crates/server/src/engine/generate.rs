@@ -61,6 +61,7 @@ impl GeneratorEntry {
             info: ModelInfo {
                 name: name.clone(),
                 kind: ModelKind::Physi { config, limits },
+                members: Vec::new(),
             },
             name,
             scheduler,

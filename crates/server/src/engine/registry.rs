@@ -47,11 +47,8 @@ impl ModelEntry {
         Ok(ModelEntry {
             info: ModelInfo {
                 name: name.clone(),
-                kind: ModelKind::Rigid {
-                    config,
-                    limits,
-                    members,
-                },
+                kind: ModelKind::Rigid { config, limits },
+                members,
             },
             name,
             scheduler,
