@@ -3,7 +3,8 @@
 //!
 //! An ensemble directory holds a `config.json` of the form
 //! `{"architecture": "rigidformer-ensemble", "members": ["a", "b"]}` (member directories,
-//! relative to the ensemble's own directory, or absolute) and a `card.md`. Each member is an
+//! relative to the ensemble's own directory, or absolute), optionally `"weights": [2, 1]`
+//! (each member's relative weight in the mean; equal when absent), and a `card.md`. Each member is an
 //! ordinary checkpoint directory. Members must serve scenes alike
 //! ([`ModelConfig::serving_mismatch`]: frame interval, gravity, limits, what a prepared scene
 //! depends on, the kinematic lead), so that a scene prepared once by the first member serves
@@ -13,8 +14,8 @@
 //! ([`WorldModel::member_names`]).
 //!
 //! A step runs every member from the same state and averages the new poses object by object:
-//! the arithmetic mean of the translations and the normalised sum of the rotations' unit
-//! quaternions, each first put on the first member's hemisphere (`q` and `-q` are one
+//! the weighted arithmetic mean of the translations and the normalised weighted sum of the
+//! rotations' unit quaternions, each first put on the first member's hemisphere (`q` and `-q` are one
 //! rotation). For rotations a few degrees apart, as members' one-step predictions are, that sum
 //! is the rotation mean to well under a thousandth of a degree. The rollout continues from the
 //! mean, so the members never drift apart. Averaging predictions, unlike averaging weights
@@ -45,12 +46,18 @@ pub struct EnsembleConfig {
     /// Member checkpoint directories, relative to the ensemble directory or absolute (1 to
     /// [`MAX_MEMBERS`]).
     pub members: Vec<PathBuf>,
+    /// Each member's relative weight in the mean (positive and finite, one per member; they
+    /// need not sum to 1). Equal weights when absent.
+    #[serde(default)]
+    pub weights: Option<Vec<f32>>,
 }
 
 /// RigidFormer checkpoints that serve scenes alike, whose steps are averaged (module docs).
 pub struct Ensemble {
     name: String,
     members: Vec<RigidFormer>,
+    /// Each member's weight, summing to 1.
+    weights: Vec<f32>,
 }
 
 impl Ensemble {
@@ -58,8 +65,20 @@ impl Ensemble {
     /// [`MAX_MEMBERS`], or one serves scenes differently from the first
     /// ([`ModelConfig::serving_mismatch`]).
     pub fn new(name: impl Into<String>, members: Vec<RigidFormer>) -> Result<Ensemble, ModelError> {
+        let n = members.len();
+        Ensemble::weighted(name, members, &vec![1.0; n])
+    }
+
+    /// [`Ensemble::new`] with each member's relative weight in the mean (one per member,
+    /// positive and finite; scaled here to sum to 1).
+    pub fn weighted(
+        name: impl Into<String>,
+        members: Vec<RigidFormer>,
+        weights: &[f32],
+    ) -> Result<Ensemble, ModelError> {
         let name = name.into();
         check_member_count(&name, members.len())?;
+        let weights = normalised_weights(&name, weights, members.len())?;
         for (i, m) in members.iter().enumerate().skip(1) {
             if let Some(field) = members[0].config().serving_mismatch(m.config()) {
                 return Err(ModelError::Checkpoint(format!(
@@ -70,7 +89,11 @@ impl Ensemble {
                 )));
             }
         }
-        Ok(Ensemble { name, members })
+        Ok(Ensemble {
+            name,
+            members,
+            weights,
+        })
     }
 
     /// Loads the ensemble directory `dir` (module docs) with its members' weights on `device`.
@@ -84,7 +107,11 @@ impl Ensemble {
             )));
         }
         // Checked before any member's weights are read.
-        check_member_count(&dir.display().to_string(), config.members.len())?;
+        let what = dir.display().to_string();
+        let n = config.members.len();
+        check_member_count(&what, n)?;
+        let weights = config.weights.unwrap_or_else(|| vec![1.0; n]);
+        normalised_weights(&what, &weights, n)?;
         let members = config
             .members
             .iter()
@@ -95,13 +122,37 @@ impl Ensemble {
                 })
             })
             .collect::<Result<Vec<_>, _>>()?;
-        Ensemble::new(dir_name(dir, ENSEMBLE), members)
+        Ensemble::weighted(dir_name(dir, ENSEMBLE), members, &weights)
     }
 
     /// The members, in the order of `config.json`.
     pub fn members(&self) -> &[RigidFormer] {
         &self.members
     }
+
+    /// Each member's weight in the mean, in member order; they sum to 1.
+    pub fn weights(&self) -> &[f32] {
+        &self.weights
+    }
+}
+
+/// `weights` scaled to sum to 1, after checking that there is one per member (`n`) and that
+/// each is positive and finite; errors name the ensemble (`what`).
+fn normalised_weights(what: &str, weights: &[f32], n: usize) -> Result<Vec<f32>, ModelError> {
+    if weights.len() != n {
+        return Err(ModelError::Checkpoint(format!(
+            "{what}: {} weights for {n} members; give one weight per member",
+            weights.len()
+        )));
+    }
+    if let Some(i) = weights.iter().position(|w| !(w.is_finite() && *w > 0.0)) {
+        return Err(ModelError::Checkpoint(format!(
+            "{what}: weight {i} is {}; weights must be positive and finite",
+            weights[i]
+        )));
+    }
+    let total: f32 = weights.iter().sum();
+    Ok(weights.iter().map(|w| w / total).collect())
 }
 
 /// Refuses an ensemble (`what` names it) of `n` members unless `1 <= n <= MAX_MEMBERS`.
@@ -116,22 +167,33 @@ fn check_member_count(what: &str, n: usize) -> Result<(), ModelError> {
 
 /// The mean of several predictions of one object's pose (module docs); `poses` is not empty.
 pub fn mean_pose(poses: &[Pose]) -> Pose {
-    let n = poses.len().max(1) as f32;
+    weighted_mean_pose(poses, &vec![1.0; poses.len()])
+}
+
+/// The weighted mean of several predictions of one object's pose (module docs): `weights[i]`
+/// (positive, any sum) weighs `poses[i]`; `poses` is not empty and as long as `weights`.
+pub fn weighted_mean_pose(poses: &[Pose], weights: &[f32]) -> Pose {
+    let total: f32 = weights.iter().sum();
+    let total = if total > 0.0 { total } else { 1.0 };
     let translation = poses
         .iter()
-        .fold(Vector3::zeros(), |s, p| s + Vector3::from(p.translation))
-        / n;
+        .zip(weights)
+        .fold(Vector3::zeros(), |s, (p, w)| {
+            s + Vector3::from(p.translation) * *w
+        })
+        / total;
     let first = poses.first().map(|p| p.unit_quaternion().into_inner());
     let sum = poses
         .iter()
-        .fold(Quaternion::new(0.0, 0.0, 0.0, 0.0), |s, p| {
-            let q = p.unit_quaternion().into_inner();
+        .zip(weights)
+        .fold(Quaternion::new(0.0, 0.0, 0.0, 0.0), |s, (p, w)| {
+            let q = p.unit_quaternion().into_inner() * *w;
             match first {
                 Some(f) if q.dot(&f) < 0.0 => s - q,
                 _ => s + q,
             }
         });
-    // The sum of unit quaternions on one hemisphere is never zero.
+    // A positively weighted sum of unit quaternions on one hemisphere is never zero.
     let rotation = UnitQuaternion::try_new(sum, 1e-12).unwrap_or_else(UnitQuaternion::identity);
     Pose::from_parts(translation, rotation)
 }
@@ -171,7 +233,7 @@ impl WorldModel for Ensemble {
                     .map(|object| {
                         poses.clear();
                         poses.extend(outputs.iter().map(|o| o[scene][object]));
-                        mean_pose(&poses)
+                        weighted_mean_pose(&poses, &self.weights)
                     })
                     .collect()
             })

@@ -4,7 +4,7 @@ mod common;
 use std::path::Path;
 
 use common::{load_error, max_pose_diff, step_random_scene, tmp_dir};
-use dynaserve_model::ensemble::{MAX_MEMBERS, mean_pose};
+use dynaserve_model::ensemble::{MAX_MEMBERS, mean_pose, weighted_mean_pose};
 use dynaserve_model::{
     Device, ModelConfig, Pose, RigidFormer, WorldModel, load_model, load_rigidformer,
 };
@@ -13,14 +13,20 @@ use nalgebra::{UnitQuaternion, Vector3};
 /// Saves tiny members with the given seeds as `dir/m<seed>` and writes an ensemble
 /// `config.json` listing `members`.
 fn ensemble_dir(dir: &Path, seeds: &[u64], members: &[&str]) {
+    ensemble_dir_with(dir, seeds, serde_json::json!({"members": members}));
+}
+
+/// [`ensemble_dir`] with the fields of `fields` (an object: `members`, `weights`, ...) in the
+/// `config.json`.
+fn ensemble_dir_with(dir: &Path, seeds: &[u64], mut fields: serde_json::Value) {
     for &seed in seeds {
         RigidFormer::new(ModelConfig::tiny(), seed, &Device::Cpu)
             .unwrap()
             .save(&dir.join(format!("m{seed}")))
             .unwrap();
     }
-    let config = serde_json::json!({"architecture": "rigidformer-ensemble", "members": members});
-    std::fs::write(dir.join("config.json"), config.to_string()).unwrap();
+    fields["architecture"] = "rigidformer-ensemble".into();
+    std::fs::write(dir.join("config.json"), fields.to_string()).unwrap();
 }
 
 /// One step of a random four-object scene, the same for every model of a test.
@@ -60,6 +66,54 @@ fn an_ensemble_steps_to_the_mean_of_its_members() {
 }
 
 #[test]
+fn a_weighted_ensemble_steps_to_the_weighted_mean() {
+    let dir = tmp_dir("ensemble", "weighted");
+    ensemble_dir_with(
+        &dir,
+        &[5, 6],
+        serde_json::json!({"members": ["m5", "m6"], "weights": [3.0, 1.0]}),
+    );
+    let members: Vec<RigidFormer> = ["m5", "m6"]
+        .iter()
+        .map(|m| load_rigidformer(&dir.join(m), &Device::Cpu, false).unwrap())
+        .collect();
+    let (a, b) = (step(&members[0]), step(&members[1]));
+    let weighted: Vec<Pose> = a
+        .iter()
+        .zip(&b)
+        .map(|(p, q)| weighted_mean_pose(&[*p, *q], &[0.75, 0.25]))
+        .collect();
+    let got = step(load_model(&dir, &Device::Cpu).unwrap().as_ref());
+    assert!(
+        max_pose_diff(&got, &weighted) < 1e-6,
+        "{got:?} vs {weighted:?}"
+    );
+    // Three quarters of the way to the first member, not half.
+    let equal: Vec<Pose> = a
+        .iter()
+        .zip(&b)
+        .map(|(p, q)| mean_pose(&[*p, *q]))
+        .collect();
+    assert!(max_pose_diff(&got, &equal) > 1e-5);
+    assert!(max_pose_diff(&got, &a) < max_pose_diff(&got, &b));
+    // One weight per member, each positive and finite.
+    for (weights, needle) in [
+        (serde_json::json!([1.0]), "1 weights for 2 members"),
+        (serde_json::json!([1.0, 0.0]), "weight 1 is 0"),
+        (serde_json::json!([-1.0, 1.0]), "weight 0 is -1"),
+    ] {
+        ensemble_dir_with(
+            &dir,
+            &[],
+            serde_json::json!({"members": ["m5", "m6"], "weights": weights}),
+        );
+        let e = load_error(&dir);
+        assert!(e.contains(needle), "{e}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn the_mean_pose_averages_translations_and_rotations() {
     let yaw = |x: f32, angle: f32| {
         Pose::from_parts(
@@ -76,6 +130,13 @@ fn the_mean_pose_averages_translations_and_rotations() {
     flipped.rotation = flipped.rotation.map(|c| -c);
     let again = mean_pose(&[yaw(0.0, 0.1), flipped]);
     assert!(again.unit_quaternion().angle_to(&expected) < 1e-5);
+    // Weights pull the mean towards the heavier pose; equal weights are the plain mean.
+    let heavy = weighted_mean_pose(&[yaw(0.0, 0.1), yaw(1.0, 0.3)], &[1.0, 3.0]);
+    assert!((heavy.translation[0] - 0.75).abs() < 1e-6);
+    let at = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.25);
+    assert!(heavy.unit_quaternion().angle_to(&at) < 1e-4);
+    let even = weighted_mean_pose(&[yaw(0.0, 0.1), yaw(1.0, 0.3)], &[2.0, 2.0]);
+    assert!(max_pose_diff(&[even], &[mean]) < 1e-6);
     // A single pose is itself.
     let one = mean_pose(&[yaw(0.2, 0.7)]);
     assert!(max_pose_diff(&[one], &[yaw(0.2, 0.7)]) < 1e-6);
@@ -128,7 +189,7 @@ fn bad_ensembles_are_refused_with_the_reason() {
     // Unknown fields are refused rather than ignored.
     std::fs::write(
         dir.join("config.json"),
-        r#"{"architecture": "rigidformer-ensemble", "members": ["m3"], "weights": [1]}"#,
+        r#"{"architecture": "rigidformer-ensemble", "members": ["m3"], "weight": [1]}"#,
     )
     .unwrap();
     assert!(load_error(&dir).contains("not a valid ensemble configuration"));
