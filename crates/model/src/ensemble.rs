@@ -4,8 +4,8 @@
 //! An ensemble directory holds a `config.json` of the form
 //! `{"architecture": "rigidformer-ensemble", "members": ["a", "b"]}` (member directories,
 //! relative to the ensemble's own directory, or absolute), optionally `"weights": [2, 1]`
-//! (each member's relative weight in the mean; equal when absent), and a `card.md`. Each member is an
-//! ordinary checkpoint directory. Members must serve scenes alike
+//! (each member's relative weight in the mean; equal when absent), and a `card.md`. Each
+//! member is an ordinary checkpoint directory. Members must serve scenes alike
 //! ([`ModelConfig::serving_mismatch`]: frame interval, gravity, limits, what a prepared scene
 //! depends on, the kinematic lead), so that a scene prepared once by the first member serves
 //! all of them; their sizes, input features and normalisation may differ, so releases of
@@ -15,12 +15,12 @@
 //!
 //! A step runs every member from the same state and averages the new poses object by object:
 //! the weighted arithmetic mean of the translations and the normalised weighted sum of the
-//! rotations' unit quaternions, each first put on the first member's hemisphere (`q` and `-q` are one
-//! rotation). For rotations a few degrees apart, as members' one-step predictions are, that sum
-//! is the rotation mean to well under a thousandth of a degree. The rollout continues from the
-//! mean, so the members never drift apart. Averaging predictions, unlike averaging weights
-//! (`dynaserve train average`), needs no shared training history; it costs one network pass
-//! per member.
+//! rotations' unit quaternions, each first put on the first member's hemisphere (`q` and `-q`
+//! are one rotation). For rotations a few degrees apart, as members' one-step predictions
+//! are, that sum is the rotation mean to well under a thousandth of a degree. The rollout
+//! continues from the mean, so the members never drift apart. Averaging predictions, unlike
+//! averaging weights (`dynaserve train average`), needs no shared training history; it costs
+//! one network pass per member.
 
 use std::path::{Path, PathBuf};
 
@@ -151,8 +151,10 @@ fn normalised_weights(what: &str, weights: &[f32], n: usize) -> Result<Vec<f32>,
             weights[i]
         )));
     }
-    let total: f32 = weights.iter().sum();
-    Ok(weights.iter().map(|w| w / total).collect())
+    // Scaled by the largest first, so that no sum of finite weights overflows.
+    let largest = weights.iter().fold(0.0f32, |m, w| m.max(*w));
+    let total: f32 = weights.iter().map(|w| w / largest).sum();
+    Ok(weights.iter().map(|w| w / largest / total).collect())
 }
 
 /// Refuses an ensemble (`what` names it) of `n` members unless `1 <= n <= MAX_MEMBERS`.

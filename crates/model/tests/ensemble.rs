@@ -96,6 +96,14 @@ fn a_weighted_ensemble_steps_to_the_weighted_mean() {
         .collect();
     assert!(max_pose_diff(&got, &equal) > 1e-5);
     assert!(max_pose_diff(&got, &a) < max_pose_diff(&got, &b));
+    // Weights near the largest float are scaled, not summed to infinity.
+    ensemble_dir_with(
+        &dir,
+        &[],
+        serde_json::json!({"members": ["m5", "m6"], "weights": [3e38, 3e38]}),
+    );
+    let huge = step(load_model(&dir, &Device::Cpu).unwrap().as_ref());
+    assert!(max_pose_diff(&huge, &equal) < 1e-6, "{huge:?} vs {equal:?}");
     // One weight per member, each positive and finite.
     for (weights, needle) in [
         (serde_json::json!([1.0]), "1 weights for 2 members"),
