@@ -65,8 +65,9 @@ impl Ensemble {
     /// [`MAX_MEMBERS`], or one serves scenes differently from the first
     /// ([`ModelConfig::serving_mismatch`]).
     pub fn new(name: impl Into<String>, members: Vec<RigidFormer>) -> Result<Ensemble, ModelError> {
-        let n = members.len();
-        Ensemble::weighted(name, members, &vec![1.0; n])
+        let name = name.into();
+        let weights = member_weights(&name, members.len(), None)?;
+        Ensemble::assemble(name, members, weights)
     }
 
     /// [`Ensemble::new`] with each member's relative weight in the mean (one per member,
@@ -77,8 +78,17 @@ impl Ensemble {
         weights: &[f32],
     ) -> Result<Ensemble, ModelError> {
         let name = name.into();
-        check_member_count(&name, members.len())?;
-        let weights = normalised_weights(&name, weights, members.len())?;
+        let weights = member_weights(&name, members.len(), Some(weights))?;
+        Ensemble::assemble(name, members, weights)
+    }
+
+    /// The ensemble of `members` with `weights` already checked and normalised
+    /// ([`member_weights`]), after checking that every member serves scenes as the first does.
+    fn assemble(
+        name: String,
+        members: Vec<RigidFormer>,
+        weights: Vec<f32>,
+    ) -> Result<Ensemble, ModelError> {
         for (i, m) in members.iter().enumerate().skip(1) {
             if let Some(field) = members[0].config().serving_mismatch(m.config()) {
                 return Err(ModelError::Checkpoint(format!(
@@ -107,11 +117,11 @@ impl Ensemble {
             )));
         }
         // Checked before any member's weights are read.
-        let what = dir.display().to_string();
-        let n = config.members.len();
-        check_member_count(&what, n)?;
-        let weights = config.weights.unwrap_or_else(|| vec![1.0; n]);
-        normalised_weights(&what, &weights, n)?;
+        let weights = member_weights(
+            &dir.display().to_string(),
+            config.members.len(),
+            config.weights.as_deref(),
+        )?;
         let members = config
             .members
             .iter()
@@ -122,7 +132,7 @@ impl Ensemble {
                 })
             })
             .collect::<Result<Vec<_>, _>>()?;
-        Ensemble::weighted(dir_name(dir, ENSEMBLE), members, &weights)
+        Ensemble::assemble(dir_name(dir, ENSEMBLE), members, weights)
     }
 
     /// The members, in the order of `config.json`.
@@ -136,9 +146,18 @@ impl Ensemble {
     }
 }
 
-/// `weights` scaled to sum to 1, after checking that there is one per member (`n`) and that
-/// each is positive and finite; errors name the ensemble (`what`).
-fn normalised_weights(what: &str, weights: &[f32], n: usize) -> Result<Vec<f32>, ModelError> {
+/// The weights of an ensemble (`what` names it) of `n` members, scaled to sum to 1: `weights`,
+/// or equal weights when `None`. Refuses `n` outside `1..=MAX_MEMBERS`, a count of weights
+/// other than `n`, and a weight that is not positive and finite.
+fn member_weights(what: &str, n: usize, weights: Option<&[f32]>) -> Result<Vec<f32>, ModelError> {
+    if n == 0 || n > MAX_MEMBERS {
+        return Err(ModelError::Checkpoint(format!(
+            "{what}: an ensemble lists 1 to {MAX_MEMBERS} members, this one {n}"
+        )));
+    }
+    let Some(weights) = weights else {
+        return Ok(vec![1.0 / n as f32; n]);
+    };
     if weights.len() != n {
         return Err(ModelError::Checkpoint(format!(
             "{what}: {} weights for {n} members; give one weight per member",
@@ -157,23 +176,14 @@ fn normalised_weights(what: &str, weights: &[f32], n: usize) -> Result<Vec<f32>,
     Ok(weights.iter().map(|w| w / largest / total).collect())
 }
 
-/// Refuses an ensemble (`what` names it) of `n` members unless `1 <= n <= MAX_MEMBERS`.
-fn check_member_count(what: &str, n: usize) -> Result<(), ModelError> {
-    if n == 0 || n > MAX_MEMBERS {
-        return Err(ModelError::Checkpoint(format!(
-            "{what}: an ensemble lists 1 to {MAX_MEMBERS} members, this one {n}"
-        )));
-    }
-    Ok(())
-}
-
 /// The mean of several predictions of one object's pose (module docs); `poses` is not empty.
 pub fn mean_pose(poses: &[Pose]) -> Pose {
     weighted_mean_pose(poses, &vec![1.0; poses.len()])
 }
 
 /// The weighted mean of several predictions of one object's pose (module docs): `weights[i]`
-/// (positive, any sum) weighs `poses[i]`; `poses` is not empty and as long as `weights`.
+/// (positive, with a finite sum; the ensemble's sum to 1) weighs `poses[i]`; `poses` is not
+/// empty and as long as `weights`.
 pub fn weighted_mean_pose(poses: &[Pose], weights: &[f32]) -> Pose {
     let total: f32 = weights.iter().sum();
     let total = if total > 0.0 { total } else { 1.0 };
