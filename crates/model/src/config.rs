@@ -40,6 +40,9 @@ pub const APPROACH_FEATURES: usize = 3;
 /// Numbers per object in the object state summary ([`DynamicsConfig::object_summary`]).
 pub const OBJECT_SUMMARY_FEATURES: usize = 14;
 
+/// Numbers per object in the contact summary ([`DynamicsConfig::contact_summary`]).
+pub const CONTACT_SUMMARY_FEATURES: usize = 11;
+
 /// Affine normalisation of the per-point input features: `(raw - mean) / std`, one value per
 /// feature ([`DynamicsConfig::point_features`]: 12, plus 3 with the contact velocity, plus 7
 /// with the surface normals, plus 3 with the history, plus 3 with the approach).
@@ -244,6 +247,14 @@ pub struct DynamicsConfig {
     /// decoder without passing through the encoder's max-pools. Absent in older `config.json`
     /// files, which means off.
     pub object_summary: bool,
+    /// Contact summary: [`CONTACT_SUMMARY_FEATURES`] numbers per object describing where it
+    /// meets other objects (the nearest gap, and over the patch of its points nearly that
+    /// close: the mean direction to the other surface, the mean offset from the centre and the
+    /// mean contact velocity; the patch's share of the cloud), added to the object's token
+    /// through a second MLP whose last layer starts at zero. It is the object summary's lever
+    /// arm for contacts between objects, which the floor's summary does not see. Absent in
+    /// older `config.json` files, which means off.
+    pub contact_summary: bool,
     /// A Verlet base that respects the floor: after the constant-velocity extrapolation and
     /// free fall, the object is raised just enough that no point of its reference cloud is
     /// below `ground_z` (the ballistic-with-floor baseline's inelastic floor). A body at rest on
@@ -382,6 +393,7 @@ impl DynamicsConfig {
             approach: false,
             rigid_extrapolation: true,
             object_summary: false,
+            contact_summary: false,
             floor_base: false,
             relative_mass: false,
             free_flight_gate: false,

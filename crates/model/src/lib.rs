@@ -26,9 +26,9 @@ pub use api::{ObjectInput, Pose, SceneState, StepItem, WorldModel, rollout};
 pub use batching::PassBudget;
 pub use checkpoint::{load_model, load_rigidformer, read_architecture, read_config};
 pub use config::{
-    APPROACH_FEATURES, BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig,
-    FeatureNormalization, HISTORY_FEATURES, InputGroup, LN_MASS_FEATURE, LossConfig, ModelConfig,
-    OBJECT_SUMMARY_FEATURES, PreparedKey, SURFACE_NORMAL_FEATURES,
+    APPROACH_FEATURES, BASE_POINT_FEATURES, CONTACT_SUMMARY_FEATURES, CONTACT_VELOCITY_FEATURES,
+    DynamicsConfig, FeatureNormalization, HISTORY_FEATURES, InputGroup, LN_MASS_FEATURE,
+    LossConfig, ModelConfig, OBJECT_SUMMARY_FEATURES, PreparedKey, SURFACE_NORMAL_FEATURES,
 };
 pub use ensemble::Ensemble;
 pub use error::ModelError;
@@ -39,10 +39,11 @@ pub use prepare::{
     MAX_BODY_EXTENT, MAX_DT_STEPS, MAX_WORLD_EXTENT, PreparedScene, model_masses, normalise_pose,
 };
 pub use rigidformer::features::{
-    FeatureFrame, ScenePoints, approach_features, body_normals, contact_velocity, history_features,
-    object_params, object_summary, raw_point_features, surface_normal_features,
+    CONTACT_PATCH_SCALE, FeatureFrame, ScenePoints, approach_features, body_normals,
+    contact_summary, contact_velocity, history_features, object_params, object_summary,
+    raw_point_features, surface_normal_features,
 };
-pub use rigidformer::{RigidFormer, StepProfile, TrainItem, TrainOutput};
+pub use rigidformer::{RigidFormer, StepProfile, Summary, TrainItem, TrainOutput};
 pub use runtime::{configure_compute, keep_freed_memory};
 pub use trained_ranges::{OutOfRange, TrainedRanges};
 

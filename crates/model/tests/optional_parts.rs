@@ -1,6 +1,7 @@
 //! The optional parts of a RigidFormer that start as the zero function: the object state
-//! summary (its numbers for a known motion; a model that gains it, random or widened, computes
-//! the same steps as one without; its layers learn and save) and the coarse output unit.
+//! summary and the contact summary (their numbers for a known motion; a model that gains one,
+//! random or widened, computes the same steps as one without; their layers learn and save) and
+//! the coarse output unit.
 mod common;
 
 use common::{
@@ -8,8 +9,8 @@ use common::{
     step_random_scene,
 };
 use dynaserve_model::{
-    Device, DynamicsConfig, FeatureFrame, ModelConfig, Pose, RigidFormer, WorldModel,
-    load_rigidformer, object_summary,
+    Device, DynamicsConfig, FeatureFrame, ModelConfig, Pose, RigidFormer, ScenePoints, Summary,
+    WorldModel, contact_summary, load_rigidformer, object_summary,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 
@@ -80,54 +81,115 @@ fn summary_reads_heights_increments_and_the_turn() {
     assert_eq!(none[5..], s[5..]);
 }
 
-/// The summary's parameters are created last and its last layer starts at zero: a random
-/// model with the summary steps exactly as the one without from the same seed, and so does a
-/// model widened with it; widening twice is refused.
+/// Two cubes (half extent 0.1 m) 1 m up, side by side along x with 1 cm between their facing
+/// corners, the second closing on the first at 3 cm per frame, and a third cube far away:
+/// each of the pair reads the 1 cm gap, the direction to the other, the facing side's offset
+/// from its centre (0.1 m along x), the closing velocity and half its corners in the patch; the
+/// lone cube reads no contact.
 #[test]
-fn a_model_gains_the_summary_as_the_same_function() {
-    let plain = ModelConfig::small();
-    assert!(!plain.dynamics.object_summary);
-    let mut with = plain.clone();
-    with.dynamics.object_summary = true;
-    let a = RigidFormer::new_frozen(plain, 5, &Device::Cpu).unwrap();
-    let b = RigidFormer::new_frozen(with, 5, &Device::Cpu).unwrap();
-    let wide = a.widened_with_object_summary(7, false).unwrap();
-    assert!(wide.config().dynamics.object_summary);
-    assert_eq!(
-        wide.parameter_count(),
-        b.parameter_count(),
-        "the widened model has the summary's parameters"
+fn contact_summary_reads_where_and_how_fast_objects_meet() {
+    let cfg = ModelConfig::small();
+    let at = |x: f32, y: f32| Pose::from_parts(Vector3::new(x, y, 1.0), UnitQuaternion::identity());
+    let current = [at(0.0, 0.0), at(0.21, 0.0), at(0.0, 3.0)];
+    let previous = [at(0.0, 0.0), at(0.24, 0.0), at(0.0, 3.0)];
+    let reference = corners(&Pose::from_parts(
+        Vector3::zeros(),
+        UnitQuaternion::identity(),
+    ));
+    let points = ScenePoints::new(
+        &cfg,
+        std::iter::repeat_n(reference.as_slice(), 3),
+        &current,
+        &previous,
     );
-    for (seed, k) in [(1, 1), (2, 4)] {
-        let reference = step_random_scene(&a, seed, k);
-        for (name, model) in [("random", &b), ("widened", &wide)] {
-            let diff = max_pose_diff(&reference, &step_random_scene(model, seed, k));
-            assert!(diff < 1e-5, "{name}, seed {seed}, k {k}: differs by {diff}");
+    let r = cfg.contact_radius;
+    let summary = |j: usize| {
+        let frame = FeatureFrame::new(&cfg.dynamics, 1, current[j].translation);
+        let range = points.offsets[j]..points.offsets[j + 1];
+        contact_summary(
+            &points.contact,
+            &points.world,
+            &points.world_prev,
+            range,
+            current[j].translation,
+            r,
+            &frame,
+        )
+    };
+    let gap = 0.01 / r;
+    let first = [gap, 1.0, 0.0, 0.0, 0.5, 0.0, 0.0, -0.3, 0.0, 0.0, 0.5];
+    let second = [gap, -1.0, 0.0, 0.0, -0.5, 0.0, 0.0, 0.3, 0.0, 0.0, 0.5];
+    for (j, want) in [(0, first), (1, second)] {
+        let got = summary(j);
+        for (i, (g, w)) in got.iter().zip(want).enumerate() {
+            assert!(
+                (g - w).abs() < 1e-4,
+                "object {j}: summary[{i}] = {g}, expected {w}"
+            );
         }
     }
-    let twice = wide.widened_with_object_summary(7, false);
-    assert!(twice.err().unwrap().to_string().contains("already"));
+    let lone = summary(2);
+    assert_eq!(lone[0], 1.0);
+    assert!(lone[1..].iter().all(|&v| v == 0.0), "lone cube: {lone:?}");
 }
 
-/// A trainable model with the summary: the summary's last layer receives a gradient from the
-/// first backward pass, and the model round-trips through a checkpoint with the summary on.
+/// Each summary's parameters are created after the rest and its last layer starts at zero: a
+/// random model with it steps exactly as the one without from the same seed, and so does a
+/// model widened with it; widening twice is refused.
+#[test]
+fn a_model_gains_a_summary_as_the_same_function() {
+    for kind in Summary::ALL {
+        let plain = ModelConfig::small();
+        assert!(!kind.enabled(&plain.dynamics));
+        let mut with = plain.clone();
+        kind.set(&mut with.dynamics, true);
+        let a = RigidFormer::new_frozen(plain, 5, &Device::Cpu).unwrap();
+        let b = RigidFormer::new_frozen(with, 5, &Device::Cpu).unwrap();
+        let wide = a.widened_with_summary(kind, 7, false).unwrap();
+        assert!(kind.enabled(&wide.config().dynamics));
+        assert_eq!(
+            wide.parameter_count(),
+            b.parameter_count(),
+            "{kind:?}: the widened model has the summary's parameters"
+        );
+        for (seed, k) in [(1, 1), (2, 4)] {
+            let reference = step_random_scene(&a, seed, k);
+            for (name, model) in [("random", &b), ("widened", &wide)] {
+                let diff = max_pose_diff(&reference, &step_random_scene(model, seed, k));
+                assert!(
+                    diff < 1e-5,
+                    "{kind:?}, {name}, seed {seed}, k {k}: differs by {diff}"
+                );
+            }
+        }
+        let twice = wide.widened_with_summary(kind, 7, false);
+        assert!(twice.err().unwrap().to_string().contains("already"));
+    }
+}
+
+/// A trainable model with both summaries: each summary's last layer receives a gradient from
+/// the first backward pass, and the model round-trips through a checkpoint with them on.
 #[test]
 fn summary_layers_learn_and_save() {
     let mut cfg = ModelConfig::tiny();
     cfg.dynamics.object_summary = true;
+    cfg.dynamics.contact_summary = true;
     let model = RigidFormer::new(cfg, 3, &Device::Cpu).unwrap();
     let (objects, state) = random_scene(4, 3, 64);
     // Targets 5 cm below constant velocity (any target gives a gradient).
     let target = constant_velocity_targets(&state, 0.05);
-    let (g, _) = one_step_gradient(&model, objects, &state, &target, 1, "summary.1.weight");
-    let norm = squared_norm(&g);
-    assert!(norm > 0.0 && norm.is_finite(), "summary.1 gradient {norm}");
+    for name in ["summary.1.weight", "contact_summary.1.weight"] {
+        let (g, _) = one_step_gradient(&model, objects.clone(), &state, &target, 1, name);
+        let norm = squared_norm(&g);
+        assert!(norm > 0.0 && norm.is_finite(), "{name} gradient {norm}");
+    }
 
     let dir = std::env::temp_dir().join(format!("dynaserve-summary-{}", std::process::id()));
     model.save(&dir).unwrap();
     let back = load_rigidformer(&dir, &Device::Cpu, false).unwrap();
     std::fs::remove_dir_all(&dir).unwrap();
     assert!(back.config().dynamics.object_summary);
+    assert!(back.config().dynamics.contact_summary);
     let diff = max_pose_diff(
         &step_random_scene(&model, 6, 2),
         &step_random_scene(&back, 6, 2),

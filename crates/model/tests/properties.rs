@@ -404,4 +404,9 @@ fn settings_edits_may_not_switch_inputs() {
             .with_settings(|d, _| d.object_summary = !d.object_summary)
             .is_err()
     );
+    assert!(
+        tiny()
+            .with_settings(|d, _| d.contact_summary = !d.contact_summary)
+            .is_err()
+    );
 }

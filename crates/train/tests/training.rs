@@ -302,9 +302,10 @@ fn init_widens_a_model_for_the_contact_velocity_and_the_surface_normals() {
 }
 
 /// `model.object_summary = true` on a `model.init` without the summary widens it (the run's
-/// checkpoint reads the summary and holds its parameters); `false` on one that has it is refused.
+/// checkpoint reads the summary and holds its parameters), and `model.contact_summary = true`
+/// widens that one again for the contact summary; `false` on one that has a summary is refused.
 #[test]
-fn init_widens_a_model_for_the_object_summary() {
+fn init_widens_a_model_for_the_summaries() {
     let dir = scratch("summary");
     let data = tiny_dataset(&dir);
     train_tiny_from(&data, &dir, "base", None, |_| {}).unwrap();
@@ -342,6 +343,27 @@ fn init_widens_a_model_for_the_object_summary() {
     })
     .unwrap_err();
     assert!(err.to_string().contains("cannot be removed"), "{err}");
+
+    train_tiny_from(&data, &dir, "both", Some("wide"), |c| {
+        c.model.contact_summary = Some(true)
+    })
+    .unwrap();
+    let m = dynaserve_model::load_rigidformer(
+        &dir.join("both/checkpoint"),
+        &dynaserve_model::Device::Cpu,
+        false,
+    )
+    .unwrap();
+    let d = &dynaserve_model::WorldModel::config(&m).dynamics;
+    assert!(d.object_summary && d.contact_summary);
+    let vars = m.varmap().data().lock().unwrap();
+    assert!(vars.contains_key("summary.1.weight") && vars.contains_key("contact_summary.1.weight"));
+    drop(vars);
+    let err = train_tiny_from(&data, &dir, "unsummed", Some("both"), |c| {
+        c.model.contact_summary = Some(false)
+    })
+    .unwrap_err();
+    assert!(err.to_string().contains("contact summary"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -13,8 +13,9 @@ use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 use crate::api::Pose;
 use crate::config::{
-    APPROACH_FEATURES, BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig,
-    HISTORY_FEATURES, ModelConfig, OBJECT_SUMMARY_FEATURES, SURFACE_NORMAL_FEATURES,
+    APPROACH_FEATURES, BASE_POINT_FEATURES, CONTACT_SUMMARY_FEATURES, CONTACT_VELOCITY_FEATURES,
+    DynamicsConfig, HISTORY_FEATURES, ModelConfig, OBJECT_SUMMARY_FEATURES,
+    SURFACE_NORMAL_FEATURES,
 };
 
 /// Physical parameters as the model sees them: `[ln(mass / kg), friction, restitution]`.
@@ -253,6 +254,70 @@ pub fn object_summary(
         out[8 + d] = turn[d] * inc / SUMMARY_ROTATION_SCALE;
     }
     out[4] = height(now[2]);
+    out
+}
+
+/// Points of an object within this distance (metres) beyond its nearest gap to another
+/// object count towards the contact summary's patch, with weights falling off on this scale.
+pub const CONTACT_PATCH_SCALE: f32 = 0.02;
+
+/// The contact summary of one object ([`DynamicsConfig::contact_summary`]), scaled to O(1):
+/// `[gap, direction (3), lever (3), velocity (3), share]`. Only points whose contact search
+/// reached another object's point count (not the ground's). `gap` is the smallest distance
+/// from the object's points to another object's, clamped to `radius` and divided by it (1
+/// when no point reaches another object; everything else is then zero). Over the patch of
+/// points within `3 CONTACT_PATCH_SCALE` of that gap, each weighted by `exp(-(g - gap) /
+/// CONTACT_PATCH_SCALE)`: `direction` is the weighted mean unit vector towards the other
+/// surface, `lever` the weighted mean offset of the points from `centre` (world frame, divided
+/// by [`SUMMARY_LEVER_SCALE`]): where the object is touched relative to its centre of mass,
+/// which decides how an impact turns it; `velocity` the weighted mean [`contact_velocity`]
+/// (divided by [`SUMMARY_INCREMENT_SCALE`]); `share` the weights' sum over the object's
+/// point count, how much of it touches. `hits`, `world` and `world_prev`: the whole scene's,
+/// `[n]` and `[n, 3]` metres; `points`: this object's rows in them; `centre`: its centre of
+/// mass at t, metres.
+pub fn contact_summary(
+    hits: &[ContactHit],
+    world: &[Point],
+    world_prev: &[Point],
+    points: std::ops::Range<usize>,
+    centre: [f32; 3],
+    radius: f32,
+    frame: &FeatureFrame,
+) -> [f32; CONTACT_SUMMARY_FEATURES] {
+    let mut out = [0f32; CONTACT_SUMMARY_FEATURES];
+    let norm = |d: Point| d.iter().map(|v| v * v).sum::<f32>().sqrt();
+    let touching = |q: &usize| matches!(hits[*q].source, ContactSource::Point(_));
+    let gap = points
+        .clone()
+        .filter(touching)
+        .map(|q| norm(hits[q].displacement))
+        .fold(f32::INFINITY, f32::min);
+    if !gap.is_finite() {
+        out[0] = 1.0;
+        return out;
+    }
+    out[0] = gap.min(radius) / radius;
+    let mut total = 0.0;
+    for q in points.clone().filter(touching) {
+        let (d, g) = (hits[q].displacement, norm(hits[q].displacement));
+        if g > gap + 3.0 * CONTACT_PATCH_SCALE {
+            continue;
+        }
+        let w = (-(g - gap) / CONTACT_PATCH_SCALE).exp();
+        let v = contact_velocity(hits[q].source, q, world, world_prev, frame);
+        for a in 0..3 {
+            if g > 0.0 {
+                out[1 + a] += w * d[a] / g;
+            }
+            out[4 + a] += w * (world[q][a] - centre[a]) / SUMMARY_LEVER_SCALE;
+            out[7 + a] += w * v[a] / SUMMARY_INCREMENT_SCALE;
+        }
+        total += w;
+    }
+    for v in &mut out[1..10] {
+        *v /= total;
+    }
+    out[10] = total / points.len().max(1) as f32;
     out
 }
 

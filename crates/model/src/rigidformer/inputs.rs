@@ -8,7 +8,9 @@
 use dynaserve_geometry::ContactSource;
 use nalgebra::{Matrix3, Vector3};
 
-use super::features::{FeatureFrame, ScenePoints, object_summary, rotation_translation as rot};
+use super::features::{
+    FeatureFrame, ScenePoints, contact_summary, object_summary, rotation_translation as rot,
+};
 use super::projection::free_fall;
 use crate::api::Pose;
 use crate::kernels::avp::padded_distances;
@@ -79,6 +81,9 @@ pub(crate) struct BatchInputs<'a> {
     /// Object state summaries `[o, OBJECT_SUMMARY_FEATURES]` ([`object_summary`]); empty when
     /// the model has none.
     pub object_summary: Vec<f32>,
+    /// Contact summaries `[o, CONTACT_SUMMARY_FEATURES]` ([`contact_summary`]); empty when
+    /// the model has none.
+    pub contact_summary: Vec<f32>,
     /// The Verlet base of every anchor before free fall, per object `[K]`, world frame,
     /// metres (f64): where the anchor goes at constant velocity
     /// ([`verlet_base`]).
@@ -144,6 +149,7 @@ struct SceneChunk {
     object_cos: Vec<f32>,
     object_sin: Vec<f32>,
     object_summary: Vec<f32>,
+    contact_summary: Vec<f32>,
     anchors_base: Vec<Vec<[f64; 3]>>,
     anchors_ref: Vec<Vec<[f64; 3]>>,
     floor_lift: Vec<f64>,
@@ -299,6 +305,7 @@ pub(crate) fn build_inputs<'a>(
             .flat_map(|r| std::iter::repeat_n(r.dt_steps, r.scene.len()))
             .collect(),
         object_summary: Vec::new(),
+        contact_summary: Vec::new(),
         anchors_base: Vec::with_capacity(o),
         anchors_ref: Vec::with_capacity(o),
         floor_lift: Vec::new(),
@@ -328,6 +335,7 @@ pub(crate) fn build_inputs<'a>(
         inp.object_cos.extend(c.object_cos);
         inp.object_sin.extend(c.object_sin);
         inp.object_summary.extend(c.object_summary);
+        inp.contact_summary.extend(c.contact_summary);
         inp.anchors_base.extend(c.anchors_base);
         inp.anchors_ref.extend(c.anchors_ref);
         inp.floor_lift.extend(c.floor_lift);
@@ -441,6 +449,7 @@ impl ObjectContext<'_> {
             object_cos: Vec::with_capacity(m * p),
             object_sin: Vec::with_capacity(m * p),
             object_summary: Vec::new(),
+            contact_summary: Vec::new(),
             anchors_base: Vec::with_capacity(m),
             anchors_ref: Vec::with_capacity(m),
             floor_lift: Vec::new(),
@@ -467,6 +476,17 @@ impl ObjectContext<'_> {
                     &r.current[j],
                     &r.previous[j],
                     cfg.ground_z,
+                    &frame,
+                ));
+            }
+            if cfg.dynamics.contact_summary {
+                c.contact_summary.extend(contact_summary(
+                    &points.contact,
+                    world,
+                    &points.world_prev,
+                    base..base + n,
+                    r.current[j].translation,
+                    cfg.contact_radius,
                     &frame,
                 ));
             }

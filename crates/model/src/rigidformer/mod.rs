@@ -33,6 +33,7 @@ use self::anchor_head::AnchorHead;
 use self::decoder::Decoder;
 use self::encoder::Encoder;
 use self::inputs::{BatchInputs, SceneRequest, build_inputs};
+pub use self::summary::Summary;
 use self::summary::SummaryMlp;
 use crate::api::{Pose, StepItem, WorldModel};
 use crate::batching::PassBudget;
@@ -82,7 +83,7 @@ pub struct RigidFormer {
     encoder: Encoder,
     decoder: Decoder,
     anchors: AnchorHead,
-    summary: Option<SummaryMlp>,
+    summaries: Vec<SummaryMlp>,
     max_pass_objects: usize,
     fused_kernels: bool,
     scene_threads: bool,
@@ -124,7 +125,7 @@ impl RigidFormer {
     }
 
     /// Builds the network from a parameter store (random or loaded). Parameters are created in
-    /// a fixed order (encoder, decoder, anchor head, then the optional object summary) so a
+    /// a fixed order (encoder, decoder, anchor head, then the optional summaries) so a
     /// seed always gives the same weights, with or without the summary.
     pub(crate) fn from_store(
         name: String,
@@ -136,7 +137,7 @@ impl RigidFormer {
         let encoder = Encoder::new(&mut p, &config)?;
         let decoder = Decoder::new(&mut p, &config)?;
         let anchors = AnchorHead::new(&mut p, &config, device)?;
-        let summary = SummaryMlp::new(&mut p, &config)?;
+        let summaries = SummaryMlp::all(&mut p, &config)?;
         Ok(RigidFormer {
             name,
             config,
@@ -145,7 +146,7 @@ impl RigidFormer {
             encoder,
             decoder,
             anchors,
-            summary,
+            summaries,
             max_pass_objects: DEFAULT_MAX_PASS_OBJECTS,
             fused_kernels: true,
             scene_threads: true,
@@ -179,9 +180,9 @@ impl RigidFormer {
     /// Changes, through `edit`, any switch of the dynamics and the loss that leaves the weights'
     /// shapes alone (the Verlet bases, scene-relative mass, the kinematic lead, the free-flight
     /// gate, the loss's constants): the one way a trainer applies a configuration's switches to
-    /// a loaded model. Refuses an edit that turns an input group or the object summary on or
+    /// a loaded model. Refuses an edit that turns an input group or a summary ([`Summary`]) on or
     /// off, which changes the network's inputs (widen the model for those:
-    /// [`RigidFormer::widened_with_inputs`], [`RigidFormer::widened_with_object_summary`]).
+    /// [`RigidFormer::widened_with_inputs`], [`RigidFormer::widened_with_summary`]).
     pub fn with_settings(
         mut self,
         edit: impl FnOnce(&mut crate::DynamicsConfig, &mut crate::LossConfig),
@@ -192,9 +193,12 @@ impl RigidFormer {
         let inputs_changed = crate::InputGroup::ALL
             .iter()
             .any(|g| g.enabled(d) != g.enabled(&before));
-        if inputs_changed || d.object_summary != before.object_summary {
+        let summaries_changed = Summary::ALL
+            .iter()
+            .any(|s| s.enabled(d) != s.enabled(&before));
+        if inputs_changed || summaries_changed {
             return Err(ModelError::InvalidInput(
-                "a settings edit may not switch an input group or the object summary (they need widening)"
+                "a settings edit may not switch an input group or a summary (they need widening)"
                     .into(),
             ));
         }
@@ -245,10 +249,10 @@ impl RigidFormer {
         };
         let t0 = Instant::now();
         let (h, tokens) = self.encoder.forward(inp, &self.device, exec)?;
-        let tokens = match &self.summary {
-            Some(s) => s.add_to(inp, &tokens, &self.device, exec)?,
-            None => tokens,
-        };
+        let mut tokens = tokens;
+        for s in &self.summaries {
+            tokens = s.add_to(inp, &tokens, &self.device, exec)?;
+        }
         let t1 = Instant::now();
         let decoded = self.decoder.forward(inp, &tokens, exec, &self.device)?;
         let t2 = Instant::now();

@@ -1,44 +1,126 @@
-//! The object state summary's path into the decoder: a two-layer MLP from the
-//! [`OBJECT_SUMMARY_FEATURES`] numbers of [`super::features::object_summary`] to a vector added
-//! to each object's token (`summary.*` parameters). Its last layer starts at zero, so a model
-//! gains the summary as the same function it was and training moves it from there.
+//! The per-object summaries' paths into the decoder: for each summary the model reads (the
+//! object state summary of [`super::features::object_summary`], the contact summary of
+//! [`super::features::contact_summary`]), a two-layer MLP from its numbers to a vector added to
+//! each object's token. Its last layer starts at zero, so a model gains a summary as the same
+//! function it was and training moves it from there.
 
 use candle_core::{Device, Tensor};
 
 use super::host_tensor;
 use super::inputs::BatchInputs;
-use crate::config::OBJECT_SUMMARY_FEATURES;
+use crate::config::{CONTACT_SUMMARY_FEATURES, DynamicsConfig, OBJECT_SUMMARY_FEATURES};
 use crate::layers::{Exec, Linear, ParamStore};
 use crate::{ModelConfig, ModelError};
 
-/// Names of the summary's parameters, in creation order.
-pub(crate) const SUMMARY_PARAMETERS: [&str; 4] = [
-    "summary.0.weight",
-    "summary.0.bias",
-    "summary.1.weight",
-    "summary.1.bias",
-];
+/// A per-object summary a model may read, each with its own MLP.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Summary {
+    /// The object state summary ([`DynamicsConfig::object_summary`]); parameters `summary.*`.
+    Object,
+    /// The contact summary ([`DynamicsConfig::contact_summary`]); parameters
+    /// `contact_summary.*`.
+    Contact,
+}
 
-/// The summary MLP (`summary.0`: `[D, OBJECT_SUMMARY_FEATURES]`, `summary.1`: `[D, D]`).
+impl Summary {
+    /// Every summary, in the order their parameters are created.
+    pub const ALL: [Summary; 2] = [Summary::Object, Summary::Contact];
+
+    /// What the summary is called in messages.
+    pub fn name(self) -> &'static str {
+        match self {
+            Summary::Object => "object state summary",
+            Summary::Contact => "contact summary",
+        }
+    }
+
+    /// Its switch in [`DynamicsConfig`] and in a training configuration's `[model]`.
+    pub fn key(self) -> &'static str {
+        match self {
+            Summary::Object => "object_summary",
+            Summary::Contact => "contact_summary",
+        }
+    }
+
+    /// Numbers per object.
+    pub fn features(self) -> usize {
+        match self {
+            Summary::Object => OBJECT_SUMMARY_FEATURES,
+            Summary::Contact => CONTACT_SUMMARY_FEATURES,
+        }
+    }
+
+    /// Whether `d` reads it.
+    pub fn enabled(self, d: &DynamicsConfig) -> bool {
+        match self {
+            Summary::Object => d.object_summary,
+            Summary::Contact => d.contact_summary,
+        }
+    }
+
+    /// Switches it on or off in `d`.
+    pub fn set(self, d: &mut DynamicsConfig, on: bool) {
+        match self {
+            Summary::Object => d.object_summary = on,
+            Summary::Contact => d.contact_summary = on,
+        }
+    }
+
+    /// Prefix of its parameters' names.
+    fn prefix(self) -> &'static str {
+        match self {
+            Summary::Object => "summary",
+            Summary::Contact => "contact_summary",
+        }
+    }
+
+    /// Names of its parameters, in creation order.
+    pub(crate) fn parameters(self) -> [String; 4] {
+        let p = self.prefix();
+        [
+            format!("{p}.0.weight"),
+            format!("{p}.0.bias"),
+            format!("{p}.1.weight"),
+            format!("{p}.1.bias"),
+        ]
+    }
+
+    /// The batch's values of it, `[o, features]`.
+    fn values<'a>(self, inp: &'a BatchInputs) -> &'a [f32] {
+        match self {
+            Summary::Object => &inp.object_summary,
+            Summary::Contact => &inp.contact_summary,
+        }
+    }
+}
+
+/// One summary's MLP (`<prefix>.0`: `[D, features]`, `<prefix>.1`: `[D, D]`).
 pub(crate) struct SummaryMlp {
+    kind: Summary,
     first: Linear,
     last: Linear,
 }
 
 impl SummaryMlp {
-    /// Creates or loads the parameters for configuration `c`; `None` when the model has no
-    /// summary. The last layer is initialised to zero.
-    pub fn new(p: &mut ParamStore, c: &ModelConfig) -> Result<Option<SummaryMlp>, ModelError> {
-        if !c.dynamics.object_summary {
-            return Ok(None);
+    /// Creates or loads the parameters of every summary configuration `c` reads, in
+    /// [`Summary::ALL`] order. Each last layer is initialised to zero.
+    pub fn all(p: &mut ParamStore, c: &ModelConfig) -> Result<Vec<SummaryMlp>, ModelError> {
+        let mut out = Vec::new();
+        for kind in Summary::ALL {
+            if !kind.enabled(&c.dynamics) {
+                continue;
+            }
+            let pre = kind.prefix();
+            out.push(SummaryMlp {
+                kind,
+                first: p.linear(&format!("{pre}.0"), kind.features(), c.width, true)?,
+                last: p.linear_init(&format!("{pre}.1"), c.width, c.width, true, 0.0)?,
+            });
         }
-        Ok(Some(SummaryMlp {
-            first: p.linear("summary.0", OBJECT_SUMMARY_FEATURES, c.width, true)?,
-            last: p.linear_init("summary.1", c.width, c.width, true, 0.0)?,
-        }))
+        Ok(out)
     }
 
-    /// `tokens [O, D]` plus the MLP of the batch's summaries `[O, OBJECT_SUMMARY_FEATURES]`.
+    /// `tokens [O, D]` plus the MLP of the batch's summaries `[O, features]`.
     pub fn add_to(
         &self,
         inp: &BatchInputs,
@@ -48,8 +130,8 @@ impl SummaryMlp {
     ) -> Result<Tensor, ModelError> {
         let s = host_tensor(
             device,
-            &inp.object_summary,
-            &[inp.o, OBJECT_SUMMARY_FEATURES],
+            self.kind.values(inp),
+            &[inp.o, self.kind.features()],
         )?;
         let h = self.first.forward_silu(&s, exec.fused)?;
         Ok((tokens + self.last.forward(&h)?)?)

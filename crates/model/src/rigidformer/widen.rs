@@ -1,7 +1,7 @@
-//! Widening a trained model: a 12-feature model becomes one that also reads the
-//! contact velocity, a model without surface normals one that reads them, a model without the object state summary one that reads it, and a
-//! model gets more decoder blocks; each computes exactly the same function until training
-//! moves the new weights.
+//! Widening a trained model: a 12-feature model becomes one that also reads the contact
+//! velocity, a model without surface normals one that reads them, a model without a per-object
+//! summary one that reads it, and a model gets more decoder blocks; each computes exactly the
+//! same function until training moves the new weights.
 
 use std::collections::HashMap;
 
@@ -9,7 +9,7 @@ use candle_core::Tensor;
 
 use super::RigidFormer;
 use super::encoder::POINT_INPUT_WEIGHT;
-use super::summary::SUMMARY_PARAMETERS;
+use super::summary::Summary;
 use crate::config::InputGroup;
 use crate::layers::ParamStore;
 use crate::{FeatureNormalization, ModelError};
@@ -95,30 +95,41 @@ impl RigidFormer {
     }
 
     /// A copy of this model that also reads the object state summary
-    /// ([`crate::DynamicsConfig::object_summary`]): the summary MLP's first layer is drawn
-    /// from `seed`, its last layer is zero, so the copy's outputs equal this model's; every
-    /// other weight is copied. `trainable` keeps gradient tracking on the copy's weights.
-    ///
-    /// Errors if the model already reads the summary.
+    /// ([`crate::DynamicsConfig::object_summary`]); [`RigidFormer::widened_with_summary`].
     pub fn widened_with_object_summary(
         &self,
         seed: u64,
         trainable: bool,
     ) -> Result<RigidFormer, ModelError> {
-        if self.config.dynamics.object_summary {
-            return Err(ModelError::InvalidInput(
-                "the model already reads the object state summary".into(),
-            ));
+        self.widened_with_summary(Summary::Object, seed, trainable)
+    }
+
+    /// A copy of this model that also reads the summary `kind`: the summary MLP's first layer
+    /// is drawn from `seed`, its last layer is zero, so the copy's outputs equal this model's;
+    /// every other weight is copied. `trainable` keeps gradient tracking on the copy's weights.
+    ///
+    /// Errors if the model already reads that summary.
+    pub fn widened_with_summary(
+        &self,
+        kind: Summary,
+        seed: u64,
+        trainable: bool,
+    ) -> Result<RigidFormer, ModelError> {
+        if kind.enabled(&self.config.dynamics) {
+            return Err(ModelError::InvalidInput(format!(
+                "the model already reads the {}",
+                kind.name()
+            )));
         }
         let mut config = self.config.clone();
-        config.dynamics.object_summary = true;
+        kind.set(&mut config.dynamics, true);
         let fresh = RigidFormer::new_frozen(config.clone(), seed, &self.device)?.weight_copies()?;
         let mut tensors = self.weight_copies()?;
-        for name in SUMMARY_PARAMETERS {
-            let t = fresh.get(name).ok_or_else(|| {
-                ModelError::Internal(format!("a summary model has no parameter {name}"))
+        for name in kind.parameters() {
+            let t = fresh.get(&name).ok_or_else(|| {
+                ModelError::Internal(format!("a {} model has no parameter {name}", kind.name()))
             })?;
-            tensors.insert(name.to_string(), t.clone());
+            tensors.insert(name, t.clone());
         }
         self.rebuilt(config, tensors, trainable)
     }

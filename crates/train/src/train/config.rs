@@ -5,7 +5,9 @@
 
 use std::path::{Path, PathBuf};
 
-use dynaserve_model::{DynamicsConfig, FeatureNormalization, InputGroup, LossConfig, ModelConfig};
+use dynaserve_model::{
+    DynamicsConfig, FeatureNormalization, InputGroup, LossConfig, ModelConfig, Summary,
+};
 use serde::{Deserialize, Serialize};
 
 use super::TrainError;
@@ -203,6 +205,10 @@ pub struct ModelSection {
     /// (the summary MLP's last layer zero, so it starts as the same function; its first layer
     /// drawn from `seed`). `false` on an `init` model that has it is an error.
     pub object_summary: Option<bool>,
+    /// The contact summary (`DynamicsConfig::contact_summary`), as `object_summary` for the
+    /// object state summary: unset keeps what the model has, `true` widens an `init` model
+    /// without it, `false` on one that has it is an error.
+    pub contact_summary: Option<bool>,
     /// The rigid Verlet base (`DynamicsConfig::rigid_extrapolation`): unset keeps what the
     /// preset, config or `init` model has; set, it switches the base of any of them (an `init`
     /// model keeps its weights and learns the new base's residual).
@@ -254,6 +260,7 @@ impl Default for ModelSection {
             history: None,
             approach: None,
             object_summary: None,
+            contact_summary: None,
             rigid_extrapolation: None,
             floor_base: None,
             relative_mass: None,
@@ -298,13 +305,16 @@ impl ModelSection {
 
     /// The model configuration this section names (before normalisation fitting), with
     /// `contact_velocity`, `surface_normals`, `history` and `approach` (the normalisation then
-    /// resized to its defaults), `object_summary` and [`ModelSection::apply_settings`]
+    /// resized to its defaults), `object_summary`, `contact_summary` and
+    /// [`ModelSection::apply_settings`]
     /// applied.
     pub fn model_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {
         let mut c = self.named_config(base)?;
         self.apply_settings(&mut c.dynamics, &mut c.loss);
-        if let Some(on) = self.object_summary {
-            c.dynamics.object_summary = on;
+        for kind in Summary::ALL {
+            if let Some(on) = self.summary_switch(kind) {
+                kind.set(&mut c.dynamics, on);
+            }
         }
         let inputs = c.dynamics.point_features();
         for group in InputGroup::ALL {
@@ -326,6 +336,15 @@ impl ModelSection {
             InputGroup::SurfaceNormals => self.surface_normals,
             InputGroup::History => self.history,
             InputGroup::Approach => self.approach,
+        }
+    }
+
+    /// This section's switch for a per-object summary (`object_summary`, `contact_summary`):
+    /// unset keeps what the model has.
+    pub fn summary_switch(&self, kind: Summary) -> Option<bool> {
+        match kind {
+            Summary::Object => self.object_summary,
+            Summary::Contact => self.contact_summary,
         }
     }
 

@@ -18,7 +18,7 @@ use std::time::Instant;
 
 use candle_core::Device;
 use dynaserve_model::{
-    FeatureNormalization, InputGroup, RigidFormer, TrainItem, WorldModel, load_rigidformer,
+    FeatureNormalization, InputGroup, RigidFormer, Summary, TrainItem, WorldModel, load_rigidformer,
 };
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
@@ -190,20 +190,31 @@ fn init_inputs(
     Ok(m)
 }
 
-/// Applies `model.object_summary` to a model loaded from `model.init`: widens a model without
-/// the summary when asked (zero last layer, so it starts as the same function).
-fn init_object_summary(m: RigidFormer, cfg: &TrainConfig) -> Result<RigidFormer, TrainError> {
-    let has = m.config().dynamics.object_summary;
-    match cfg.model.object_summary {
-        Some(true) if !has => {
-            eprintln!("widened for the object state summary (its last layer starts at zero)");
-            Ok(m.widened_with_object_summary(cfg.model.seed, true)?)
+/// Applies `model.object_summary` and `model.contact_summary` to a model loaded from
+/// `model.init`: widens a model without a summary when asked (zero last layer, so it starts as
+/// the same function). Removing a summary is an error.
+fn init_summaries(mut m: RigidFormer, cfg: &TrainConfig) -> Result<RigidFormer, TrainError> {
+    for kind in Summary::ALL {
+        let has = kind.enabled(&m.config().dynamics);
+        match cfg.model.summary_switch(kind) {
+            Some(true) if !has => {
+                eprintln!(
+                    "widened for the {} (its last layer starts at zero)",
+                    kind.name()
+                );
+                m = m.widened_with_summary(kind, cfg.model.seed, true)?;
+            }
+            Some(false) if has => {
+                return Err(TrainError::Config(format!(
+                    "model.{} = false, but the model.init model reads the {} (inputs cannot be removed)",
+                    kind.key(),
+                    kind.name()
+                )));
+            }
+            _ => {}
         }
-        Some(false) if has => Err(TrainError::Config(
-            "model.object_summary = false, but the model.init model reads the object state summary (inputs cannot be removed)".into(),
-        )),
-        _ => Ok(m),
     }
+    Ok(m)
 }
 
 /// Trains (or resumes) the run described by `cfg`; see the module docs for the outputs.
@@ -258,7 +269,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
             eprintln!("initialised from {}", init.display());
             let m = m.with_settings(|d, l| cfg.model.apply_settings(d, l))?;
             let m = init_inputs(m, cfg, &reader)?;
-            let m = init_object_summary(m, cfg)?;
+            let m = init_summaries(m, cfg)?;
             match cfg.model.insert_blocks_after.as_deref() {
                 Some(after) if !after.is_empty() => {
                     let deep = m.deepened(after, cfg.model.seed, true)?;
