@@ -181,7 +181,8 @@ pub fn run(
     let no_decay = |n: &str| {
         n.contains("norm") || n.ends_with(".bias") || n == "registers" || n.contains("embed")
     };
-    let mut opt = AdamW::new(&vars, no_decay, cfg.optim.ema_decay > 0.0)?;
+    let mut opt = AdamW::new(&vars, no_decay, cfg.optim.ema_decay > 0.0)?
+        .with_lr_scale(&cfg.optim.lr_scale)?;
     let mut state = RunState {
         step: 0,
         rng_draws: 0,

@@ -3,6 +3,7 @@
 //! Every knob has a default; a file only names what it changes. Unknown keys are rejected so a
 //! misspelt knob is an error, not a silent default. `docs/training.md` lists the same knobs.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use dynaserve_model::{
@@ -402,6 +403,15 @@ pub struct OptimConfig {
     /// Decay of the exponential moving average of the weights kept beside the raw weights
     /// (exported when better); 0 disables.
     pub ema_decay: f64,
+    /// Learning-rate factors by parameter-name prefix (`[optim.lr_scale]`, e.g.
+    /// `"contact_summary." = 10.0`): every parameter whose name starts with a prefix trains at
+    /// that multiple of the schedule's rate (the longest matching prefix wins; weight decay
+    /// scales with it), the rest at the schedule's. For layers added to a trained model, which
+    /// start at zero and would otherwise learn at the rate chosen to keep the trained weights
+    /// near their optimum. Every factor must be finite and positive and every prefix must name
+    /// at least one parameter. Empty by default.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub lr_scale: BTreeMap<String, f64>,
 }
 
 impl Default for OptimConfig {
@@ -419,6 +429,7 @@ impl Default for OptimConfig {
             weight_decay: 0.05,
             grad_clip: 1.0,
             ema_decay: 0.999,
+            lr_scale: BTreeMap::new(),
         }
     }
 }
@@ -558,6 +569,9 @@ impl TrainConfig {
         }
         if o.weight_decay < 0.0 || o.grad_clip < 0.0 || !(0.0..1.0).contains(&o.ema_decay) {
             return bad("optim.weight_decay, grad_clip >= 0 and ema_decay in [0, 1)");
+        }
+        if o.lr_scale.values().any(|f| !(f.is_finite() && *f > 0.0)) {
+            return bad("optim.lr_scale factors must be finite and > 0");
         }
         let r = &self.run;
         if r.checkpoint_minutes.is_nan()

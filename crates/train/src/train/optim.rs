@@ -1,7 +1,7 @@
 //! Learning-rate schedule, global gradient-norm clipping and AdamW with per-parameter weight
 //! decay (candle's `AdamW` decays every variable and cannot clip, so this is written here).
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
 use candle_core::backprop::GradStore;
@@ -32,6 +32,8 @@ struct Slot {
     v: Tensor,
     ema: Option<Tensor>,
     decay: bool,
+    /// Multiple of the schedule's learning rate this parameter trains at.
+    lr_scale: f64,
 }
 
 /// AdamW (decoupled weight decay, bias-corrected moments) over named variables, with a global
@@ -76,9 +78,35 @@ impl AdamW {
                     None
                 },
                 var,
+                lr_scale: 1.0,
             });
         }
         Ok(AdamW { slots, t: 0 })
+    }
+
+    /// Sets each parameter's learning-rate factor from `scales` (name prefix -> factor; the
+    /// longest matching prefix wins, 1 where none matches). Errors on a prefix that matches no
+    /// parameter, which would otherwise be a silent typo.
+    pub fn with_lr_scale(mut self, scales: &BTreeMap<String, f64>) -> Result<AdamW, TrainError> {
+        for prefix in scales.keys() {
+            if !self
+                .slots
+                .iter()
+                .any(|s| s.name.starts_with(prefix.as_str()))
+            {
+                return Err(TrainError::Config(format!(
+                    "optim.lr_scale: no parameter name starts with {prefix:?}"
+                )));
+            }
+        }
+        for s in &mut self.slots {
+            s.lr_scale = scales
+                .iter()
+                .filter(|(p, _)| s.name.starts_with(p.as_str()))
+                .max_by_key(|(p, _)| p.len())
+                .map_or(1.0, |(_, f)| *f);
+        }
+        Ok(self)
     }
 
     /// Names of the parameters that receive weight decay.
@@ -105,8 +133,8 @@ impl AdamW {
         Ok(sum.sqrt())
     }
 
-    /// One AdamW step at learning rate `lr`: clips the gradient to global norm `c.grad_clip`
-    /// (when > 0), updates the moments, applies decoupled weight decay to decayed parameters
+    /// One AdamW step at learning rate `lr` (times each parameter's factor,
+    /// [`AdamW::with_lr_scale`]): clips the gradient to global norm `c.grad_clip` (when > 0), updates the moments, applies decoupled weight decay to decayed parameters
     /// and updates the weight average with `c.ema_decay`. A non-finite gradient norm skips the
     /// update and is reported as an error.
     pub fn step(
@@ -141,6 +169,7 @@ impl AdamW {
             let mhat = (&s.m / bc1)?;
             let vhat = (&s.v / bc2)?;
             let update = (mhat / (vhat.sqrt()? + c.eps)?)?;
+            let lr = lr * s.lr_scale;
             let w = &s.var.as_tensor().detach();
             let w = if s.decay && c.weight_decay > 0.0 {
                 (w * (1.0 - lr * c.weight_decay))?
@@ -292,5 +321,44 @@ mod tests {
         }
         let bv = b.as_tensor().to_vec1::<f32>().unwrap()[0];
         assert!((bv - 0.9).abs() < 1e-5);
+    }
+
+    /// A parameter under an `lr_scale` prefix moves that multiple of the others' first Adam
+    /// step (lr * sign(g)); the longest prefix wins; a prefix naming no parameter is refused.
+    #[test]
+    fn lr_scale_multiplies_the_step_of_matching_parameters() {
+        let vars: HashMap<String, Var> = ["a.weight", "new.0.weight", "new.1.weight"]
+            .iter()
+            .map(|n| (n.to_string(), Var::new(&[0.0f32], &Device::Cpu).unwrap()))
+            .collect();
+        let scales = BTreeMap::from([("new.".to_string(), 10.0), ("new.1.".to_string(), 3.0)]);
+        let mut opt = AdamW::new(&vars, |_| false, false)
+            .unwrap()
+            .with_lr_scale(&scales)
+            .unwrap();
+        let loss = vars
+            .values()
+            .map(|v| v.as_tensor().sum_all().unwrap())
+            .reduce(|a, b| (a + b).unwrap())
+            .unwrap();
+        let grads = loss.backward().unwrap();
+        let c = OptimConfig {
+            weight_decay: 0.0,
+            grad_clip: 0.0,
+            ema_decay: 0.0,
+            ..OptimConfig::default()
+        };
+        opt.step(&grads, 0.01, &c).unwrap();
+        let moved = |n: &str| -vars[n].as_tensor().to_vec1::<f32>().unwrap()[0];
+        assert!((moved("a.weight") - 0.01).abs() < 1e-6);
+        assert!((moved("new.0.weight") - 0.1).abs() < 1e-6);
+        assert!((moved("new.1.weight") - 0.03).abs() < 1e-6);
+        let typo = BTreeMap::from([("nwe.".to_string(), 10.0)]);
+        let err = AdamW::new(&vars, |_| false, false)
+            .unwrap()
+            .with_lr_scale(&typo)
+            .err()
+            .unwrap();
+        assert!(err.to_string().contains("nwe."), "{err}");
     }
 }

@@ -312,7 +312,8 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
         .lock()
         .map_err(|_| TrainError::Config("parameter map lock poisoned".into()))?
         .clone();
-    let mut opt = AdamW::new(&vars, RigidFormer::is_no_decay, cfg.optim.ema_decay > 0.0)?;
+    let mut opt = AdamW::new(&vars, RigidFormer::is_no_decay, cfg.optim.ema_decay > 0.0)?
+        .with_lr_scale(&cfg.optim.lr_scale)?;
     if opts.resume {
         let ckpt =
             resumable(&out).ok_or_else(|| TrainError::Config("checkpoint vanished".into()))?;
