@@ -634,6 +634,18 @@ mod tests {
             ),
             "pushforward_steps",
         );
+        let r54 = TrainConfig::from_file(&dir.join("rigidformer-small-r54.toml")).unwrap();
+        assert_eq!(r54.model.contact_summary, Some(true));
+        assert_eq!(r54.optim.lr_scale.get("contact_summary."), Some(&10.0));
+        assert!(
+            r54.model
+                .model_config(Path::new("."))
+                .unwrap()
+                .dynamics
+                .contact_summary
+        );
+        refused("[optim.lr_scale]\n\"a.\" = 0.0\n", "lr_scale");
+        refused("[optim.lr_scale]\n\"a.\" = nan\n", "lr_scale");
         let lead = r43.model.model_config(Path::new(".")).unwrap();
         assert!(lead.dynamics.kinematic_lead);
         assert!(
