@@ -40,8 +40,8 @@ pub use prepare::{
 };
 pub use rigidformer::features::{
     CONTACT_PATCH_SCALE, FeatureFrame, ScenePoints, approach_features, body_normals,
-    contact_summary, contact_velocity, history_features, object_params, object_summary,
-    raw_point_features, surface_normal_features,
+    contact_summary, contact_velocity, history_features, nearest_object_gap, object_params,
+    object_summary, raw_point_features, surface_normal_features,
 };
 pub use rigidformer::{RigidFormer, StepProfile, Summary, TrainItem, TrainOutput};
 pub use runtime::{configure_compute, keep_freed_memory};

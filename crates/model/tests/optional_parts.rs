@@ -10,7 +10,7 @@ use common::{
 };
 use dynaserve_model::{
     Device, DynamicsConfig, FeatureFrame, ModelConfig, Pose, RigidFormer, ScenePoints, Summary,
-    WorldModel, contact_summary, load_rigidformer, object_summary,
+    WorldModel, contact_summary, load_rigidformer, nearest_object_gap, object_summary,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 
@@ -106,12 +106,14 @@ fn contact_summary_reads_where_and_how_fast_objects_meet() {
     let summary = |j: usize| {
         let frame = FeatureFrame::new(&cfg.dynamics, 1, current[j].translation);
         let range = points.offsets[j]..points.offsets[j + 1];
+        let nearest = nearest_object_gap(&points.contact, range.clone());
         contact_summary(
             &points.contact,
             &points.world,
             &points.world_prev,
             range,
             current[j].translation,
+            nearest,
             r,
             &frame,
         )

@@ -319,24 +319,27 @@ fn init_widens_a_model_for_the_summaries() {
         c.model.object_summary = Some(true)
     })
     .unwrap();
-    let m = dynaserve_model::load_rigidformer(
-        &dir.join("wide/checkpoint"),
-        &dynaserve_model::Device::Cpu,
-        false,
-    )
-    .unwrap();
-    assert!(
-        dynaserve_model::WorldModel::config(&m)
-            .dynamics
-            .object_summary
-    );
-    assert!(
-        m.varmap()
-            .data()
-            .lock()
-            .unwrap()
-            .contains_key("summary.1.weight")
-    );
+    // A run's checkpoint: its two summary switches, and whether it holds each summary's
+    // output layer.
+    let summaries_of = |run: &str| {
+        let m = dynaserve_model::load_rigidformer(
+            &dir.join(run).join("checkpoint"),
+            &dynaserve_model::Device::Cpu,
+            false,
+        )
+        .unwrap();
+        let d = dynaserve_model::WorldModel::config(&m).dynamics.clone();
+        let vars = m.varmap().data().lock().unwrap();
+        (
+            d.object_summary,
+            d.contact_summary,
+            vars.contains_key("summary.1.weight"),
+            vars.contains_key("contact_summary.1.weight"),
+        )
+    };
+    let (object, _, object_layer, _) = summaries_of("wide");
+    assert!(object);
+    assert!(object_layer);
 
     let err = train_tiny_from(&data, &dir, "narrow", Some("wide"), |c| {
         c.model.object_summary = Some(false)
@@ -348,17 +351,9 @@ fn init_widens_a_model_for_the_summaries() {
         c.model.contact_summary = Some(true)
     })
     .unwrap();
-    let m = dynaserve_model::load_rigidformer(
-        &dir.join("both/checkpoint"),
-        &dynaserve_model::Device::Cpu,
-        false,
-    )
-    .unwrap();
-    let d = &dynaserve_model::WorldModel::config(&m).dynamics;
-    assert!(d.object_summary && d.contact_summary);
-    let vars = m.varmap().data().lock().unwrap();
-    assert!(vars.contains_key("summary.1.weight") && vars.contains_key("contact_summary.1.weight"));
-    drop(vars);
+    let (object, contact, object_layer, contact_layer) = summaries_of("both");
+    assert!(object && contact);
+    assert!(object_layer && contact_layer);
     let err = train_tiny_from(&data, &dir, "unsummed", Some("both"), |c| {
         c.model.contact_summary = Some(false)
     })

@@ -261,12 +261,24 @@ pub fn object_summary(
 /// object count towards the contact summary's patch, with weights falling off on this scale.
 pub const CONTACT_PATCH_SCALE: f32 = 0.02;
 
+/// The smallest distance from an object's points (`points`, its rows in the scene's `hits`)
+/// to another object's point, metres: the shortest contact displacement that reaches another
+/// object, not the ground; infinite when none is within the contact radius.
+pub fn nearest_object_gap(hits: &[ContactHit], points: std::ops::Range<usize>) -> f32 {
+    hits[points]
+        .iter()
+        .filter(|h| matches!(h.source, ContactSource::Point(_)))
+        .map(|h| h.displacement.iter().map(|d| d * d).sum::<f32>())
+        .fold(f32::INFINITY, f32::min)
+        .sqrt()
+}
+
 /// The contact summary of one object ([`DynamicsConfig::contact_summary`]), scaled to O(1):
 /// `[gap, direction (3), lever (3), velocity (3), share]`. Only points whose contact search
-/// reached another object's point count (not the ground's). `gap` is the smallest distance
-/// from the object's points to another object's, clamped to `radius` and divided by it (1
-/// when no point reaches another object; everything else is then zero). Over the patch of
-/// points within `3 CONTACT_PATCH_SCALE` of that gap, each weighted by `exp(-(g - gap) /
+/// reached another object's point count (not the ground's). `gap` is `nearest`, the object's
+/// [`nearest_object_gap`], clamped to `radius` and divided by it (1 when no point reaches
+/// another object; everything else is then zero). Over the patch of points within
+/// `3 CONTACT_PATCH_SCALE` of that gap, each weighted by `exp(-(g - nearest) /
 /// CONTACT_PATCH_SCALE)`: `direction` is the weighted mean unit vector towards the other
 /// surface, `lever` the weighted mean offset of the points from `centre` (world frame, divided
 /// by [`SUMMARY_LEVER_SCALE`]): where the object is touched relative to its centre of mass,
@@ -275,36 +287,36 @@ pub const CONTACT_PATCH_SCALE: f32 = 0.02;
 /// point count, how much of it touches. `hits`, `world` and `world_prev`: the whole scene's,
 /// `[n]` and `[n, 3]` metres; `points`: this object's rows in them; `centre`: its centre of
 /// mass at t, metres.
+#[allow(clippy::too_many_arguments)]
 pub fn contact_summary(
     hits: &[ContactHit],
     world: &[Point],
     world_prev: &[Point],
     points: std::ops::Range<usize>,
     centre: [f32; 3],
+    nearest: f32,
     radius: f32,
     frame: &FeatureFrame,
 ) -> [f32; CONTACT_SUMMARY_FEATURES] {
     let mut out = [0f32; CONTACT_SUMMARY_FEATURES];
-    let norm = |d: Point| d.iter().map(|v| v * v).sum::<f32>().sqrt();
-    let touching = |q: &usize| matches!(hits[*q].source, ContactSource::Point(_));
-    let gap = points
-        .clone()
-        .filter(touching)
-        .map(|q| norm(hits[q].displacement))
-        .fold(f32::INFINITY, f32::min);
-    if !gap.is_finite() {
+    if !nearest.is_finite() {
         out[0] = 1.0;
         return out;
     }
-    out[0] = gap.min(radius) / radius;
+    out[0] = nearest.min(radius) / radius;
     let mut total = 0.0;
-    for q in points.clone().filter(touching) {
-        let (d, g) = (hits[q].displacement, norm(hits[q].displacement));
-        if g > gap + 3.0 * CONTACT_PATCH_SCALE {
+    for q in points.clone() {
+        let hit = &hits[q];
+        if !matches!(hit.source, ContactSource::Point(_)) {
             continue;
         }
-        let w = (-(g - gap) / CONTACT_PATCH_SCALE).exp();
-        let v = contact_velocity(hits[q].source, q, world, world_prev, frame);
+        let d = hit.displacement;
+        let g = d.iter().map(|v| v * v).sum::<f32>().sqrt();
+        if g > nearest + 3.0 * CONTACT_PATCH_SCALE {
+            continue;
+        }
+        let w = (-(g - nearest) / CONTACT_PATCH_SCALE).exp();
+        let v = contact_velocity(hit.source, q, world, world_prev, frame);
         for a in 0..3 {
             if g > 0.0 {
                 out[1 + a] += w * d[a] / g;

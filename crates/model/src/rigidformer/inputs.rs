@@ -5,11 +5,11 @@
 //! Scenes are processed in parallel with rayon; objects are laid out scene-major, and the
 //! per-point rows are packed without padding (the point MLP never sees a padding row).
 
-use dynaserve_geometry::ContactSource;
 use nalgebra::{Matrix3, Vector3};
 
 use super::features::{
-    FeatureFrame, ScenePoints, contact_summary, object_summary, rotation_translation as rot,
+    FeatureFrame, ScenePoints, contact_summary, nearest_object_gap, object_summary,
+    rotation_translation as rot,
 };
 use super::projection::free_fall;
 use crate::api::Pose;
@@ -479,6 +479,8 @@ impl ObjectContext<'_> {
                     &frame,
                 ));
             }
+            let gap = nearest_object_gap(&points.contact, base..base + n);
+            c.object_gap.push(gap);
             if cfg.dynamics.contact_summary {
                 c.contact_summary.extend(contact_summary(
                     &points.contact,
@@ -486,17 +488,13 @@ impl ObjectContext<'_> {
                     &points.world_prev,
                     base..base + n,
                     r.current[j].translation,
+                    gap,
                     cfg.contact_radius,
                     &frame,
                 ));
             }
-            // Per-point features, and the nearest other object.
-            let mut gap2 = f32::INFINITY;
+            // Per-point features.
             for i in 0..n {
-                let hit = &points.contact[base + i];
-                if let ContactSource::Point(_) = hit.source {
-                    gap2 = gap2.min(hit.displacement.iter().map(|d| d * d).sum());
-                }
                 let row = base + i - row0;
                 let dst = &mut feats[row * nf..(row + 1) * nf];
                 points.raw_features(
@@ -512,7 +510,6 @@ impl ObjectContext<'_> {
                 }
                 point_mask[(j - mask0) * nmax + i] = 1.0;
             }
-            c.object_gap.push(gap2.sqrt());
             // Encoder grouping.
             for (ci, &centre) in obj.centres.iter().enumerate() {
                 let cw = world[base + centre];

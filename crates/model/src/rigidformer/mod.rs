@@ -126,7 +126,7 @@ impl RigidFormer {
 
     /// Builds the network from a parameter store (random or loaded). Parameters are created in
     /// a fixed order (encoder, decoder, anchor head, then the optional summaries) so a
-    /// seed always gives the same weights, with or without the summary.
+    /// seed always gives the same weights, with or without the summaries.
     pub(crate) fn from_store(
         name: String,
         config: ModelConfig,

@@ -94,16 +94,6 @@ impl RigidFormer {
         self.rebuilt(config, tensors, trainable)
     }
 
-    /// A copy of this model that also reads the object state summary
-    /// ([`crate::DynamicsConfig::object_summary`]); [`RigidFormer::widened_with_summary`].
-    pub fn widened_with_object_summary(
-        &self,
-        seed: u64,
-        trainable: bool,
-    ) -> Result<RigidFormer, ModelError> {
-        self.widened_with_summary(Summary::Object, seed, trainable)
-    }
-
     /// A copy of this model that also reads the summary `kind`: the summary MLP's first layer
     /// is drawn from `seed`, its last layer is zero, so the copy's outputs equal this model's;
     /// every other weight is copied. `trainable` keeps gradient tracking on the copy's weights.

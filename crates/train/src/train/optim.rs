@@ -134,7 +134,8 @@ impl AdamW {
     }
 
     /// One AdamW step at learning rate `lr` (times each parameter's factor,
-    /// [`AdamW::with_lr_scale`]): clips the gradient to global norm `c.grad_clip` (when > 0), updates the moments, applies decoupled weight decay to decayed parameters
+    /// [`AdamW::with_lr_scale`]): clips the gradient to global norm `c.grad_clip` (when > 0),
+    /// updates the moments, applies decoupled weight decay to decayed parameters
     /// and updates the weight average with `c.ema_decay`. A non-finite gradient norm skips the
     /// update and is reported as an error.
     pub fn step(
