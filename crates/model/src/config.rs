@@ -525,6 +525,16 @@ pub struct ModelConfig {
     /// Input and output parametrisation; absent in older checkpoints (all off).
     #[serde(default)]
     pub dynamics: DynamicsConfig,
+    /// Floor projection, metres: after the Kabsch fit, an object with a point more than this
+    /// depth below `ground_z` is raised along z until its lowest point is at that depth (its
+    /// rotation and horizontal position kept): the floor's non-penetration constraint applied
+    /// to the network's answer, as the Kabsch fit applies rigidity, with the small
+    /// penetration a contact solver keeps at rest (its slop) left alone. Kinematic objects
+    /// are never raised. Applied by the inference step, which pushforward training also
+    /// runs; the loss reads the network's anchors before it. `None` (absent in older
+    /// `config.json` files): off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub floor_projection: Option<f32>,
     /// Mass, friction and restitution of the objects the model was trained on; the server
     /// warns about requests outside them. Absent in older `config.json` files and in models
     /// not yet trained (no warning then).
@@ -580,6 +590,7 @@ impl ModelConfig {
             accel_coarse_scale: None,
             loss: LossConfig::default(),
             dynamics: DynamicsConfig::residual(),
+            floor_projection: None,
             trained_ranges: None,
         }
     }
@@ -789,6 +800,12 @@ impl ModelConfig {
                 .any(|w| !(w.is_finite() && *w >= 0.0))
         {
             return bad("gravity, ground_z and loss.weights must be finite".into());
+        }
+        if self
+            .floor_projection
+            .is_some_and(|d| !(d.is_finite() && d >= 0.0))
+        {
+            return bad("floor_projection must be a finite depth >= 0 metres".into());
         }
         if let Some(r) = &self.trained_ranges {
             r.validate()

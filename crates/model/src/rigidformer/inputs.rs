@@ -11,7 +11,7 @@ use super::features::{
     FeatureFrame, ScenePoints, contact_summary, nearest_object_gap, object_summary,
     rotation_translation as rot,
 };
-use super::projection::free_fall;
+use super::projection::{floor_rise, free_fall};
 use crate::api::Pose;
 use crate::kernels::avp::padded_distances;
 use crate::prepare::PreparedScene;
@@ -96,6 +96,10 @@ pub(crate) struct BatchInputs<'a> {
     /// Objects certainly in free flight over the step, `[o]`, which move on the Verlet base
     /// alone ([`super::free_flight`]); empty without `dynamics.free_flight_gate`.
     pub free_flight: Vec<bool>,
+    /// The reference cloud (body frame, metres) of every object the floor projection
+    /// ([`ModelConfig::floor_projection`]) may raise, `[o]`: `None` for a kinematic object;
+    /// empty without the projection or a floor.
+    pub floor_clouds: Vec<Option<&'a [[f32; 3]]>>,
     /// Current rotation per object (for the quaternion sign of the output).
     pub current_rot: Vec<[f32; 4]>,
     /// Smallest distance from a point of each object to another object's point at t, found
@@ -194,17 +198,7 @@ pub(crate) fn floor_lift(
     drop_z: f64,
 ) -> f64 {
     let rb = r * r_prev.transpose() * r;
-    let z0 = 2.0 * p.z - p_prev.z + drop_z;
-    let row = rb.row(2);
-    let lowest = reference
-        .iter()
-        .map(|x| row[0] * f64::from(x[0]) + row[1] * f64::from(x[1]) + row[2] * f64::from(x[2]))
-        .fold(f64::INFINITY, f64::min);
-    if lowest.is_finite() {
-        (-(z0 + lowest)).max(0.0)
-    } else {
-        0.0
-    }
+    floor_rise(reference, &rb, 2.0 * p.z - p_prev.z + drop_z, 0.0)
 }
 
 /// Builds the inputs of one batched pass. Checks that every scene was prepared for `cfg`.
@@ -313,6 +307,15 @@ pub(crate) fn build_inputs<'a>(
             requests
                 .iter()
                 .flat_map(|r| super::free_flight::free_flight(cfg, r))
+                .collect()
+        } else {
+            Vec::new()
+        },
+        floor_clouds: if cfg.floor_projection.is_some() && cfg.ground_z.is_some() {
+            requests
+                .iter()
+                .flat_map(|r| r.scene.objects.iter())
+                .map(|obj| (!obj.kinematic).then_some(obj.reference.as_slice()))
                 .collect()
         } else {
             Vec::new()

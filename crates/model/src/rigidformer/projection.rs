@@ -1,6 +1,7 @@
 //! From anchor accelerations to rigid poses at inference: Verlet at the anchors
 //! (`A_{t+k} = base + b + a`, metres, the base `2 A_t - A_{t-k}` or the rigid constant-velocity
-//! extrapolation, `DynamicsConfig::rigid_extrapolation`), then the Kabsch fit per object (f64).
+//! extrapolation, `DynamicsConfig::rigid_extrapolation`), then the Kabsch fit per object (f64)
+//! and, with `ModelConfig::floor_projection`, the floor's non-penetration constraint.
 
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
 
@@ -51,11 +52,14 @@ pub(crate) fn project_poses(
             .collect();
         let sol = dynaserve_geometry::kabsch(&inp.anchors_ref[obj], &target, None)
             .map_err(|e| ModelError::Internal(format!("kabsch failed: {e}")))?;
-        Ok(pose_from(
-            &sol.rotation,
-            &sol.translation,
-            inp.current_rot[obj],
-        ))
+        let mut translation = sol.translation;
+        if let (Some(Some(cloud)), Some(ground), Some(depth)) =
+            (inp.floor_clouds.get(obj), c.ground_z, c.floor_projection)
+        {
+            let floor = f64::from(ground) - f64::from(depth);
+            translation.z += floor_rise(cloud, &sol.rotation, translation.z, floor);
+        }
+        Ok(pose_from(&sol.rotation, &translation, inp.current_rot[obj]))
     })
     .into_iter()
     .collect();
@@ -63,6 +67,22 @@ pub(crate) fn project_poses(
     Ok((0..inp.b)
         .map(|s| poses[inp.scene_offsets[s]..inp.scene_offsets[s + 1]].to_vec())
         .collect())
+}
+
+/// How far (metres, >= 0) an object with body-frame points `cloud` (metres), rotation `r`
+/// and centre height `z` (metres) must rise so that none of its points is below `ground`
+/// (metres): the floor projection ([`ModelConfig::floor_projection`]) and the floor base.
+pub(crate) fn floor_rise(cloud: &[[f32; 3]], r: &Matrix3<f64>, z: f64, ground: f64) -> f64 {
+    let row = r.row(2);
+    let lowest = cloud
+        .iter()
+        .map(|x| row[0] * f64::from(x[0]) + row[1] * f64::from(x[1]) + row[2] * f64::from(x[2]))
+        .fold(f64::INFINITY, f64::min);
+    if lowest.is_finite() {
+        (ground - z - lowest).max(0.0)
+    } else {
+        0.0
+    }
 }
 
 /// Rotation matrix and translation (metres) of a pose, in f64.

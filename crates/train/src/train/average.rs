@@ -31,10 +31,11 @@ pub struct AverageOptions {
 /// weights mean, as JSON pointers: they may differ between the averaged models, and the first
 /// model's values are written (a warning names each difference). `trained_ranges` are joined
 /// instead.
-const SETTINGS: [&str; 3] = [
+const SETTINGS: [&str; 4] = [
     "/loss",
     "/dynamics/kinematic_lead",
     "/dynamics/free_flight_gate",
+    "/floor_projection",
 ];
 
 /// `config` as JSON, and the same without [`SETTINGS`] and `trained_ranges`: two models whose
