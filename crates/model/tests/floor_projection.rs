@@ -4,7 +4,7 @@
 //! and kinematic objects are untouched.
 mod common;
 
-use dynaserve_model::{Device, ModelConfig, Pose, RigidFormer, SceneState, StepItem, WorldModel};
+use dynaserve_model::{Device, ModelConfig, Pose, RigidFormer, SceneState, WorldModel};
 use nalgebra::{UnitQuaternion, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -49,15 +49,7 @@ fn step(projection: Option<f32>, pusher: bool, k: u32) -> (Vec<Vec<[f32; 3]>>, V
         current: vec![pose(0.0, H + 0.4), pose(3.0, 2.0), pose(-3.0, 0.0)],
         earlier: None,
     };
-    let out = model
-        .step(&[StepItem {
-            scene: &scene,
-            state: &state,
-            dt_steps: k,
-        }])
-        .unwrap()
-        .remove(0);
-    (clouds, out)
+    (clouds, common::step_one(&model, &scene, &state, k))
 }
 
 #[test]

@@ -6,7 +6,7 @@
 mod common;
 
 use dynaserve_model::{
-    Device, ModelConfig, ObjectInput, Pose, RigidFormer, SceneState, StepItem, WorldModel,
+    Device, ModelConfig, ObjectInput, Pose, RigidFormer, SceneState, WorldModel,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 use rand::SeedableRng;
@@ -90,15 +90,7 @@ fn step(gate: bool, kinematic: bool, k: u32) -> (ModelConfig, Vec<Pose>) {
     objects.push(plate(&mut rng));
     let scene = model.prepare(objects).unwrap();
     let state = state();
-    let out = model
-        .step(&[StepItem {
-            scene: &scene,
-            state: &state,
-            dt_steps: k,
-        }])
-        .unwrap()
-        .remove(0);
-    (cfg, out)
+    (cfg, common::step_one(&model, &scene, &state, k))
 }
 
 #[test]

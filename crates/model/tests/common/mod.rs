@@ -1,7 +1,9 @@
 //! Scene generators shared by the integration tests.
 #![allow(dead_code)]
 
-use dynaserve_model::{ObjectInput, Pose, RigidFormer, SceneState, StepItem, WorldModel};
+use dynaserve_model::{
+    ObjectInput, Pose, PreparedScene, RigidFormer, SceneState, StepItem, WorldModel,
+};
 use nalgebra::{UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -184,10 +186,20 @@ pub fn one_step_gradient(
 pub fn step_random_scene(model: &dyn WorldModel, seed: u64, dt_steps: u32) -> Vec<Pose> {
     let (objects, state) = random_scene(seed, 4, 96);
     let scene = model.prepare(objects).unwrap();
+    step_one(model, &scene, &state, dt_steps)
+}
+
+/// The poses after one step of `dt_steps` frames of one prepared scene from `state`.
+pub fn step_one(
+    model: &dyn WorldModel,
+    scene: &PreparedScene,
+    state: &SceneState,
+    dt_steps: u32,
+) -> Vec<Pose> {
     model
         .step(&[StepItem {
-            scene: &scene,
-            state: &state,
+            scene,
+            state,
             dt_steps,
         }])
         .unwrap()
