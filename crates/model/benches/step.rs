@@ -3,7 +3,8 @@
 //! vs block-diagonal decoder batching, the fused CPU kernels against the plain composition
 //! (`fused_ab`, interleaved in one process), one scene split over the compute team against
 //! none (`team_ab`), the anchor-pooling kernel alone (`avp_ab`), 256
-//! against 512 points per object (`points_ab`), the machine's matmul peak (`matmul_peak`), a
+//! against 512 points per object (`points_ab`), the floor projection off against on
+//! (`floor_projection_ab`), the machine's matmul peak (`matmul_peak`), a
 //! training iteration (forward + backward + AdamW) for the `small` and `paper` configs, and
 //! training iterations with and without the fused kernels interleaved (`train_ab`).
 //! One file because criterion binds a bench target to one `main`; the cases share the scene
@@ -498,6 +499,43 @@ fn bench_points_ab(c: &mut Criterion) {
     group.finish();
 }
 
+/// The floor projection's cost: one step of batch 8 (10 objects x 512 points) by two
+/// models with the same weights, without and with `floor_projection`, interleaved.
+fn bench_floor_projection_ab(c: &mut Criterion) {
+    let off = RigidFormer::new_frozen(ModelConfig::small(), 1, &Device::Cpu).expect("model");
+    let on_config = ModelConfig {
+        floor_projection: Some(0.002),
+        ..ModelConfig::small()
+    };
+    let on = RigidFormer::new_frozen(on_config, 1, &Device::Cpu).expect("model");
+    let mut group = c.benchmark_group("floor_projection_ab");
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(3));
+    let mut cache: Option<Vec<(PreparedScene, SceneState)>> = None;
+    group.bench_function("batch_8_with_projection", |bench| {
+        let scenes = cache.get_or_insert_with(|| {
+            let scenes = prepared_batch(&off, 8, 10, 512, 8);
+            let batch = items(&scenes);
+            let (a, b) = interleaved(
+                15,
+                || drop(black_box(off.step(&batch).expect("step"))),
+                || drop(black_box(on.step(&batch).expect("step"))),
+            );
+            drop(batch);
+            println!(
+                "floor_projection_ab batch 8: off {a:.2} ms | on {b:.2} ms | on / off {:.3}x",
+                b / a
+            );
+            scenes
+        });
+        let batch = items(scenes);
+        bench.iter(|| black_box(on.step(&batch).expect("step")))
+    });
+    group.finish();
+}
+
 fn bench_wrecking_ball(c: &mut Criterion) {
     for (name, config) in [
         ("small", ModelConfig::small()),
@@ -841,6 +879,7 @@ criterion_group!(
     bench_avp_ab,
     bench_scene_threads_ab,
     bench_points_ab,
+    bench_floor_projection_ab,
     bench_matmul_peak,
     bench_training,
     bench_train_ab
