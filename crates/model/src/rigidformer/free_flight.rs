@@ -19,6 +19,7 @@ use nalgebra::Vector3;
 
 use super::inputs::SceneRequest;
 use super::projection::free_fall;
+use super::projection::lowest_offset;
 use crate::ModelConfig;
 use crate::api::Pose;
 
@@ -74,13 +75,8 @@ pub(crate) fn free_flight(cfg: &ModelConfig, r: &SceneRequest<'_>) -> Vec<bool> 
 fn lowest_over_step(r: &SceneRequest<'_>, i: usize, drop: f64) -> f64 {
     let o = &r.scene.objects[i];
     let (now, before) = (&r.current[i], &r.previous[i]);
-    let rot = now.unit_quaternion().cast::<f64>();
-    let lowest = o
-        .reference
-        .iter()
-        .map(|x| (rot * Vector3::from(*x).cast::<f64>()).z)
-        .fold(f64::INFINITY, f64::min)
-        + f64::from(now.translation[2]);
+    let rot = now.unit_quaternion().cast::<f64>().to_rotation_matrix();
+    let lowest = lowest_offset(&o.reference, rot.matrix()) + f64::from(now.translation[2]);
     let angle = f64::from(now.unit_quaternion().angle_to(&before.unit_quaternion()));
     let radius = f64::from(o.radius);
     lowest + drop.min(0.0) - angle.min(2.0) * radius - (0.1 * radius + MARGIN_M)

@@ -69,15 +69,21 @@ pub(crate) fn project_poses(
         .collect())
 }
 
+/// The lowest height (metres) of body-frame points `cloud` (metres) turned by `r`, relative
+/// to the body origin; infinite for an empty cloud.
+pub(crate) fn lowest_offset(cloud: &[[f32; 3]], r: &Matrix3<f64>) -> f64 {
+    let row = r.row(2);
+    cloud
+        .iter()
+        .map(|x| row[0] * f64::from(x[0]) + row[1] * f64::from(x[1]) + row[2] * f64::from(x[2]))
+        .fold(f64::INFINITY, f64::min)
+}
+
 /// How far (metres, >= 0) an object with body-frame points `cloud` (metres), rotation `r`
 /// and centre height `z` (metres) must rise so that none of its points is below `ground`
 /// (metres): the floor projection ([`ModelConfig::floor_projection`]) and the floor base.
 pub(crate) fn floor_rise(cloud: &[[f32; 3]], r: &Matrix3<f64>, z: f64, ground: f64) -> f64 {
-    let row = r.row(2);
-    let lowest = cloud
-        .iter()
-        .map(|x| row[0] * f64::from(x[0]) + row[1] * f64::from(x[1]) + row[2] * f64::from(x[2]))
-        .fold(f64::INFINITY, f64::min);
+    let lowest = lowest_offset(cloud, r);
     if lowest.is_finite() {
         (ground - z - lowest).max(0.0)
     } else {
