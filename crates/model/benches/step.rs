@@ -20,7 +20,8 @@ use std::time::{Duration, Instant};
 
 use candle_core::{DType, Device, Tensor};
 use candle_nn::Optimizer;
-use criterion::{Criterion, criterion_group};
+use criterion::measurement::WallTime;
+use criterion::{BenchmarkGroup, Criterion, criterion_group};
 use dynaserve_model::{
     ModelConfig, ObjectInput, Pose, PreparedScene, RigidFormer, SceneState, StepItem, StepProfile,
     TrainItem, WorldModel,
@@ -31,6 +32,21 @@ use rand_chacha::ChaCha8Rng;
 
 #[global_allocator]
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
+/// A benchmark group of 10 samples after a 1 s warm-up, measured for `secs` seconds: every
+/// case here times whole steps or kernels, milliseconds each, so few samples suffice.
+fn short_group<'a>(
+    c: &'a mut Criterion,
+    name: impl Into<String>,
+    secs: u64,
+) -> BenchmarkGroup<'a, WallTime> {
+    let mut group = c.benchmark_group(name);
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(secs));
+    group
+}
 
 fn box_cloud(rng: &mut ChaCha8Rng, n: usize, h: [f32; 3]) -> Vec<[f32; 3]> {
     (0..n)
@@ -236,11 +252,7 @@ fn bench_steps(c: &mut Criterion) {
 
 fn bench_steps_for(c: &mut Criterion, name: &str, config: ModelConfig) {
     let model = RigidFormer::new_frozen(config, 1, &Device::Cpu).expect("model");
-    let mut group = c.benchmark_group(format!("step_{name}_10x512"));
-    group
-        .sample_size(10)
-        .warm_up_time(Duration::from_secs(1))
-        .measurement_time(Duration::from_secs(4));
+    let mut group = short_group(c, format!("step_{name}_10x512"), 4);
     let mut per_scene = Vec::new();
     for b in [1usize, 8, 32, 128] {
         // Set up lazily: criterion only calls the closure when the benchmark is selected.
@@ -297,11 +309,7 @@ fn bench_model_ab(
     (lb, b, sb): Side,
     cases: &[&str],
 ) {
-    let mut group = c.benchmark_group(name);
-    group
-        .sample_size(10)
-        .warm_up_time(Duration::from_secs(1))
-        .measurement_time(Duration::from_secs(3));
+    let mut group = short_group(c, name, 3);
     for &case in cases {
         let mut cache: Option<Vec<(PreparedScene, SceneState)>> = None;
         group.bench_function(case, |bench| {
@@ -398,11 +406,7 @@ fn bench_avp_ab(c: &mut Criterion) {
     };
     let cfg = ModelConfig::small();
     let (k, ch) = (cfg.anchors, cfg.point_dim);
-    let mut group = c.benchmark_group("avp_ab");
-    group
-        .sample_size(10)
-        .warm_up_time(Duration::from_secs(1))
-        .measurement_time(Duration::from_secs(2));
+    let mut group = short_group(c, "avp_ab", 2);
     for (case, counts) in [
         ("batch_8", vec![512usize; 80]),
         ("wrecking_ball", [vec![128usize; 216], vec![512]].concat()),
@@ -470,11 +474,7 @@ fn bench_avp_ab(c: &mut Criterion) {
 /// (the accuracy side is in BENCHMARKS.md, "Accuracy against the point count").
 fn bench_points_ab(c: &mut Criterion) {
     let model = RigidFormer::new_frozen(ModelConfig::small(), 1, &Device::Cpu).expect("model");
-    let mut group = c.benchmark_group("points_ab");
-    group
-        .sample_size(10)
-        .warm_up_time(Duration::from_secs(1))
-        .measurement_time(Duration::from_secs(3));
+    let mut group = short_group(c, "points_ab", 3);
     let mut cache: Option<Vec<(PreparedScene, SceneState)>> = None;
     group.bench_function("batch_8_256", |bench| {
         let small = cache.get_or_insert_with(|| {
@@ -508,11 +508,7 @@ fn bench_floor_projection_ab(c: &mut Criterion) {
         ..ModelConfig::small()
     };
     let on = RigidFormer::new_frozen(on_config, 1, &Device::Cpu).expect("model");
-    let mut group = c.benchmark_group("floor_projection_ab");
-    group
-        .sample_size(10)
-        .warm_up_time(Duration::from_secs(1))
-        .measurement_time(Duration::from_secs(3));
+    let mut group = short_group(c, "floor_projection_ab", 3);
     let mut cache: Option<Vec<(PreparedScene, SceneState)>> = None;
     group.bench_function("batch_8_with_projection", |bench| {
         let scenes = cache.get_or_insert_with(|| {
@@ -543,11 +539,7 @@ fn bench_wrecking_ball(c: &mut Criterion) {
     ] {
         let model = RigidFormer::new_frozen(config, 1, &Device::Cpu).expect("model");
         let mut cache: Option<(PreparedScene, SceneState)> = None;
-        let mut group = c.benchmark_group("wrecking_ball");
-        group
-            .sample_size(10)
-            .warm_up_time(Duration::from_secs(1))
-            .measurement_time(Duration::from_secs(4));
+        let mut group = short_group(c, "wrecking_ball", 4);
         group.bench_function(format!("216_cubes_128pts_{name}"), |bench| {
             let (scene, state) = cache.get_or_insert_with(|| {
                 let (objects, state) = wrecking_ball(128);
@@ -683,11 +675,7 @@ fn bench_packing(c: &mut Criterion) {
         start += m + r;
     }
     let mq = Tensor::from_vec(mq, (1, 1, total, total), &dev).expect("mask");
-    let mut group = c.benchmark_group("decoder_packing_32_scenes_d256_l8");
-    group
-        .sample_size(10)
-        .warm_up_time(Duration::from_secs(1))
-        .measurement_time(Duration::from_secs(3));
+    let mut group = short_group(c, "decoder_packing_32_scenes_d256_l8", 3);
     group.bench_function("padded", |bench| {
         bench.iter(|| black_box(blocks(xp.clone(), &mp)))
     });
@@ -703,11 +691,7 @@ fn bench_matmul_peak(c: &mut Criterion) {
     let n = 1024usize;
     let a = Tensor::ones((n, n), DType::F32, &Device::Cpu).expect("a");
     let b = Tensor::ones((n, n), DType::F32, &Device::Cpu).expect("b");
-    let mut group = c.benchmark_group("matmul_peak");
-    group
-        .sample_size(10)
-        .warm_up_time(Duration::from_secs(1))
-        .measurement_time(Duration::from_secs(3));
+    let mut group = short_group(c, "matmul_peak", 3);
     let mut printed = false;
     group.bench_function("f32_1024", |bench| {
         if !printed {
@@ -758,11 +742,7 @@ fn train_batch(model: &RigidFormer, seed: u64) -> Vec<(PreparedScene, SceneState
 }
 
 fn bench_training(c: &mut Criterion) {
-    let mut group = c.benchmark_group("train_iteration_16_scenes_3to10x256");
-    group
-        .sample_size(10)
-        .warm_up_time(Duration::from_secs(1))
-        .measurement_time(Duration::from_secs(5));
+    let mut group = short_group(c, "train_iteration_16_scenes_3to10x256", 5);
     for (name, cfg) in [
         ("small", ModelConfig::small()),
         ("paper", ModelConfig::paper()),
@@ -798,11 +778,7 @@ fn bench_training(c: &mut Criterion) {
 /// AdamW): prints the medians of the forward pass, the backward pass, the AdamW update and
 /// the whole iteration for both, and the ratio.
 fn bench_train_ab(c: &mut Criterion) {
-    let mut group = c.benchmark_group("train_ab");
-    group
-        .sample_size(10)
-        .warm_up_time(Duration::from_secs(1))
-        .measurement_time(Duration::from_secs(3));
+    let mut group = short_group(c, "train_ab", 3);
     let mut cache = None;
     group.bench_function("small", |bench| {
         let (model, data, opt) = cache.get_or_insert_with(|| {
