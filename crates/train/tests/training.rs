@@ -362,6 +362,28 @@ fn init_widens_a_model_for_the_summaries() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// `data.step_sizes` draws one entry uniformly per window, so a step size listed twice is drawn
+/// twice as often: `[1, 1, 2, 4]` gives step size 1 about half of the windows.
+#[test]
+fn a_repeated_step_size_is_drawn_as_often_as_it_is_listed() {
+    let dir = scratch("step-size-shares");
+    let (_data, scenes, mut c) = window_scenes(&dir);
+    c.step_sizes = vec![1, 1, 2, 4];
+    let n = 600;
+    let mut counts = [0usize; 5];
+    for seed in 0..n {
+        let k = seeded_window(&scenes, &c, seed, true).dt_steps as usize;
+        assert!([1, 2, 4].contains(&k), "step size {k} is not listed");
+        counts[k] += 1;
+    }
+    let share = |k: usize| counts[k] as f64 / n as f64;
+    // Binomial standard errors at n = 600: 0.020 for 1/2, 0.018 for 1/4; bounds at 4 SE.
+    assert!((share(1) - 0.5).abs() < 0.08, "shares {counts:?}");
+    assert!((share(2) - 0.25).abs() < 0.07, "shares {counts:?}");
+    assert!((share(4) - 0.25).abs() < 0.07, "shares {counts:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// Pushforward (`data.pushforward`) draws its choice after everything else, so a window's
 /// inputs and target are those it has without it, and its extra poses are the recorded ones
 /// at `t - 2k` and `t - k` (with two steps also `t - 3k`, and both observed poses become the
