@@ -1,7 +1,7 @@
 //! Widening a trained model: a 12-feature model becomes one that also reads the contact
 //! velocity, a model without surface normals one that reads them, a model without a per-object
-//! summary one that reads it, and a model gets more decoder blocks; each computes exactly the
-//! same function until training moves the new weights.
+//! summary one that reads it, a model gets more decoder blocks, and its point encoder more
+//! channels; each computes exactly the same function until training moves the new weights.
 
 use std::collections::HashMap;
 
@@ -232,4 +232,134 @@ impl RigidFormer {
         }
         self.rebuilt(config, tensors, trainable)
     }
+}
+
+/// Parameters whose layout depends on the encoder's widths, as `(name, zero_new_rows,
+/// zero_new_columns)` for [`RigidFormer::widened_encoder`]: the last layer of each widened
+/// MLP starts with zero rows for its new output channels and zero columns for its new hidden
+/// units, so the new channels are exactly zero and the old ones unchanged; every new input
+/// column of a consumer (it multiplies a zero channel) and every new hidden unit's input row
+/// keep their fresh random values, so gradients reach the new weights from the first step.
+const ENCODER_WIDTH_PARAMETERS: [(&str, bool, bool); 10] = [
+    ("encoder.point.0.weight", false, false),
+    ("encoder.point.0.bias", false, false),
+    ("encoder.point.1.weight", true, true),
+    ("encoder.point.1.bias", true, false),
+    ("encoder.sa1.0.weight", false, false),
+    ("encoder.sa1.0.bias", false, false),
+    ("encoder.sa1.1.weight", true, true),
+    ("encoder.sa1.1.bias", true, false),
+    ("encoder.sa2.0.weight", false, false),
+    (QUERY_IN_WEIGHT, false, false),
+];
+
+/// The anchor queries' input layer, `[width, point_dim + 3 + point_dim + rope_dim]`: its
+/// columns are the anchor's own point feature, its offset, its pooled point feature and its
+/// rotary features, in that order.
+const QUERY_IN_WEIGHT: &str = "anchors.query_in.weight";
+
+impl RigidFormer {
+    /// A copy of this model with a wider point encoder: `point_dim` channels in the per-point
+    /// MLP (hidden and output; the anchors read them too) and `sa_dim` in the first
+    /// set-abstraction level, each at least the current width. Old weights are copied into
+    /// their places, new ones are drawn from `seed` with the widened MLPs' new output rows and
+    /// new hidden columns zero ([`ENCODER_WIDTH_PARAMETERS`]), so the copy's outputs equal
+    /// this model's. `trainable` keeps gradient tracking on the copy's weights.
+    ///
+    /// Errors if a width is smaller than the current one or both are unchanged.
+    pub fn widened_encoder(
+        &self,
+        point_dim: usize,
+        sa_dim: usize,
+        seed: u64,
+        trainable: bool,
+    ) -> Result<RigidFormer, ModelError> {
+        let (c1, c2) = (self.config.point_dim, self.config.sa_dim);
+        if point_dim < c1 || sa_dim < c2 || (point_dim, sa_dim) == (c1, c2) {
+            return Err(ModelError::InvalidInput(format!(
+                "encoder widths must grow from ({c1}, {c2}) without shrinking, got ({point_dim}, {sa_dim})"
+            )));
+        }
+        let mut config = self.config.clone();
+        (config.point_dim, config.sa_dim) = (point_dim, sa_dim);
+        config.validate()?;
+        let fresh = RigidFormer::new_frozen(config.clone(), seed, &self.device)?.weight_copies()?;
+        let mut tensors = self.weight_copies()?;
+        // Where each old query_in column goes: own feature, offset, pooled feature, rotary.
+        let query_column = |j: usize| {
+            if j < c1 {
+                j
+            } else if j < c1 + 3 + c1 {
+                j + (point_dim - c1)
+            } else {
+                j + 2 * (point_dim - c1)
+            }
+        };
+        for (name, zero_rows, zero_columns) in ENCODER_WIDTH_PARAMETERS {
+            let missing = |what: &str| {
+                ModelError::Internal(format!("the {what} model has no parameter {name}"))
+            };
+            let old = tensors.remove(name).ok_or_else(|| missing("widened"))?;
+            let new = fresh.get(name).ok_or_else(|| missing("fresh"))?;
+            let column: &dyn Fn(usize) -> usize = if name == QUERY_IN_WEIGHT {
+                &query_column
+            } else {
+                &|j| j
+            };
+            tensors.insert(
+                name.to_string(),
+                embed(&old, new, column, zero_rows, zero_columns)?,
+            );
+        }
+        self.rebuilt(config, tensors, trainable)
+    }
+}
+
+/// `new` (a vector `[r']` or a matrix `[r', c']`) with `old` (`[r]` or `[r, c]`, r <= r',
+/// c <= c') written into rows `0..r` and columns `column(0..c)`; with `zero_rows` rows from
+/// `r` on are zero, with `zero_columns` the columns no old one maps to are zero.
+fn embed(
+    old: &Tensor,
+    new: &Tensor,
+    column: &dyn Fn(usize) -> usize,
+    zero_rows: bool,
+    zero_columns: bool,
+) -> Result<Tensor, ModelError> {
+    let as_matrix = |t: &Tensor| -> Result<(usize, usize, Vec<f32>), ModelError> {
+        let dims = t.dims();
+        let (r, c) = match dims {
+            [r] => (*r, 1),
+            [r, c] => (*r, *c),
+            _ => {
+                return Err(ModelError::Internal(format!(
+                    "cannot widen a parameter of shape {dims:?}"
+                )));
+            }
+        };
+        Ok((r, c, t.flatten_all()?.to_vec1::<f32>()?))
+    };
+    let (r, c, from) = as_matrix(old)?;
+    let (r2, c2, mut to) = as_matrix(new)?;
+    if r > r2 || c > c2 || (c > 0 && column(c - 1) >= c2) {
+        return Err(ModelError::Internal(format!(
+            "cannot embed a [{r}, {c}] parameter in a [{r2}, {c2}] one"
+        )));
+    }
+    let mut mapped = vec![false; c2];
+    for j in 0..c {
+        mapped[column(j)] = true;
+    }
+    for i in 0..r2 {
+        for (j2, &is_old) in mapped.iter().enumerate() {
+            if (zero_rows && i >= r) || (zero_columns && !is_old) {
+                to[i * c2 + j2] = 0.0;
+            }
+        }
+        if i < r {
+            for j in 0..c {
+                to[i * c2 + column(j)] = from[i * c + j];
+            }
+        }
+    }
+    Ok(Tensor::from_vec(to, new.dims(), new.device())?.to_dtype(new.dtype())?)
 }

@@ -246,6 +246,11 @@ pub struct ModelSection {
     /// (`RigidFormer::deepened`), so training starts from the same function with more depth.
     /// Needs `init`; unset or empty keeps the depth.
     pub insert_blocks_after: Option<Vec<usize>>,
+    /// Widens the `init` model's point encoder before training to `[point_dim, sa_dim]`
+    /// channels (per-point MLP, which the anchors read too, and first set-abstraction level;
+    /// `RigidFormer::widened_encoder`), new channels starting at zero so training starts from
+    /// the same function. Needs `init`; unset keeps the widths.
+    pub widen_encoder: Option<[usize; 2]>,
 }
 
 impl Default for ModelSection {
@@ -270,6 +275,7 @@ impl Default for ModelSection {
             rest_weight: None,
             object_contact_weight: None,
             insert_blocks_after: None,
+            widen_encoder: None,
         }
     }
 }
@@ -554,6 +560,9 @@ impl TrainConfig {
         {
             return bad("model.insert_blocks_after deepens the model.init model: set model.init");
         }
+        if self.model.widen_encoder.is_some() && self.model.init.is_none() {
+            return bad("model.widen_encoder widens the model.init model: set model.init");
+        }
         let o = &self.optim;
         if o.batch_size == 0 || o.iterations == 0 {
             return bad("optim.batch_size and optim.iterations must be >= 1");
@@ -695,6 +704,17 @@ mod tests {
         c.validate().unwrap();
         let nan: TrainConfig = toml::from_str("[model]\nobject_contact_weight = nan\n").unwrap();
         assert!(nan.validate().is_err());
+    }
+
+    #[test]
+    fn a_widened_encoder_needs_an_init_model() {
+        let c: TrainConfig = toml::from_str("[model]\nwiden_encoder = [64, 96]\n").unwrap();
+        let err = c.validate().unwrap_err().to_string();
+        assert!(err.contains("model.widen_encoder"), "{err}");
+        let c: TrainConfig =
+            toml::from_str("[model]\ninit = \"runs/x\"\nwiden_encoder = [64, 96]\n").unwrap();
+        c.validate().unwrap();
+        assert_eq!(c.model.widen_encoder, Some([64, 96]));
     }
 
     #[test]

@@ -270,7 +270,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
             let m = m.with_settings(|d, l| cfg.model.apply_settings(d, l))?;
             let m = init_inputs(m, cfg, &reader)?;
             let m = init_summaries(m, cfg)?;
-            match cfg.model.insert_blocks_after.as_deref() {
+            let m = match cfg.model.insert_blocks_after.as_deref() {
                 Some(after) if !after.is_empty() => {
                     let deep = m.deepened(after, cfg.model.seed, true)?;
                     eprintln!(
@@ -281,6 +281,17 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                     deep
                 }
                 _ => m,
+            };
+            match cfg.model.widen_encoder {
+                Some([point_dim, sa_dim]) => {
+                    let wide = m.widened_encoder(point_dim, sa_dim, cfg.model.seed, true)?;
+                    eprintln!(
+                        "encoder widened to {point_dim} point and {sa_dim} set-abstraction channels (new ones start at zero), {} parameters",
+                        wide.parameter_count()
+                    );
+                    wide
+                }
+                None => m,
             }
         } else {
             let mut mc = cfg.model.model_config(Path::new("."))?;
