@@ -263,8 +263,8 @@ impl RigidFormer {
     /// MLP (hidden and output; the anchors read them too) and `sa_dim` in the first
     /// set-abstraction level, each at least the current width. Old weights are copied into
     /// their places, new ones are drawn from `seed` with the widened MLPs' new output rows and
-    /// new hidden columns zero ([`ENCODER_WIDTH_PARAMETERS`]), so the copy's outputs equal
-    /// this model's. `trainable` keeps gradient tracking on the copy's weights.
+    /// new hidden columns zero, so the copy's outputs equal this model's. `trainable` keeps
+    /// gradient tracking on the copy's weights.
     ///
     /// Errors if a width is smaller than the current one or both are unchanged.
     pub fn widened_encoder(
