@@ -109,6 +109,11 @@ pub struct EvalArgs {
     /// suite's regime table, which restarts it at every window).
     #[arg(long)]
     pub rapier: bool,
+    /// Rebuild every object of the rapier restart as the convex hull of the first N points of
+    /// its reference cloud (the points a model evaluated with N points per object sees)
+    /// instead of its exact shape: what the sampled geometry allows the simulator itself.
+    #[arg(long, value_name = "N")]
+    pub rapier_cloud_points: Option<usize>,
     /// Steps of the k = 1 stability rollout (0 turns it off).
     #[arg(long, default_value_t = DEFAULT_LONG_ROLLOUT_STEPS)]
     pub long_steps: usize,

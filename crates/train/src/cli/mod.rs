@@ -51,6 +51,18 @@ pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
             "--rapier adds the rapier restart beside a --model; alone, it is --baseline rapier"
         );
     }
+    if let Some(n) = args.rapier_cloud_points {
+        if !(args.rapier || args.baseline == Some(BaselineKind::Rapier)) {
+            anyhow::bail!(
+                "--rapier-cloud-points shapes the rapier restart: give --rapier or --baseline rapier"
+            );
+        }
+        if n < 4 {
+            anyhow::bail!(
+                "--rapier-cloud-points must be at least 4 (a hull needs a volume), got {n}"
+            );
+        }
+    }
     if let (Some(model), [data]) = (&args.model, args.data.as_slice())
         && crate::physi::eval::is_physi_model(model)
     {
@@ -88,7 +100,10 @@ pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
         }
         (Some(BaselineKind::Rapier), None) => predictors.push(Entry::baseline(
             "rapier-restart",
-            Box::new(RapierRestart::from_manifest(reader.manifest())?),
+            Box::new(
+                RapierRestart::from_manifest(reader.manifest())?
+                    .with_cloud_points(args.rapier_cloud_points),
+            ),
         )),
         (None, Some(dir)) => {
             let base = ModelPredictor::load(dir)
@@ -126,7 +141,10 @@ pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
             if args.rapier {
                 predictors.push(Entry::baseline(
                     "rapier-restart",
-                    Box::new(RapierRestart::from_manifest(reader.manifest())?),
+                    Box::new(
+                        RapierRestart::from_manifest(reader.manifest())?
+                            .with_cloud_points(args.rapier_cloud_points),
+                    ),
                 ));
             }
         }
@@ -263,6 +281,18 @@ mod tests {
         let alone = ["eval", "--baseline", "static", "--data", "d", "--rapier"];
         let err = run_eval(Cli::try_parse_from(alone).unwrap().eval).unwrap_err();
         assert!(err.to_string().contains("--baseline rapier"), "{err}");
+        // Hulls of the clouds shape the restart only, and need a volume.
+        let hulls = |extra: &[&str]| {
+            let mut a = vec!["eval", "--data", "d", "--rapier-cloud-points"];
+            a.extend_from_slice(extra);
+            run_eval(Cli::try_parse_from(a).unwrap().eval)
+                .unwrap_err()
+                .to_string()
+        };
+        let err = hulls(&["128", "--baseline", "static"]);
+        assert!(err.contains("give --rapier or --baseline rapier"), "{err}");
+        let err = hulls(&["3", "--baseline", "rapier"]);
+        assert!(err.contains("at least 4"), "{err}");
     }
 
     #[test]

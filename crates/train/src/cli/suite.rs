@@ -155,5 +155,7 @@ fn rapier(args: &EvalArgs, gravity: [f32; 3]) -> anyhow::Result<RapierRestart> {
             None => found = Some(here),
         }
     }
-    Ok(found.unwrap_or_else(|| RapierRestart::movi(gravity)))
+    Ok(found
+        .unwrap_or_else(|| RapierRestart::movi(gravity))
+        .with_cloud_points(args.rapier_cloud_points))
 }

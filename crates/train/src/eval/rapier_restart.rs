@@ -16,6 +16,12 @@
 //! contact step absorbs; without the term, free flight would be 8.5 mm off one frame ahead
 //! while the one-step errors at contacts on MOVi-B move by at most 0.0007 m (see the model
 //! card).
+//!
+//! With [`RapierRestart::cloud_points`] every object is instead the convex hull of the first
+//! `n` points of its reference cloud, the points a model evaluated with `n` points per object
+//! is given: rapier then knows the shape only as well as such a model can (less, for a
+//! non-convex shape, whose hollows the hull fills), which separates what the sampled geometry
+//! allows from what the exact shapes allow.
 
 use dynaserve_model::{Pose, SceneState};
 use dynaserve_sim::materials::MOVI_FLOOR;
@@ -45,6 +51,10 @@ pub struct RapierRestart {
     pub substeps_per_frame: u32,
     /// rapier solver iterations per physics step.
     pub solver_iterations: usize,
+    /// `Some(n)`: every object is rebuilt as the convex hull of the first `n` points of its
+    /// reference cloud (all of them if it has fewer) instead of its exact shape; `None`: the
+    /// exact shapes.
+    pub cloud_points: Option<usize>,
 }
 
 impl RapierRestart {
@@ -58,6 +68,7 @@ impl RapierRestart {
             physics_hz: 240,
             substeps_per_frame: 10,
             solver_iterations: 4,
+            cloud_points: None,
         }
     }
 
@@ -92,7 +103,17 @@ impl RapierRestart {
             physics_hz: m.physics_hz,
             substeps_per_frame: m.substeps_per_frame,
             solver_iterations: m.solver_iterations,
+            cloud_points: None,
         })
+    }
+
+    /// This restart with every object rebuilt from the first `n` points of its reference cloud
+    /// ([`RapierRestart::cloud_points`]), or from its exact shape with `None`.
+    pub fn with_cloud_points(self, cloud_points: Option<usize>) -> RapierRestart {
+        RapierRestart {
+            cloud_points,
+            ..self
+        }
     }
 
     /// The rapier object for `scene.objects[j]` at `pose` with velocities `(linear m/s,
@@ -117,7 +138,13 @@ impl RapierRestart {
         if (sx - sy).abs() > 1e-5 * sx.abs() || (sx - sz).abs() > 1e-5 * sx.abs() {
             return Err(bad(format!("scale {:?} is not uniform", o.scale)));
         }
-        let (shape, scale) = if kind == ShapeKind::Hull {
+        let (shape, scale) = if let Some(n) = self.cloud_points {
+            // What a model given the first n points knows of the shape (already scaled).
+            let cloud = &o.reference_points[..n.clamp(1, o.reference_points.len().max(1))];
+            let hull = Polytope::hull(cloud)?;
+            let parts = vec![Part::Polytope(hull)];
+            (Shape { kind, parts }, 1.0)
+        } else if kind == ShapeKind::Hull {
             // A different solid per object: its reference cloud, already scaled, spans it.
             let hull = Polytope::hull(&o.reference_points)?;
             let parts = vec![Part::Polytope(hull)];
