@@ -98,13 +98,11 @@ pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
         (Some(BaselineKind::Ballistic), None) => {
             predictors.push(Entry::baseline("ballistic", Box::new(ballistic)))
         }
-        (Some(BaselineKind::Rapier), None) => predictors.push(Entry::baseline(
-            "rapier-restart",
-            Box::new(
-                RapierRestart::from_manifest(reader.manifest())?
-                    .with_cloud_points(args.rapier_cloud_points),
-            ),
-        )),
+        (Some(BaselineKind::Rapier), None) => {
+            let restart = RapierRestart::from_manifest(reader.manifest())?
+                .with_cloud_points(args.rapier_cloud_points);
+            predictors.push(Entry::baseline(&restart.name(), Box::new(restart)))
+        }
         (None, Some(dir)) => {
             let base = ModelPredictor::load(dir)
                 .with_context(|| format!("loading model {}", dir.display()))?;
@@ -139,13 +137,9 @@ pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
                 predictors.push(Entry::baseline("ballistic", Box::new(ballistic)));
             }
             if args.rapier {
-                predictors.push(Entry::baseline(
-                    "rapier-restart",
-                    Box::new(
-                        RapierRestart::from_manifest(reader.manifest())?
-                            .with_cloud_points(args.rapier_cloud_points),
-                    ),
-                ));
+                let restart = RapierRestart::from_manifest(reader.manifest())?
+                    .with_cloud_points(args.rapier_cloud_points);
+                predictors.push(Entry::baseline(&restart.name(), Box::new(restart)));
             }
         }
         _ => anyhow::bail!("give exactly one of --baseline and --model"),

@@ -60,7 +60,8 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             predictors.push(("ballistic".into(), Box::new(ballistic)))
         }
         (Some(BaselineKind::Rapier), None) => {
-            predictors.push(("rapier-restart".into(), Box::new(rapier(args, gravity)?)))
+            let restart = rapier(args, gravity)?;
+            predictors.push((restart.name(), Box::new(restart)))
         }
         (None, Some(dir)) => {
             let base = ModelPredictor::load(dir)
@@ -78,7 +79,8 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
                 }
             }
             if args.rapier {
-                predictors.push(("rapier-restart".into(), Box::new(rapier(args, gravity)?)));
+                let restart = rapier(args, gravity)?;
+                predictors.push((restart.name(), Box::new(restart)));
             }
         }
         _ => anyhow::bail!("give exactly one of --baseline and --model"),

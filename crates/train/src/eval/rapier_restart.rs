@@ -52,8 +52,8 @@ pub struct RapierRestart {
     /// rapier solver iterations per physics step.
     pub solver_iterations: usize,
     /// `Some(n)`: every object is rebuilt as the convex hull of the first `n` points of its
-    /// reference cloud (all of them if it has fewer) instead of its exact shape; `None`: the
-    /// exact shapes.
+    /// reference cloud (all of them if it has fewer) instead of its exact shape, and the
+    /// predictor is labelled `rapier-hull-{n}`; `None`: the exact shapes (`rapier-restart`).
     pub cloud_points: Option<usize>,
 }
 
@@ -213,7 +213,10 @@ fn constant_motion(
 
 impl Predictor for RapierRestart {
     fn name(&self) -> String {
-        "rapier-restart".into()
+        match self.cloud_points {
+            Some(n) => format!("rapier-hull-{n}"),
+            None => "rapier-restart".into(),
+        }
     }
 
     fn rollout(

@@ -125,6 +125,10 @@ fn rapier_restart_from_the_clouds_uses_their_hulls() {
     };
     let (e, c) = (errors(&exact, drop, 1, 40), errors(&cloud, drop, 1, 40));
     assert_eq!(c, errors(&every, drop, 1, 40));
+    assert_eq!(
+        (exact.name(), cloud.name()),
+        ("rapier-restart".to_string(), "rapier-hull-64".to_string())
+    );
     let free = errors(&ballistic, drop, 1, 40);
     let contact = free.iter().position(|&x| x > 0.01).expect("a landing");
     assert!(c[..contact].iter().all(|&x| x < 5e-3), "cloud {c:?}");
