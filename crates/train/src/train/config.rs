@@ -706,26 +706,24 @@ mod tests {
         assert!(nan.validate().is_err());
     }
 
-    #[test]
-    fn a_widened_encoder_needs_an_init_model() {
-        let c: TrainConfig = toml::from_str("[model]\nwiden_encoder = [64, 96]\n").unwrap();
+    /// The error of `[model] line` without `init`, and the validated config with one.
+    fn without_and_with_init(line: &str) -> (String, TrainConfig) {
+        let c: TrainConfig = toml::from_str(&format!("[model]\n{line}\n")).unwrap();
         let err = c.validate().unwrap_err().to_string();
-        assert!(err.contains("model.widen_encoder"), "{err}");
         let c: TrainConfig =
-            toml::from_str("[model]\ninit = \"runs/x\"\nwiden_encoder = [64, 96]\n").unwrap();
+            toml::from_str(&format!("[model]\ninit = \"runs/x\"\n{line}\n")).unwrap();
         c.validate().unwrap();
-        assert_eq!(c.model.widen_encoder, Some([64, 96]));
+        (err, c)
     }
 
     #[test]
-    fn inserted_blocks_need_an_init_model() {
-        let c: TrainConfig = toml::from_str("[model]\ninsert_blocks_after = [1, 3]\n").unwrap();
-        let err = c.validate().unwrap_err().to_string();
+    fn a_widened_encoder_and_inserted_blocks_need_an_init_model() {
+        let (err, c) = without_and_with_init("widen_encoder = [64, 96]");
+        assert!(err.contains("model.widen_encoder"), "{err}");
+        assert_eq!(c.model.widen_encoder, Some([64, 96]));
+        let (err, c) = without_and_with_init("insert_blocks_after = [1, 3]");
         assert!(err.contains("set model.init"), "{err}");
-        let c: TrainConfig =
-            toml::from_str("[model]\ninit = \"runs/x\"\ninsert_blocks_after = [1, 3]\n").unwrap();
         assert_eq!(c.model.insert_blocks_after, Some(vec![1, 3]));
-        c.validate().unwrap();
     }
 
     #[test]
