@@ -18,6 +18,14 @@ use crate::kernels::avp::{AnchorPooling, anchor_pooling, anchor_pooling_composed
 use crate::layers::{Exec, Init, Linear, Mlp, Mode, ParamStore, RmsNorm, gather_padded};
 use crate::{ModelConfig, ModelError};
 
+/// Widths of the anchor query's input segments in the order [`AnchorHead`] concatenates them
+/// before `anchors.query_in`: the anchor's own point feature (`point_dim`), its offset from the
+/// object's centroid (3, metres), the pooled point feature (`point_dim`) and its rotary code
+/// (`rope_dim`). Code that remaps `query_in`'s columns reads the layout from here.
+pub(crate) fn query_segments(c: &ModelConfig) -> [usize; 4] {
+    [c.point_dim, 3, c.point_dim, c.rope_dim]
+}
+
 /// The anchor head's layers (`anchors.*` parameters).
 pub(crate) struct AnchorHead {
     query_in: Linear,
@@ -47,9 +55,9 @@ impl AnchorHead {
         c: &ModelConfig,
         device: &Device,
     ) -> Result<AnchorHead, ModelError> {
-        let (c1, d, eps) = (c.point_dim, c.width, c.norm_eps);
+        let (d, eps) = (c.width, c.norm_eps);
         let taps = c.anchor_taps.len();
-        let q_in = c1 + 3 + c1 + c.rope_dim;
+        let q_in = query_segments(c).iter().sum();
         Ok(AnchorHead {
             query_in: p.linear("anchors.query_in", q_in, d, true)?,
             own_token: p.linear("anchors.own_token", d, d, false)?,
@@ -154,6 +162,7 @@ impl AnchorHead {
             .reshape((o, k, c1))?;
         let rel = host_tensor(device, &inp.anchor_rel, &[o, k, 3])?;
         let rope_feat = host_tensor(device, &inp.anchor_rope, &[o, k, 2 * p])?;
+        // The order of `query_segments`.
         let q_in = Tensor::cat(&[own, rel, avp, rope_feat], 2)?;
         let query = self.query_in.forward(&q_in)?; // [O, K, D]
         // The anchor's own object token (final depth), an equivariant direct path.

@@ -8,6 +8,7 @@ use std::collections::HashMap;
 use candle_core::Tensor;
 
 use super::RigidFormer;
+use super::anchor_head::query_segments;
 use super::encoder::POINT_INPUT_WEIGHT;
 use super::summary::Summary;
 use crate::config::InputGroup;
@@ -285,15 +286,17 @@ impl RigidFormer {
         config.validate()?;
         let fresh = RigidFormer::new_frozen(config.clone(), seed, &self.device)?.weight_copies()?;
         let mut tensors = self.weight_copies()?;
-        // Where each old query_in column goes: own feature, offset, pooled feature, rotary.
+        // Where each old query_in column goes: the same place in its segment of the new layout.
+        let (old_segments, new_segments) = (query_segments(&self.config), query_segments(&config));
         let query_column = |j: usize| {
-            if j < c1 {
-                j
-            } else if j < c1 + 3 + c1 {
-                j + (point_dim - c1)
-            } else {
-                j + 2 * (point_dim - c1)
+            let (mut old_start, mut new_start) = (0, 0);
+            for (old_width, new_width) in old_segments.iter().zip(&new_segments) {
+                if j < old_start + old_width {
+                    return new_start + (j - old_start);
+                }
+                (old_start, new_start) = (old_start + old_width, new_start + new_width);
             }
+            new_start + (j - old_start)
         };
         for (name, zero_rows, zero_columns) in ENCODER_WIDTH_PARAMETERS {
             let missing = |what: &str| {
