@@ -210,7 +210,7 @@ fn replaying_the_ground_truth_reproduces_rapier_figures_with_zero_error() {
     let counted: u64 = report
         .regimes
         .iter()
-        .filter(|r| r.k == 1 && r.regime != Regime::FloorImpact)
+        .filter(|r| r.k == 1 && Regime::ALL.contains(&r.regime))
         .map(|r| r.count)
         .sum();
     let expected: usize = suite()
@@ -230,9 +230,25 @@ fn replaying_the_ground_truth_reproduces_rapier_figures_with_zero_error() {
         k1.iter().filter(|w| w.impact).count() as u64,
         impact_row.count
     );
+    // The object impacts likewise: object-contact windows whose flags are off at t or t + k.
+    let object_impact_row = report
+        .regimes
+        .iter()
+        .find(|r| r.k == 1 && r.regime == Regime::ObjectImpact)
+        .unwrap();
+    let object_impacts: Vec<_> = k1.iter().filter(|w| w.object_impact).collect();
+    assert_eq!(object_impacts.len() as u64, object_impact_row.count);
+    assert!(
+        object_impact_row.count > 0,
+        "the suite's collisions have onsets"
+    );
+    assert!(object_impacts.iter().all(|w| {
+        let b = w.object_contact.as_bytes();
+        w.regime == Regime::ObjectContact && (b[1] == b'0' || b[2] == b'0')
+    }));
     assert!(
         k1.iter()
-            .all(|w| w.translation_m < 1e-9 && w.floor.len() == 3)
+            .all(|w| w.translation_m < 1e-9 && w.floor.len() == 3 && w.object_contact.len() == 3)
     );
     let csv = dynaserve_train::eval::physics_suite::window_csv(&report);
     assert_eq!(csv.lines().count(), report.windows.len() + 1);

@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 use super::driven::{driven_rollout_batch, has_kinematic};
 use super::regimes::{
     CONTACT_DISTANCE_M, ContactFlags, RESTING_ANGULAR_DEG_S, RESTING_SPEED_M_S, Regime,
-    RegimeErrors, contact_flags, floor_impact, regime, windows,
+    RegimeErrors, contact_flags, floor_impact, object_impact, regime, windows,
 };
 use super::scenario_figures::{Sample, scene_samples};
 use super::{DEFAULT_START_FRAME, EvalError, Predictor, RolloutRequest, observed_frames};
@@ -302,8 +302,12 @@ pub struct WindowRecord {
     pub regime: Regime,
     /// A floor-contact window with a landing, bounce or lift-off ([`Regime::FloorImpact`]).
     pub impact: bool,
+    /// An object-contact window in which a contact begins or ends ([`Regime::ObjectImpact`]).
+    pub object_impact: bool,
     /// Floor-contact flags of frames `t - k ..= t + k`, `1` or `0` each.
     pub floor: String,
+    /// Object-contact flags (distance test) of the same frames.
+    pub object_contact: String,
     /// Impulse flags (acceleration off gravity) of the same frames.
     pub impulse: String,
     /// Translation error, m.
@@ -315,11 +319,12 @@ pub struct WindowRecord {
 /// The windows of a report as CSV (header and one line per record).
 pub fn window_csv(report: &PhysicsSuiteReport) -> String {
     let mut out = String::from(
-        "predictor,scene,object,t,k,regime,impact,floor,impulse,translation_m,orientation_deg\n",
+        "predictor,scene,object,t,k,regime,impact,object_impact,floor,object_contact,impulse,\
+         translation_m,orientation_deg\n",
     );
     for w in &report.windows {
         out.push_str(&format!(
-            "{},{},{},{},{},{},{},{},{},{:.6},{:.4}\n",
+            "{},{},{},{},{},{},{},{},{},{},{},{:.6},{:.4}\n",
             w.predictor,
             w.scene,
             w.object,
@@ -327,7 +332,9 @@ pub fn window_csv(report: &PhysicsSuiteReport) -> String {
             w.k,
             w.regime.name(),
             w.impact,
+            w.object_impact,
             w.floor,
+            w.object_contact,
             w.impulse,
             w.translation_m,
             w.orientation_deg
@@ -474,6 +481,11 @@ fn run_predictor(
                     if impact {
                         errors.add(ki, Regime::FloorImpact, dt, da);
                     }
+                    let object_impact =
+                        r == Regime::ObjectContact && object_impact(&flags[i], j, t, k as usize);
+                    if object_impact {
+                        errors.add(ki, Regime::ObjectImpact, dt, da);
+                    }
                     let f = &flags[i];
                     let bits = |v: &Vec<Vec<bool>>| -> String {
                         (t - k as usize..=target)
@@ -488,7 +500,9 @@ fn run_predictor(
                         k,
                         regime: r,
                         impact,
+                        object_impact,
                         floor: bits(&f.floor),
+                        object_contact: bits(&f.object),
                         impulse: bits(&f.impulse),
                         translation_m: dt,
                         orientation_deg: da,

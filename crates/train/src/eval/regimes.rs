@@ -64,6 +64,11 @@ pub enum Regime {
     /// reported beside it, never returned by [`regime`]. Bounces are a few percent of the
     /// floor-contact windows and carry errors ten times the sustained contacts'.
     FloorImpact,
+    /// An object-contact window in which the object is not touching another object (by the
+    /// distance test) at `t` or at `t + k`: a contact begins, ends or comes and goes between
+    /// recorded frames within the window. A subset of [`Regime::ObjectContact`], reported beside
+    /// it, never returned by [`regime`].
+    ObjectImpact,
 }
 
 impl Regime {
@@ -76,12 +81,13 @@ impl Regime {
     ];
 
     /// Every row of the report, in order: [`Regime::ALL`] with the floor impacts after the
-    /// floor contacts.
-    pub const REPORTED: [Regime; 5] = [
+    /// floor contacts and the object impacts after the object contacts.
+    pub const REPORTED: [Regime; 6] = [
         Regime::FreeFlight,
         Regime::FloorContact,
         Regime::FloorImpact,
         Regime::ObjectContact,
+        Regime::ObjectImpact,
         Regime::Resting,
     ];
 
@@ -93,6 +99,7 @@ impl Regime {
             Regime::ObjectContact => "object contact",
             Regime::Resting => "resting",
             Regime::FloorImpact => "floor contact: impacts",
+            Regime::ObjectImpact => "object contact: impacts",
         }
     }
 
@@ -312,6 +319,13 @@ pub fn floor_impact(flags: &ContactFlags, j: usize, t: usize, k: usize) -> bool 
     !(flags.floor[t][j] && flags.floor[t + k][j])
 }
 
+/// True when object `j` is not touching another object (by the distance test) at `t` or at
+/// `t + k`: with an object-contact [`regime`], a contact begins, ends or comes and goes within
+/// the window ([`Regime::ObjectImpact`]).
+pub fn object_impact(flags: &ContactFlags, j: usize, t: usize, k: usize) -> bool {
+    !(flags.object[t][j] && flags.object[t + k][j])
+}
+
 /// Squared-error sums of one predictor for one (regime, step size).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ErrorSums {
@@ -355,7 +369,7 @@ pub struct RegimeErrors {
     /// Step sizes, frames, in order.
     pub step_sizes: Vec<u32>,
     /// Pools, `[step size][Regime declaration order]`.
-    pub sums: Vec<[ErrorSums; 5]>,
+    pub sums: Vec<[ErrorSums; 6]>,
 }
 
 impl RegimeErrors {
@@ -363,7 +377,7 @@ impl RegimeErrors {
     pub fn new(step_sizes: &[u32]) -> Self {
         RegimeErrors {
             step_sizes: step_sizes.to_vec(),
-            sums: vec![[ErrorSums::default(); 5]; step_sizes.len()],
+            sums: vec![[ErrorSums::default(); 6]; step_sizes.len()],
         }
     }
 
