@@ -503,6 +503,95 @@ fn rest_weight_scales_only_objects_at_rest() {
     }));
 }
 
+/// The rotation term is off by default; switched on, it raises the loss, ignores a translation
+/// of every target (it sees only what rotation moves) and grows with a rotation of the targets;
+/// a negative weight is refused.
+#[test]
+fn rotation_weight_adds_a_term_on_rotation_only() {
+    let plain = RigidFormer::new(ModelConfig::tiny(), 9, &Device::Cpu).unwrap();
+    let weighted = RigidFormer::new(ModelConfig::tiny(), 9, &Device::Cpu)
+        .unwrap()
+        .with_settings(|_, l| l.rotation_weight = 2.0)
+        .unwrap();
+    let (objs, st) = random_scene(12, 3, 40);
+    let sc = plain.prepare(objs).unwrap();
+    let term = |target: &[Pose]| {
+        step_loss(&weighted, &sc, &st, target) - step_loss(&plain, &sc, &st, target)
+    };
+    let target = next_poses(&st);
+    let base = term(&target);
+    assert!(base > 0.0, "rotation term {base}");
+    let moved: Vec<Pose> = target
+        .iter()
+        .map(|p| Pose {
+            translation: [
+                p.translation[0] + 0.01,
+                p.translation[1] - 0.02,
+                p.translation[2] + 0.005,
+            ],
+            ..*p
+        })
+        .collect();
+    let shifted = term(&moved);
+    assert!(
+        (shifted - base).abs() <= 1e-3 * base.abs().max(1e-3),
+        "a translation changed the rotation term: {base} -> {shifted}"
+    );
+    let spin = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.2);
+    let turned: Vec<Pose> = target
+        .iter()
+        .map(|p| {
+            let q = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+                p.rotation[3],
+                p.rotation[0],
+                p.rotation[1],
+                p.rotation[2],
+            ));
+            let r = spin * q;
+            Pose {
+                rotation: [r.i, r.j, r.k, r.w],
+                ..*p
+            }
+        })
+        .collect();
+    let rotated = term(&turned);
+    assert!(
+        rotated > 2.0 * base,
+        "a rotation of the targets: {base} -> {rotated}"
+    );
+    // The term reaches the weights: the gradient changes with it.
+    let gradient = |m: &RigidFormer| -> Vec<f32> {
+        let item = TrainItem {
+            scene: &sc,
+            state: &st,
+            target: &turned,
+            dt_steps: 1,
+            kinematic: &[],
+        };
+        let grads = m.train_forward(&[item]).unwrap().loss.backward().unwrap();
+        let vars = m.varmap().data().lock().unwrap().clone();
+        let mut names: Vec<&String> = vars.keys().collect();
+        names.sort();
+        names
+            .iter()
+            .filter_map(|n| grads.get(vars[*n].as_tensor()))
+            .flat_map(|g| g.flatten_all().unwrap().to_vec1::<f32>().unwrap())
+            .collect()
+    };
+    let (g0, g1) = (gradient(&plain), gradient(&weighted));
+    let norm = |v: &mut dyn Iterator<Item = f32>| v.map(|x| f64::from(x).powi(2)).sum::<f64>();
+    let change = norm(&mut g0.iter().zip(&g1).map(|(a, b)| b - a));
+    let size = norm(&mut g0.iter().copied());
+    assert!(
+        change > 1e-4 * size,
+        "gradient unchanged by the term: |change|^2 {change} against |g|^2 {size}"
+    );
+    assert!(refused(dynaserve_model::LossConfig {
+        rotation_weight: -1.0,
+        ..Default::default()
+    }));
+}
+
 /// The object-contact weight raises the loss only when a moving object has a point within
 /// 0.1 m of another object's: the same scene with its objects apart is unchanged.
 #[test]

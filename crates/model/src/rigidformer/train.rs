@@ -9,7 +9,9 @@ use super::inputs::{SceneRequest, build_inputs};
 use super::projection::{base_shift, pose_f64};
 use crate::ModelError;
 use crate::api::{Pose, SceneState};
-use crate::config::OBJECT_CONTACT_WEIGHT_DISTANCE_M;
+use crate::config::{
+    OBJECT_CONTACT_WEIGHT_DISTANCE_M, ROTATION_LEVER_ARM_M, ROTATION_MIN_RADIUS_M,
+};
 use crate::kernels::kabsch::KabschOp;
 use crate::layers::{Mode, smooth_l1_mean};
 use crate::prepare::{PreparedScene, normalise_pose, validate_state};
@@ -177,6 +179,20 @@ impl RigidFormer {
         for (term, w) in terms.iter().zip(lc.weights).skip(1) {
             loss = (loss + (term * w as f64)?)?;
         }
+        if lc.rotation_weight > 0.0 {
+            // Each object's errors rescaled from its anchor radius to the common lever arm.
+            let lever: Vec<f32> = inp
+                .anchors_ref
+                .iter()
+                .map(|anchors| ROTATION_LEVER_ARM_M / anchor_radius(anchors))
+                .collect();
+            let lever = host_tensor(&self.device, &lever, &[o, 1, 1])?;
+            let rotation = rotation_errors(&(&positions_post - &target_positions)?)?
+                .broadcast_mul(&inv)?
+                .broadcast_mul(&lever)?;
+            let term = smooth_l1_mean(&rotation, lc.beta)?;
+            loss = (loss + (term * lc.rotation_weight as f64)?)?;
+        }
         Ok(TrainOutput {
             loss,
             terms,
@@ -189,6 +205,27 @@ impl RigidFormer {
             target_accel,
         })
     }
+}
+
+/// Anchor errors `[O, K, 3]` less their mean over each object's K anchors, `[O, K, 3]`: a rigid
+/// error `(R - R*) a + (p - p*)` loses its translation and keeps the rotation error times each
+/// anchor's offset from the anchors' centroid. Same units as the input.
+pub(crate) fn rotation_errors(errors: &Tensor) -> candle_core::Result<Tensor> {
+    errors.broadcast_sub(&errors.mean_keepdim(1)?)
+}
+
+/// Root-mean-square distance of one object's reference anchors from their centroid, metres,
+/// at least [`ROTATION_MIN_RADIUS_M`].
+pub(crate) fn anchor_radius(anchors: &[[f64; 3]]) -> f32 {
+    let n = anchors.len().max(1) as f64;
+    let c = (0..3).map(|i| anchors.iter().map(|a| a[i]).sum::<f64>() / n);
+    let c: Vec<f64> = c.collect();
+    let ms = anchors
+        .iter()
+        .map(|a| (0..3).map(|i| (a[i] - c[i]).powi(2)).sum::<f64>())
+        .sum::<f64>()
+        / n;
+    (ms.sqrt() as f32).max(ROTATION_MIN_RADIUS_M)
 }
 
 /// True when the three poses `[t - k, t, t + k]` of one object lie within the resting
@@ -207,4 +244,40 @@ pub(crate) fn at_rest(poses: [&Pose; 3], dt_steps: u32) -> bool {
         d2.sqrt() <= crate::config::REST_TRANSLATION_PER_FRAME_M * k
             && angle <= crate::config::REST_ROTATION_PER_FRAME_RAD * k
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use candle_core::Device;
+
+    /// A rigid error on two anchors `[1, 2, 3]`: a translation leaves nothing, a small rotation
+    /// about z leaves `omega x (a - centroid)`.
+    #[test]
+    fn rotation_errors_keep_only_the_rotation() {
+        let dev = Device::Cpu;
+        let translation = Tensor::new(&[[[0.3f32, -0.2, 0.1], [0.3, -0.2, 0.1]]], &dev).unwrap();
+        let left = rotation_errors(&translation)
+            .unwrap()
+            .flatten_all()
+            .unwrap();
+        assert!(
+            left.to_vec1::<f32>()
+                .unwrap()
+                .iter()
+                .all(|v| v.abs() < 1e-7)
+        );
+        // Anchors at x = +-0.1 m rotated by 0.01 rad about z move by -+0.001 m in y; a common
+        // translation is added on top.
+        let rotated = Tensor::new(&[[[0.5f32, 0.001, 0.0], [0.5, -0.001, 0.0]]], &dev).unwrap();
+        let left = rotation_errors(&rotated).unwrap().flatten_all().unwrap();
+        let v = left.to_vec1::<f32>().unwrap();
+        let want = [0.0, 0.001, 0.0, 0.0, -0.001, 0.0];
+        assert!(
+            v.iter().zip(want).all(|(a, b)| (a - b).abs() < 1e-6),
+            "{v:?}"
+        );
+        assert!((anchor_radius(&[[0.1, 0.0, 0.0], [-0.1, 0.0, 0.0]]) - 0.1).abs() < 1e-6);
+        assert_eq!(anchor_radius(&[[0.0; 3], [0.0; 3]]), ROTATION_MIN_RADIUS_M);
+    }
 }

@@ -241,6 +241,10 @@ pub struct ModelSection {
     /// frame (`LossConfig::object_contact_weight`; a point within 0.1 m of another object's):
     /// unset keeps what the preset, config or `init` model has (1 unless set before).
     pub object_contact_weight: Option<f32>,
+    /// Weight of the loss term on each object's rotation error (`LossConfig::rotation_weight`,
+    /// `docs/rigidformer.md`): unset keeps what the preset, config or `init` model has (0, off,
+    /// unless set before).
+    pub rotation_weight: Option<f32>,
     /// Deepens the `init` model before training: one new decoder block after each of these
     /// block indices (0-based, distinct), each starting as the identity
     /// (`RigidFormer::deepened`), so training starts from the same function with more depth.
@@ -274,6 +278,7 @@ impl Default for ModelSection {
             loss_beta: None,
             rest_weight: None,
             object_contact_weight: None,
+            rotation_weight: None,
             insert_blocks_after: None,
             widen_encoder: None,
         }
@@ -283,7 +288,7 @@ impl Default for ModelSection {
 impl ModelSection {
     /// Sets the switches that leave the weights' shapes alone, where this section sets them:
     /// `rigid_extrapolation`, `floor_base`, `relative_mass`, `kinematic_lead`, `loss_beta`,
-    /// `rest_weight` and `object_contact_weight`. The one list of them, for a named
+    /// `rest_weight`, `object_contact_weight` and `rotation_weight`. The one list of them, for a named
     /// configuration ([`ModelSection::model_config`]) and for an `init` model
     /// (`RigidFormer::with_settings`) alike.
     pub fn apply_settings(&self, dynamics: &mut DynamicsConfig, loss: &mut LossConfig) {
@@ -307,6 +312,9 @@ impl ModelSection {
         }
         if let Some(w) = self.object_contact_weight {
             loss.object_contact_weight = w;
+        }
+        if let Some(w) = self.rotation_weight {
+            loss.rotation_weight = w;
         }
     }
 
@@ -551,6 +559,11 @@ impl TrainConfig {
         {
             return bad("model.object_contact_weight must be finite and > 0");
         }
+        if let Some(w) = self.model.rotation_weight
+            && !(w >= 0.0 && w.is_finite())
+        {
+            return bad("model.rotation_weight must be finite and >= 0");
+        }
         if self
             .model
             .insert_blocks_after
@@ -695,15 +708,21 @@ mod tests {
     }
 
     #[test]
-    fn object_contact_weight_switches_the_named_config_and_is_checked() {
+    fn contact_and_rotation_weights_switch_the_named_config_and_are_checked() {
         let base = Path::new(".");
         let loss = |c: &ModelSection| c.model_config(base).unwrap().loss;
         assert_eq!(loss(&ModelSection::default()).object_contact_weight, 1.0);
-        let c: TrainConfig = toml::from_str("[model]\nobject_contact_weight = 3.0\n").unwrap();
+        assert_eq!(loss(&ModelSection::default()).rotation_weight, 0.0);
+        let c: TrainConfig =
+            toml::from_str("[model]\nobject_contact_weight = 3.0\nrotation_weight = 0.5\n")
+                .unwrap();
         assert_eq!(loss(&c.model).object_contact_weight, 3.0);
+        assert_eq!(loss(&c.model).rotation_weight, 0.5);
         c.validate().unwrap();
-        let nan: TrainConfig = toml::from_str("[model]\nobject_contact_weight = nan\n").unwrap();
-        assert!(nan.validate().is_err());
+        for bad in ["object_contact_weight = nan", "rotation_weight = -0.5"] {
+            let c: TrainConfig = toml::from_str(&format!("[model]\n{bad}\n")).unwrap();
+            assert!(c.validate().is_err(), "{bad}");
+        }
     }
 
     /// The error of `[model] line` without `init`, and the validated config with one.
