@@ -469,15 +469,26 @@ fn refused(loss: dynaserve_model::LossConfig) -> bool {
     .is_err()
 }
 
+/// Two tiny models from weight seed `seed`, the second with `setting` applied to its loss, and
+/// a prepared three-object scene from `scene_seed` with its state.
+fn plain_and_weighted(
+    seed: u64,
+    setting: impl Fn(&mut dynaserve_model::LossConfig),
+    scene_seed: u64,
+) -> (RigidFormer, RigidFormer, PreparedScene, SceneState) {
+    let plain = RigidFormer::new(ModelConfig::tiny(), seed, &Device::Cpu).unwrap();
+    let weighted = RigidFormer::new(ModelConfig::tiny(), seed, &Device::Cpu)
+        .unwrap()
+        .with_settings(|_, l| setting(l))
+        .unwrap();
+    let (objs, state) = random_scene(scene_seed, 3, 40);
+    let scene = plain.prepare(objs).unwrap();
+    (plain, weighted, scene, state)
+}
+
 #[test]
 fn rest_weight_scales_only_objects_at_rest() {
-    let plain = RigidFormer::new(ModelConfig::tiny(), 7, &Device::Cpu).unwrap();
-    let weighted = RigidFormer::new(ModelConfig::tiny(), 7, &Device::Cpu)
-        .unwrap()
-        .with_settings(|_, l| l.rest_weight = 4.0)
-        .unwrap();
-    let (objs, st) = random_scene(10, 3, 40);
-    let sc = plain.prepare(objs).unwrap();
+    let (plain, weighted, sc, st) = plain_and_weighted(7, |l| l.rest_weight = 4.0, 10);
     // Object 0 rests (three equal poses); the others move.
     let mut resting = st.clone();
     resting.previous[0] = resting.current[0];
@@ -508,13 +519,7 @@ fn rest_weight_scales_only_objects_at_rest() {
 /// a negative weight is refused.
 #[test]
 fn rotation_weight_adds_a_term_on_rotation_only() {
-    let plain = RigidFormer::new(ModelConfig::tiny(), 9, &Device::Cpu).unwrap();
-    let weighted = RigidFormer::new(ModelConfig::tiny(), 9, &Device::Cpu)
-        .unwrap()
-        .with_settings(|_, l| l.rotation_weight = 2.0)
-        .unwrap();
-    let (objs, st) = random_scene(12, 3, 40);
-    let sc = plain.prepare(objs).unwrap();
+    let (plain, weighted, sc, st) = plain_and_weighted(9, |l| l.rotation_weight = 2.0, 12);
     let term = |target: &[Pose]| {
         step_loss(&weighted, &sc, &st, target) - step_loss(&plain, &sc, &st, target)
     };
@@ -596,13 +601,7 @@ fn rotation_weight_adds_a_term_on_rotation_only() {
 /// 0.1 m of another object's: the same scene with its objects apart is unchanged.
 #[test]
 fn object_contact_weight_scales_only_objects_touching_another() {
-    let plain = RigidFormer::new(ModelConfig::tiny(), 8, &Device::Cpu).unwrap();
-    let weighted = RigidFormer::new(ModelConfig::tiny(), 8, &Device::Cpu)
-        .unwrap()
-        .with_settings(|_, l| l.object_contact_weight = 4.0)
-        .unwrap();
-    let (objs, apart) = random_scene(11, 3, 40);
-    let sc = plain.prepare(objs).unwrap();
+    let (plain, weighted, sc, apart) = plain_and_weighted(8, |l| l.object_contact_weight = 4.0, 11);
     let place = |state: &SceneState, positions: [[f32; 3]; 3]| {
         let mut s = state.clone();
         for (j, p) in positions.iter().enumerate() {
