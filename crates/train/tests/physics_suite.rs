@@ -13,7 +13,7 @@ use dynaserve_train::eval::physics_report::{format_physics_markdown, format_phys
 use dynaserve_train::eval::physics_suite::{
     PhysicsSuiteReport, SuiteOptions, SuiteScene, generate_suite, load_suite, run_suite,
 };
-use dynaserve_train::eval::regimes::{Regime, contact_flags, floor_impact, regime, windows};
+use dynaserve_train::eval::regimes::{Regime, contact_flags, impact_subset, regime, windows};
 use dynaserve_train::eval::{Ballistic, EvalError, ModelPredictor, Predictor};
 
 const GRAVITY: [f32; 3] = [0.0, 0.0, -10.0];
@@ -155,8 +155,9 @@ fn regimes_follow_what_the_scenes_do() {
         windows(frames, 1, 1)
             .into_iter()
             .filter(|&t| {
-                regime(&s.scene, &flags, 0, t, 1) == Regime::FloorContact
-                    && floor_impact(&flags, 0, t, 1)
+                let r = regime(&s.scene, &flags, 0, t, 1);
+                r == Regime::FloorContact
+                    && impact_subset(&flags, r, 0, t, 1) == Some(Regime::FloorImpact)
             })
             .count()
     };

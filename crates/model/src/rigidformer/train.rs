@@ -169,10 +169,11 @@ impl RigidFormer {
         let scaled = |a: &Tensor, b: &Tensor| -> candle_core::Result<Tensor> {
             (a - b)?.broadcast_mul(&inv)
         };
+        let post_error = (&positions_post - &target_positions)?; // [O, K, 3], metres
         let terms = [
             smooth_l1_mean(&scaled(&positions_pre, &target_positions)?, lc.beta)?,
             smooth_l1_mean(&scaled(&accel_pre, &target_accel)?, lc.beta)?,
-            smooth_l1_mean(&scaled(&positions_post, &target_positions)?, lc.beta)?,
+            smooth_l1_mean(&post_error.broadcast_mul(&inv)?, lc.beta)?,
             smooth_l1_mean(&scaled(&accel_post, &target_accel)?, lc.beta)?,
         ];
         let mut loss = (&terms[0] * lc.weights[0] as f64)?;
@@ -187,7 +188,7 @@ impl RigidFormer {
                 .map(|anchors| ROTATION_LEVER_ARM_M / anchor_radius(anchors))
                 .collect();
             let lever = host_tensor(&self.device, &lever, &[o, 1, 1])?;
-            let rotation = rotation_errors(&(&positions_post - &target_positions)?)?
+            let rotation = rotation_errors(&post_error)?
                 .broadcast_mul(&inv)?
                 .broadcast_mul(&lever)?;
             let term = smooth_l1_mean(&rotation, lc.beta)?;

@@ -90,6 +90,12 @@ pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
         anyhow::bail!("--occlude must be in [0, 1), got {}", args.occlude);
     }
     let ballistic = Ballistic::from_manifest(reader.manifest());
+    // The restart of the data's own simulator, on exact shapes or the clouds' hulls.
+    let rapier = || -> anyhow::Result<Entry> {
+        let restart = RapierRestart::from_manifest(reader.manifest())?
+            .with_cloud_points(args.rapier_cloud_points);
+        Ok(Entry::baseline(&restart.name(), Box::new(restart)))
+    };
     let mut predictors: Vec<Entry> = Vec::new();
     match (args.baseline, &args.model) {
         (Some(BaselineKind::Static), None) => {
@@ -98,11 +104,7 @@ pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
         (Some(BaselineKind::Ballistic), None) => {
             predictors.push(Entry::baseline("ballistic", Box::new(ballistic)))
         }
-        (Some(BaselineKind::Rapier), None) => {
-            let restart = RapierRestart::from_manifest(reader.manifest())?
-                .with_cloud_points(args.rapier_cloud_points);
-            predictors.push(Entry::baseline(&restart.name(), Box::new(restart)))
-        }
+        (Some(BaselineKind::Rapier), None) => predictors.push(rapier()?),
         (None, Some(dir)) => {
             let base = ModelPredictor::load(dir)
                 .with_context(|| format!("loading model {}", dir.display()))?;
@@ -137,9 +139,7 @@ pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
                 predictors.push(Entry::baseline("ballistic", Box::new(ballistic)));
             }
             if args.rapier {
-                let restart = RapierRestart::from_manifest(reader.manifest())?
-                    .with_cloud_points(args.rapier_cloud_points);
-                predictors.push(Entry::baseline(&restart.name(), Box::new(restart)));
+                predictors.push(rapier()?);
             }
         }
         _ => anyhow::bail!("give exactly one of --baseline and --model"),

@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 use super::driven::{driven_rollout_batch, has_kinematic};
 use super::regimes::{
     CONTACT_DISTANCE_M, ContactFlags, RESTING_ANGULAR_DEG_S, RESTING_SPEED_M_S, Regime,
-    RegimeErrors, contact_flags, floor_impact, object_impact, regime, windows,
+    RegimeErrors, contact_flags, impact_subset, regime, windows,
 };
 use super::scenario_figures::{Sample, scene_samples};
 use super::{DEFAULT_START_FRAME, EvalError, Predictor, RolloutRequest, observed_frames};
@@ -476,15 +476,9 @@ fn run_predictor(
                     }
                     let r = regime(&sc.scene, &flags[i], j, t, k as usize);
                     errors.add(ki, r, dt, da);
-                    let impact =
-                        r == Regime::FloorContact && floor_impact(&flags[i], j, t, k as usize);
-                    if impact {
-                        errors.add(ki, Regime::FloorImpact, dt, da);
-                    }
-                    let object_impact =
-                        r == Regime::ObjectContact && object_impact(&flags[i], j, t, k as usize);
-                    if object_impact {
-                        errors.add(ki, Regime::ObjectImpact, dt, da);
+                    let subset = impact_subset(&flags[i], r, j, t, k as usize);
+                    if let Some(subset) = subset {
+                        errors.add(ki, subset, dt, da);
                     }
                     let f = &flags[i];
                     let bits = |v: &Vec<Vec<bool>>| -> String {
@@ -499,8 +493,8 @@ fn run_predictor(
                         t,
                         k,
                         regime: r,
-                        impact,
-                        object_impact,
+                        impact: subset == Some(Regime::FloorImpact),
+                        object_impact: subset == Some(Regime::ObjectImpact),
                         floor: bits(&f.floor),
                         object_contact: bits(&f.object),
                         impulse: bits(&f.impulse),

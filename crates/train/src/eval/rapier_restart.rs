@@ -138,16 +138,15 @@ impl RapierRestart {
         if (sx - sy).abs() > 1e-5 * sx.abs() || (sx - sz).abs() > 1e-5 * sx.abs() {
             return Err(bad(format!("scale {:?} is not uniform", o.scale)));
         }
-        let (shape, scale) = if let Some(n) = self.cloud_points {
-            // What a model given the first n points knows of the shape (already scaled).
+        // A hull shape is a different solid per object, spanned by its whole reference cloud;
+        // with `cloud_points` every shape is the hull of what a model given that many sees.
+        let hull_points = self
+            .cloud_points
+            .or((kind == ShapeKind::Hull).then_some(usize::MAX));
+        let (shape, scale) = if let Some(n) = hull_points {
+            // Reference points are already scaled.
             let cloud = &o.reference_points[..n.clamp(1, o.reference_points.len().max(1))];
-            let hull = Polytope::hull(cloud)?;
-            let parts = vec![Part::Polytope(hull)];
-            (Shape { kind, parts }, 1.0)
-        } else if kind == ShapeKind::Hull {
-            // A different solid per object: its reference cloud, already scaled, spans it.
-            let hull = Polytope::hull(&o.reference_points)?;
-            let parts = vec![Part::Polytope(hull)];
+            let parts = vec![Part::Polytope(Polytope::hull(cloud)?)];
             (Shape { kind, parts }, 1.0)
         } else {
             // Only the hull draws from the generator; the others are fixed.

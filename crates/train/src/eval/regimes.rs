@@ -61,13 +61,13 @@ pub enum Regime {
     Resting,
     /// A floor-contact window in which the object is off the floor at `t` or at `t + k` (it
     /// lands, bounces or leaves within the window): a subset of [`Regime::FloorContact`],
-    /// reported beside it, never returned by [`regime`]. Bounces are a few percent of the
+    /// reported beside it ([`impact_subset`]), never returned by [`regime`]. Bounces are a few percent of the
     /// floor-contact windows and carry errors ten times the sustained contacts'.
     FloorImpact,
     /// An object-contact window in which the object is not touching another object (by the
     /// distance test) at `t` or at `t + k`: a contact begins, ends or comes and goes between
     /// recorded frames within the window. A subset of [`Regime::ObjectContact`], reported beside
-    /// it, never returned by [`regime`].
+    /// it ([`impact_subset`]), never returned by [`regime`].
     ObjectImpact,
 }
 
@@ -312,18 +312,24 @@ pub fn touched(
     (on_object, on_floor)
 }
 
-/// True when object `j` is off the floor (by the floor distance test) at `t` or at `t + k`:
-/// with a floor-contact [`regime`], the window holds a landing, a bounce or a lift-off
-/// ([`Regime::FloorImpact`]).
-pub fn floor_impact(flags: &ContactFlags, j: usize, t: usize, k: usize) -> bool {
-    !(flags.floor[t][j] && flags.floor[t + k][j])
-}
-
-/// True when object `j` is not touching another object (by the distance test) at `t` or at
-/// `t + k`: with an object-contact [`regime`], a contact begins, ends or comes and goes within
-/// the window ([`Regime::ObjectImpact`]).
-pub fn object_impact(flags: &ContactFlags, j: usize, t: usize, k: usize) -> bool {
-    !(flags.object[t][j] && flags.object[t + k][j])
+/// The impact subset of a window of `regime` for object `j` (`t - k, t -> t + k`), if it belongs
+/// to one: a floor-contact window in which the object is off the floor (floor distance test) at
+/// `t` or at `t + k` is a [`Regime::FloorImpact`] (it lands, bounces or lifts off); an
+/// object-contact window in which it is not touching another object (distance test) at `t` or
+/// at `t + k` is a [`Regime::ObjectImpact`]. Other regimes have no subset.
+pub fn impact_subset(
+    flags: &ContactFlags,
+    regime: Regime,
+    j: usize,
+    t: usize,
+    k: usize,
+) -> Option<Regime> {
+    let (touching, subset) = match regime {
+        Regime::FloorContact => (&flags.floor, Regime::FloorImpact),
+        Regime::ObjectContact => (&flags.object, Regime::ObjectImpact),
+        _ => return None,
+    };
+    (!(touching[t][j] && touching[t + k][j])).then_some(subset)
 }
 
 /// Squared-error sums of one predictor for one (regime, step size).
