@@ -526,6 +526,24 @@ fn rotation_weight_adds_a_term_on_rotation_only() {
     let target = next_poses(&st);
     let base = term(&target);
     assert!(base > 0.0, "rotation term {base}");
+    // The term is reported on its own, before its weight, and only when it is on.
+    let reported = |m: &RigidFormer| {
+        let item = TrainItem {
+            scene: &sc,
+            state: &st,
+            target: &target,
+            dt_steps: 1,
+            kinematic: &[],
+        };
+        let out = m.train_forward(&[item]).unwrap();
+        out.rotation.map(|t| t.to_scalar::<f32>().unwrap())
+    };
+    assert_eq!(reported(&plain), None);
+    let alone = reported(&weighted).expect("rotation term reported");
+    assert!(
+        (2.0 * alone - base).abs() <= 1e-3 * base,
+        "reported term {alone} x weight 2 against the loss difference {base}"
+    );
     let moved: Vec<Pose> = target
         .iter()
         .map(|p| Pose {

@@ -185,6 +185,14 @@ fn loss_falls() {
     );
     let log = std::fs::read_to_string(dir.join("run/log.csv")).unwrap();
     assert_eq!(log.lines().count(), 1 + 10);
+    for row in log.lines().skip(1) {
+        // 12 columns; the rotation term is off, so its cell is empty.
+        assert_eq!(row.split(',').count(), 12, "{row}");
+        assert!(
+            row.ends_with(','),
+            "rotation cell filled with the term off: {row}"
+        );
+    }
     assert!(dir.join("run/loss.png").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }

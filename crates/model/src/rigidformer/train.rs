@@ -36,10 +36,12 @@ pub struct TrainItem<'a> {
 /// samples, scene-major, K anchors; metres or metres per step^2) unless noted; predictions carry
 /// gradients.
 pub struct TrainOutput {
-    /// Scalar loss: weighted sum of the four Smooth L1 terms.
+    /// Scalar loss: weighted sum of the four Smooth L1 terms and the rotation term.
     pub loss: Tensor,
     /// The four terms `[pos_pre, acc_pre, pos_post, acc_post]`, each a scalar tensor.
     pub terms: [Tensor; 4],
+    /// The rotation term (scalar, before its weight), or `None` when `loss.rotation_weight` is 0.
+    pub rotation: Option<Tensor>,
     /// Predicted anchor accelerations `a` (m/step^2), before projection.
     pub accel_pre: Tensor,
     /// Anchor positions after Verlet, before projection: `base + b + a`.
@@ -180,6 +182,7 @@ impl RigidFormer {
         for (term, w) in terms.iter().zip(lc.weights).skip(1) {
             loss = (loss + (term * w as f64)?)?;
         }
+        let mut rotation_term = None;
         if lc.rotation_weight > 0.0 {
             // Each object's errors rescaled from its anchor radius to the common lever arm.
             let lever: Vec<f32> = inp
@@ -192,11 +195,13 @@ impl RigidFormer {
                 .broadcast_mul(&inv)?
                 .broadcast_mul(&lever)?;
             let term = smooth_l1_mean(&rotation, lc.beta)?;
-            loss = (loss + (term * lc.rotation_weight as f64)?)?;
+            loss = (loss + (&term * lc.rotation_weight as f64)?)?;
+            rotation_term = Some(term);
         }
         Ok(TrainOutput {
             loss,
             terms,
+            rotation: rotation_term,
             accel_pre,
             positions_pre,
             positions_post,

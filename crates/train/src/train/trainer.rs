@@ -33,9 +33,9 @@ use super::run_dir::{
     write_state,
 };
 
-/// Header of `log.csv`.
-pub const CSV_HEADER: &str =
-    "step,lr,loss,pos_pre,acc_pre,pos_post,acc_post,grad_norm,clipped_fraction,it_per_s,elapsed_s";
+/// Header of `log.csv`. `rotation` is the unweighted rotation term, empty when it is off (and
+/// in rows written before the column existed).
+pub const CSV_HEADER: &str = "step,lr,loss,pos_pre,acc_pre,pos_post,acc_post,grad_norm,clipped_fraction,it_per_s,elapsed_s,rotation";
 
 /// How to run [`train`].
 #[derive(Clone, Debug)]
@@ -381,7 +381,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
     let start_step = state.step;
     let mut last_ckpt = Instant::now();
     let mut window_start = Instant::now();
-    let mut acc = [0f64; 7]; // loss, 4 terms, grad norm, clipped count
+    let mut acc = [0f64; 8]; // loss, 4 terms, grad norm, clipped count, rotation term
     let mut n_acc = 0u64;
     let mut first_loss = f64::NAN;
     let mut last_loss = f64::NAN;
@@ -454,6 +454,9 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
             }
             acc[5] += stats.grad_norm;
             acc[6] += (stats.clip_scale < 1.0) as u8 as f64;
+            if let Some(r) = &outp.rotation {
+                acc[7] += r.to_scalar::<f32>()? as f64;
+            }
             n_acc += 1;
             if state.step % cfg.run.log_every == 0 || state.step == cfg.optim.iterations {
                 let n = n_acc as f64;
@@ -465,9 +468,14 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                     first_loss = mean_loss;
                 }
                 last_loss = mean_loss;
+                let rotation_cell = if model.config().loss.rotation_weight > 0.0 {
+                    format!("{:.6}", acc[7] / n)
+                } else {
+                    String::new()
+                };
                 writeln!(
                     log,
-                    "{},{:.6e},{:.6},{:.6},{:.6},{:.6},{:.6},{:.4},{:.3},{:.3},{:.1}",
+                    "{},{:.6e},{:.6},{:.6},{:.6},{:.6},{:.6},{:.4},{:.3},{:.3},{:.1},{}",
                     state.step,
                     lr,
                     mean_loss,
@@ -478,7 +486,8 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                     acc[5] / n,
                     acc[6] / n,
                     its,
-                    elapsed
+                    elapsed,
+                    rotation_cell
                 )
                 .map_err(io(&log_path))?;
                 let msg = format!("loss {mean_loss:.4} lr {lr:.2e} {its:.2} it/s");
@@ -486,7 +495,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                     println!("iteration {}/{} {msg}", state.step, cfg.optim.iterations);
                 }
                 pb.set_message(msg);
-                acc = [0.0; 7];
+                acc = [0.0; 8];
                 n_acc = 0;
                 window_start = Instant::now();
             }
