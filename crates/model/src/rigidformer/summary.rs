@@ -74,17 +74,6 @@ impl Summary {
         }
     }
 
-    /// Names of its parameters, in creation order.
-    pub(crate) fn parameters(self) -> [String; 4] {
-        let p = self.prefix();
-        [
-            format!("{p}.0.weight"),
-            format!("{p}.0.bias"),
-            format!("{p}.1.weight"),
-            format!("{p}.1.bias"),
-        ]
-    }
-
     /// The batch's values of it, `[o, features]`.
     fn values<'a>(self, inp: &'a BatchInputs) -> &'a [f32] {
         match self {
