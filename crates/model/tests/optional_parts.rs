@@ -199,6 +199,17 @@ fn summary_layers_learn_and_save() {
     assert!(diff < 1e-6, "reloaded model differs by {diff}");
 }
 
+/// `a` and `b` step two random scenes (step sizes 1 and 3) to the same poses within 1e-5.
+fn assert_same_steps(a: &RigidFormer, b: &RigidFormer) {
+    for (seed, k) in [(1, 1), (2, 3)] {
+        let diff = max_pose_diff(
+            &step_random_scene(a, seed, k),
+            &step_random_scene(b, seed, k),
+        );
+        assert!(diff < 1e-5, "seed {seed}, k {k}: differs by {diff}");
+    }
+}
+
 /// A coarse output unit starts at zero (its MLP's last layer), so a random model with one
 /// steps exactly as the one without from the same seed; its last layer receives a gradient; the
 /// unit survives a checkpoint; a non-positive unit is refused.
@@ -209,13 +220,7 @@ fn a_coarse_output_unit_starts_at_zero_and_learns() {
     with.accel_coarse_scale = Some(0.2);
     let a = RigidFormer::new_frozen(plain, 8, &Device::Cpu).unwrap();
     let b = RigidFormer::new(with.clone(), 8, &Device::Cpu).unwrap();
-    for (seed, k) in [(1, 1), (2, 3)] {
-        let diff = max_pose_diff(
-            &step_random_scene(&a, seed, k),
-            &step_random_scene(&b, seed, k),
-        );
-        assert!(diff < 1e-5, "seed {seed}, k {k}: differs by {diff}");
-    }
+    assert_same_steps(&a, &b);
     let (objects, state) = random_scene(4, 3, 64);
     let target: Vec<Pose> = state.current.clone();
     let (g, _) = one_step_gradient(&b, objects, &state, &target, 1, "anchors.coarse.1.weight");
@@ -354,13 +359,7 @@ fn a_spin_unit_starts_at_zero_and_turns_objects_about_its_axis() {
     assert!(wide.config().dynamics.spin_unit);
     let fresh = RigidFormer::new_frozen(with, 4, &Device::Cpu).unwrap();
     assert_eq!(wide.parameter_count(), fresh.parameter_count());
-    for (seed, k) in [(1, 1), (2, 3)] {
-        let diff = max_pose_diff(
-            &step_random_scene(&a, seed, k),
-            &step_random_scene(&wide, seed, k),
-        );
-        assert!(diff < 1e-5, "seed {seed}, k {k}: differs by {diff}");
-    }
+    assert_same_steps(&a, &wide);
     let (objects, state) = random_scene(4, 3, 64);
     let target = constant_velocity_targets(&state, 0.05);
     let (g, _) = one_step_gradient(&wide, objects, &state, &target, 1, "anchors.spin.1.weight");
