@@ -370,6 +370,28 @@ fn init_widens_a_model_for_the_summaries() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// With `model.rotation_weight` on, every row of `log.csv` ends with the rotation term: a
+/// finite, positive number (the log test of `loss_falls` covers the empty cell when it is off).
+#[test]
+fn log_records_the_rotation_term_when_it_is_on() {
+    let dir = scratch("rotation-log");
+    let data = tiny_dataset(&dir);
+    train_tiny_from(&data, &dir, "run", None, |c| {
+        c.model.rotation_weight = Some(2.0)
+    })
+    .unwrap();
+    let log = std::fs::read_to_string(dir.join("run/log.csv")).unwrap();
+    assert!(log.lines().count() > 1, "{log}");
+    for row in log.lines().skip(1) {
+        let cell: f64 = row.rsplit(',').next().unwrap().parse().unwrap();
+        assert!(
+            cell.is_finite() && cell > 0.0,
+            "rotation cell {cell}: {row}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// `model.spin_unit = true` on a `model.init` without one adds it (the run's checkpoint has the
 /// switch and the unit's layers); `false` on one that has it is refused.
 #[test]
