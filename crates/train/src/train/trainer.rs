@@ -398,7 +398,9 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
     let start_step = state.step;
     let mut last_ckpt = Instant::now();
     let mut window_start = Instant::now();
-    let mut acc = [0f64; 8]; // loss, 4 terms, grad norm, clipped count, rotation term
+    let mut acc = [0f64; 7]; // loss, 4 terms, grad norm, clipped count
+    // The rotation term's sum, present when the model reports the term (`loss.rotation_weight`).
+    let mut rotation_acc: Option<f64> = None;
     let mut n_acc = 0u64;
     let mut first_loss = f64::NAN;
     let mut last_loss = f64::NAN;
@@ -472,7 +474,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
             acc[5] += stats.grad_norm;
             acc[6] += (stats.clip_scale < 1.0) as u8 as f64;
             if let Some(r) = &outp.rotation {
-                acc[7] += r.to_scalar::<f32>()? as f64;
+                *rotation_acc.get_or_insert(0.0) += r.to_scalar::<f32>()? as f64;
             }
             n_acc += 1;
             if state.step % cfg.run.log_every == 0 || state.step == cfg.optim.iterations {
@@ -485,11 +487,9 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                     first_loss = mean_loss;
                 }
                 last_loss = mean_loss;
-                let rotation_cell = if model.config().loss.rotation_weight > 0.0 {
-                    format!("{:.6}", acc[7] / n)
-                } else {
-                    String::new()
-                };
+                let rotation_cell = rotation_acc
+                    .map(|sum| format!("{:.6}", sum / n))
+                    .unwrap_or_default();
                 writeln!(
                     log,
                     "{},{:.6e},{:.6},{:.6},{:.6},{:.6},{:.6},{:.4},{:.3},{:.3},{:.1},{}",
@@ -512,7 +512,8 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                     println!("iteration {}/{} {msg}", state.step, cfg.optim.iterations);
                 }
                 pb.set_message(msg);
-                acc = [0.0; 8];
+                acc = [0.0; 7];
+                rotation_acc = None;
                 n_acc = 0;
                 window_start = Instant::now();
             }
