@@ -306,15 +306,6 @@ pub struct DynamicsConfig {
     /// otherwise seen a step late. Applied by the callers, not by the step itself; absent in
     /// older `config.json` files, which means off.
     pub kinematic_lead: bool,
-    /// Spin unit: besides each anchor's own acceleration, the anchor head predicts one angular
-    /// acceleration `alpha` per object (a two-layer MLP on the mean of the object's anchor
-    /// features, last layer starting at zero) and adds `alpha x r_k / r_rms` to anchor `k`'s
-    /// acceleration, with `r_k` its offset from the object's centroid and `r_rms` the RMS of
-    /// those offsets (in the head's output unit, so `alpha` is the tangential acceleration at
-    /// the object's anchor radius). A change of spin is then one output per object instead of
-    /// a pattern the per-anchor outputs must agree on. Absent in older `config.json` files,
-    /// which means off.
-    pub spin_unit: bool,
 }
 
 /// An optional group of per-point inputs, in layout order after the base features: the
@@ -426,7 +417,6 @@ impl DynamicsConfig {
             relative_mass: false,
             free_flight_gate: false,
             kinematic_lead: false,
-            spin_unit: false,
         }
     }
 

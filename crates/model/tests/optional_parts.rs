@@ -1,7 +1,7 @@
 //! The optional parts of a RigidFormer that start as the zero function: the object state
 //! summary and the contact summary (their numbers for a known motion; a model that gains one,
 //! random or widened, computes the same steps as one without; their layers learn and save) and
-//! the coarse output unit and the spin unit.
+//! the coarse output unit.
 mod common;
 
 use common::{
@@ -343,60 +343,4 @@ fn a_widened_encoder_learns() {
         norm > 0.0 && norm.is_finite(),
         "{name} new rows' gradient {norm}"
     );
-}
-
-/// A spin unit starts at zero: a model widened with one steps as before and has the unit's
-/// parameters, whose last layer receives a gradient; with the unit's output set to an angular
-/// acceleration about +z every object turns about +z relative to the model without it;
-/// widening twice is refused; the unit survives a checkpoint.
-#[test]
-fn a_spin_unit_starts_at_zero_and_turns_objects_about_its_axis() {
-    let plain = ModelConfig::tiny();
-    let mut with = plain.clone();
-    with.dynamics.spin_unit = true;
-    let a = RigidFormer::new_frozen(plain, 4, &Device::Cpu).unwrap();
-    let wide = a.widened_with_spin_unit(6, true).unwrap();
-    assert!(wide.config().dynamics.spin_unit);
-    let fresh = RigidFormer::new_frozen(with, 4, &Device::Cpu).unwrap();
-    assert_eq!(wide.parameter_count(), fresh.parameter_count());
-    assert_same_steps(&a, &wide);
-    let (objects, state) = random_scene(4, 3, 64);
-    let target = constant_velocity_targets(&state, 0.05);
-    let (g, _) = one_step_gradient(&wide, objects, &state, &target, 1, "anchors.spin.1.weight");
-    let norm = squared_norm(&g);
-    assert!(norm > 0.0 && norm.is_finite(), "spin gradient {norm}");
-    let twice = wide.widened_with_spin_unit(6, false);
-    assert!(twice.err().unwrap().to_string().contains("already"));
-
-    // The unit's output set to 2 head units about +z for every object.
-    {
-        let vars = wide.varmap().data().lock().unwrap();
-        let bias = candle_core::Tensor::new(&[0f32, 0.0, 2.0], &Device::Cpu).unwrap();
-        vars["anchors.spin.1.bias"].set(&bias).unwrap();
-    }
-    let (without, turned) = (step_random_scene(&a, 3, 1), step_random_scene(&wide, 3, 1));
-    let quat = |p: &Pose| {
-        let [x, y, z, w] = p.rotation;
-        UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z))
-    };
-    for (j, (p, q)) in without.iter().zip(&turned).enumerate() {
-        let (axis, angle) = (quat(q) * quat(p).inverse())
-            .axis_angle()
-            .expect("the spin unit turns the object");
-        assert!(
-            angle > 1e-3 && axis.z > 0.95,
-            "object {j}: turned {angle} rad about {axis:?}"
-        );
-    }
-
-    let dir = std::env::temp_dir().join(format!("dynaserve-spin-{}", std::process::id()));
-    wide.save(&dir).unwrap();
-    let back = load_rigidformer(&dir, &Device::Cpu, false).unwrap();
-    std::fs::remove_dir_all(&dir).unwrap();
-    assert!(back.config().dynamics.spin_unit);
-    let diff = max_pose_diff(
-        &step_random_scene(&wide, 5, 2),
-        &step_random_scene(&back, 5, 2),
-    );
-    assert!(diff < 1e-6, "reloaded model differs by {diff}");
 }

@@ -392,39 +392,6 @@ fn log_records_the_rotation_term_when_it_is_on() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// `model.spin_unit = true` on a `model.init` without one adds it (the run's checkpoint has the
-/// switch and the unit's layers); `false` on one that has it is refused.
-#[test]
-fn init_adds_a_spin_unit() {
-    let dir = scratch("spin");
-    let data = tiny_dataset(&dir);
-    train_tiny_from(&data, &dir, "base", None, |_| {}).unwrap();
-    train_tiny_from(&data, &dir, "spin", Some("base"), |c| {
-        c.model.spin_unit = Some(true)
-    })
-    .unwrap();
-    let m = dynaserve_model::load_rigidformer(
-        &dir.join("spin/checkpoint"),
-        &dynaserve_model::Device::Cpu,
-        false,
-    )
-    .unwrap();
-    assert!(dynaserve_model::WorldModel::config(&m).dynamics.spin_unit);
-    assert!(
-        m.varmap()
-            .data()
-            .lock()
-            .unwrap()
-            .contains_key("anchors.spin.1.weight")
-    );
-    let err = train_tiny_from(&data, &dir, "plain", Some("spin"), |c| {
-        c.model.spin_unit = Some(false)
-    })
-    .unwrap_err();
-    assert!(err.to_string().contains("cannot be removed"), "{err}");
-    let _ = std::fs::remove_dir_all(&dir);
-}
-
 /// `data.step_sizes` draws one entry uniformly per window, so a step size listed twice is drawn
 /// twice as often: `[1, 1, 2, 4]` gives step size 1 about half of the windows.
 #[test]

@@ -26,28 +26,6 @@ pub(crate) fn query_segments(c: &ModelConfig) -> [usize; 4] {
     [c.point_dim, 3, c.point_dim, c.rope_dim]
 }
 
-/// The spin unit's lever matrices `[O, K, 3, 3]` (row-major, flattened) from the anchors'
-/// offsets from their object's centroid `anchor_rel` (`[O, K, 3]`, any length unit): matrix
-/// `(o, k)` maps an angular acceleration `alpha` to `alpha x r_k / r_rms`, with `r_rms` the RMS
-/// of the object's offsets (zero matrices for an object whose anchors all sit at its centroid).
-pub(crate) fn spin_levers(anchor_rel: &[f32], k: usize) -> Vec<f32> {
-    let mut out = Vec::with_capacity(anchor_rel.len() * 3);
-    for object in anchor_rel.chunks(3 * k) {
-        let mean_sq = object.iter().map(|v| v * v).sum::<f32>() / k.max(1) as f32;
-        let inv = if mean_sq > 1e-12 {
-            mean_sq.sqrt().recip()
-        } else {
-            0.0
-        };
-        for r in object.chunks(3) {
-            let (x, y, z) = (r[0] * inv, r[1] * inv, r[2] * inv);
-            // alpha x r = -[r]_x alpha.
-            out.extend_from_slice(&[0.0, z, -y, -z, 0.0, x, y, -x, 0.0]);
-        }
-    }
-    out
-}
-
 /// The anchor head's layers (`anchors.*` parameters).
 pub(crate) struct AnchorHead {
     query_in: Linear,
@@ -67,9 +45,6 @@ pub(crate) struct AnchorHead {
     /// The coarse output MLP (`anchors.coarse.*`, D -> D -> 3, last layer initialised to
     /// zero) when the configuration has a coarse unit.
     coarse: Option<Mlp>,
-    /// The per-object angular acceleration MLP (`anchors.spin.*`, D -> D -> 3, last layer
-    /// initialised to zero) when the configuration has a spin unit.
-    spin: Option<Mlp>,
     device: Device,
 }
 
@@ -102,10 +77,6 @@ impl AnchorHead {
             coarse: match c.accel_coarse_scale {
                 Some(_) => Some(Mlp::with_zero_output(p, "anchors.coarse", d, d, 3)?),
                 None => None,
-            },
-            spin: match c.dynamics.spin_unit {
-                true => Some(Mlp::with_zero_output(p, "anchors.spin", d, d, 3)?),
-                false => None,
             },
             device: device.clone(),
         })
@@ -149,18 +120,7 @@ impl AnchorHead {
             let ratio = (unit / config.accel_scale) as f64;
             acc = (acc + (coarse.forward(&x, exec.fused)? * ratio)?)?;
         }
-        let mut acc = acc.reshape((o, k, 3))?;
-        if let Some(spin) = &self.spin {
-            // One angular acceleration per object from the mean of its anchors' features.
-            let alpha = spin.forward(&x.reshape((o, k, config.width))?.mean(1)?, exec.fused)?;
-            let lever = host_tensor(
-                &self.device,
-                &spin_levers(&inp.anchor_rel, k),
-                &[o, k, 3, 3],
-            )?;
-            let tangential = lever.broadcast_mul(&alpha.reshape((o, 1, 1, 3))?)?.sum(3)?;
-            acc = (acc + tangential)?;
-        }
+        let acc = acc.reshape((o, k, 3))?;
         // Head units (accel_scale per frame^2 or per step^2) to metres per step^2.
         let factor: Vec<f32> = inp
             .object_dt
@@ -369,35 +329,5 @@ impl AnchorHead {
         let y = (query + self.out.forward(&att)?)?; // [B, M*K, D]
         Ok(y.reshape((b * m * k, d))?
             .index_select(&host_index(device, &back)?, 0)?)
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::spin_levers;
-
-    /// Each lever matrix maps `alpha` to `alpha x r_k / r_rms`; a degenerate object gets zeros.
-    #[test]
-    fn spin_levers_give_the_cross_product_at_unit_radius() {
-        let rel = [
-            0.3f32, -0.1, 0.2, -0.3, 0.1, -0.2, 0.0, 0.4, 0.1, 0.0, 0.0, 0.0,
-        ];
-        let (k, alpha) = (4, [0.5f32, -1.0, 2.0]);
-        let rms = (rel.iter().map(|v| v * v).sum::<f32>() / k as f32).sqrt();
-        let m = spin_levers(&rel, k);
-        assert_eq!(m.len(), 4 * 9);
-        for (a, r) in rel.chunks(3).enumerate() {
-            let r: Vec<f32> = r.iter().map(|v| v / rms).collect();
-            let want = [
-                alpha[1] * r[2] - alpha[2] * r[1],
-                alpha[2] * r[0] - alpha[0] * r[2],
-                alpha[0] * r[1] - alpha[1] * r[0],
-            ];
-            for (i, w) in want.iter().enumerate() {
-                let got: f32 = (0..3).map(|j| m[a * 9 + i * 3 + j] * alpha[j]).sum();
-                assert!((got - w).abs() < 1e-5, "anchor {a} row {i}: {got} vs {w}");
-            }
-        }
-        assert!(spin_levers(&[0.0; 6], 2).iter().all(|&v| v == 0.0));
     }
 }

@@ -117,27 +117,6 @@ impl RigidFormer {
         self.with_new_parts(config, seed, trainable)
     }
 
-    /// A copy of this model with a spin unit ([`crate::DynamicsConfig::spin_unit`]): the unit's
-    /// MLP has its first layer drawn from `seed` and its last layer zero, so the copy's outputs
-    /// equal this model's; every other weight is copied. `trainable` keeps gradient tracking on
-    /// the copy's weights.
-    ///
-    /// Errors if the model already has a spin unit.
-    pub fn widened_with_spin_unit(
-        &self,
-        seed: u64,
-        trainable: bool,
-    ) -> Result<RigidFormer, ModelError> {
-        if self.config.dynamics.spin_unit {
-            return Err(ModelError::InvalidInput(
-                "the model already has a spin unit".into(),
-            ));
-        }
-        let mut config = self.config.clone();
-        config.dynamics.spin_unit = true;
-        self.with_new_parts(config, seed, trainable)
-    }
-
     /// A model of `config`, a configuration that adds parts to this one's: every weight of this
     /// model copied, every parameter it lacks taken from a new model of `config` drawn from
     /// `seed` (parts whose last layer starts at zero then leave the function unchanged).

@@ -210,11 +210,6 @@ pub struct ModelSection {
     /// object state summary: unset keeps what the model has, `true` widens an `init` model
     /// without it, `false` on one that has it is an error.
     pub contact_summary: Option<bool>,
-    /// The spin unit (`DynamicsConfig::spin_unit`): unset keeps what the preset, config or
-    /// `init` model has. `true` on an `init` model without one adds it (its last layer zero, so
-    /// training starts from the same function; its first layer drawn from `seed`). `false` on
-    /// an `init` model that has one is an error.
-    pub spin_unit: Option<bool>,
     /// The rigid Verlet base (`DynamicsConfig::rigid_extrapolation`): unset keeps what the
     /// preset, config or `init` model has; set, it switches the base of any of them (an `init`
     /// model keeps its weights and learns the new base's residual).
@@ -276,7 +271,6 @@ impl Default for ModelSection {
             approach: None,
             object_summary: None,
             contact_summary: None,
-            spin_unit: None,
             rigid_extrapolation: None,
             floor_base: None,
             relative_mass: None,
@@ -326,14 +320,11 @@ impl ModelSection {
 
     /// The model configuration this section names (before normalisation fitting), with
     /// `contact_velocity`, `surface_normals`, `history` and `approach` (the normalisation then
-    /// resized to its defaults), `object_summary`, `contact_summary`, `spin_unit` and
+    /// resized to its defaults), `object_summary`, `contact_summary` and
     /// [`ModelSection::apply_settings`] applied.
     pub fn model_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {
         let mut c = self.named_config(base)?;
         self.apply_settings(&mut c.dynamics, &mut c.loss);
-        if let Some(on) = self.spin_unit {
-            c.dynamics.spin_unit = on;
-        }
         for kind in Summary::ALL {
             if let Some(on) = self.summary_switch(kind) {
                 kind.set(&mut c.dynamics, on);
@@ -731,15 +722,6 @@ mod tests {
             let c: TrainConfig = toml::from_str(&format!("[model]\n{bad}\n")).unwrap();
             assert!(c.validate().is_err(), "{bad}");
         }
-    }
-
-    #[test]
-    fn spin_unit_switches_the_named_config() {
-        let base = Path::new(".");
-        let spin = |c: &ModelSection| c.model_config(base).unwrap().dynamics.spin_unit;
-        assert!(!spin(&ModelSection::default()));
-        let c: TrainConfig = toml::from_str("[model]\nspin_unit = true\n").unwrap();
-        assert!(spin(&c.model));
     }
 
     /// The error of `[model] line` without `init`, and the validated config with one.

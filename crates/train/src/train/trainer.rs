@@ -217,22 +217,6 @@ fn init_summaries(mut m: RigidFormer, cfg: &TrainConfig) -> Result<RigidFormer, 
     Ok(m)
 }
 
-/// Applies `model.spin_unit` to a model loaded from `model.init`: adds a spin unit when asked
-/// (zero last layer, so it starts as the same function). Removing one is an error.
-fn init_spin_unit(m: RigidFormer, cfg: &TrainConfig) -> Result<RigidFormer, TrainError> {
-    match (cfg.model.spin_unit, m.config().dynamics.spin_unit) {
-        (Some(true), false) => {
-            eprintln!("spin unit added (its last layer starts at zero)");
-            Ok(m.widened_with_spin_unit(cfg.model.seed, true)?)
-        }
-        (Some(false), true) => Err(TrainError::Config(
-            "model.spin_unit = false, but the model.init model has a spin unit (parts cannot be removed)"
-                .into(),
-        )),
-        _ => Ok(m),
-    }
-}
-
 /// Trains (or resumes) the run described by `cfg`; see the module docs for the outputs.
 pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, TrainError> {
     cfg.validate()?;
@@ -286,7 +270,6 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
             let m = m.with_settings(|d, l| cfg.model.apply_settings(d, l))?;
             let m = init_inputs(m, cfg, &reader)?;
             let m = init_summaries(m, cfg)?;
-            let m = init_spin_unit(m, cfg)?;
             let m = match cfg.model.insert_blocks_after.as_deref() {
                 Some(after) if !after.is_empty() => {
                     let deep = m.deepened(after, cfg.model.seed, true)?;
