@@ -37,6 +37,18 @@ pub const HISTORY_FEATURES: usize = 3;
 /// far behind it a free step would carry it (1).
 pub const APPROACH_FEATURES: usize = 3;
 
+/// Features appended after every other optional group (each if on) when
+/// [`DynamicsConfig::contact_partner`] is on: whether the surface the point's contact feature
+/// reaches belongs to another object (1) or not (0: the floor, or nothing within the contact
+/// radius), and that object's `ln` mass less the point's own object's (clamped to
+/// [`CONTACT_PARTNER_MAX_LN_RATIO`]), friction and restitution (3; zero when it is not an
+/// object).
+pub const CONTACT_PARTNER_FEATURES: usize = 4;
+
+/// Largest magnitude of the `ln` mass ratio among the contact partner features (a factor of
+/// about 150 either way).
+pub const CONTACT_PARTNER_MAX_LN_RATIO: f32 = 5.0;
+
 /// Numbers per object in the object state summary ([`DynamicsConfig::object_summary`]).
 pub const OBJECT_SUMMARY_FEATURES: usize = 14;
 
@@ -88,7 +100,8 @@ impl Default for FeatureNormalization {
 impl FeatureNormalization {
     /// Default constants for the features `dynamics` selects (the contact velocity, if on,
     /// gets mean 0 and the increment's scale; the surface normals mean 0 and scale 0.5, their
-    /// gap the contact feature's; the approach's speeds the increment's scale).
+    /// gap the contact feature's; the approach's speeds the increment's scale; the contact
+    /// partner's flag and materials centred near zero, since most points touch no object).
     pub fn defaults_for(dynamics: &DynamicsConfig) -> FeatureNormalization {
         let mut n = FeatureNormalization::default();
         if dynamics.contact_velocity {
@@ -106,6 +119,11 @@ impl FeatureNormalization {
         if dynamics.approach {
             n.mean.extend([0.0, 1.0, 0.0]);
             n.std.extend([0.05, 0.3, 0.05]);
+        }
+        if dynamics.contact_partner {
+            // Most points touch no other object: the flag and the rest are mostly zero.
+            n.mean.extend([0.1, 0.0, 0.05, 0.05]);
+            n.std.extend([0.3, 0.5, 0.2, 0.2]);
         }
         n
     }
@@ -252,6 +270,14 @@ pub struct DynamicsConfig {
     /// [`APPROACH_FEATURES`] inputs after the history. Absent in older `config.json` files,
     /// which means off.
     pub approach: bool,
+    /// Every point also reads the parameters of the object its contact feature reaches
+    /// ([`CONTACT_PARTNER_FEATURES`]: a flag, the `ln` mass ratio to its own object, friction
+    /// and restitution). The other features give the touched surface's position, velocity and
+    /// normal but not its object's mass, which decides how a collision shares momentum and
+    /// otherwise reaches the point only through attention between whole objects. Adds
+    /// [`CONTACT_PARTNER_FEATURES`] inputs after the approach. Absent in older `config.json`
+    /// files, which means off.
+    pub contact_partner: bool,
     /// Extrapolate each object as a rigid body in the Verlet base: the base keeps the object's
     /// linear and angular velocity (`R_{t+k} = R_t R_{t-k}^T R_t`, centre `2 p_t - p_{t-k}`)
     /// instead of extrapolating every anchor linearly (`2 A_t - A_{t-k}`), which lags a
@@ -320,15 +346,18 @@ pub enum InputGroup {
     History,
     /// [`DynamicsConfig::approach`]: [`APPROACH_FEATURES`] inputs.
     Approach,
+    /// [`DynamicsConfig::contact_partner`]: [`CONTACT_PARTNER_FEATURES`] inputs.
+    ContactPartner,
 }
 
 impl InputGroup {
     /// Every group, in layout order.
-    pub const ALL: [InputGroup; 4] = [
+    pub const ALL: [InputGroup; 5] = [
         InputGroup::ContactVelocity,
         InputGroup::SurfaceNormals,
         InputGroup::History,
         InputGroup::Approach,
+        InputGroup::ContactPartner,
     ];
 
     /// Name for messages, e.g. "contact velocity".
@@ -338,6 +367,7 @@ impl InputGroup {
             InputGroup::SurfaceNormals => "surface normals",
             InputGroup::History => "history",
             InputGroup::Approach => "approach",
+            InputGroup::ContactPartner => "contact partner",
         }
     }
 
@@ -349,6 +379,7 @@ impl InputGroup {
             InputGroup::SurfaceNormals => "surface_normals",
             InputGroup::History => "history",
             InputGroup::Approach => "approach",
+            InputGroup::ContactPartner => "contact_partner",
         }
     }
 
@@ -359,6 +390,7 @@ impl InputGroup {
             InputGroup::SurfaceNormals => SURFACE_NORMAL_FEATURES,
             InputGroup::History => HISTORY_FEATURES,
             InputGroup::Approach => APPROACH_FEATURES,
+            InputGroup::ContactPartner => CONTACT_PARTNER_FEATURES,
         }
     }
 
@@ -369,6 +401,7 @@ impl InputGroup {
             InputGroup::SurfaceNormals => dynamics.surface_normals,
             InputGroup::History => dynamics.history,
             InputGroup::Approach => dynamics.approach,
+            InputGroup::ContactPartner => dynamics.contact_partner,
         }
     }
 
@@ -379,6 +412,7 @@ impl InputGroup {
             InputGroup::SurfaceNormals => dynamics.surface_normals = on,
             InputGroup::History => dynamics.history = on,
             InputGroup::Approach => dynamics.approach = on,
+            InputGroup::ContactPartner => dynamics.contact_partner = on,
         }
     }
 
@@ -410,6 +444,7 @@ impl DynamicsConfig {
             surface_normals: false,
             history: false,
             approach: false,
+            contact_partner: false,
             rigid_extrapolation: true,
             object_summary: false,
             contact_summary: false,
@@ -423,7 +458,8 @@ impl DynamicsConfig {
     /// Number of per-point input features: [`BASE_POINT_FEATURES`], plus
     /// [`CONTACT_VELOCITY_FEATURES`] with the contact velocity, plus
     /// [`SURFACE_NORMAL_FEATURES`] with the surface normals, plus [`HISTORY_FEATURES`] with the
-    /// history, plus [`APPROACH_FEATURES`] with the approach.
+    /// history, plus [`APPROACH_FEATURES`] with the approach, plus [`CONTACT_PARTNER_FEATURES`]
+    /// with the contact partner.
     pub fn point_features(&self) -> usize {
         BASE_POINT_FEATURES
             + InputGroup::ALL

@@ -26,9 +26,10 @@ pub use api::{ObjectInput, Pose, SceneState, StepItem, WorldModel, rollout};
 pub use batching::PassBudget;
 pub use checkpoint::{load_model, load_rigidformer, read_architecture, read_config};
 pub use config::{
-    APPROACH_FEATURES, BASE_POINT_FEATURES, CONTACT_SUMMARY_FEATURES, CONTACT_VELOCITY_FEATURES,
-    DynamicsConfig, FeatureNormalization, HISTORY_FEATURES, InputGroup, LN_MASS_FEATURE,
-    LossConfig, ModelConfig, OBJECT_SUMMARY_FEATURES, PreparedKey, SURFACE_NORMAL_FEATURES,
+    APPROACH_FEATURES, BASE_POINT_FEATURES, CONTACT_PARTNER_FEATURES, CONTACT_PARTNER_MAX_LN_RATIO,
+    CONTACT_SUMMARY_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig, FeatureNormalization,
+    HISTORY_FEATURES, InputGroup, LN_MASS_FEATURE, LossConfig, ModelConfig,
+    OBJECT_SUMMARY_FEATURES, PreparedKey, SURFACE_NORMAL_FEATURES,
 };
 pub use ensemble::Ensemble;
 pub use error::ModelError;
@@ -40,8 +41,8 @@ pub use prepare::{
 };
 pub use rigidformer::features::{
     CONTACT_PATCH_SCALE, FeatureFrame, ScenePoints, approach_features, body_normals,
-    contact_summary, contact_velocity, history_features, nearest_object_gap, object_params,
-    object_summary, raw_point_features, surface_normal_features,
+    contact_partner_features, contact_summary, contact_velocity, history_features,
+    nearest_object_gap, object_params, object_summary, raw_point_features, surface_normal_features,
 };
 pub use rigidformer::{RigidFormer, StepProfile, Summary, TrainItem, TrainOutput};
 pub use runtime::{configure_compute, keep_freed_memory};

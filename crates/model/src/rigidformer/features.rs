@@ -1,6 +1,7 @@
 //! The per-point input features shared by the model and the trainer's normalisation fit:
 //! physical parameters, the frame features are measured from, the 12 base raw values, the
-//! optional contact velocity, surface normals, history and approach, and [`ScenePoints`], the
+//! optional contact velocity, surface normals, history, approach and contact partner, and
+//! [`ScenePoints`], the
 //! one place
 //! a scene's points are placed in the world, searched for contacts and turned into raw
 //! features.
@@ -13,9 +14,9 @@ use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 use crate::api::Pose;
 use crate::config::{
-    APPROACH_FEATURES, BASE_POINT_FEATURES, CONTACT_SUMMARY_FEATURES, CONTACT_VELOCITY_FEATURES,
-    DynamicsConfig, HISTORY_FEATURES, ModelConfig, OBJECT_SUMMARY_FEATURES,
-    SURFACE_NORMAL_FEATURES,
+    APPROACH_FEATURES, BASE_POINT_FEATURES, CONTACT_PARTNER_FEATURES, CONTACT_PARTNER_MAX_LN_RATIO,
+    CONTACT_SUMMARY_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig, HISTORY_FEATURES,
+    ModelConfig, OBJECT_SUMMARY_FEATURES, SURFACE_NORMAL_FEATURES,
 };
 
 /// Physical parameters as the model sees them: `[ln(mass / kg), friction, restitution]`.
@@ -101,6 +102,37 @@ pub fn contact_velocity(
         }
         ContactSource::Ground => increment(q).map(|v| -v),
         ContactSource::Free => [0.0; 3],
+    }
+}
+
+/// The contact partner features of point `q` of a scene ([`CONTACT_PARTNER_FEATURES`]): with
+/// `source` from the contact search, `offsets` the first point of each object (`[objects + 1]`)
+/// and `params` each object's [`object_params`], `[1, ln m_other - ln m_own, friction,
+/// restitution]` of the object that `source` reaches, the mass ratio clamped to
+/// [`CONTACT_PARTNER_MAX_LN_RATIO`]; zeros for the ground, for nothing within the contact
+/// radius, and when `params` does not cover the objects.
+pub fn contact_partner_features(
+    source: ContactSource,
+    q: usize,
+    offsets: &[usize],
+    params: &[[f32; 3]],
+) -> [f32; CONTACT_PARTNER_FEATURES] {
+    let object_of = |point: usize| offsets.partition_point(|&first| first <= point) - 1;
+    match source {
+        ContactSource::Point(j) => {
+            let (own, other) = (object_of(q), object_of(j as usize));
+            match (params.get(own), params.get(other)) {
+                (Some(own), Some(other)) => [
+                    1.0,
+                    (other[0] - own[0])
+                        .clamp(-CONTACT_PARTNER_MAX_LN_RATIO, CONTACT_PARTNER_MAX_LN_RATIO),
+                    other[1],
+                    other[2],
+                ],
+                _ => [0.0; CONTACT_PARTNER_FEATURES],
+            }
+        }
+        ContactSource::Ground | ContactSource::Free => [0.0; CONTACT_PARTNER_FEATURES],
     }
 }
 
@@ -364,6 +396,10 @@ pub struct ScenePoints {
     pub world_earlier: Vec<Point>,
     /// Free fall over one step, `g (k dt_frame)^2` metres, set with `world_earlier`.
     fall: [f32; 3],
+    /// Each object's [`object_params`] as the model sees them, `[objects]`, when the model
+    /// reads the contact partner ([`ScenePoints::with_object_params`]); empty otherwise, which
+    /// reads as zero contact partner features.
+    pub object_params: Vec<[f32; 3]>,
     /// The model's contact radius, metres.
     radius: f32,
 }
@@ -408,8 +444,17 @@ impl ScenePoints {
             normals: Vec::new(),
             world_earlier: Vec::new(),
             fall: [0.0; 3],
+            object_params: Vec::new(),
             radius: cfg.contact_radius,
         }
+    }
+
+    /// Adds each object's [`object_params`] (`[objects]`, in the clouds' order, as the model
+    /// sees them: with scene-relative mass, the relative masses). Needed by
+    /// [`ScenePoints::raw_features`] for non-zero contact partner features.
+    pub fn with_object_params(mut self, params: Vec<[f32; 3]>) -> ScenePoints {
+        self.object_params = params;
+        self
     }
 
     /// The points a model with `cfg` reads for one step: [`ScenePoints::new`], then the
@@ -484,8 +529,9 @@ impl ScenePoints {
     /// [`raw_point_features`] of its `reference` position (body frame, metres) and its
     /// object's `params`, then the optional ones `dynamics` selects: its [`contact_velocity`],
     /// its [`surface_normal_features`] (which need [`ScenePoints::with_normals`]), its
-    /// [`history_features`] (zero without [`ScenePoints::with_history`]) and its
-    /// [`approach_features`] (which need [`ScenePoints::with_normals`]).
+    /// [`history_features`] (zero without [`ScenePoints::with_history`]), its
+    /// [`approach_features`] (which need [`ScenePoints::with_normals`]) and its
+    /// [`contact_partner_features`] (zero without [`ScenePoints::with_object_params`]).
     /// `out` holds [`DynamicsConfig::point_features`] values.
     pub fn raw_features(
         &self,
@@ -542,6 +588,15 @@ impl ScenePoints {
                 normals,
                 self.radius,
                 frame,
+            ));
+            at += APPROACH_FEATURES;
+        }
+        if dynamics.contact_partner {
+            out[at..at + CONTACT_PARTNER_FEATURES].copy_from_slice(&contact_partner_features(
+                hit.source,
+                q,
+                &self.offsets,
+                &self.object_params,
             ));
         }
     }

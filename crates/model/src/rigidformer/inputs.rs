@@ -378,6 +378,11 @@ fn scene_chunk(
         r.earlier.as_deref(),
         r.dt_steps,
     );
+    let points = if cfg.dynamics.contact_partner {
+        points.with_object_params(scene.objects.iter().map(|o| o.params).collect())
+    } else {
+        points
+    };
     let ctx = ObjectContext {
         cfg,
         r,
@@ -662,6 +667,71 @@ mod tests {
         assert!(
             (lag - expected).abs() < 0.35 * expected,
             "lag {lag} rad, expected about {expected}"
+        );
+    }
+
+    /// Two cubes 0.1 m apart of different masses and materials, and a third far away near the
+    /// ground, through the model's input path with scene-relative mass: the points that reach
+    /// the other cube read its parameters (the mass as a ratio, which the scene-wide factor
+    /// leaves as is), every other point zeros.
+    #[test]
+    fn contact_partner_reads_the_other_cube_through_the_input_path() {
+        let mut cfg = ModelConfig::tiny();
+        cfg.dynamics.contact_partner = true;
+        cfg.dynamics.relative_mass = true;
+        cfg.normalization = crate::FeatureNormalization::defaults_for(&cfg.dynamics);
+        let materials = [(2.0f32, 0.3f32, 0.6f32), (0.5, 0.9, 0.2), (1.0, 0.5, 0.5)];
+        let objects: Vec<ObjectInput> = materials
+            .iter()
+            .map(|&(mass, friction, restitution)| ObjectInput {
+                reference: cube(),
+                mass,
+                friction,
+                restitution,
+                kinematic: false,
+            })
+            .collect();
+        let scene = prepare_scene(&cfg, objects).unwrap();
+        let pose = |c: [f32; 3]| Pose::from_parts(Vector3::from(c), UnitQuaternion::identity());
+        let current = vec![
+            pose([0.0, 0.0, 1.0]),
+            pose([0.3, 0.0, 1.0]),
+            pose([5.0, 0.0, 0.15]),
+        ];
+        let inp = build_inputs(
+            &cfg,
+            &[SceneRequest {
+                scene: &scene,
+                previous: current.clone(),
+                current,
+                earlier: None,
+                dt_steps: 1,
+            }],
+        )
+        .unwrap();
+        let (nf, norm) = (cfg.point_features(), &cfg.normalization);
+        let col = crate::InputGroup::ContactPartner.offset(&cfg.dynamics);
+        let n = cube().len();
+        let mut touching = [0usize; 3];
+        for row in 0..3 * n {
+            let object = row / n;
+            let raw: Vec<f32> = (col..col + crate::config::CONTACT_PARTNER_FEATURES)
+                .map(|i| inp.feats[row * nf + i] * norm.std[i] + norm.mean[i])
+                .collect();
+            let want = match (object, raw[0] > 0.5) {
+                (0, true) => [1.0, (0.5f32 / 2.0).ln(), 0.9, 0.2],
+                (1, true) => [1.0, (2.0f32 / 0.5).ln(), 0.3, 0.6],
+                _ => [0.0; 4],
+            };
+            touching[object] += (raw[0] > 0.5) as usize;
+            assert!(
+                raw.iter().zip(want).all(|(a, b)| (a - b).abs() < 1e-4),
+                "object {object} row {row}: {raw:?}, expected {want:?}"
+            );
+        }
+        assert!(
+            touching[0] > 0 && touching[1] > 0 && touching[2] == 0,
+            "{touching:?}"
         );
     }
 

@@ -201,6 +201,9 @@ pub struct ModelSection {
     /// the 3 new inputs; the 3 new normalisation constants fitted from the training data).
     /// `false` on an `init` model that has them is an error.
     pub approach: Option<bool>,
+    /// The contact partner inputs (`DynamicsConfig::contact_partner`): as `approach`, with 4
+    /// new inputs.
+    pub contact_partner: Option<bool>,
     /// The object state summary (`DynamicsConfig::object_summary`): unset keeps what the
     /// preset, config or `init` model has. `true` on an `init` model without it widens it
     /// (the summary MLP's last layer zero, so it starts as the same function; its first layer
@@ -269,6 +272,7 @@ impl Default for ModelSection {
             surface_normals: None,
             history: None,
             approach: None,
+            contact_partner: None,
             object_summary: None,
             contact_summary: None,
             rigid_extrapolation: None,
@@ -343,13 +347,15 @@ impl ModelSection {
     }
 
     /// This section's switch for an optional input group (`contact_velocity`,
-    /// `surface_normals`, `history`, `approach`): unset keeps what the model has.
+    /// `surface_normals`, `history`, `approach`, `contact_partner`): unset keeps what the model
+    /// has.
     pub fn input_switch(&self, group: InputGroup) -> Option<bool> {
         match group {
             InputGroup::ContactVelocity => self.contact_velocity,
             InputGroup::SurfaceNormals => self.surface_normals,
             InputGroup::History => self.history,
             InputGroup::Approach => self.approach,
+            InputGroup::ContactPartner => self.contact_partner,
         }
     }
 

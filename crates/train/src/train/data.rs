@@ -702,6 +702,17 @@ pub fn fit_normalization(
                 win.state.earlier.as_deref(),
                 win.dt_steps,
             );
+            // The partner's mass enters as a ratio, which a scene-wide mass factor leaves as is.
+            let points = if model.dynamics.contact_partner {
+                points.with_object_params(
+                    win.objects
+                        .iter()
+                        .map(|o| object_params(o.mass, o.friction, o.restitution))
+                        .collect(),
+                )
+            } else {
+                points
+            };
             for (j, o) in win.objects.iter().enumerate() {
                 let params = object_params(o.mass, o.friction, o.restitution);
                 let frame = FeatureFrame::new(
