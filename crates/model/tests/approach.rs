@@ -5,14 +5,11 @@
 //! the same steps and its new weight columns receive gradients.
 mod common;
 
-use common::{
-    FIRST_LAYER, constant_velocity_targets, first_layer_dims, max_pose_diff, one_step_gradient,
-    random_scene, squared_norm,
-};
+use common::{assert_widened_inputs_start_at_zero_and_learn, first_layer_dims};
 use dynaserve_model::{
     APPROACH_FEATURES, BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, Device, FeatureFrame,
-    FeatureNormalization, InputGroup, ModelConfig, Pose, RigidFormer, ScenePoints, StepItem,
-    WorldModel, approach_features,
+    FeatureNormalization, InputGroup, ModelConfig, Pose, RigidFormer, ScenePoints, WorldModel,
+    approach_features,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 
@@ -197,28 +194,5 @@ fn widened_model_steps_the_same_and_learns_from_the_approach() {
     assert_eq!(first_layer_dims(&wide)[1], width);
     assert!(wide.config().dynamics.approach && !wide.config().dynamics.surface_normals);
 
-    let (objects, state) = random_scene(6, 4, 64);
-    let step = |m: &RigidFormer| {
-        let scene = m.prepare(objects.clone()).unwrap();
-        m.step(&[StepItem {
-            scene: &scene,
-            state: &state,
-            dt_steps: 2,
-        }])
-        .unwrap()
-        .remove(0)
-    };
-    let diff = max_pose_diff(&step(&old), &step(&wide));
-    assert!(diff < 1e-5, "widened model differs by {diff}");
-
-    let target = constant_velocity_targets(&state, 0.01);
-    let (g, _) = one_step_gradient(&wide, objects, &state, &target, 2, FIRST_LAYER);
-    let columns = squared_norm(
-        &g.narrow(1, width - APPROACH_FEATURES, APPROACH_FEATURES)
-            .unwrap(),
-    );
-    assert!(
-        columns > 0.0 && columns.is_finite(),
-        "approach columns' gradient {columns}"
-    );
+    assert_widened_inputs_start_at_zero_and_learn(&old, &wide, APPROACH_FEATURES, "approach");
 }

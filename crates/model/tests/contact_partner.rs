@@ -5,15 +5,12 @@
 //! its new weight columns receive gradients.
 mod common;
 
-use common::{
-    FIRST_LAYER, constant_velocity_targets, first_layer_dims, max_pose_diff, one_step_gradient,
-    random_scene, squared_norm,
-};
+use common::{assert_widened_inputs_start_at_zero_and_learn, first_layer_dims};
 use dynaserve_geometry::ContactSource;
 use dynaserve_model::{
     BASE_POINT_FEATURES, CONTACT_PARTNER_FEATURES, CONTACT_PARTNER_MAX_LN_RATIO,
     CONTACT_VELOCITY_FEATURES, Device, FeatureFrame, FeatureNormalization, InputGroup, ModelConfig,
-    Pose, RigidFormer, ScenePoints, StepItem, WorldModel, contact_partner_features, object_params,
+    Pose, RigidFormer, ScenePoints, WorldModel, contact_partner_features, object_params,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 
@@ -118,32 +115,10 @@ fn widened_model_steps_the_same_and_learns_from_the_partner() {
     assert_eq!(first_layer_dims(&wide)[1], width);
     assert!(wide.config().dynamics.contact_partner);
 
-    let (objects, state) = random_scene(6, 4, 64);
-    let step = |m: &RigidFormer| {
-        let scene = m.prepare(objects.clone()).unwrap();
-        m.step(&[StepItem {
-            scene: &scene,
-            state: &state,
-            dt_steps: 2,
-        }])
-        .unwrap()
-        .remove(0)
-    };
-    let diff = max_pose_diff(&step(&old), &step(&wide));
-    assert!(diff < 1e-5, "widened model differs by {diff}");
-
-    let target = constant_velocity_targets(&state, 0.01);
-    let (g, _) = one_step_gradient(&wide, objects, &state, &target, 2, FIRST_LAYER);
-    let columns = squared_norm(
-        &g.narrow(
-            1,
-            width - CONTACT_PARTNER_FEATURES,
-            CONTACT_PARTNER_FEATURES,
-        )
-        .unwrap(),
-    );
-    assert!(
-        columns > 0.0 && columns.is_finite(),
-        "contact partner columns' gradient {columns}"
+    assert_widened_inputs_start_at_zero_and_learn(
+        &old,
+        &wide,
+        CONTACT_PARTNER_FEATURES,
+        "contact partner",
     );
 }

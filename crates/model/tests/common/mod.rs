@@ -215,6 +215,36 @@ pub fn first_layer_dims(model: &RigidFormer) -> Vec<usize> {
     vars[FIRST_LAYER].as_tensor().dims().to_vec()
 }
 
+/// Checks a model widened with an input group, `wide`, against the model it came from, `old`:
+/// one step of size 2 of `random_scene(6, 4, 64)` is the same (the new columns start at zero),
+/// and the last `count` columns of the first layer, the group's, receive a finite non-zero
+/// gradient. `what` names the group in messages.
+pub fn assert_widened_inputs_start_at_zero_and_learn(
+    old: &RigidFormer,
+    wide: &RigidFormer,
+    count: usize,
+    what: &str,
+) {
+    let (objects, state) = random_scene(6, 4, 64);
+    let step = |m: &RigidFormer| {
+        let scene = m.prepare(objects.clone()).unwrap();
+        step_one(m, &scene, &state, 2)
+    };
+    let diff = max_pose_diff(&step(old), &step(wide));
+    assert!(
+        diff < 1e-5,
+        "model widened with the {what} differs by {diff}"
+    );
+    let width = first_layer_dims(wide)[1];
+    let target = constant_velocity_targets(&state, 0.01);
+    let (g, _) = one_step_gradient(wide, objects, &state, &target, 2, FIRST_LAYER);
+    let columns = squared_norm(&g.narrow(1, width - count, count).unwrap());
+    assert!(
+        columns > 0.0 && columns.is_finite(),
+        "{what} columns' gradient {columns}"
+    );
+}
+
 /// A fresh (removed if present) directory path under the system temporary directory, unique to
 /// this test process: `dynaserve-model-<tag>-<name>-<pid>`.
 pub fn tmp_dir(tag: &str, name: &str) -> std::path::PathBuf {
