@@ -1,10 +1,8 @@
 //! The per-point input features shared by the model and the trainer's normalisation fit:
 //! physical parameters, the frame features are measured from, the 12 base raw values, the
 //! optional contact velocity, surface normals, history, approach and contact partner, and
-//! [`ScenePoints`], the
-//! one place
-//! a scene's points are placed in the world, searched for contacts and turned into raw
-//! features.
+//! [`ScenePoints`], the one place a scene's points are placed in the world, searched for
+//! contacts and turned into raw features.
 
 use dynaserve_geometry::{
     ContactConfig, ContactHit, ContactSource, DEFAULT_NORMAL_NEIGHBOURS, Point, contact_hits,

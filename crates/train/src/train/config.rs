@@ -323,7 +323,7 @@ impl ModelSection {
     }
 
     /// The model configuration this section names (before normalisation fitting), with
-    /// `contact_velocity`, `surface_normals`, `history` and `approach` (the normalisation then
+    /// the optional input groups (`contact_velocity` to `contact_partner`; the normalisation then
     /// resized to its defaults), `object_summary`, `contact_summary` and
     /// [`ModelSection::apply_settings`] applied.
     pub fn model_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {

@@ -702,19 +702,19 @@ pub fn fit_normalization(
                 win.state.earlier.as_deref(),
                 win.dt_steps,
             );
-            // The partner's mass enters as a ratio, which a scene-wide mass factor leaves as is.
+            let params: Vec<[f32; 3]> = win
+                .objects
+                .iter()
+                .map(|o| object_params(o.mass, o.friction, o.restitution))
+                .collect();
+            // The partner's mass enters as a ratio, which a scene-wide mass factor leaves as is
+            // (kinematic objects aside: scene-relative mass places them at the reference).
             let points = if model.dynamics.contact_partner {
-                points.with_object_params(
-                    win.objects
-                        .iter()
-                        .map(|o| object_params(o.mass, o.friction, o.restitution))
-                        .collect(),
-                )
+                points.with_object_params(params.clone())
             } else {
                 points
             };
-            for (j, o) in win.objects.iter().enumerate() {
-                let params = object_params(o.mass, o.friction, o.restitution);
+            for (j, (o, &params)) in win.objects.iter().zip(&params).enumerate() {
                 let frame = FeatureFrame::new(
                     &model.dynamics,
                     win.dt_steps,
