@@ -332,6 +332,15 @@ pub struct DynamicsConfig {
     /// otherwise seen a step late. Applied by the callers, not by the step itself; absent in
     /// older `config.json` files, which means off.
     pub kinematic_lead: bool,
+    /// Contact wrench: every point also predicts a force (a small MLP on its point feature and
+    /// its object's token, last layer starting at zero); the forces' mean over the object's
+    /// cloud is added to every anchor's acceleration, and their mean moment about the cloud's
+    /// centroid, divided by the cloud's inertia, gives an angular acceleration `alpha` that adds
+    /// `alpha x r_k` to anchor `k` (`r_k` its offset from the centroid). The torque a contact
+    /// imparts is then the sum over the points it touches of lever arm times force, formed by
+    /// the unit rather than learnt by the per-anchor head. Absent in older `config.json` files,
+    /// which means off.
+    pub contact_wrench: bool,
 }
 
 /// An optional group of per-point inputs, in layout order after the base features: the
@@ -452,6 +461,7 @@ impl DynamicsConfig {
             relative_mass: false,
             free_flight_gate: false,
             kinematic_lead: false,
+            contact_wrench: false,
         }
     }
 

@@ -370,6 +370,43 @@ fn init_widens_a_model_for_the_summaries() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// `model.contact_wrench = true` on a `model.init` without one adds it (the run's checkpoint has
+/// the switch and the unit's layers); `false` on one that has it is refused.
+#[test]
+fn init_adds_a_contact_wrench() {
+    let dir = scratch("wrench");
+    let data = tiny_dataset(&dir);
+    train_tiny_from(&data, &dir, "base", None, |_| {}).unwrap();
+    train_tiny_from(&data, &dir, "wrench", Some("base"), |c| {
+        c.model.contact_wrench = Some(true)
+    })
+    .unwrap();
+    let m = dynaserve_model::load_rigidformer(
+        &dir.join("wrench/checkpoint"),
+        &dynaserve_model::Device::Cpu,
+        false,
+    )
+    .unwrap();
+    assert!(
+        dynaserve_model::WorldModel::config(&m)
+            .dynamics
+            .contact_wrench
+    );
+    assert!(
+        m.varmap()
+            .data()
+            .lock()
+            .unwrap()
+            .contains_key("anchors.wrench.out.weight")
+    );
+    let err = train_tiny_from(&data, &dir, "plain", Some("wrench"), |c| {
+        c.model.contact_wrench = Some(false)
+    })
+    .unwrap_err();
+    assert!(err.to_string().contains("cannot be removed"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// With `model.rotation_weight` on, every row of `log.csv` ends with the rotation term: a
 /// finite, positive number (the log test of `loss_falls` covers the empty cell when it is off).
 #[test]

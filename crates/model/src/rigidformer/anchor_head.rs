@@ -10,6 +10,7 @@ use candle_core::{Device, Tensor};
 use super::attention::multi_head;
 use super::decoder::Decoded;
 use super::inputs::BatchInputs;
+use super::wrench::ContactWrench;
 use super::{host_index, host_tensor};
 use crate::kernels::attention::{
     CrossAttention, RotaryRows, cross_attention, cross_attention_train,
@@ -45,6 +46,8 @@ pub(crate) struct AnchorHead {
     /// The coarse output MLP (`anchors.coarse.*`, D -> D -> 3, last layer initialised to
     /// zero) when the configuration has a coarse unit.
     coarse: Option<Mlp>,
+    /// The contact wrench (`anchors.wrench.*`) when the configuration has one.
+    wrench: Option<ContactWrench>,
     device: Device,
 }
 
@@ -78,6 +81,10 @@ impl AnchorHead {
                 Some(_) => Some(Mlp::with_zero_output(p, "anchors.coarse", d, d, 3)?),
                 None => None,
             },
+            wrench: match c.dynamics.contact_wrench {
+                true => Some(ContactWrench::new(p, c, device)?),
+                false => None,
+            },
             device: device.clone(),
         })
     }
@@ -106,7 +113,8 @@ impl AnchorHead {
         exec: Exec,
     ) -> Result<Tensor, ModelError> {
         let (o, k) = (inp.o, config.anchors);
-        let query = self.queries(config, inp, point_features, dec, exec)?; // [O, K, D]
+        let own_tok = self.own_tokens(config, inp, dec, exec)?; // [O, D]
+        let query = self.queries(config, inp, point_features, &own_tok, exec)?; // [O, K, D]
         let kv = self.keys_values(dec, exec)?; // [B, nT*T, 2D]
         let y = if exec.fused {
             self.cross_fused(config, inp, dec, &query, &kv, exec)?
@@ -120,7 +128,10 @@ impl AnchorHead {
             let ratio = (unit / config.accel_scale) as f64;
             acc = (acc + (coarse.forward(&x, exec.fused)? * ratio)?)?;
         }
-        let acc = acc.reshape((o, k, 3))?;
+        let mut acc = acc.reshape((o, k, 3))?;
+        if let Some(wrench) = &self.wrench {
+            acc = (acc + wrench.forward(inp, k, point_features, &own_tok)?)?;
+        }
         // Head units (accel_scale per frame^2 or per step^2) to metres per step^2.
         let factor: Vec<f32> = inp
             .object_dt
@@ -131,19 +142,19 @@ impl AnchorHead {
     }
 
     /// Anchor queries `[O, K, D]`: own point feature, offset, AVP pooling and rotary features
-    /// through `query_in`, plus the object's final token.
+    /// through `query_in`, plus the object's projected final token `own_tok` (`[O, D]`,
+    /// [`AnchorHead::own_tokens`]).
     fn queries(
         &self,
         c: &ModelConfig,
         inp: &BatchInputs,
         point_features: &Tensor,
-        dec: &Decoded,
+        own_tok: &Tensor,
         exec: Exec,
     ) -> Result<Tensor, ModelError> {
         let device = &self.device;
-        let (b, m, o, k, d) = (inp.b, inp.mmax, inp.o, c.anchors, c.width);
+        let (o, k) = (inp.o, c.anchors);
         let (c1, p) = (c.point_dim, c.rope_dim / 2);
-        let t = m + c.registers;
         // Anchor-vertex pooling with a learned bandwidth: w = exp(-d^2 / sigma^2), normalised.
         let avp = if exec.fused_inference() && device.is_cpu() {
             let inv_sigma2 = self.inv_sigma2_host()?;
@@ -165,8 +176,21 @@ impl AnchorHead {
         // The order of `query_segments`.
         let q_in = Tensor::cat(&[own, rel, avp, rope_feat], 2)?;
         let query = self.query_in.forward(&q_in)?; // [O, K, D]
-        // The anchor's own object token (final depth), an equivariant direct path.
-        let mut rows = Vec::with_capacity(o);
+        Ok(query.broadcast_add(&own_tok.unsqueeze(1)?)?)
+    }
+
+    /// Every object's final decoder token through `own_norm` and `own_token`, `[O, D]`: the
+    /// anchor queries' equivariant direct path (and the contact wrench's object input).
+    fn own_tokens(
+        &self,
+        c: &ModelConfig,
+        inp: &BatchInputs,
+        dec: &Decoded,
+        exec: Exec,
+    ) -> Result<Tensor, ModelError> {
+        let (b, d) = (inp.b, c.width);
+        let t = inp.mmax + c.registers;
+        let mut rows = Vec::with_capacity(inp.o);
         for s in 0..b {
             for (j, _) in (inp.scene_offsets[s]..inp.scene_offsets[s + 1]).enumerate() {
                 rows.push((s * t + j) as u32);
@@ -175,11 +199,10 @@ impl AnchorHead {
         let own_tok = dec
             .last
             .reshape((b * t, d))?
-            .index_select(&host_index(device, &rows)?, 0)?;
-        let own_tok = self
+            .index_select(&host_index(&self.device, &rows)?, 0)?;
+        Ok(self
             .own_token
-            .forward(&self.own_norm.forward_exec(&own_tok, exec)?)?;
-        Ok(query.broadcast_add(&own_tok.unsqueeze(1)?)?)
+            .forward(&self.own_norm.forward_exec(&own_tok, exec)?)?)
     }
 
     /// Anchor-vertex pooling `[O, K, C1]` as a composition of candle ops (every device, and

@@ -12,6 +12,7 @@ use super::features::{
     rotation_translation as rot,
 };
 use super::projection::{floor_rise, free_fall};
+use super::wrench::wrench_geometry;
 use crate::api::Pose;
 use crate::kernels::avp::padded_distances;
 use crate::prepare::PreparedScene;
@@ -84,6 +85,12 @@ pub(crate) struct BatchInputs<'a> {
     /// Contact summaries `[o, CONTACT_SUMMARY_FEATURES]` ([`contact_summary`]); empty when
     /// the model has none.
     pub contact_summary: Vec<f32>,
+    /// Every packed point's lever matrix `[P, 9]` ([`super::wrench::wrench_geometry`]); empty
+    /// without `dynamics.contact_wrench`.
+    pub point_lever: Vec<f32>,
+    /// Every anchor's spin matrix `[o, K, 9]` ([`super::wrench::wrench_geometry`]); empty
+    /// without `dynamics.contact_wrench`.
+    pub anchor_spin: Vec<f32>,
     /// The Verlet base of every anchor before free fall, per object `[K]`, world frame,
     /// metres (f64): where the anchor goes at constant velocity
     /// ([`verlet_base`]).
@@ -154,6 +161,8 @@ struct SceneChunk {
     object_sin: Vec<f32>,
     object_summary: Vec<f32>,
     contact_summary: Vec<f32>,
+    point_lever: Vec<f32>,
+    anchor_spin: Vec<f32>,
     anchors_base: Vec<Vec<[f64; 3]>>,
     anchors_ref: Vec<Vec<[f64; 3]>>,
     floor_lift: Vec<f64>,
@@ -300,6 +309,8 @@ pub(crate) fn build_inputs<'a>(
             .collect(),
         object_summary: Vec::new(),
         contact_summary: Vec::new(),
+        point_lever: Vec::new(),
+        anchor_spin: Vec::new(),
         anchors_base: Vec::with_capacity(o),
         anchors_ref: Vec::with_capacity(o),
         floor_lift: Vec::new(),
@@ -339,6 +350,8 @@ pub(crate) fn build_inputs<'a>(
         inp.object_sin.extend(c.object_sin);
         inp.object_summary.extend(c.object_summary);
         inp.contact_summary.extend(c.contact_summary);
+        inp.point_lever.extend(c.point_lever);
+        inp.anchor_spin.extend(c.anchor_spin);
         inp.anchors_base.extend(c.anchors_base);
         inp.anchors_ref.extend(c.anchors_ref);
         inp.floor_lift.extend(c.floor_lift);
@@ -458,6 +471,8 @@ impl ObjectContext<'_> {
             object_sin: Vec::with_capacity(m * p),
             object_summary: Vec::new(),
             contact_summary: Vec::new(),
+            point_lever: Vec::new(),
+            anchor_spin: Vec::new(),
             anchors_base: Vec::with_capacity(m),
             anchors_ref: Vec::with_capacity(m),
             floor_lift: Vec::new(),
@@ -500,6 +515,12 @@ impl ObjectContext<'_> {
                     cfg.contact_radius,
                     &frame,
                 ));
+            }
+            if cfg.dynamics.contact_wrench {
+                let (levers, spin) =
+                    wrench_geometry(&world[base..base + n], &obj.anchors, inv_scale);
+                c.point_lever.extend(levers);
+                c.anchor_spin.extend(spin);
             }
             // Per-point features.
             for i in 0..n {

@@ -23,6 +23,7 @@ pub(crate) mod projection;
 pub(crate) mod summary;
 pub mod train;
 mod widen;
+pub(crate) mod wrench;
 
 use std::time::{Duration, Instant};
 

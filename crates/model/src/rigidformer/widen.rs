@@ -117,6 +117,27 @@ impl RigidFormer {
         self.with_new_parts(config, seed, trainable)
     }
 
+    /// A copy of this model with a contact wrench ([`crate::DynamicsConfig::contact_wrench`]):
+    /// the unit's point and object layers are drawn from `seed` and its output layer is zero,
+    /// so the copy's outputs equal this model's; every other weight is copied. `trainable`
+    /// keeps gradient tracking on the copy's weights.
+    ///
+    /// Errors if the model already has a contact wrench.
+    pub fn widened_with_contact_wrench(
+        &self,
+        seed: u64,
+        trainable: bool,
+    ) -> Result<RigidFormer, ModelError> {
+        if self.config.dynamics.contact_wrench {
+            return Err(ModelError::InvalidInput(
+                "the model already has a contact wrench".into(),
+            ));
+        }
+        let mut config = self.config.clone();
+        config.dynamics.contact_wrench = true;
+        self.with_new_parts(config, seed, trainable)
+    }
+
     /// A model of `config`, a configuration that adds parts to this one's: every weight of this
     /// model copied, every parameter it lacks taken from a new model of `config` drawn from
     /// `seed` (parts whose last layer starts at zero then leave the function unchanged).

@@ -213,6 +213,11 @@ pub struct ModelSection {
     /// object state summary: unset keeps what the model has, `true` widens an `init` model
     /// without it, `false` on one that has it is an error.
     pub contact_summary: Option<bool>,
+    /// The contact wrench (`DynamicsConfig::contact_wrench`): unset keeps what the preset,
+    /// config or `init` model has. `true` on an `init` model without one adds it (its output
+    /// layer zero, so training starts from the same function; its other layers drawn from
+    /// `seed`). `false` on an `init` model that has one is an error.
+    pub contact_wrench: Option<bool>,
     /// The rigid Verlet base (`DynamicsConfig::rigid_extrapolation`): unset keeps what the
     /// preset, config or `init` model has; set, it switches the base of any of them (an `init`
     /// model keeps its weights and learns the new base's residual).
@@ -275,6 +280,7 @@ impl Default for ModelSection {
             contact_partner: None,
             object_summary: None,
             contact_summary: None,
+            contact_wrench: None,
             rigid_extrapolation: None,
             floor_base: None,
             relative_mass: None,
@@ -324,11 +330,14 @@ impl ModelSection {
 
     /// The model configuration this section names (before normalisation fitting), with
     /// the optional input groups (`contact_velocity` to `contact_partner`; the normalisation then
-    /// resized to its defaults), `object_summary`, `contact_summary` and
+    /// resized to its defaults), `object_summary`, `contact_summary`, `contact_wrench` and
     /// [`ModelSection::apply_settings`] applied.
     pub fn model_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {
         let mut c = self.named_config(base)?;
         self.apply_settings(&mut c.dynamics, &mut c.loss);
+        if let Some(on) = self.contact_wrench {
+            c.dynamics.contact_wrench = on;
+        }
         for kind in Summary::ALL {
             if let Some(on) = self.summary_switch(kind) {
                 kind.set(&mut c.dynamics, on);
@@ -728,6 +737,15 @@ mod tests {
             let c: TrainConfig = toml::from_str(&format!("[model]\n{bad}\n")).unwrap();
             assert!(c.validate().is_err(), "{bad}");
         }
+    }
+
+    #[test]
+    fn contact_wrench_switches_the_named_config() {
+        let base = Path::new(".");
+        let wrench = |c: &ModelSection| c.model_config(base).unwrap().dynamics.contact_wrench;
+        assert!(!wrench(&ModelSection::default()));
+        let c: TrainConfig = toml::from_str("[model]\ncontact_wrench = true\n").unwrap();
+        assert!(wrench(&c.model));
     }
 
     /// The error of `[model] line` without `init`, and the validated config with one.
