@@ -36,6 +36,10 @@ pub(crate) struct PreparedObject {
     pub anchor_d2: Vec<f32>,
     /// Centroid of the reference cloud, metres.
     pub centroid: [f32; 3],
+    /// Inverse of the reference cloud's floored inertia per unit mass about its centroid,
+    /// body frame, 1/m^2 ([`crate::rigidformer::wrench::floored_inertia_inverse`]; the contact
+    /// wrench rotates it into the world each step).
+    pub inertia_inv: nalgebra::Matrix3<f32>,
     /// Body-frame outward unit normals `[n, 3]` when the model reads surface normals
     /// ([`crate::DynamicsConfig::surface_normals`]); empty otherwise.
     pub normals: Vec<[f32; 3]>,
@@ -337,6 +341,7 @@ fn prepare_object(cfg: &ModelConfig, o: ObjectInput) -> Result<PreparedObject, S
     } else {
         Vec::new()
     };
+    let inertia_inv = crate::rigidformer::wrench::floored_inertia_inverse(&o.reference, centroid);
     Ok(PreparedObject {
         params: crate::rigidformer::features::object_params(o.mass, o.friction, o.restitution),
         normals,
@@ -347,6 +352,7 @@ fn prepare_object(cfg: &ModelConfig, o: ObjectInput) -> Result<PreparedObject, S
         centres,
         neighbours,
         anchor_d2,
+        inertia_inv,
         centroid,
     })
 }

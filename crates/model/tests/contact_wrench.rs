@@ -5,7 +5,7 @@
 mod common;
 
 use common::{max_pose_diff, one_step_gradient, random_scene, squared_norm, step_random_scene};
-use dynaserve_model::{Device, ModelConfig, Pose, RigidFormer, WorldModel, load_rigidformer};
+use dynaserve_model::{Device, ModelConfig, Pose, RigidFormer, WorldModel};
 use nalgebra::{Quaternion, UnitQuaternion};
 
 /// Sets parameter `name` of `model` to `values` (its shape kept).
@@ -65,16 +65,8 @@ fn the_wrench_learns_and_saves() {
         let norm = squared_norm(&g);
         assert!(norm > 0.0 && norm.is_finite(), "{name} gradient {norm}");
     }
-    let dir = common::tmp_dir("wrench", "save");
-    model.save(&dir).unwrap();
-    let back = load_rigidformer(&dir, &Device::Cpu, false).unwrap();
-    std::fs::remove_dir_all(&dir).unwrap();
+    let back = common::saved_and_reloaded(&model, "wrench");
     assert!(back.config().dynamics.contact_wrench);
-    let diff = max_pose_diff(
-        &step_random_scene(&model, 6, 2),
-        &step_random_scene(&back, 6, 2),
-    );
-    assert!(diff < 1e-6, "reloaded model differs by {diff}");
 }
 
 /// With the output layer's weights zero and its bias a force `f`, every point of every object

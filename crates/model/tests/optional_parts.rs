@@ -186,17 +186,9 @@ fn summary_layers_learn_and_save() {
         assert!(norm > 0.0 && norm.is_finite(), "{name} gradient {norm}");
     }
 
-    let dir = std::env::temp_dir().join(format!("dynaserve-summary-{}", std::process::id()));
-    model.save(&dir).unwrap();
-    let back = load_rigidformer(&dir, &Device::Cpu, false).unwrap();
-    std::fs::remove_dir_all(&dir).unwrap();
+    let back = common::saved_and_reloaded(&model, "summary");
     assert!(back.config().dynamics.object_summary);
     assert!(back.config().dynamics.contact_summary);
-    let diff = max_pose_diff(
-        &step_random_scene(&model, 6, 2),
-        &step_random_scene(&back, 6, 2),
-    );
-    assert!(diff < 1e-6, "reloaded model differs by {diff}");
 }
 
 /// `a` and `b` step two random scenes (step sizes 1 and 3) to the same poses within 1e-5.

@@ -516,12 +516,6 @@ impl ObjectContext<'_> {
                     &frame,
                 ));
             }
-            if cfg.dynamics.contact_wrench {
-                let (levers, spin) =
-                    wrench_geometry(&world[base..base + n], &obj.anchors, inv_scale);
-                c.point_lever.extend(levers);
-                c.anchor_spin.extend(spin);
-            }
             // Per-point features.
             for i in 0..n {
                 let row = base + i - row0;
@@ -609,6 +603,20 @@ impl ObjectContext<'_> {
             c.object_sin.extend(mean_sin);
             c.anchors_base.push(ab);
             c.anchors_ref.push(ar);
+            if cfg.dynamics.contact_wrench {
+                // The anchor offsets just pushed, about the same world centroid.
+                let rel = &c.anchor_rel[c.anchor_rel.len() - 3 * k..];
+                let (levers, spin) = wrench_geometry(
+                    &world[base..base + n],
+                    wc,
+                    rel,
+                    &obj.inertia_inv,
+                    &rc,
+                    inv_scale,
+                );
+                c.point_lever.extend(levers);
+                c.anchor_spin.extend(spin);
+            }
         }
         c
     }

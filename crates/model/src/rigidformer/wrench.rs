@@ -31,39 +31,49 @@ fn skew(r: Vector3<f32>) -> [f32; 9] {
     [0.0, -r.z, r.y, r.z, 0.0, -r.x, -r.y, r.x, 0.0]
 }
 
-/// One object's wrench geometry from its points at t (`world`, `[n, 3]` metres) and its anchor
-/// indices into them (`[K]`), offsets scaled by `inv_scale` (1 / the model's position scale):
-/// the lever matrices `[n, 9]` (`[r_i]_x`, so that `L_i f` is point `i`'s moment about the
-/// cloud's centroid) and the anchor matrices `[K, 9]` (`-[r_k]_x J^-1`, so that `A_k tau` is
-/// `alpha x r_k` for `alpha = J^-1 tau`), with `J = mean_i(|r_i|^2 E - r_i r_i^T)` the cloud's
-/// inertia per unit mass plus [`INERTIA_FLOOR`] of its mean principal moment. Both row-major
-/// 3 x 3. A cloud whose inertia is zero (one point) gets zero anchor matrices.
-pub(crate) fn wrench_geometry(
-    world: &[[f32; 3]],
-    anchors: &[usize],
-    inv_scale: f32,
-) -> (Vec<f32>, Vec<f32>) {
-    let n = world.len().max(1) as f32;
-    let centroid = world.iter().fold(Vector3::zeros(), |acc: Vector3<f32>, p| {
-        acc + Vector3::from(*p)
-    }) / n;
-    let rel = |p: &[f32; 3]| (Vector3::from(*p) - centroid) * inv_scale;
-    let mut levers = Vec::with_capacity(world.len() * 9);
+/// The inverse of a cloud's inertia per unit mass about `centroid` (`points` `[n, 3]` and
+/// `centroid` in metres, any one frame; 1/m^2 out): `J = mean_i(|r_i|^2 E - r_i r_i^T)` plus
+/// [`INERTIA_FLOOR`] of its mean principal moment. Zero for a cloud whose inertia is zero (one
+/// point). Rigid-invariant: a rotated cloud's is `R J^-1 R^T`, so a scene computes it once.
+pub(crate) fn floored_inertia_inverse(points: &[[f32; 3]], centroid: [f32; 3]) -> Matrix3<f32> {
+    let c = Vector3::from(centroid);
     let mut inertia = Matrix3::zeros();
-    for p in world {
-        let r = rel(p);
-        levers.extend_from_slice(&skew(r));
+    for p in points {
+        let r = Vector3::from(*p) - c;
         inertia += Matrix3::identity() * r.norm_squared() - r * r.transpose();
     }
-    inertia /= n;
+    inertia /= points.len().max(1) as f32;
     let floor = INERTIA_FLOOR * inertia.trace() / 3.0;
-    let inverse = (inertia + Matrix3::identity() * floor)
+    (inertia + Matrix3::identity() * floor)
         .try_inverse()
         .filter(|_| floor > 0.0)
-        .unwrap_or_else(Matrix3::zeros);
-    let mut spin = Vec::with_capacity(anchors.len() * 9);
-    for &a in anchors {
-        let m = -Matrix3::from_row_slice(&skew(rel(&world[a]))) * inverse;
+        .unwrap_or_else(Matrix3::zeros)
+}
+
+/// One object's wrench geometry at t, offsets scaled by `inv_scale` (1 / the model's position
+/// scale): the lever matrices `[n, 9]` (`[r_i]_x` for each point of `world` (`[n, 3]` metres)
+/// less the cloud's world `centroid`, so that `L_i f` is point `i`'s moment about it) and the
+/// anchor matrices `[K, 9]` (`-[r_k]_x J^-1` for each scaled anchor offset of `anchor_rel`
+/// (`[K, 3]`), so that `A_k tau` is `alpha x r_k` for `alpha = J^-1 tau`), with
+/// `J^-1 = R inertia_inv R^T` the body-frame [`floored_inertia_inverse`] turned by the object's
+/// rotation `rotation`. Both row-major 3 x 3.
+pub(crate) fn wrench_geometry(
+    world: &[[f32; 3]],
+    centroid: Vector3<f32>,
+    anchor_rel: &[f32],
+    inertia_inv: &Matrix3<f32>,
+    rotation: &Matrix3<f32>,
+    inv_scale: f32,
+) -> (Vec<f32>, Vec<f32>) {
+    let mut levers = Vec::with_capacity(world.len() * 9);
+    for p in world {
+        levers.extend_from_slice(&skew((Vector3::from(*p) - centroid) * inv_scale));
+    }
+    // Metres^-2 to scaled units^-2.
+    let inverse = rotation * inertia_inv * rotation.transpose() / (inv_scale * inv_scale);
+    let mut spin = Vec::with_capacity(anchor_rel.len() * 3);
+    for r in anchor_rel.chunks(3) {
+        let m = -Matrix3::from_row_slice(&skew(Vector3::new(r[0], r[1], r[2]))) * inverse;
         for row in 0..3 {
             for col in 0..3 {
                 spin.push(m[(row, col)]);
@@ -145,40 +155,57 @@ impl ContactWrench {
 mod tests {
     use super::*;
 
-    fn cross(a: Vector3<f32>, b: Vector3<f32>) -> Vector3<f32> {
-        a.cross(&b)
-    }
-
     fn apply(m: &[f32], v: Vector3<f32>) -> Vector3<f32> {
         Matrix3::from_row_slice(m) * v
     }
 
-    /// The lever matrices give each point's moment about the cloud's centroid, and the anchor
-    /// matrices `alpha x r_k` for `alpha` the inertia's answer to the torque.
+    fn centroid_of(points: &[[f32; 3]]) -> [f32; 3] {
+        let c = points
+            .iter()
+            .map(|p| Vector3::from(*p))
+            .sum::<Vector3<f32>>()
+            / points.len() as f32;
+        [c.x, c.y, c.z]
+    }
+
+    /// The geometry of a cloud given in the body frame and turned into the world: the lever
+    /// matrices give each point's moment about the world centroid, and the anchor matrices
+    /// `alpha x r_k` for `alpha` the world inertia's answer to the torque.
     #[test]
     fn geometry_gives_moments_and_the_spin_they_cause() {
-        let world = [
+        let body = [
             [1.0f32, 0.2, 0.3],
             [0.0, 0.5, 0.1],
             [0.4, -0.3, 0.9],
             [-0.2, 0.1, -0.4],
             [0.3, 0.8, 0.2],
         ];
-        let (scale, anchors) = (0.5f32, [0usize, 2, 4]);
-        let (levers, spin) = wrench_geometry(&world, &anchors, 1.0 / scale);
-        assert_eq!((levers.len(), spin.len()), (5 * 9, 3 * 9));
-        let c = world
+        let rotation = *nalgebra::Rotation3::from_euler_angles(0.3, -0.7, 1.1).matrix();
+        let shift = Vector3::new(2.0, -1.0, 0.5);
+        let world: Vec<[f32; 3]> = body
             .iter()
-            .map(|p| Vector3::from(*p))
-            .sum::<Vector3<f32>>()
-            / 5.0;
+            .map(|p| {
+                let w = rotation * Vector3::from(*p) + shift;
+                [w.x, w.y, w.z]
+            })
+            .collect();
+        let (scale, anchors) = (0.5f32, [0usize, 2, 4]);
+        let c = Vector3::from(centroid_of(&world));
         let rel = |i: usize| (Vector3::from(world[i]) - c) / scale;
+        let anchor_rel: Vec<f32> = anchors
+            .iter()
+            .flat_map(|&a| rel(a).iter().copied().collect::<Vec<_>>())
+            .collect();
+        let inertia_inv = floored_inertia_inverse(&body, centroid_of(&body));
+        let (levers, spin) =
+            wrench_geometry(&world, c, &anchor_rel, &inertia_inv, &rotation, 1.0 / scale);
+        assert_eq!((levers.len(), spin.len()), (5 * 9, 3 * 9));
         let f = Vector3::new(0.3, -1.2, 0.7);
         for i in 0..5 {
             let got = apply(&levers[i * 9..(i + 1) * 9], f);
-            assert!((got - cross(rel(i), f)).norm() < 1e-5, "point {i}");
+            assert!((got - rel(i).cross(&f)).norm() < 1e-5, "point {i}");
         }
-        // alpha from J alpha = tau, J the floored inertia.
+        // alpha from J alpha = tau, J the floored inertia of the world cloud in scaled units.
         let mut j = Matrix3::zeros();
         for i in 0..5 {
             let r = rel(i);
@@ -190,7 +217,7 @@ mod tests {
         let alpha = j.try_inverse().unwrap() * tau;
         for (k, &a) in anchors.iter().enumerate() {
             let got = apply(&spin[k * 9..(k + 1) * 9], tau);
-            let want = cross(alpha, rel(a));
+            let want = alpha.cross(&rel(a));
             assert!(
                 (got - want).norm() < 1e-4 * want.norm().max(1.0),
                 "anchor {k}"
@@ -207,11 +234,13 @@ mod tests {
             [0.0, 0.0, 0.2],
             [0.4, 0.4, 0.4],
         ];
-        let (levers, _) = wrench_geometry(&world, &[0], 1.0);
+        let c = Vector3::from(centroid_of(&world));
+        let eye = Matrix3::identity();
+        let (levers, _) = wrench_geometry(&world, c, &[], &eye, &eye, 1.0);
         let f = Vector3::new(1.0, 2.0, 3.0);
         let total: Vector3<f32> = levers.chunks(9).map(|m| apply(m, f)).sum();
         assert!(total.norm() < 1e-5, "{total:?}");
-        let (_, spin) = wrench_geometry(&[[1.0, 2.0, 3.0]], &[0], 1.0);
-        assert!(spin.iter().all(|&v| v == 0.0));
+        let point = [[1.0f32, 2.0, 3.0]];
+        assert_eq!(floored_inertia_inverse(&point, point[0]), Matrix3::zeros());
     }
 }

@@ -256,6 +256,22 @@ pub fn tmp_dir(tag: &str, name: &str) -> std::path::PathBuf {
     d
 }
 
+/// `model` saved to a fresh directory (named by `tag`) and loaded back: the reloaded model,
+/// after asserting that it steps a random scene (step size 2) to the same poses within 1e-6.
+pub fn saved_and_reloaded(model: &RigidFormer, tag: &str) -> RigidFormer {
+    let dir = tmp_dir(tag, "round-trip");
+    model.save(&dir).unwrap();
+    let back =
+        dynaserve_model::load_rigidformer(&dir, &dynaserve_model::Device::Cpu, false).unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+    let diff = max_pose_diff(
+        &step_random_scene(model, 6, 2),
+        &step_random_scene(&back, 6, 2),
+    );
+    assert!(diff < 1e-6, "reloaded model differs by {diff}");
+    back
+}
+
 /// The message of the error `load_model` gives for `dir`; panics if it loads.
 pub fn load_error(dir: &std::path::Path) -> String {
     match dynaserve_model::load_model(dir, &dynaserve_model::Device::Cpu) {
