@@ -341,6 +341,60 @@ pub struct DynamicsConfig {
     /// the unit rather than learnt by the per-anchor head. Absent in older `config.json` files,
     /// which means off.
     pub contact_wrench: bool,
+    /// Contact messages: every point whose contact search found another object's point gets a
+    /// message from that point, an MLP on both points' encoder features and on both lever arms
+    /// (each point's offset from its own object's centroid), added to its feature before the
+    /// set abstraction (last layer starting at zero). Objects otherwise meet only as whole
+    /// tokens in attention; a contact's exchange depends on where on each body it lies. Absent
+    /// in older `config.json` files, which means off.
+    pub contact_messages: bool,
+}
+
+/// An optional network unit a trained model can gain (its last layer starting at zero, so
+/// the model keeps its function): the one place that knows each unit's switch and name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ModelUnit {
+    /// [`DynamicsConfig::contact_wrench`]; parameters `anchors.wrench.*`.
+    ContactWrench,
+    /// [`DynamicsConfig::contact_messages`]; parameters `messages.*`.
+    ContactMessages,
+}
+
+impl ModelUnit {
+    /// Every unit.
+    pub const ALL: [ModelUnit; 2] = [ModelUnit::ContactWrench, ModelUnit::ContactMessages];
+
+    /// What the unit is called in messages.
+    pub fn name(self) -> &'static str {
+        match self {
+            ModelUnit::ContactWrench => "contact wrench",
+            ModelUnit::ContactMessages => "contact messages",
+        }
+    }
+
+    /// Its switch in [`DynamicsConfig`] and in a training configuration's `[model]`.
+    pub fn key(self) -> &'static str {
+        match self {
+            ModelUnit::ContactWrench => "contact_wrench",
+            ModelUnit::ContactMessages => "contact_messages",
+        }
+    }
+
+    /// Whether `d` has it.
+    pub fn enabled(self, d: &DynamicsConfig) -> bool {
+        match self {
+            ModelUnit::ContactWrench => d.contact_wrench,
+            ModelUnit::ContactMessages => d.contact_messages,
+        }
+    }
+
+    /// Switches it on or off in `d`.
+    pub fn set(self, d: &mut DynamicsConfig, on: bool) {
+        match self {
+            ModelUnit::ContactWrench => d.contact_wrench = on,
+            ModelUnit::ContactMessages => d.contact_messages = on,
+        }
+    }
 }
 
 /// An optional group of per-point inputs, in layout order after the base features: the
@@ -462,6 +516,7 @@ impl DynamicsConfig {
             free_flight_gate: false,
             kinematic_lead: false,
             contact_wrench: false,
+            contact_messages: false,
         }
     }
 

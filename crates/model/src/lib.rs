@@ -28,7 +28,7 @@ pub use checkpoint::{load_model, load_rigidformer, read_architecture, read_confi
 pub use config::{
     APPROACH_FEATURES, BASE_POINT_FEATURES, CONTACT_PARTNER_FEATURES, CONTACT_PARTNER_MAX_LN_RATIO,
     CONTACT_SUMMARY_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig, FeatureNormalization,
-    HISTORY_FEATURES, InputGroup, LN_MASS_FEATURE, LossConfig, ModelConfig,
+    HISTORY_FEATURES, InputGroup, LN_MASS_FEATURE, LossConfig, ModelConfig, ModelUnit,
     OBJECT_SUMMARY_FEATURES, PreparedKey, SURFACE_NORMAL_FEATURES,
 };
 pub use ensemble::Ensemble;

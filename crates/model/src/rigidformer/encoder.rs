@@ -5,6 +5,7 @@
 use candle_core::{Device, Tensor};
 
 use super::inputs::BatchInputs;
+use super::messages::ContactMessages;
 use super::{host_index, host_tensor};
 use crate::kernels::activation::silu_inference;
 use crate::kernels::grouped_mlp::GroupedMlp;
@@ -42,19 +43,26 @@ impl Encoder {
     }
 
     /// Per-point features `[P, C1]` (packed, no padding rows) and object tokens `[O, D]`.
+    /// With `messages`, each point's feature has its contact message added before the set
+    /// abstraction, and the features returned are those.
     pub fn forward(
         &self,
         inp: &BatchInputs,
         device: &Device,
         exec: Exec,
+        messages: Option<&ContactMessages>,
     ) -> Result<(Tensor, Tensor), ModelError> {
         let fused = exec.fused;
         let (o, s, g) = (inp.o, self.sa_centres, self.sa_neighbours);
         let feats = host_tensor(device, &inp.feats, &[inp.points, self.features])?;
         if exec.fused_inference() && device.is_cpu() {
-            return self.forward_cpu_inference(inp, &feats);
+            return self.forward_cpu_inference(inp, &feats, messages);
         }
         let h = self.point.forward(&feats, fused)?; // [P, C1]
+        let h = match messages {
+            Some(m) => m.forward(inp, &h)?,
+            None => h,
+        };
         let grouped = h.index_select(&host_index(device, &inp.group_idx)?, 0)?; // [O*S*G, C1]
         let rel = host_tensor(device, &inp.group_rel, &[o * s * g, 3])?;
         let x = Tensor::cat(&[rel, grouped], 1)?;
@@ -78,6 +86,7 @@ impl Encoder {
         &self,
         inp: &BatchInputs,
         feats: &Tensor,
+        messages: Option<&ContactMessages>,
     ) -> Result<(Tensor, Tensor), ModelError> {
         let point = self.point.host_weights()?;
         let h = feats.apply_op1_no_bwd(&GroupedMlp {
@@ -87,6 +96,10 @@ impl Encoder {
             lead_dim: 0,
             group: 1,
         })?; // [P, C1]
+        let h = match messages {
+            Some(m) => m.forward(inp, &h)?,
+            None => h,
+        };
         let sa1 = self.sa1.host_weights()?;
         let x = h.apply_op1_no_bwd(&GroupedMlp {
             mlp: &sa1,

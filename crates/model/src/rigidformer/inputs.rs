@@ -17,6 +17,7 @@ use crate::api::Pose;
 use crate::kernels::avp::padded_distances;
 use crate::prepare::PreparedScene;
 use crate::{ModelConfig, ModelError, team};
+use dynaserve_geometry::ContactSource;
 
 /// One scene's request as the network sees it (poses already validated and normalised).
 pub(crate) struct SceneRequest<'a> {
@@ -91,6 +92,16 @@ pub(crate) struct BatchInputs<'a> {
     /// Every anchor's spin matrix `[o, K, 9]` ([`super::wrench::wrench_geometry`]); empty
     /// without `dynamics.contact_wrench`.
     pub anchor_spin: Vec<f32>,
+    /// Packed rows of the points whose contact search found another object's point
+    /// ([`super::messages`]), `[Pc]`; empty without `dynamics.contact_messages`.
+    pub contact_rows: Vec<u32>,
+    /// The packed row of each of those points' partner (the other object's point found),
+    /// `[Pc]`.
+    pub partner_row: Vec<u32>,
+    /// Both lever arms of each of those contacts, `[Pc, 6]`, world frame, scaled by 1 / the
+    /// position scale: the point's offset from its object's centroid, then its partner's from
+    /// the partner's centroid.
+    pub partner_levers: Vec<f32>,
     /// The Verlet base of every anchor before free fall, per object `[K]`, world frame,
     /// metres (f64): where the anchor goes at constant velocity
     /// ([`verlet_base`]).
@@ -163,6 +174,9 @@ struct SceneChunk {
     contact_summary: Vec<f32>,
     point_lever: Vec<f32>,
     anchor_spin: Vec<f32>,
+    contact_rows: Vec<u32>,
+    partner_row: Vec<u32>,
+    partner_levers: Vec<f32>,
     anchors_base: Vec<Vec<[f64; 3]>>,
     anchors_ref: Vec<Vec<[f64; 3]>>,
     floor_lift: Vec<f64>,
@@ -311,6 +325,9 @@ pub(crate) fn build_inputs<'a>(
         contact_summary: Vec::new(),
         point_lever: Vec::new(),
         anchor_spin: Vec::new(),
+        contact_rows: Vec::new(),
+        partner_row: Vec::new(),
+        partner_levers: Vec::new(),
         anchors_base: Vec::with_capacity(o),
         anchors_ref: Vec::with_capacity(o),
         floor_lift: Vec::new(),
@@ -352,6 +369,9 @@ pub(crate) fn build_inputs<'a>(
         inp.contact_summary.extend(c.contact_summary);
         inp.point_lever.extend(c.point_lever);
         inp.anchor_spin.extend(c.anchor_spin);
+        inp.contact_rows.extend(c.contact_rows);
+        inp.partner_row.extend(c.partner_row);
+        inp.partner_levers.extend(c.partner_levers);
         inp.anchors_base.extend(c.anchors_base);
         inp.anchors_ref.extend(c.anchors_ref);
         inp.floor_lift.extend(c.floor_lift);
@@ -396,11 +416,19 @@ fn scene_chunk(
     } else {
         points
     };
+    let poses: Vec<_> = r.current.iter().map(rot).collect();
+    let centroids = scene
+        .objects
+        .iter()
+        .zip(&poses)
+        .map(|(o, (rc, pc))| rc * Vector3::from(o.centroid) + pc)
+        .collect();
     let ctx = ObjectContext {
         cfg,
         r,
         points: &points,
-        poses: r.current.iter().map(rot).collect(),
+        poses,
+        centroids,
         poses_prev: r.previous.iter().map(rot).collect(),
         first_point,
         nmax,
@@ -429,6 +457,8 @@ struct ObjectContext<'a> {
     r: &'a SceneRequest<'a>,
     points: &'a ScenePoints,
     poses: Vec<(Matrix3<f32>, Vector3<f32>)>,
+    /// Every object's centroid in the world at t, metres.
+    centroids: Vec<Vector3<f32>>,
     poses_prev: Vec<(Matrix3<f32>, Vector3<f32>)>,
     first_point: usize,
     nmax: usize,
@@ -473,6 +503,9 @@ impl ObjectContext<'_> {
             contact_summary: Vec::new(),
             point_lever: Vec::new(),
             anchor_spin: Vec::new(),
+            contact_rows: Vec::new(),
+            partner_row: Vec::new(),
+            partner_levers: Vec::new(),
             anchors_base: Vec::with_capacity(m),
             anchors_ref: Vec::with_capacity(m),
             floor_lift: Vec::new(),
@@ -490,7 +523,7 @@ impl ObjectContext<'_> {
             let n = obj.reference.len();
             let base = offsets[j];
             let (rc, pc) = self.poses[j];
-            let wc = rc * Vector3::from(obj.centroid) + pc;
+            let wc = self.centroids[j];
             let frame = FeatureFrame::new(&cfg.dynamics, r.dt_steps, r.current[j].translation);
             if cfg.dynamics.object_summary {
                 c.object_summary.extend(object_summary(
@@ -532,6 +565,9 @@ impl ObjectContext<'_> {
                     *v = (*v - m) * is;
                 }
                 point_mask[(j - mask0) * nmax + i] = 1.0;
+            }
+            if cfg.dynamics.contact_messages {
+                self.partners(base..base + n, wc, &mut c);
             }
             // Encoder grouping.
             for (ci, &centre) in obj.centres.iter().enumerate() {
@@ -619,6 +655,27 @@ impl ObjectContext<'_> {
             }
         }
         c
+    }
+
+    /// Appends the contacts ([`BatchInputs::contact_rows`], partner rows and lever arms) of
+    /// the scene's points `range`, all of one object whose world centroid is `centroid`.
+    fn partners(&self, range: std::ops::Range<usize>, centroid: Vector3<f32>, c: &mut SceneChunk) {
+        let (points, inv_scale) = (self.points, 1.0 / self.cfg.position_scale);
+        let lever =
+            |q: usize, centre: &Vector3<f32>| (Vector3::from(points.world[q]) - centre) * inv_scale;
+        for q in range {
+            if let ContactSource::Point(other) = points.contact[q].source {
+                let other = other as usize;
+                // The object holding point `other`: the last one starting at or before it.
+                let obj = points.offsets.partition_point(|&start| start <= other) - 1;
+                c.contact_rows.push((self.first_point + q) as u32);
+                c.partner_row.push((self.first_point + other) as u32);
+                c.partner_levers
+                    .extend_from_slice(lever(q, &centroid).as_slice());
+                c.partner_levers
+                    .extend_from_slice(lever(other, &self.centroids[obj]).as_slice());
+            }
+        }
     }
 }
 

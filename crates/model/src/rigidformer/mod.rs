@@ -19,6 +19,7 @@ pub(crate) mod encoder;
 pub mod features;
 pub(crate) mod free_flight;
 pub(crate) mod inputs;
+pub(crate) mod messages;
 pub(crate) mod projection;
 pub(crate) mod summary;
 pub mod train;
@@ -34,6 +35,7 @@ use self::anchor_head::AnchorHead;
 use self::decoder::Decoder;
 use self::encoder::Encoder;
 use self::inputs::{BatchInputs, SceneRequest, build_inputs};
+use self::messages::ContactMessages;
 pub use self::summary::Summary;
 use self::summary::SummaryMlp;
 use crate::api::{Pose, StepItem, WorldModel};
@@ -85,6 +87,7 @@ pub struct RigidFormer {
     decoder: Decoder,
     anchors: AnchorHead,
     summaries: Vec<SummaryMlp>,
+    messages: Option<ContactMessages>,
     max_pass_objects: usize,
     fused_kernels: bool,
     scene_threads: bool,
@@ -126,8 +129,8 @@ impl RigidFormer {
     }
 
     /// Builds the network from a parameter store (random or loaded). Parameters are created in
-    /// a fixed order (encoder, decoder, anchor head, then the optional summaries) so a
-    /// seed always gives the same weights, with or without the summaries.
+    /// a fixed order (encoder, decoder, anchor head, then the optional summaries and contact
+    /// messages) so a seed always gives the same weights, with or without them.
     pub(crate) fn from_store(
         name: String,
         config: ModelConfig,
@@ -139,6 +142,10 @@ impl RigidFormer {
         let decoder = Decoder::new(&mut p, &config)?;
         let anchors = AnchorHead::new(&mut p, &config, device)?;
         let summaries = SummaryMlp::all(&mut p, &config)?;
+        let messages = match config.dynamics.contact_messages {
+            true => Some(ContactMessages::new(&mut p, &config, device)?),
+            false => None,
+        };
         Ok(RigidFormer {
             name,
             config,
@@ -148,6 +155,7 @@ impl RigidFormer {
             decoder,
             anchors,
             summaries,
+            messages,
             max_pass_objects: DEFAULT_MAX_PASS_OBJECTS,
             fused_kernels: true,
             scene_threads: true,
@@ -249,7 +257,9 @@ impl RigidFormer {
             fused: self.fused_kernels && self.device.is_cpu(),
         };
         let t0 = Instant::now();
-        let (h, tokens) = self.encoder.forward(inp, &self.device, exec)?;
+        let (h, tokens) = self
+            .encoder
+            .forward(inp, &self.device, exec, self.messages.as_ref())?;
         let mut tokens = tokens;
         for s in &self.summaries {
             tokens = s.add_to(inp, &tokens, &self.device, exec)?;

@@ -11,7 +11,7 @@ use super::RigidFormer;
 use super::anchor_head::query_segments;
 use super::encoder::POINT_INPUT_WEIGHT;
 use super::summary::Summary;
-use crate::config::InputGroup;
+use crate::config::{InputGroup, ModelUnit};
 use crate::layers::ParamStore;
 use crate::{FeatureNormalization, ModelError};
 
@@ -118,23 +118,35 @@ impl RigidFormer {
     }
 
     /// A copy of this model with a contact wrench ([`crate::DynamicsConfig::contact_wrench`]):
-    /// the unit's point and object layers are drawn from `seed` and its output layer is zero,
-    /// so the copy's outputs equal this model's; every other weight is copied. `trainable`
-    /// keeps gradient tracking on the copy's weights.
-    ///
-    /// Errors if the model already has a contact wrench.
+    /// [`RigidFormer::widened_with_unit`] for [`ModelUnit::ContactWrench`].
     pub fn widened_with_contact_wrench(
         &self,
         seed: u64,
         trainable: bool,
     ) -> Result<RigidFormer, ModelError> {
-        if self.config.dynamics.contact_wrench {
-            return Err(ModelError::InvalidInput(
-                "the model already has a contact wrench".into(),
-            ));
+        self.widened_with_unit(ModelUnit::ContactWrench, seed, trainable)
+    }
+
+    /// A copy of this model with `unit` (the contact wrench, the contact messages): the unit's
+    /// layers are drawn from `seed` and its output layer is zero, so the copy's outputs equal
+    /// this model's; every other weight is copied. `trainable` keeps gradient tracking on the
+    /// copy's weights.
+    ///
+    /// Errors if the model already has the unit.
+    pub fn widened_with_unit(
+        &self,
+        unit: ModelUnit,
+        seed: u64,
+        trainable: bool,
+    ) -> Result<RigidFormer, ModelError> {
+        if unit.enabled(&self.config.dynamics) {
+            return Err(ModelError::InvalidInput(format!(
+                "the model already has the {}",
+                unit.name()
+            )));
         }
         let mut config = self.config.clone();
-        config.dynamics.contact_wrench = true;
+        unit.set(&mut config.dynamics, true);
         self.with_new_parts(config, seed, trainable)
     }
 

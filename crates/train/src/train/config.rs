@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use dynaserve_model::{
-    DynamicsConfig, FeatureNormalization, InputGroup, LossConfig, ModelConfig, Summary,
+    DynamicsConfig, FeatureNormalization, InputGroup, LossConfig, ModelConfig, ModelUnit, Summary,
 };
 use serde::{Deserialize, Serialize};
 
@@ -218,6 +218,11 @@ pub struct ModelSection {
     /// layer zero, so training starts from the same function; its other layers drawn from
     /// `seed`). `false` on an `init` model that has one is an error.
     pub contact_wrench: Option<bool>,
+    /// The contact messages (`DynamicsConfig::contact_messages`), as `contact_wrench`: unset
+    /// keeps what the model has, `true` adds them to an `init` model without them (output
+    /// layer zero), `false` on one that has them is an error. Give them their own rate with
+    /// `[optim.lr_scale]` `"messages."`.
+    pub contact_messages: Option<bool>,
     /// The rigid Verlet base (`DynamicsConfig::rigid_extrapolation`): unset keeps what the
     /// preset, config or `init` model has; set, it switches the base of any of them (an `init`
     /// model keeps its weights and learns the new base's residual).
@@ -281,6 +286,7 @@ impl Default for ModelSection {
             object_summary: None,
             contact_summary: None,
             contact_wrench: None,
+            contact_messages: None,
             rigid_extrapolation: None,
             floor_base: None,
             relative_mass: None,
@@ -330,13 +336,15 @@ impl ModelSection {
 
     /// The model configuration this section names (before normalisation fitting), with
     /// the optional input groups (`contact_velocity` to `contact_partner`; the normalisation then
-    /// resized to its defaults), `object_summary`, `contact_summary`, `contact_wrench` and
+    /// resized to its defaults), `object_summary`, `contact_summary`, the units (`contact_wrench`, `contact_messages`) and
     /// [`ModelSection::apply_settings`] applied.
     pub fn model_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {
         let mut c = self.named_config(base)?;
         self.apply_settings(&mut c.dynamics, &mut c.loss);
-        if let Some(on) = self.contact_wrench {
-            c.dynamics.contact_wrench = on;
+        for unit in ModelUnit::ALL {
+            if let Some(on) = self.unit_switch(unit) {
+                unit.set(&mut c.dynamics, on);
+            }
         }
         for kind in Summary::ALL {
             if let Some(on) = self.summary_switch(kind) {
@@ -365,6 +373,15 @@ impl ModelSection {
             InputGroup::History => self.history,
             InputGroup::Approach => self.approach,
             InputGroup::ContactPartner => self.contact_partner,
+        }
+    }
+
+    /// This section's switch for an optional unit (`contact_wrench`, `contact_messages`): unset
+    /// keeps what the model has.
+    pub fn unit_switch(&self, unit: ModelUnit) -> Option<bool> {
+        match unit {
+            ModelUnit::ContactWrench => self.contact_wrench,
+            ModelUnit::ContactMessages => self.contact_messages,
         }
     }
 
@@ -625,8 +642,9 @@ impl TrainConfig {
 mod tests {
     use super::*;
 
-    /// Every committed RigidFormer training configuration parses and validates (a typo in one
-    /// surfaces here, not an hour into a run); the relative-mass run switches it on.
+    /// Every committed RigidFormer training configuration, the experiments' included, parses
+    /// and validates (a typo in one surfaces here, not an hour into a run); the relative-mass
+    /// run switches it on.
     #[test]
     fn committed_configs_parse_and_validate() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
@@ -645,6 +663,21 @@ mod tests {
             n >= 30,
             "only {n} configurations found in {}",
             dir.display()
+        );
+        // The diagnoses' and experiments' configurations too, so that the card's commands run.
+        let experiments = dir.join("experiments");
+        let mut m = 0;
+        for entry in std::fs::read_dir(&experiments).unwrap() {
+            let p = entry.unwrap().path();
+            if p.extension().is_some_and(|e| e == "toml") {
+                TrainConfig::from_file(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+                m += 1;
+            }
+        }
+        assert!(
+            m >= 20,
+            "only {m} configurations in {}",
+            experiments.display()
         );
         let r24 = TrainConfig::from_file(&dir.join("rigidformer-small-r24.toml")).unwrap();
         assert_eq!(r24.model.relative_mass, Some(true));
@@ -739,13 +772,18 @@ mod tests {
         }
     }
 
+    /// Each unit's `[model]` switch turns it on in the named configuration; unset, it is off.
     #[test]
-    fn contact_wrench_switches_the_named_config() {
+    fn unit_switches_change_the_named_config() {
         let base = Path::new(".");
-        let wrench = |c: &ModelSection| c.model_config(base).unwrap().dynamics.contact_wrench;
-        assert!(!wrench(&ModelSection::default()));
-        let c: TrainConfig = toml::from_str("[model]\ncontact_wrench = true\n").unwrap();
-        assert!(wrench(&c.model));
+        for unit in ModelUnit::ALL {
+            let has = |c: &ModelSection| unit.enabled(&c.model_config(base).unwrap().dynamics);
+            assert!(!has(&ModelSection::default()), "{}", unit.key());
+            let text = format!("[model]\n{} = true\n", unit.key());
+            let c: TrainConfig = toml::from_str(&text).unwrap();
+            assert!(has(&c.model), "{}", unit.key());
+            assert_eq!(c.model.unit_switch(unit), Some(true));
+        }
     }
 
     /// The error of `[model] line` without `init`, and the validated config with one.

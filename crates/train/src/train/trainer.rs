@@ -18,7 +18,8 @@ use std::time::Instant;
 
 use candle_core::Device;
 use dynaserve_model::{
-    FeatureNormalization, InputGroup, RigidFormer, Summary, TrainItem, WorldModel, load_rigidformer,
+    FeatureNormalization, InputGroup, ModelUnit, RigidFormer, Summary, TrainItem, WorldModel,
+    load_rigidformer,
 };
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
@@ -217,20 +218,30 @@ fn init_summaries(mut m: RigidFormer, cfg: &TrainConfig) -> Result<RigidFormer, 
     Ok(m)
 }
 
-/// Applies `model.contact_wrench` to a model loaded from `model.init`: adds the unit when asked
-/// (zero output layer, so it starts as the same function). Removing one is an error.
-fn init_contact_wrench(m: RigidFormer, cfg: &TrainConfig) -> Result<RigidFormer, TrainError> {
-    match (cfg.model.contact_wrench, m.config().dynamics.contact_wrench) {
-        (Some(true), false) => {
-            eprintln!("contact wrench added (its output layer starts at zero)");
-            Ok(m.widened_with_contact_wrench(cfg.model.seed, true)?)
+/// Applies `model.contact_wrench` and `model.contact_messages` to a model loaded from
+/// `model.init`: adds a unit when asked (zero output layer, so it starts as the same
+/// function). Removing one is an error.
+fn init_units(mut m: RigidFormer, cfg: &TrainConfig) -> Result<RigidFormer, TrainError> {
+    for unit in ModelUnit::ALL {
+        match (
+            cfg.model.unit_switch(unit),
+            unit.enabled(&m.config().dynamics),
+        ) {
+            (Some(true), false) => {
+                eprintln!("{} added (output layer starting at zero)", unit.name());
+                m = m.widened_with_unit(unit, cfg.model.seed, true)?;
+            }
+            (Some(false), true) => {
+                return Err(TrainError::Config(format!(
+                    "model.{} = false, but the model.init model has the {} (parts cannot be removed)",
+                    unit.key(),
+                    unit.name()
+                )));
+            }
+            _ => {}
         }
-        (Some(false), true) => Err(TrainError::Config(
-            "model.contact_wrench = false, but the model.init model has a contact wrench (parts cannot be removed)"
-                .into(),
-        )),
-        _ => Ok(m),
     }
+    Ok(m)
 }
 
 /// Trains (or resumes) the run described by `cfg`; see the module docs for the outputs.
@@ -286,7 +297,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
             let m = m.with_settings(|d, l| cfg.model.apply_settings(d, l))?;
             let m = init_inputs(m, cfg, &reader)?;
             let m = init_summaries(m, cfg)?;
-            let m = init_contact_wrench(m, cfg)?;
+            let m = init_units(m, cfg)?;
             let m = match cfg.model.insert_blocks_after.as_deref() {
                 Some(after) if !after.is_empty() => {
                     let deep = m.deepened(after, cfg.model.seed, true)?;
