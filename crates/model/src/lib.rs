@@ -40,7 +40,7 @@ pub use prepare::{
     MAX_BODY_EXTENT, MAX_DT_STEPS, MAX_WORLD_EXTENT, PreparedScene, model_masses, normalise_pose,
 };
 pub use rigidformer::features::{
-    CONTACT_PATCH_SCALE, FeatureFrame, ScenePoints, approach_features, body_normals,
+    Body, CONTACT_PATCH_SCALE, FeatureFrame, ScenePoints, approach_features, body_normals,
     contact_partner_features, contact_summary, contact_velocity, history_features,
     nearest_object_gap, object_params, object_summary, raw_point_features, surface_normal_features,
 };

@@ -7,7 +7,7 @@ mod common;
 
 use common::{assert_widened_inputs_start_at_zero_and_learn, first_layer_dims};
 use dynaserve_model::{
-    APPROACH_FEATURES, BASE_POINT_FEATURES, CONTACT_VELOCITY_FEATURES, Device, FeatureFrame,
+    APPROACH_FEATURES, BASE_POINT_FEATURES, Body, CONTACT_VELOCITY_FEATURES, Device, FeatureFrame,
     FeatureNormalization, InputGroup, ModelConfig, Pose, RigidFormer, ScenePoints, WorldModel,
     approach_features,
 };
@@ -39,7 +39,14 @@ fn approach_of(
             .map(|r| dynaserve_model::body_normals(r))
             .collect::<Vec<_>>()
     };
-    let points = ScenePoints::for_model(cfg, references, normals, current, previous, None, k);
+    let bodies: Vec<Body<'_>> = references
+        .iter()
+        .map(|&reference| Body {
+            reference,
+            params: [0.0, 0.5, 0.5],
+        })
+        .collect();
+    let points = ScenePoints::for_model(cfg, &bodies, normals, current, previous, None, k);
     let at = cfg.point_features() - APPROACH_FEATURES;
     let mut raw = vec![0f32; cfg.point_features()];
     let mut out = Vec::new();

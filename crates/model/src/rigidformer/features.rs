@@ -373,6 +373,16 @@ pub(crate) fn rotation_translation(p: &Pose) -> (Matrix3<f32>, Vector3<f32>) {
     )
 }
 
+/// One object as its points' features read it ([`ScenePoints::for_model`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Body<'a> {
+    /// Its reference cloud, body frame, `[n, 3]` metres.
+    pub reference: &'a [Point],
+    /// Its [`object_params`] as the model sees them (with scene-relative mass, the relative
+    /// mass).
+    pub params: [f32; 3],
+}
+
 /// A scene's points in the world at t and t-1 (and t-2 when known), object after object, with
 /// every point's contact hit: what the raw point features of one step are measured on.
 #[derive(Clone, Debug)]
@@ -455,27 +465,32 @@ impl ScenePoints {
         self
     }
 
-    /// The points a model with `cfg` reads for one step: [`ScenePoints::new`], then the
-    /// surface normals ([`ScenePoints::with_normals`]) and the history
-    /// ([`ScenePoints::with_history`], when `earlier` poses are known) that its dynamics
-    /// switches ask for. `normals` gives each object's body-frame normals (`[n, 3]` unit
-    /// vectors in the clouds' order) and is called only when the model reads them.
+    /// The points a model with `cfg` reads for one step: [`ScenePoints::new`] on the bodies'
+    /// clouds, then the surface normals ([`ScenePoints::with_normals`]), the history
+    /// ([`ScenePoints::with_history`], when `earlier` poses are known) and the objects'
+    /// parameters ([`ScenePoints::with_object_params`]) that its dynamics switches ask for.
+    /// `normals` gives each object's body-frame normals (`[n, 3]` unit vectors in the bodies'
+    /// order) and is called only when the model reads them.
     pub fn for_model<N: AsRef<[Point]>>(
         cfg: &ModelConfig,
-        references: &[&[Point]],
+        bodies: &[Body<'_>],
         normals: impl FnOnce() -> Vec<N>,
         current: &[Pose],
         previous: &[Pose],
         earlier: Option<&[Pose]>,
         dt_steps: u32,
     ) -> ScenePoints {
-        let mut points = ScenePoints::new(cfg, references.iter().copied(), current, previous);
+        let references = || bodies.iter().map(|b| b.reference);
+        let mut points = ScenePoints::new(cfg, references(), current, previous);
         if cfg.dynamics.reads_normals() {
             let body = normals();
             points = points.with_normals(body.iter().map(AsRef::as_ref), current);
         }
         if let (true, Some(earlier)) = (cfg.dynamics.history, earlier) {
-            points = points.with_history(cfg, references.iter().copied(), earlier, dt_steps);
+            points = points.with_history(cfg, references(), earlier, dt_steps);
+        }
+        if cfg.dynamics.contact_partner {
+            points = points.with_object_params(bodies.iter().map(|b| b.params).collect());
         }
         points
     }

@@ -8,7 +8,7 @@
 use nalgebra::{Matrix3, Vector3};
 
 use super::features::{
-    FeatureFrame, ScenePoints, contact_summary, nearest_object_gap, object_summary,
+    Body, FeatureFrame, ScenePoints, contact_summary, nearest_object_gap, object_summary,
     rotation_translation as rot,
 };
 use super::projection::{floor_rise, free_fall};
@@ -397,25 +397,23 @@ fn scene_chunk(
     let scene = r.scene;
     let m = scene.len();
     // World points at t and t-1 (t-2 for history) and their contacts.
-    let references: Vec<&[[f32; 3]]> = scene
+    let bodies: Vec<Body<'_>> = scene
         .objects
         .iter()
-        .map(|o| o.reference.as_slice())
+        .map(|o| Body {
+            reference: &o.reference,
+            params: o.params,
+        })
         .collect();
     let points = ScenePoints::for_model(
         cfg,
-        &references,
+        &bodies,
         || scene.objects.iter().map(|o| o.normals.as_slice()).collect(),
         &r.current,
         &r.previous,
         r.earlier.as_deref(),
         r.dt_steps,
     );
-    let points = if cfg.dynamics.contact_partner {
-        points.with_object_params(scene.objects.iter().map(|o| o.params).collect())
-    } else {
-        points
-    };
     let poses: Vec<_> = r.current.iter().map(rot).collect();
     let centroids = scene
         .objects

@@ -18,7 +18,7 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-use dynaserve_model::{FeatureFrame, ScenePoints, body_normals, object_params};
+use dynaserve_model::{Body, FeatureFrame, ScenePoints, body_normals, object_params};
 use dynaserve_model::{
     FeatureNormalization, ModelConfig, ObjectInput, Pose, PreparedScene, SceneState, WorldModel,
 };
@@ -691,29 +691,31 @@ pub fn fit_normalization(
         for w in 0..c.norm_windows {
             let mut rng = rng_for(seed, 4, (i * 1000 + w) as u64);
             let win = sample_window(&rec, c, &mut rng, false, i as u64)?;
-            let references: Vec<&[[f32; 3]]> =
-                win.objects.iter().map(|o| o.reference.as_slice()).collect();
-            let points = ScenePoints::for_model(
-                model,
-                &references,
-                || references.iter().map(|r| body_normals(r)).collect(),
-                &win.state.current,
-                &win.state.previous,
-                win.state.earlier.as_deref(),
-                win.dt_steps,
-            );
+            // The partner's mass enters as a ratio, which a scene-wide mass factor leaves as is
+            // (kinematic objects aside: scene-relative mass places them at the reference).
             let params: Vec<[f32; 3]> = win
                 .objects
                 .iter()
                 .map(|o| object_params(o.mass, o.friction, o.restitution))
                 .collect();
-            // The partner's mass enters as a ratio, which a scene-wide mass factor leaves as is
-            // (kinematic objects aside: scene-relative mass places them at the reference).
-            let points = if model.dynamics.contact_partner {
-                points.with_object_params(params.clone())
-            } else {
-                points
-            };
+            let bodies: Vec<Body<'_>> = win
+                .objects
+                .iter()
+                .zip(&params)
+                .map(|(o, &params)| Body {
+                    reference: &o.reference,
+                    params,
+                })
+                .collect();
+            let points = ScenePoints::for_model(
+                model,
+                &bodies,
+                || bodies.iter().map(|b| body_normals(b.reference)).collect(),
+                &win.state.current,
+                &win.state.previous,
+                win.state.earlier.as_deref(),
+                win.dt_steps,
+            );
             for (j, (o, &params)) in win.objects.iter().zip(&params).enumerate() {
                 let frame = FeatureFrame::new(
                     &model.dynamics,
