@@ -5,7 +5,7 @@
 mod common;
 
 use common::{max_pose_diff, one_step_gradient, random_scene, squared_norm, step_random_scene};
-use dynaserve_model::{Device, ModelConfig, Pose, RigidFormer, WorldModel};
+use dynaserve_model::{Device, ModelConfig, ModelUnit, Pose, RigidFormer, WorldModel};
 use nalgebra::{Quaternion, UnitQuaternion};
 
 /// Sets parameter `name` of `model` to `values` (its shape kept).
@@ -34,7 +34,9 @@ fn a_model_gains_a_contact_wrench_as_the_same_function() {
     let plain = ModelConfig::small();
     let (c1, d) = (plain.point_dim, plain.width);
     let a = RigidFormer::new_frozen(plain, 5, &Device::Cpu).unwrap();
-    let wide = a.widened_with_contact_wrench(7, false).unwrap();
+    let wide = a
+        .widened_with_unit(ModelUnit::ContactWrench, 7, false)
+        .unwrap();
     assert!(wide.config().dynamics.contact_wrench);
     assert_eq!(
         wide.parameter_count(),
@@ -47,7 +49,7 @@ fn a_model_gains_a_contact_wrench_as_the_same_function() {
         );
         assert!(diff < 1e-5, "seed {seed}, k {k}: differs by {diff}");
     }
-    let twice = wide.widened_with_contact_wrench(7, false);
+    let twice = wide.widened_with_unit(ModelUnit::ContactWrench, 7, false);
     assert!(twice.err().unwrap().to_string().contains("already"));
 }
 
@@ -79,7 +81,9 @@ fn a_uniform_force_moves_and_a_varying_one_turns() {
     let plain = ModelConfig::small();
     let a = RigidFormer::new_frozen(plain.clone(), 5, &Device::Cpu).unwrap();
     // Trainable, so that its parameters are variables that `set` changes in place.
-    let wide = a.widened_with_contact_wrench(7, true).unwrap();
+    let wide = a
+        .widened_with_unit(ModelUnit::ContactWrench, 7, true)
+        .unwrap();
     let f = [0.4f32, -0.2, 0.3];
     set(&wide, "anchors.wrench.out.bias", &f);
     for k in [1u32, 2] {

@@ -117,16 +117,6 @@ impl RigidFormer {
         self.with_new_parts(config, seed, trainable)
     }
 
-    /// A copy of this model with a contact wrench ([`crate::DynamicsConfig::contact_wrench`]):
-    /// [`RigidFormer::widened_with_unit`] for [`ModelUnit::ContactWrench`].
-    pub fn widened_with_contact_wrench(
-        &self,
-        seed: u64,
-        trainable: bool,
-    ) -> Result<RigidFormer, ModelError> {
-        self.widened_with_unit(ModelUnit::ContactWrench, seed, trainable)
-    }
-
     /// A copy of this model with `unit` (the contact wrench, the contact messages): the unit's
     /// layers are drawn from `seed` and its output layer is zero, so the copy's outputs equal
     /// this model's; every other weight is copied. `trainable` keeps gradient tracking on the
