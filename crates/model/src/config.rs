@@ -352,8 +352,15 @@ pub struct DynamicsConfig {
 
 /// An optional network unit a trained model can gain (its last layer starting at zero, so
 /// the model keeps its function): the one place that knows each unit's switch and name.
+/// Adding one to a trained model is [`crate::RigidFormer::widened_with_unit`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ModelUnit {
+    /// [`DynamicsConfig::object_summary`]: an MLP from the object state summary to its token;
+    /// parameters `summary.*`.
+    ObjectSummary,
+    /// [`DynamicsConfig::contact_summary`]: an MLP from the contact summary to its token;
+    /// parameters `contact_summary.*`.
+    ContactSummary,
     /// [`DynamicsConfig::contact_wrench`]; parameters `anchors.wrench.*`.
     ContactWrench,
     /// [`DynamicsConfig::contact_messages`]; parameters `messages.*`.
@@ -361,12 +368,19 @@ pub enum ModelUnit {
 }
 
 impl ModelUnit {
-    /// Every unit.
-    pub const ALL: [ModelUnit; 2] = [ModelUnit::ContactWrench, ModelUnit::ContactMessages];
+    /// Every unit, in the order their parameters are created.
+    pub const ALL: [ModelUnit; 4] = [
+        ModelUnit::ObjectSummary,
+        ModelUnit::ContactSummary,
+        ModelUnit::ContactWrench,
+        ModelUnit::ContactMessages,
+    ];
 
     /// What the unit is called in messages.
     pub fn name(self) -> &'static str {
         match self {
+            ModelUnit::ObjectSummary => "object state summary",
+            ModelUnit::ContactSummary => "contact summary",
             ModelUnit::ContactWrench => "contact wrench",
             ModelUnit::ContactMessages => "contact messages",
         }
@@ -375,6 +389,8 @@ impl ModelUnit {
     /// Its switch in [`DynamicsConfig`] and in a training configuration's `[model]`.
     pub fn key(self) -> &'static str {
         match self {
+            ModelUnit::ObjectSummary => "object_summary",
+            ModelUnit::ContactSummary => "contact_summary",
             ModelUnit::ContactWrench => "contact_wrench",
             ModelUnit::ContactMessages => "contact_messages",
         }
@@ -383,6 +399,8 @@ impl ModelUnit {
     /// Whether `d` has it.
     pub fn enabled(self, d: &DynamicsConfig) -> bool {
         match self {
+            ModelUnit::ObjectSummary => d.object_summary,
+            ModelUnit::ContactSummary => d.contact_summary,
             ModelUnit::ContactWrench => d.contact_wrench,
             ModelUnit::ContactMessages => d.contact_messages,
         }
@@ -391,6 +409,8 @@ impl ModelUnit {
     /// Switches it on or off in `d`.
     pub fn set(self, d: &mut DynamicsConfig, on: bool) {
         match self {
+            ModelUnit::ObjectSummary => d.object_summary = on,
+            ModelUnit::ContactSummary => d.contact_summary = on,
             ModelUnit::ContactWrench => d.contact_wrench = on,
             ModelUnit::ContactMessages => d.contact_messages = on,
         }

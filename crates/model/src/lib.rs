@@ -44,7 +44,7 @@ pub use rigidformer::features::{
     contact_partner_features, contact_summary, contact_velocity, history_features,
     nearest_object_gap, object_params, object_summary, raw_point_features, surface_normal_features,
 };
-pub use rigidformer::{RigidFormer, StepProfile, Summary, TrainItem, TrainOutput};
+pub use rigidformer::{RigidFormer, StepProfile, TrainItem, TrainOutput};
 pub use runtime::{configure_compute, keep_freed_memory};
 pub use trained_ranges::{OutOfRange, TrainedRanges};
 

@@ -9,7 +9,7 @@ use common::{
     step_random_scene,
 };
 use dynaserve_model::{
-    Device, DynamicsConfig, FeatureFrame, ModelConfig, Pose, RigidFormer, ScenePoints, Summary,
+    Device, DynamicsConfig, FeatureFrame, ModelConfig, ModelUnit, Pose, RigidFormer, ScenePoints,
     WorldModel, contact_summary, load_rigidformer, nearest_object_gap, object_summary,
 };
 use nalgebra::{UnitQuaternion, Vector3};
@@ -135,24 +135,24 @@ fn contact_summary_reads_where_and_how_fast_objects_meet() {
     assert!(lone[1..].iter().all(|&v| v == 0.0), "lone cube: {lone:?}");
 }
 
-/// Each summary's parameters are created after the rest and its last layer starts at zero: a
-/// random model with it steps exactly as the one without from the same seed, and so does a
-/// model widened with it; widening twice is refused.
+/// Each unit's parameters (the summaries' MLPs, the wrench, the messages) are created after the
+/// rest and its last layer starts at zero: a random model with it steps exactly as the one
+/// without from the same seed, and so does a model widened with it; widening twice is refused.
 #[test]
-fn a_model_gains_a_summary_as_the_same_function() {
-    for kind in Summary::ALL {
+fn a_model_gains_a_unit_as_the_same_function() {
+    for kind in ModelUnit::ALL {
         let plain = ModelConfig::small();
         assert!(!kind.enabled(&plain.dynamics));
         let mut with = plain.clone();
         kind.set(&mut with.dynamics, true);
         let a = RigidFormer::new_frozen(plain, 5, &Device::Cpu).unwrap();
         let b = RigidFormer::new_frozen(with, 5, &Device::Cpu).unwrap();
-        let wide = a.widened_with_summary(kind, 7, false).unwrap();
+        let wide = a.widened_with_unit(kind, 7, false).unwrap();
         assert!(kind.enabled(&wide.config().dynamics));
         assert_eq!(
             wide.parameter_count(),
             b.parameter_count(),
-            "{kind:?}: the widened model has the summary's parameters"
+            "{kind:?}: the widened model has the unit's parameters"
         );
         for (seed, k) in [(1, 1), (2, 4)] {
             let reference = step_random_scene(&a, seed, k);
@@ -164,7 +164,7 @@ fn a_model_gains_a_summary_as_the_same_function() {
                 );
             }
         }
-        let twice = wide.widened_with_summary(kind, 7, false);
+        let twice = wide.widened_with_unit(kind, 7, false);
         assert!(twice.err().unwrap().to_string().contains("already"));
     }
 }

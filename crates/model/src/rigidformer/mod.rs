@@ -36,7 +36,6 @@ use self::decoder::Decoder;
 use self::encoder::Encoder;
 use self::inputs::{BatchInputs, SceneRequest, build_inputs};
 use self::messages::ContactMessages;
-pub use self::summary::Summary;
 use self::summary::SummaryMlp;
 use crate::api::{Pose, StepItem, WorldModel};
 use crate::batching::PassBudget;
@@ -189,9 +188,9 @@ impl RigidFormer {
     /// Changes, through `edit`, any switch of the dynamics and the loss that leaves the weights'
     /// shapes alone (the Verlet bases, scene-relative mass, the kinematic lead, the free-flight
     /// gate, the loss's constants): the one way a trainer applies a configuration's switches to
-    /// a loaded model. Refuses an edit that turns an input group or a summary ([`Summary`]) on or
-    /// off, which changes the network's inputs (widen the model for those:
-    /// [`RigidFormer::widened_with_inputs`], [`RigidFormer::widened_with_summary`]).
+    /// a loaded model. Refuses an edit that turns an input group or a unit ([`crate::ModelUnit`])
+    /// on or off, which changes the network's parameters (widen the model for those:
+    /// [`RigidFormer::widened_with_inputs`], [`RigidFormer::widened_with_unit`]).
     pub fn with_settings(
         mut self,
         edit: impl FnOnce(&mut crate::DynamicsConfig, &mut crate::LossConfig),
@@ -202,12 +201,12 @@ impl RigidFormer {
         let inputs_changed = crate::InputGroup::ALL
             .iter()
             .any(|g| g.enabled(d) != g.enabled(&before));
-        let summaries_changed = Summary::ALL
+        let units_changed = crate::ModelUnit::ALL
             .iter()
-            .any(|s| s.enabled(d) != s.enabled(&before));
-        if inputs_changed || summaries_changed {
+            .any(|u| u.enabled(d) != u.enabled(&before));
+        if inputs_changed || units_changed {
             return Err(ModelError::InvalidInput(
-                "a settings edit may not switch an input group or a summary (they need widening)"
+                "a settings edit may not switch an input group or a unit (they need widening)"
                     .into(),
             ));
         }

@@ -8,61 +8,37 @@ use candle_core::{Device, Tensor};
 
 use super::host_tensor;
 use super::inputs::BatchInputs;
-use crate::config::{CONTACT_SUMMARY_FEATURES, DynamicsConfig, OBJECT_SUMMARY_FEATURES};
+use crate::config::{CONTACT_SUMMARY_FEATURES, ModelUnit, OBJECT_SUMMARY_FEATURES};
 use crate::layers::{Exec, Linear, ParamStore};
 use crate::{ModelConfig, ModelError};
 
-/// A per-object summary a model may read, each with its own MLP.
+/// A per-object summary a model may read, each with its own MLP: the summary units of
+/// [`ModelUnit`], with what their MLPs need.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Summary {
-    /// The object state summary ([`DynamicsConfig::object_summary`]); parameters `summary.*`.
+pub(crate) enum Summary {
+    /// [`ModelUnit::ObjectSummary`]; parameters `summary.*`.
     Object,
-    /// The contact summary ([`DynamicsConfig::contact_summary`]); parameters
-    /// `contact_summary.*`.
+    /// [`ModelUnit::ContactSummary`]; parameters `contact_summary.*`.
     Contact,
 }
 
 impl Summary {
     /// Every summary, in the order their parameters are created.
-    pub const ALL: [Summary; 2] = [Summary::Object, Summary::Contact];
+    const ALL: [Summary; 2] = [Summary::Object, Summary::Contact];
 
-    /// What the summary is called in messages.
-    pub fn name(self) -> &'static str {
+    /// The unit whose switch turns it on.
+    fn unit(self) -> ModelUnit {
         match self {
-            Summary::Object => "object state summary",
-            Summary::Contact => "contact summary",
-        }
-    }
-
-    /// Its switch in [`DynamicsConfig`] and in a training configuration's `[model]`.
-    pub fn key(self) -> &'static str {
-        match self {
-            Summary::Object => "object_summary",
-            Summary::Contact => "contact_summary",
+            Summary::Object => ModelUnit::ObjectSummary,
+            Summary::Contact => ModelUnit::ContactSummary,
         }
     }
 
     /// Numbers per object.
-    pub fn features(self) -> usize {
+    fn features(self) -> usize {
         match self {
             Summary::Object => OBJECT_SUMMARY_FEATURES,
             Summary::Contact => CONTACT_SUMMARY_FEATURES,
-        }
-    }
-
-    /// Whether `d` reads it.
-    pub fn enabled(self, d: &DynamicsConfig) -> bool {
-        match self {
-            Summary::Object => d.object_summary,
-            Summary::Contact => d.contact_summary,
-        }
-    }
-
-    /// Switches it on or off in `d`.
-    pub fn set(self, d: &mut DynamicsConfig, on: bool) {
-        match self {
-            Summary::Object => d.object_summary = on,
-            Summary::Contact => d.contact_summary = on,
         }
     }
 
@@ -96,7 +72,7 @@ impl SummaryMlp {
     pub fn all(p: &mut ParamStore, c: &ModelConfig) -> Result<Vec<SummaryMlp>, ModelError> {
         let mut out = Vec::new();
         for kind in Summary::ALL {
-            if !kind.enabled(&c.dynamics) {
+            if !kind.unit().enabled(&c.dynamics) {
                 continue;
             }
             let pre = kind.prefix();

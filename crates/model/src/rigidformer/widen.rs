@@ -10,7 +10,6 @@ use candle_core::Tensor;
 use super::RigidFormer;
 use super::anchor_head::query_segments;
 use super::encoder::POINT_INPUT_WEIGHT;
-use super::summary::Summary;
 use crate::config::{InputGroup, ModelUnit};
 use crate::layers::ParamStore;
 use crate::{FeatureNormalization, ModelError};
@@ -95,30 +94,8 @@ impl RigidFormer {
         self.rebuilt(config, tensors, trainable)
     }
 
-    /// A copy of this model that also reads the summary `kind`: the summary MLP's first layer
-    /// is drawn from `seed`, its last layer is zero, so the copy's outputs equal this model's;
-    /// every other weight is copied. `trainable` keeps gradient tracking on the copy's weights.
-    ///
-    /// Errors if the model already reads that summary.
-    pub fn widened_with_summary(
-        &self,
-        kind: Summary,
-        seed: u64,
-        trainable: bool,
-    ) -> Result<RigidFormer, ModelError> {
-        if kind.enabled(&self.config.dynamics) {
-            return Err(ModelError::InvalidInput(format!(
-                "the model already reads the {}",
-                kind.name()
-            )));
-        }
-        let mut config = self.config.clone();
-        kind.set(&mut config.dynamics, true);
-        self.with_new_parts(config, seed, trainable)
-    }
-
-    /// A copy of this model with `unit` (the contact wrench, the contact messages): the unit's
-    /// layers are drawn from `seed` and its output layer is zero, so the copy's outputs equal
+    /// A copy of this model with `unit` (a summary's MLP, the contact wrench, the contact
+    /// messages): the unit's layers are drawn from `seed` and its last layer is zero, so the copy's outputs equal
     /// this model's; every other weight is copied. `trainable` keeps gradient tracking on the
     /// copy's weights.
     ///

@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use dynaserve_model::{
-    DynamicsConfig, FeatureNormalization, InputGroup, LossConfig, ModelConfig, ModelUnit, Summary,
+    DynamicsConfig, FeatureNormalization, InputGroup, LossConfig, ModelConfig, ModelUnit,
 };
 use serde::{Deserialize, Serialize};
 
@@ -336,7 +336,8 @@ impl ModelSection {
 
     /// The model configuration this section names (before normalisation fitting), with
     /// the optional input groups (`contact_velocity` to `contact_partner`; the normalisation then
-    /// resized to its defaults), `object_summary`, `contact_summary`, the units (`contact_wrench`, `contact_messages`) and
+    /// resized to its defaults), the units (`object_summary`, `contact_summary`,
+    /// `contact_wrench`, `contact_messages`) and
     /// [`ModelSection::apply_settings`] applied.
     pub fn model_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {
         let mut c = self.named_config(base)?;
@@ -344,11 +345,6 @@ impl ModelSection {
         for unit in ModelUnit::ALL {
             if let Some(on) = self.unit_switch(unit) {
                 unit.set(&mut c.dynamics, on);
-            }
-        }
-        for kind in Summary::ALL {
-            if let Some(on) = self.summary_switch(kind) {
-                kind.set(&mut c.dynamics, on);
             }
         }
         let inputs = c.dynamics.point_features();
@@ -376,21 +372,14 @@ impl ModelSection {
         }
     }
 
-    /// This section's switch for an optional unit (`contact_wrench`, `contact_messages`): unset
-    /// keeps what the model has.
+    /// This section's switch for an optional unit (`object_summary`, `contact_summary`,
+    /// `contact_wrench`, `contact_messages`): unset keeps what the model has.
     pub fn unit_switch(&self, unit: ModelUnit) -> Option<bool> {
         match unit {
+            ModelUnit::ObjectSummary => self.object_summary,
+            ModelUnit::ContactSummary => self.contact_summary,
             ModelUnit::ContactWrench => self.contact_wrench,
             ModelUnit::ContactMessages => self.contact_messages,
-        }
-    }
-
-    /// This section's switch for a per-object summary (`object_summary`, `contact_summary`):
-    /// unset keeps what the model has.
-    pub fn summary_switch(&self, kind: Summary) -> Option<bool> {
-        match kind {
-            Summary::Object => self.object_summary,
-            Summary::Contact => self.contact_summary,
         }
     }
 

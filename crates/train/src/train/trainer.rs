@@ -18,7 +18,7 @@ use std::time::Instant;
 
 use candle_core::Device;
 use dynaserve_model::{
-    FeatureNormalization, InputGroup, ModelUnit, RigidFormer, Summary, TrainItem, WorldModel,
+    FeatureNormalization, InputGroup, ModelUnit, RigidFormer, TrainItem, WorldModel,
     load_rigidformer,
 };
 use indicatif::{ProgressBar, ProgressStyle};
@@ -191,36 +191,10 @@ fn init_inputs(
     Ok(m)
 }
 
-/// Applies `model.object_summary` and `model.contact_summary` to a model loaded from
-/// `model.init`: widens a model without a summary when asked (zero last layer, so it starts as
-/// the same function). Removing a summary is an error.
-fn init_summaries(mut m: RigidFormer, cfg: &TrainConfig) -> Result<RigidFormer, TrainError> {
-    for kind in Summary::ALL {
-        let has = kind.enabled(&m.config().dynamics);
-        match cfg.model.summary_switch(kind) {
-            Some(true) if !has => {
-                eprintln!(
-                    "widened for the {} (its last layer starts at zero)",
-                    kind.name()
-                );
-                m = m.widened_with_summary(kind, cfg.model.seed, true)?;
-            }
-            Some(false) if has => {
-                return Err(TrainError::Config(format!(
-                    "model.{} = false, but the model.init model reads the {} (inputs cannot be removed)",
-                    kind.key(),
-                    kind.name()
-                )));
-            }
-            _ => {}
-        }
-    }
-    Ok(m)
-}
-
-/// Applies `model.contact_wrench` and `model.contact_messages` to a model loaded from
-/// `model.init`: adds a unit when asked (zero output layer, so it starts as the same
-/// function). Removing one is an error.
+/// Applies the unit switches (`model.object_summary`, `model.contact_summary`,
+/// `model.contact_wrench`, `model.contact_messages`) to a model loaded from `model.init`: adds
+/// a unit when asked (zero last layer, so it starts as the same function). Removing one is an
+/// error.
 fn init_units(mut m: RigidFormer, cfg: &TrainConfig) -> Result<RigidFormer, TrainError> {
     for unit in ModelUnit::ALL {
         match (
@@ -228,7 +202,7 @@ fn init_units(mut m: RigidFormer, cfg: &TrainConfig) -> Result<RigidFormer, Trai
             unit.enabled(&m.config().dynamics),
         ) {
             (Some(true), false) => {
-                eprintln!("{} added (output layer starting at zero)", unit.name());
+                eprintln!("{} added (last layer starting at zero)", unit.name());
                 m = m.widened_with_unit(unit, cfg.model.seed, true)?;
             }
             (Some(false), true) => {
@@ -296,7 +270,6 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
             eprintln!("initialised from {}", init.display());
             let m = m.with_settings(|d, l| cfg.model.apply_settings(d, l))?;
             let m = init_inputs(m, cfg, &reader)?;
-            let m = init_summaries(m, cfg)?;
             let m = init_units(m, cfg)?;
             let m = match cfg.model.insert_blocks_after.as_deref() {
                 Some(after) if !after.is_empty() => {
