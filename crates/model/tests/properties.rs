@@ -4,8 +4,8 @@ mod common;
 
 use common::{max_pose_diff, random_scene};
 use dynaserve_model::{
-    Device, Mode, ModelConfig, ObjectInput, Pose, RigidFormer, SceneState, StepItem, WorldModel,
-    rollout,
+    Device, Mode, ModelConfig, ModelUnit, ObjectInput, Pose, RigidFormer, SceneState, StepItem,
+    WorldModel, rollout,
 };
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
@@ -388,9 +388,9 @@ fn invalid_inputs_give_clear_errors() {
 }
 
 /// `with_settings` changes the switches that leave the weights alone and refuses those that
-/// change the network's inputs.
+/// change the network's inputs or parameters (an input group, any unit).
 #[test]
-fn settings_edits_may_not_switch_inputs() {
+fn settings_edits_may_not_switch_inputs_or_units() {
     let m = tiny()
         .with_settings(|d, l| {
             d.floor_base = !d.floor_base;
@@ -399,14 +399,8 @@ fn settings_edits_may_not_switch_inputs() {
         .unwrap();
     assert_eq!(m.config().loss.rest_weight, 3.0);
     assert!(tiny().with_settings(|d, _| d.history = !d.history).is_err());
-    assert!(
-        tiny()
-            .with_settings(|d, _| d.object_summary = !d.object_summary)
-            .is_err()
-    );
-    assert!(
-        tiny()
-            .with_settings(|d, _| d.contact_summary = !d.contact_summary)
-            .is_err()
-    );
+    for unit in ModelUnit::ALL {
+        let flipped = tiny().with_settings(|d, _| unit.set(d, !unit.enabled(d)));
+        assert!(flipped.is_err(), "{unit:?}");
+    }
 }
