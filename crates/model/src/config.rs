@@ -368,7 +368,7 @@ pub enum ModelUnit {
 }
 
 impl ModelUnit {
-    /// Every unit, in the order their parameters are created.
+    /// Every unit (the order in which a trainer adds them to a loaded model).
     pub const ALL: [ModelUnit; 4] = [
         ModelUnit::ObjectSummary,
         ModelUnit::ContactSummary,

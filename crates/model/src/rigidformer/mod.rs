@@ -128,8 +128,8 @@ impl RigidFormer {
     }
 
     /// Builds the network from a parameter store (random or loaded). Parameters are created in
-    /// a fixed order (encoder, decoder, anchor head, then the optional summaries and contact
-    /// messages) so a seed always gives the same weights, with or without them.
+    /// a fixed order (encoder, decoder, anchor head with the optional contact wrench, then the
+    /// optional summaries and contact messages) so a seed always gives the same weights, with or without them.
     pub(crate) fn from_store(
         name: String,
         config: ModelConfig,

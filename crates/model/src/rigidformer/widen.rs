@@ -95,9 +95,9 @@ impl RigidFormer {
     }
 
     /// A copy of this model with `unit` (a summary's MLP, the contact wrench, the contact
-    /// messages): the unit's layers are drawn from `seed` and its last layer is zero, so the copy's outputs equal
-    /// this model's; every other weight is copied. `trainable` keeps gradient tracking on the
-    /// copy's weights.
+    /// messages): the unit's layers are drawn from `seed` and its last layer is zero, so the
+    /// copy's outputs equal this model's; every other weight is copied. `trainable` keeps
+    /// gradient tracking on the copy's weights.
     ///
     /// Errors if the model already has the unit.
     pub fn widened_with_unit(
