@@ -34,4 +34,6 @@ pub use config::ServeConfig;
 pub use engine::Engine;
 pub use engine::Models;
 pub use error::ApiError;
-pub use server::{RunningServer, load_all, load_models, model_dirs, run, start};
+pub use server::{
+    RunningServer, load_all, load_all_on, load_models, load_models_on, model_dirs, run, start,
+};

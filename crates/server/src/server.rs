@@ -102,21 +102,29 @@ pub fn model_dirs(config: &ServeConfig) -> anyhow::Result<Vec<PathBuf>> {
 /// Loads every model directory on the CPU, each in its family (config.json's
 /// `architecture`: `physiformer` or a RigidFormer).
 pub fn load_all(dirs: &[PathBuf]) -> anyhow::Result<Models> {
+    load_all_on(dirs, &candle_core::Device::Cpu)
+}
+
+/// [`load_all`] on `device`.
+pub fn load_all_on(dirs: &[PathBuf], device: &candle_core::Device) -> anyhow::Result<Models> {
     let mut models = Models::default();
     for d in dirs {
         if architecture_of(d)? == dynaserve_model::physiformer::config::PHYSIFORMER {
             let start = Instant::now();
-            let m = dynaserve_model::PhysiFormer::load(d, &candle_core::Device::Cpu, false)
+            let m = dynaserve_model::PhysiFormer::load(d, device, false)
                 .with_context(|| format!("loading model {}", d.display()))?;
             tracing::info!(
                 model = m.name(),
                 dir = %d.display(),
+                device = %dynaserve_model::device_name(device),
                 ms = start.elapsed().as_secs_f64() * 1e3,
                 "model loaded"
             );
             models.physi.push(Arc::new(m));
         } else {
-            models.rigid.extend(load_models(std::slice::from_ref(d))?);
+            models
+                .rigid
+                .extend(load_models_on(std::slice::from_ref(d), device)?);
         }
     }
     Ok(models)
@@ -129,14 +137,23 @@ fn architecture_of(dir: &Path) -> anyhow::Result<String> {
 
 /// Loads RigidFormer model directories on the CPU.
 pub fn load_models(dirs: &[PathBuf]) -> anyhow::Result<Vec<Arc<dyn WorldModel>>> {
+    load_models_on(dirs, &candle_core::Device::Cpu)
+}
+
+/// [`load_models`] on `device`.
+pub fn load_models_on(
+    dirs: &[PathBuf],
+    device: &candle_core::Device,
+) -> anyhow::Result<Vec<Arc<dyn WorldModel>>> {
     dirs.iter()
         .map(|d: &PathBuf| {
             let start = Instant::now();
-            let m = dynaserve_model::load_model(Path::new(d), &candle_core::Device::Cpu)
+            let m = dynaserve_model::load_model(Path::new(d), device)
                 .with_context(|| format!("loading model {}", d.display()))?;
             tracing::info!(
                 model = m.name(),
                 dir = %d.display(),
+                device = %dynaserve_model::device_name(device),
                 ms = start.elapsed().as_secs_f64() * 1e3,
                 "model loaded"
             );
@@ -344,7 +361,8 @@ pub fn run_with_viewer(config: ServeConfig, viewer: Viewer) -> anyhow::Result<()
     config.validate().map_err(anyhow::Error::msg)?;
     init_logging(config.log_format, &config.log)?;
     let dirs = model_dirs(&config)?;
-    let models = load_all(&dirs)?;
+    let device = dynaserve_model::device_from_name(&config.device)?;
+    let models = load_all_on(&dirs, &device)?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .thread_name("dynaserve-io")

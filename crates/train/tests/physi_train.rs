@@ -41,14 +41,14 @@ fn a_run_keeps_its_prior_and_a_resume_asking_for_another_is_refused() {
     let out = dir.join("run");
     let stop = Arc::new(AtomicBool::new(false));
     let static_cfg = config(&dir, &data, &out, "static");
-    run(&static_cfg, false, Some(1), stop.clone()).unwrap();
+    run(&static_cfg, false, Some(1), None, stop.clone()).unwrap();
     let model = read_physi_config(&out.join("checkpoint")).unwrap();
     assert_eq!(model.prior, TrajectoryPrior::Static);
 
     let other = config(&dir, &data, &out, "ballistic");
-    let err = run(&other, true, Some(1), stop.clone()).unwrap_err();
+    let err = run(&other, true, Some(1), None, stop.clone()).unwrap_err();
     assert!(format!("{err:#}").contains("prior"), "{err:#}");
-    run(&static_cfg, true, Some(1), stop).unwrap();
+    run(&static_cfg, true, Some(1), None, stop).unwrap();
     let log = std::fs::read_to_string(out.join("log.csv")).unwrap();
     assert_eq!(log.lines().count(), 3, "header and two iterations:\n{log}");
     std::fs::remove_dir_all(&dir).unwrap();
@@ -69,6 +69,7 @@ fn a_run_starts_from_an_init_model_with_the_ramp_it_asks_for() {
         &config(&dir, &data, &first, "static"),
         false,
         Some(1),
+        None,
         stop.clone(),
     )
     .unwrap();
@@ -88,7 +89,7 @@ fn a_run_starts_from_an_init_model_with_the_ramp_it_asks_for() {
         .unwrap();
         path
     };
-    run(&write(6), false, Some(1), stop.clone()).unwrap();
+    run(&write(6), false, Some(1), None, stop.clone()).unwrap();
     let cfg = read_physi_config(&tuned.join("checkpoint")).unwrap();
     assert_eq!(cfg.correction_ramp_frames, 6);
     // The init model's configuration (tiny, static prior), not the named preset's.
@@ -114,7 +115,7 @@ fn a_run_starts_from_an_init_model_with_the_ramp_it_asks_for() {
     };
     assert_eq!(weights(&tuned.join("checkpoint")), weights(&init));
 
-    let err = run(&write(3), true, Some(1), stop).unwrap_err();
+    let err = run(&write(3), true, Some(1), None, stop).unwrap_err();
     assert!(
         format!("{err:#}").contains("correction_ramp_frames"),
         "{err:#}"

@@ -733,3 +733,122 @@ fn mix_draws_directories_at_their_shares() {
     assert_resume_is_exact(&dir, mixed, 2);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `data.mirror` reflects about half of the windows through the plane x = 0: every object's
+/// world points, at every pose of the window, are then the reflections of the unreflected
+/// window's (same frame and step size), so the reflected scene is the same motion seen in a
+/// mirror and the poses stay proper rotations.
+#[test]
+fn mirrored_windows_are_reflections_of_the_scene() {
+    use dynaserve_train::train::data::{mirror_point, sample_window};
+    use rand::SeedableRng;
+
+    let dir = scratch("mirror");
+    let (data, scenes) = tiny_scenes(&dir);
+    let mut c = tiny_config(&data, &dir.join("unused"), 1).data;
+    c.shuffle_objects = false;
+    c.rotate_z = false;
+    c.point_drop_prob = 0.0;
+    // Every stored point, so both windows hold the same cloud (in another order).
+    c.points_min = 100_000;
+    c.points_max = 100_000;
+    // Every pose of a window as sorted world points per object.
+    let world = |w: &dynaserve_train::train::data::Window, reflect: bool| {
+        let poses = [&w.state.previous, &w.state.current, &w.target];
+        poses
+            .iter()
+            .flat_map(|ps| ps.iter().zip(&w.objects))
+            .map(|(pose, o)| {
+                let mut pts: Vec<[f32; 3]> = o
+                    .reference
+                    .iter()
+                    .map(|&p| pose.transform_point(p))
+                    .map(|p| if reflect { mirror_point(p) } else { p })
+                    .collect();
+                pts.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
+                pts
+            })
+            .collect::<Vec<_>>()
+    };
+    let close = |a: &[Vec<[f32; 3]>], b: &[Vec<[f32; 3]>]| {
+        a.iter().zip(b).all(|(x, y)| {
+            x.len() == y.len()
+                && x.iter()
+                    .zip(y)
+                    .all(|(p, q)| (0..3).all(|d| (p[d] - q[d]).abs() < 1e-4))
+        })
+    };
+    let (mut plain, mut reflected) = (0, 0);
+    for seed in 0..24u64 {
+        let draw = |mirror: bool| {
+            let mut c = c.clone();
+            c.mirror = mirror;
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+            sample_window(&scenes[0], &c, &mut rng, false, 0).unwrap()
+        };
+        let (a, b) = (draw(false), draw(true));
+        assert_eq!(a.dt_steps, b.dt_steps);
+        for p in b.state.current.iter().chain(&b.target) {
+            let q = p.unit_quaternion().into_inner();
+            assert!((q.norm() - 1.0).abs() < 1e-5, "{q:?}");
+        }
+        let wb = world(&b, false);
+        if close(&wb, &world(&a, false)) {
+            plain += 1;
+        } else {
+            assert!(
+                close(&wb, &world(&a, true)),
+                "seed {seed}: neither the scene nor its reflection"
+            );
+            reflected += 1;
+        }
+    }
+    assert!(
+        plain >= 4 && reflected >= 4,
+        "{plain} plain, {reflected} reflected"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `run.loader_threads` draws and prepares a batch's samples in parallel without changing
+/// any batch: runs with one and with three loader threads end with bit-identical weights and
+/// optimizer state, and zero threads are refused.
+#[test]
+fn loader_threads_change_no_batch() {
+    let dir = scratch("loader-threads");
+    let data = tiny_dataset(&dir);
+    for (name, threads) in [("one", 1), ("three", 3)] {
+        let mut c = tiny_config(&data, &dir.join(name), 3);
+        c.optim.batch_size = 6;
+        c.run.loader_threads = threads;
+        let summary = train(&c, &TrainOptions::default()).unwrap();
+        assert!((0.0..=1.0).contains(&summary.data_wait_fraction));
+    }
+    for f in ["model.safetensors", "optimizer.safetensors"] {
+        let a = std::fs::read(dir.join("one/checkpoint").join(f)).unwrap();
+        let b = std::fs::read(dir.join("three/checkpoint").join(f)).unwrap();
+        assert!(a == b, "{f} differs between one and three loader threads");
+    }
+    let mut c = tiny_config(&data, &dir.join("zero"), 3);
+    c.run.loader_threads = 0;
+    let e = train(&c, &TrainOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("loader_threads"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A run configured for a CUDA device in a build without CUDA support stops at once with an
+/// error that says how to get it, instead of training on the CPU.
+#[test]
+fn a_cuda_run_without_cuda_support_is_refused_clearly() {
+    if dynaserve_model::cuda_compiled() {
+        return;
+    }
+    let dir = scratch("cuda-refused");
+    let data = tiny_dataset(&dir);
+    let mut c = tiny_config(&data, &dir.join("run"), 2);
+    c.run.device = "cuda:0".into();
+    let e = train(&c, &TrainOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("--features cuda"), "{e}");
+    assert!(!dir.join("run/checkpoint").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -137,6 +137,10 @@ pub struct ServeConfig {
     /// Skip the warm-up step at start-up (readiness is then reported right after loading).
     #[arg(long, env = "DYNASERVE_NO_WARMUP")]
     pub no_warmup: bool,
+    /// Device the models run on: `cpu`, `cuda` or `cuda:N` (CUDA needs a build with
+    /// `--features cuda`).
+    #[arg(long, env = "DYNASERVE_DEVICE", default_value = "cpu")]
+    pub device: String,
 
     /// Log format.
     #[arg(long, env = "DYNASERVE_LOG_FORMAT", value_enum, default_value_t = LogFormat::Plain)]

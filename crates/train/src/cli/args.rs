@@ -46,6 +46,10 @@ pub struct EvalArgs {
     /// Checkpoint directory of a trained model (config.json, model.safetensors) to evaluate.
     #[arg(long)]
     pub model: Option<PathBuf>,
+    /// Device the model runs on: `cpu`, `cuda` or `cuda:N` (CUDA needs a build with
+    /// `--features cuda`). Baselines and rapier always run on the CPU.
+    #[arg(long, default_value = "cpu")]
+    pub device: String,
     /// Dataset split directory (holding manifest.json). With `--suite`, optional and
     /// repeatable: scenario datasets to score instead of the generated suite.
     #[arg(long, required_unless_present = "suite")]

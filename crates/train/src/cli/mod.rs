@@ -106,7 +106,8 @@ pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
         }
         (Some(BaselineKind::Rapier), None) => predictors.push(rapier()?),
         (None, Some(dir)) => {
-            let base = ModelPredictor::load(dir)
+            let device = dynaserve_model::device_from_name(&args.device)?;
+            let base = ModelPredictor::load_on(dir, &device)
                 .with_context(|| format!("loading model {}", dir.display()))?;
             let nominal = match args.points_per_object {
                 Some(n) => base.clone().with_points_per_object(n),

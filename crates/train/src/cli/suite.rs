@@ -64,7 +64,8 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             predictors.push((restart.name(), Box::new(restart)))
         }
         (None, Some(dir)) => {
-            let base = ModelPredictor::load(dir)
+            let device = dynaserve_model::device_from_name(&args.device)?;
+            let base = ModelPredictor::load_on(dir, &device)
                 .with_context(|| format!("loading model {}", dir.display()))?;
             let model = match args.points_per_object {
                 Some(n) => base.with_points_per_object(n),

@@ -130,13 +130,20 @@ impl ModelPredictor {
     /// [`ModelPredictor::from_rigidformer`], any other model (an ensemble) through
     /// [`ModelPredictor::new`].
     pub fn load(dir: &std::path::Path) -> Result<ModelPredictor, dynaserve_model::ModelError> {
-        let device = dynaserve_model::Device::Cpu;
+        ModelPredictor::load_on(dir, &dynaserve_model::Device::Cpu)
+    }
+
+    /// [`ModelPredictor::load`] on `device`.
+    pub fn load_on(
+        dir: &std::path::Path,
+        device: &dynaserve_model::Device,
+    ) -> Result<ModelPredictor, dynaserve_model::ModelError> {
         if dynaserve_model::read_architecture(dir)? == dynaserve_model::config::RIGIDFORMER {
-            let model = dynaserve_model::load_rigidformer(dir, &device, false)?;
+            let model = dynaserve_model::load_rigidformer(dir, device, false)?;
             return Ok(ModelPredictor::from_rigidformer(Arc::new(model)));
         }
         Ok(ModelPredictor::new(dynaserve_model::load_model(
-            dir, &device,
+            dir, device,
         )?))
     }
 

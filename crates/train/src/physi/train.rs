@@ -68,6 +68,14 @@ pub struct PhysiTrainConfig {
     /// Seed of the weights, the scene order and the noise.
     #[serde(default)]
     pub seed: u64,
+    /// Device the model trains on: `cpu` (the default), `cuda` or `cuda:N` (a build with
+    /// `--features cuda`).
+    #[serde(default = "default_device")]
+    pub device: String,
+}
+
+fn default_device() -> String {
+    "cpu".to_string()
 }
 
 fn default_minutes() -> f64 {
@@ -93,22 +101,27 @@ pub fn is_physi_config(path: &Path) -> bool {
 }
 
 /// Trains as `path` says; `resume` continues from the run's checkpoint, `stop_after` ends
-/// (with a checkpoint) after that many iterations of this invocation, `stop` on a signal.
+/// (with a checkpoint) after that many iterations of this invocation, `device` replaces the
+/// configuration's device, `stop` ends on a signal.
 pub fn run(
     path: &Path,
     resume: bool,
     stop_after: Option<u64>,
+    device: Option<&str>,
     stop: Arc<AtomicBool>,
 ) -> anyhow::Result<()> {
     let text = std::fs::read_to_string(path).with_context(|| format!("{}", path.display()))?;
-    let cfg: PhysiTrainConfig = toml::from_str(&text)
+    let mut cfg: PhysiTrainConfig = toml::from_str(&text)
         .with_context(|| format!("{} is not a valid config", path.display()))?;
+    if let Some(d) = device {
+        cfg.device = d.to_string();
+    }
     anyhow::ensure!(
         cfg.optim.batch_size > 0,
         "optim.batch_size must be positive"
     );
     let scenes = load_scenes(&cfg.train)?;
-    let device = Device::Cpu;
+    let device = dynaserve_model::device_from_name(&cfg.device)?;
     let ckpt = resumable(&cfg.out_dir);
     let model = if resume {
         let ckpt = ckpt
@@ -254,7 +267,7 @@ pub fn run(
             || state.step == cfg.optim.iterations;
         if stopping || last_ckpt.elapsed().as_secs_f64() > 60.0 * cfg.checkpoint_minutes {
             state.rng_draws = rng.get_word_pos() as u64;
-            save(&cfg, &model, &opt, &state)?;
+            save(&cfg, &model, &opt, &state, &device)?;
             last_ckpt = Instant::now();
             println!("checkpoint at iteration {}", state.step);
         }
@@ -270,6 +283,7 @@ fn save(
     model: &PhysiFormer,
     opt: &AdamW,
     state: &RunState,
+    device: &Device,
 ) -> anyhow::Result<()> {
     let ckpt = replace_checkpoint(&cfg.out_dir, |tmp| {
         model.save(tmp)?;
@@ -278,7 +292,7 @@ fn save(
     })?;
     // The weight average as a servable model directory.
     let out = cfg.out_dir.join("model");
-    let ema = PhysiFormer::load(&ckpt, &Device::Cpu, true)?;
+    let ema = PhysiFormer::load(&ckpt, device, true)?;
     if cfg.optim.ema_decay > 0.0 {
         ema.set_weights(&opt.ema_weights()?)?;
     }

@@ -63,6 +63,11 @@ pub struct DataConfig {
     pub point_drop_max: f32,
     /// Rotate every sample by a uniform random angle about the gravity (z) axis.
     pub rotate_z: bool,
+    /// Reflect half of the samples through a vertical plane (x -> -x, before the rotation
+    /// about z): the mirror image of a rigid scene under gravity is an equally valid scene
+    /// (its objects' clouds become their mirror images), so every recorded contact is seen
+    /// in both handednesses.
+    pub mirror: bool,
     /// Present the objects of every sample in a random order.
     pub shuffle_objects: bool,
     /// Standard deviation of Gaussian noise added to the input poses' translations (both
@@ -144,6 +149,7 @@ impl Default for DataConfig {
             point_drop_prob: 0.1,
             point_drop_max: 0.3,
             rotate_z: true,
+            mirror: false,
             shuffle_objects: true,
             noise_position: 0.0,
             noise_rotation: 0.0,
@@ -480,6 +486,13 @@ pub struct RunConfig {
     pub log_every: u64,
     /// Threads of the dedicated compute pool (model forward/backward).
     pub threads: usize,
+    /// Threads that draw and prepare the samples of a batch (window, augmentation, anchors
+    /// and encoder groups). 1 prepares them one after another on the loader thread; more
+    /// keep a fast device fed. The batches are the same for any value.
+    pub loader_threads: usize,
+    /// Device the model trains on: `cpu`, `cuda` or `cuda:N` (a build with `--features
+    /// cuda`). Not part of the run's identity: a run may be resumed on another device.
+    pub device: String,
     /// Seed of the data order and augmentation.
     pub seed: u64,
     /// Show a progress bar (otherwise a plain line per log row).
@@ -493,6 +506,8 @@ impl Default for RunConfig {
             checkpoint_minutes: 5.0,
             log_every: 20,
             threads: 2,
+            loader_threads: 1,
+            device: "cpu".to_string(),
             seed: 0,
             progress: true,
         }
@@ -525,6 +540,9 @@ impl TrainConfig {
     /// Checks ranges; every violation is named.
     pub fn validate(&self) -> Result<(), TrainError> {
         let bad = |m: &str| Err(TrainError::Config(m.to_string()));
+        if self.run.loader_threads == 0 {
+            return bad("run.loader_threads must be at least 1");
+        }
         let d = &self.data;
         if d.step_sizes.is_empty() || d.step_sizes.iter().any(|&k| k == 0 || k > 16) {
             return bad("data.step_sizes must be non-empty, each in 1..=16");

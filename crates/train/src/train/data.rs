@@ -104,6 +104,20 @@ fn small_rotation(rng: &mut impl Rng, sigma: f32) -> UnitQuaternion<f32> {
     UnitQuaternion::from_scaled_axis(axis / n * (angle * sigma))
 }
 
+/// The reflection x -> -x of a point or position `[3]`, metres.
+pub fn mirror_point(p: [f32; 3]) -> [f32; 3] {
+    [-p[0], p[1], p[2]]
+}
+
+/// The orientation `M R M` (M = diag(-1, 1, 1)) of a body whose reference cloud and position
+/// are reflected by [`mirror_point`]: with it, the reflected body's world points are the
+/// reflections of the original's. A proper rotation (the quaternion's y and z parts negated),
+/// so the reflected scene is again a rigid scene.
+pub fn mirror_rotation(q: UnitQuaternion<f32>) -> UnitQuaternion<f32> {
+    let q = q.into_inner();
+    UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q.w, q.i, -q.j, -q.k))
+}
+
 fn quat(q: [f32; 4]) -> UnitQuaternion<f32> {
     UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[3], q[0], q[1], q[2]))
 }
@@ -170,9 +184,18 @@ pub fn sample_window(
     } else {
         UnitQuaternion::identity()
     };
+    // Drawn only with the option, so configurations without it keep their sample streams.
+    let mirrored = c.mirror && rng.random::<bool>();
     let pose_at = |o: &dynaserve_sim::ObjectRecord, f: usize| -> Pose {
-        let p = rz * Vector3::from(o.positions[f]);
-        Pose::from_parts(p, rz * quat(o.rotations[f]))
+        let (p, q) = if mirrored {
+            (
+                mirror_point(o.positions[f]),
+                mirror_rotation(quat(o.rotations[f])),
+            )
+        } else {
+            (o.positions[f], quat(o.rotations[f]))
+        };
+        Pose::from_parts(rz * Vector3::from(p), rz * q)
     };
     let mut objects = Vec::with_capacity(order.len());
     let mut previous = Vec::with_capacity(order.len());
@@ -213,7 +236,13 @@ pub fn sample_window(
             idx.swap(i, r);
         }
         idx.truncate(n);
-        let mut reference: Vec<[f32; 3]> = idx.iter().map(|&i| o.reference_points[i]).collect();
+        let mut reference: Vec<[f32; 3]> = idx
+            .iter()
+            .map(|&i| {
+                let p = o.reference_points[i];
+                if mirrored { mirror_point(p) } else { p }
+            })
+            .collect();
         if c.point_drop_prob > 0.0 && rng.random::<f32>() < c.point_drop_prob && n > 1 {
             // Remove the points farthest along a random direction (a contiguous patch).
             let u = small_rotation(rng, 10.0) * Vector3::z();
@@ -524,7 +553,9 @@ pub struct Loader {
 }
 
 impl Loader {
-    /// Starts the worker. `model` prepares scenes (anchors, grouping); `seed` fixes the stream.
+    /// Starts the worker. `model` prepares scenes (anchors, grouping); `seed` fixes the stream;
+    /// `threads` samples of a batch are drawn and prepared at once (the batches do not depend
+    /// on it).
     pub fn start(
         reader: Sources,
         cfg: DataConfig,
@@ -532,6 +563,7 @@ impl Loader {
         seed: u64,
         start: u64,
         model: Arc<dyn WorldModel>,
+        threads: usize,
     ) -> Result<Loader, TrainError> {
         if let Some(empty) = reader.readers().iter().find(|r| r.is_empty()) {
             return Err(TrainError::Data(format!(
@@ -540,6 +572,18 @@ impl Loader {
             )));
         }
         let order = SampleOrder::new(&reader, &cfg.mix, seed)?;
+        // A pool only for more than one thread: one keeps the loader thread's own sequence.
+        let pool = if threads > 1 {
+            Some(
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .thread_name(|i| format!("train-loader-{i}"))
+                    .build()
+                    .map_err(|e| TrainError::Data(format!("cannot start the loader pool: {e}")))?,
+            )
+        } else {
+            None
+        };
         let (tx, rx) = sync_channel(cfg.prefetch);
         let stop = Arc::new(AtomicBool::new(false));
         let stop2 = stop.clone();
@@ -547,7 +591,7 @@ impl Loader {
             .name("train-loader".into())
             .spawn(move || {
                 worker(
-                    reader, cfg, batch_size, seed, start, model, order, tx, stop2,
+                    reader, cfg, batch_size, seed, start, model, order, pool, tx, stop2,
                 )
             })
             .map_err(|e| TrainError::Data(format!("cannot start the loader thread: {e}")))?;
@@ -590,6 +634,7 @@ fn worker(
     start: u64,
     model: Arc<dyn WorldModel>,
     mut order: SampleOrder,
+    pool: Option<rayon::ThreadPool>,
     tx: SyncSender<Result<Batch, TrainError>>,
     stop: Arc<AtomicBool>,
 ) {
@@ -600,7 +645,8 @@ fn worker(
     let mut step = start;
     while !stop.load(Ordering::Relaxed) {
         let mut make = || -> Result<Batch, TrainError> {
-            let mut samples = Vec::with_capacity(batch_size);
+            // The batch's scenes, in order (shard reads and the cache stay on this thread).
+            let mut scenes = Vec::with_capacity(batch_size);
             for j in 0..batch_size {
                 let g = step * batch_size as u64 + j as u64;
                 let (shard, local) = order.locate(g);
@@ -614,28 +660,45 @@ fn worker(
                 }
                 let entry = cache.get_mut(&shard).expect("inserted above");
                 entry.1 = g;
-                let scenes = &entry.0;
-                let rec = scenes.get(local).ok_or_else(|| {
-                    TrainError::Data(format!("shard {shard} has no scene {local}"))
-                })?;
-                let mut rng = rng_for(seed, 3, g);
+                if entry.0.get(local).is_none() {
+                    return Err(TrainError::Data(format!(
+                        "shard {shard} has no scene {local}"
+                    )));
+                }
+                scenes.push((g, shard, local, entry.0.clone()));
+            }
+            // Each sample is a function of its index alone, so any number of threads draws
+            // the same batch.
+            let draw = |(g, shard, local, records): &(u64, usize, usize, Arc<Vec<SceneRecord>>)| {
+                let rec = &records[*local];
+                let mut rng = rng_for(seed, 3, *g);
                 let w = sample_window(
                     rec,
                     &cfg,
                     &mut rng,
                     true,
-                    ((shard as u64) << 32) | local as u64,
+                    ((*shard as u64) << 32) | *local as u64,
                 )?;
                 let scene = model.prepare(w.objects)?;
-                samples.push(Sample {
+                Ok(Sample {
                     scene,
                     state: w.state,
                     target: w.target,
                     dt_steps: w.dt_steps,
                     kinematic: w.kinematic,
                     pushforward: w.pushforward,
-                });
-            }
+                })
+            };
+            let samples = match &pool {
+                Some(pool) => {
+                    use rayon::prelude::*;
+                    pool.install(|| scenes.par_iter().map(draw).collect::<Result<Vec<_>, _>>())?
+                }
+                None => scenes
+                    .iter()
+                    .map(draw)
+                    .collect::<Result<Vec<_>, TrainError>>()?,
+            };
             Ok(Batch { step, samples })
         };
         let mut item = make();

@@ -89,6 +89,10 @@ pub struct TrainArgs {
     /// Stop (with a checkpoint) after this many iterations in this invocation.
     #[arg(long)]
     pub stop_after: Option<u64>,
+    /// Train on this device instead of the configuration's (`cpu`, `cuda` or `cuda:N`; CUDA
+    /// needs a build with `--features cuda`).
+    #[arg(long)]
+    pub device: Option<String>,
 }
 
 /// Subcommands of `dynaserve train`.
@@ -210,9 +214,18 @@ pub fn run_cli(args: TrainArgs) -> anyhow::Result<()> {
     if crate::physi::train::is_physi_config(&path) {
         let stop = Arc::new(AtomicBool::new(false));
         stop_on_signals(stop.clone())?;
-        return crate::physi::train::run(&path, args.resume, args.stop_after, stop);
+        return crate::physi::train::run(
+            &path,
+            args.resume,
+            args.stop_after,
+            args.device.as_deref(),
+            stop,
+        );
     }
-    let cfg = TrainConfig::from_file(&path)?;
+    let mut cfg = TrainConfig::from_file(&path)?;
+    if let Some(device) = args.device {
+        cfg.run.device = device;
+    }
     let stop = Arc::new(AtomicBool::new(false));
     stop_on_signals(stop.clone())?;
     let summary = train(
@@ -224,10 +237,12 @@ pub fn run_cli(args: TrainArgs) -> anyhow::Result<()> {
         },
     )?;
     println!(
-        "stopped at iteration {} of {} ({:.1} it/s this session, last loss {:.4}); checkpoint in {}",
+        "stopped at iteration {} of {} ({:.1} it/s this session, {:.0}% of it waiting for data, \
+         last loss {:.4}); checkpoint in {}",
         summary.step,
         cfg.optim.iterations,
         summary.iterations_per_second,
+        100.0 * summary.data_wait_fraction,
         summary.last_loss,
         summary.checkpoint.display()
     );

@@ -171,6 +171,7 @@ mod tests {
         let earliest = scene.objects[0].positions[s - STOP_LEAD_FRAMES + 1][0];
         let mut c = crate::train::config::DataConfig {
             rotate_z: false,
+            mirror: false,
             shuffle_objects: false,
             ..Default::default()
         };

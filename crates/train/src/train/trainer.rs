@@ -16,7 +16,6 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use candle_core::Device;
 use dynaserve_model::{
     FeatureNormalization, InputGroup, ModelUnit, RigidFormer, TrainItem, WorldModel,
     load_rigidformer,
@@ -67,6 +66,10 @@ pub struct TrainSummary {
     pub step: u64,
     /// Iterations per second in this call (excluding set-up).
     pub iterations_per_second: f64,
+    /// Share of this call's wall time (excluding set-up) the compute loop spent waiting for
+    /// the loader's next batch: near 0 when the data keeps up, large when `run.loader_threads`
+    /// should grow.
+    pub data_wait_fraction: f64,
     /// Mean loss of the first logged window of this call.
     pub first_loss: f64,
     /// Mean loss of the last logged window of this call.
@@ -227,7 +230,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
         .chain(cfg.data.extra.iter().cloned())
         .collect();
     let reader = Sources::open(&dirs)?;
-    let device = Device::Cpu;
+    let device = dynaserve_model::device_from_name(&cfg.run.device)?;
     let (model, mut state) = if opts.resume {
         let ckpt = resumable(&out).ok_or_else(|| {
             TrainError::Config(format!("--resume: {} holds no checkpoint", out.display()))
@@ -357,6 +360,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
         cfg.run.seed,
         state.step,
         dyn_model,
+        cfg.run.loader_threads,
     )?;
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(cfg.run.threads)
@@ -391,13 +395,17 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
     let mut bad_in_a_row = 0;
     let mut ckpt_path = checkpoint_dir(&out);
     let budget_end = opts.stop_after.map(|n| state.step + n);
+    // Seconds the compute loop waited for the loader.
+    let mut data_wait = 0f64;
 
     let result: Result<(), TrainError> = pool.install(|| {
         while state.step < cfg.optim.iterations
             && !opts.stop.load(Ordering::SeqCst)
             && budget_end.is_none_or(|e| state.step < e)
         {
+            let asked = Instant::now();
             let mut batch = loader.next()?;
+            data_wait += asked.elapsed().as_secs_f64();
             if batch.step != state.step {
                 return Err(TrainError::Data(format!(
                     "loader produced batch {} for iteration {}",
@@ -531,9 +539,11 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
     pb.finish_and_clear();
     result?;
     let done = state.step - start_step;
+    let wall = session_start.elapsed().as_secs_f64().max(1e-9);
     Ok(TrainSummary {
         step: state.step,
-        iterations_per_second: done as f64 / session_start.elapsed().as_secs_f64().max(1e-9),
+        iterations_per_second: done as f64 / wall,
+        data_wait_fraction: data_wait / wall,
         first_loss,
         last_loss,
         checkpoint: ckpt_path,
