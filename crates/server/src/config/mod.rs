@@ -263,6 +263,7 @@ impl ServeConfig {
         if !self.stream_stall_timeout_s.is_finite() || self.stream_stall_timeout_s < 0.0 {
             return Err("--stream-stall-timeout-s must be a finite number >= 0".into());
         }
+        dynaserve_model::device_from_name(&self.device).map_err(|e| format!("--device: {e}"))?;
         self.connections.validate()?;
         self.sessions.validate()?;
         self.security.validate(&[self.grpc_addr, self.http_addr])
@@ -285,6 +286,18 @@ mod tests {
         let mut bad = c.clone();
         bad.max_batch_scenes = 0;
         assert!(bad.validate().unwrap_err().contains("--max-batch-scenes"));
+    }
+
+    #[test]
+    fn the_device_must_be_known_and_built_in() {
+        let mut c = ServeConfig::default();
+        assert_eq!(c.device, "cpu");
+        c.device = "tpu".into();
+        assert!(c.validate().unwrap_err().contains("--device"));
+        if !dynaserve_model::cuda_compiled() {
+            c.device = "cuda".into();
+            assert!(c.validate().unwrap_err().contains("--features cuda"));
+        }
     }
 
     #[test]
