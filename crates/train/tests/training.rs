@@ -740,12 +740,10 @@ fn mix_draws_directories_at_their_shares() {
 /// mirror and the poses stay proper rotations.
 #[test]
 fn mirrored_windows_are_reflections_of_the_scene() {
-    use dynaserve_train::train::data::{mirror_point, sample_window};
-    use rand::SeedableRng;
+    use dynaserve_train::train::data::mirror_point;
 
     let dir = scratch("mirror");
-    let (data, scenes) = tiny_scenes(&dir);
-    let mut c = tiny_config(&data, &dir.join("unused"), 1).data;
+    let (_, scenes, mut c) = window_scenes(&dir);
     c.shuffle_objects = false;
     c.rotate_z = false;
     c.point_drop_prob = 0.0;
@@ -783,8 +781,7 @@ fn mirrored_windows_are_reflections_of_the_scene() {
         let draw = |mirror: bool| {
             let mut c = c.clone();
             c.mirror = mirror;
-            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-            sample_window(&scenes[0], &c, &mut rng, false, 0).unwrap()
+            seeded_window(&scenes, &c, seed, false)
         };
         let (a, b) = (draw(false), draw(true));
         assert_eq!(a.dt_steps, b.dt_steps);
