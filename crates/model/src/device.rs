@@ -17,16 +17,20 @@ pub fn cuda_compiled() -> bool {
     candle_core::utils::cuda_is_available()
 }
 
-/// The device a name selects: `cpu`; `cuda` or `gpu` (ordinal 0); `cuda:N` (ordinal `N`).
-/// Case and surrounding space are ignored.
-///
-/// Errors with [`ModelError::InvalidInput`] on any other name, on a `cuda` device in a build
-/// without the `cuda` feature (naming the rebuild command), and when the driver cannot open
-/// the ordinal.
-pub fn device_from_name(name: &str) -> Result<Device, ModelError> {
+/// A device a name selects, before any driver is opened.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum DeviceSpec {
+    /// The host CPU.
+    Cpu,
+    /// The CUDA device with this ordinal.
+    Cuda(usize),
+}
+
+/// Parses a device name and checks that this build can serve it, without opening the device.
+fn parse_device_name(name: &str) -> Result<DeviceSpec, ModelError> {
     let spec = name.trim().to_ascii_lowercase();
     let ordinal = match spec.as_str() {
-        "cpu" => return Ok(Device::Cpu),
+        "cpu" => return Ok(DeviceSpec::Cpu),
         "cuda" | "gpu" => 0,
         s => match s.strip_prefix("cuda:").map(str::parse::<usize>) {
             Some(Ok(n)) => n,
@@ -43,8 +47,30 @@ pub fn device_from_name(name: &str) -> Result<Device, ModelError> {
              `cargo build --release --features cuda` (needs the CUDA toolkit), or use cpu"
         )));
     }
-    Device::new_cuda(ordinal)
-        .map_err(|e| ModelError::InvalidInput(format!("device {name:?}: cannot open it: {e}")))
+    Ok(DeviceSpec::Cuda(ordinal))
+}
+
+/// Checks a device name as [`device_from_name`] does, but without opening the device (no
+/// driver context is created), for validating configuration before start-up.
+///
+/// Errors as [`device_from_name`] does, except that an ordinal the driver cannot open is only
+/// found when the device is opened.
+pub fn check_device_name(name: &str) -> Result<(), ModelError> {
+    parse_device_name(name).map(|_| ())
+}
+
+/// The device a name selects: `cpu`; `cuda` or `gpu` (ordinal 0); `cuda:N` (ordinal `N`).
+/// Case and surrounding space are ignored.
+///
+/// Errors with [`ModelError::InvalidInput`] on any other name, on a `cuda` device in a build
+/// without the `cuda` feature (naming the rebuild command), and when the driver cannot open
+/// the ordinal.
+pub fn device_from_name(name: &str) -> Result<Device, ModelError> {
+    match parse_device_name(name)? {
+        DeviceSpec::Cpu => Ok(Device::Cpu),
+        DeviceSpec::Cuda(ordinal) => Device::new_cuda(ordinal)
+            .map_err(|e| ModelError::InvalidInput(format!("device {name:?}: cannot open it: {e}"))),
+    }
 }
 
 /// The name [`device_from_name`] reads back as `device` (`cpu`, `cuda:N`, `metal:N`).
@@ -66,6 +92,7 @@ mod tests {
             let d = device_from_name(name).unwrap();
             assert!(d.is_cpu());
             assert_eq!(device_name(&d), "cpu");
+            assert!(check_device_name(name).is_ok());
         }
     }
 
@@ -74,6 +101,8 @@ mod tests {
         for name in ["tpu", "cuda:x", "cuda:-1", ""] {
             let e = device_from_name(name).unwrap_err().to_string();
             assert!(e.contains(DEVICE_NAMES), "{name}: {e}");
+            let checked = check_device_name(name).unwrap_err().to_string();
+            assert_eq!(checked, e, "{name}: checking and opening disagree");
         }
     }
 
@@ -85,6 +114,7 @@ mod tests {
         for name in ["cuda", "gpu", "cuda:1"] {
             let e = device_from_name(name).unwrap_err().to_string();
             assert!(e.contains("--features cuda"), "{name}: {e}");
+            assert!(check_device_name(name).is_err(), "{name}");
         }
     }
 }

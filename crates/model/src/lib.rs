@@ -32,7 +32,7 @@ pub use config::{
     HISTORY_FEATURES, InputGroup, LN_MASS_FEATURE, LossConfig, ModelConfig, ModelUnit,
     OBJECT_SUMMARY_FEATURES, PreparedKey, SURFACE_NORMAL_FEATURES,
 };
-pub use device::{cuda_compiled, device_from_name, device_name};
+pub use device::{check_device_name, cuda_compiled, device_from_name, device_name};
 pub use ensemble::Ensemble;
 pub use error::ModelError;
 pub use kernels::kabsch::{self as kabsch_op, KabschOp};

@@ -263,7 +263,7 @@ impl ServeConfig {
         if !self.stream_stall_timeout_s.is_finite() || self.stream_stall_timeout_s < 0.0 {
             return Err("--stream-stall-timeout-s must be a finite number >= 0".into());
         }
-        dynaserve_model::device_from_name(&self.device).map_err(|e| format!("--device: {e}"))?;
+        dynaserve_model::check_device_name(&self.device).map_err(|e| format!("--device: {e}"))?;
         self.connections.validate()?;
         self.sessions.validate()?;
         self.security.validate(&[self.grpc_addr, self.http_addr])
