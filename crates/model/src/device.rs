@@ -114,7 +114,8 @@ mod tests {
         for name in ["cuda", "gpu", "cuda:1"] {
             let e = device_from_name(name).unwrap_err().to_string();
             assert!(e.contains("--features cuda"), "{name}: {e}");
-            assert!(check_device_name(name).is_err(), "{name}");
+            let checked = check_device_name(name).unwrap_err().to_string();
+            assert_eq!(checked, e, "{name}: checking and opening disagree");
         }
     }
 }
