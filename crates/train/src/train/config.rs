@@ -514,6 +514,45 @@ impl Default for RunConfig {
     }
 }
 
+/// The TOML table of `path` laid over the table of the file its `base` key names, recursively;
+/// `chain` holds the files being read, so that a cycle is an error instead of a hang.
+fn toml_with_bases(path: &Path, chain: &mut Vec<PathBuf>) -> Result<toml::Table, TrainError> {
+    let err = |m: String| TrainError::Config(format!("{}: {m}", path.display()));
+    let text = std::fs::read_to_string(path).map_err(|e| TrainError::Io {
+        path: path.to_path_buf(),
+        source: e,
+    })?;
+    let mut table: toml::Table = toml::from_str(&text).map_err(|e| err(e.to_string()))?;
+    let Some(base) = table.remove("base") else {
+        return Ok(table);
+    };
+    let base = base
+        .as_str()
+        .ok_or_else(|| err("`base` must be a file name".into()))?;
+    let base_path = path.parent().unwrap_or(Path::new(".")).join(base);
+    let key = std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf());
+    if chain.contains(&key) {
+        return Err(err(format!("`base` chain returns to {}", path.display())));
+    }
+    chain.push(key);
+    let mut merged = toml_with_bases(&base_path, chain)?;
+    chain.pop();
+    overlay(&mut merged, table);
+    Ok(merged)
+}
+
+/// Lays `top` over `under`: tables merge key by key, every other value replaces.
+fn overlay(under: &mut toml::Table, top: toml::Table) {
+    for (k, v) in top {
+        match (under.get_mut(&k), v) {
+            (Some(toml::Value::Table(u)), toml::Value::Table(t)) => overlay(u, t),
+            (_, v) => {
+                under.insert(k, v);
+            }
+        }
+    }
+}
+
 /// Paths in a config file are relative to the working directory unless absolute.
 fn resolve(_base: &Path, p: &Path) -> PathBuf {
     p.to_path_buf()
@@ -521,15 +560,19 @@ fn resolve(_base: &Path, p: &Path) -> PathBuf {
 
 impl TrainConfig {
     /// Reads a TOML (`.toml`) or JSON (any other extension) configuration and validates it.
+    /// A TOML file may name another in a top-level `base = "file.toml"` (relative to its own
+    /// directory): it is that file with this one's keys laid over it (tables merged key by
+    /// key, any other value, arrays included, replaced).
     pub fn from_file(path: &Path) -> Result<TrainConfig, TrainError> {
-        let text = std::fs::read_to_string(path).map_err(|e| TrainError::Io {
-            path: path.to_path_buf(),
-            source: e,
-        })?;
         let cfg: TrainConfig = if path.extension().is_some_and(|e| e == "toml") {
-            toml::from_str(&text)
+            toml_with_bases(path, &mut Vec::new())?
+                .try_into()
                 .map_err(|e| TrainError::Config(format!("{}: {e}", path.display())))?
         } else {
+            let text = std::fs::read_to_string(path).map_err(|e| TrainError::Io {
+                path: path.to_path_buf(),
+                source: e,
+            })?;
             serde_json::from_str(&text)
                 .map_err(|e| TrainError::Config(format!("{}: {e}", path.display())))?
         };
@@ -652,6 +695,62 @@ mod tests {
     /// Every committed RigidFormer training configuration, the experiments' included, parses
     /// and validates (a typo in one surfaces here, not an hour into a run); the relative-mass
     /// run switches it on.
+    /// A `base` file's keys stay where the derived file is silent; a derived table key or
+    /// array replaces the base's; a chain that returns to a file is an error.
+    #[test]
+    fn base_files_are_overlaid_and_cycles_refused() {
+        let dir =
+            std::env::temp_dir().join(format!("dynaserve-config-base-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let write = |name: &str, text: &str| std::fs::write(dir.join(name), text).unwrap();
+        write(
+            "base.toml",
+            "[data]\nstep_sizes = [1, 2, 4]\nmirror = true\n[optim]\nbatch_size = 24\niterations = 8000\n",
+        );
+        write(
+            "child.toml",
+            "base = \"base.toml\"\n[data]\nstep_sizes = [2]\n[optim]\nbatch_size = 48\n",
+        );
+        let c = TrainConfig::from_file(&dir.join("child.toml")).unwrap();
+        assert_eq!(c.data.step_sizes, vec![2]);
+        assert!(c.data.mirror);
+        assert_eq!((c.optim.batch_size, c.optim.iterations), (48, 8000));
+        write("a.toml", "base = \"b.toml\"\n");
+        write("b.toml", "base = \"a.toml\"\n");
+        let e = TrainConfig::from_file(&dir.join("a.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("chain returns"), "{e}");
+        write("bad.toml", "base = 3\n");
+        let e = TrainConfig::from_file(&dir.join("bad.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`base` must be a file name"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// r68 and r69 are r66 with the changes their headers name, and nothing else.
+    #[test]
+    fn derived_run_configs_differ_from_their_base_as_stated() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
+        let load = |n: &str| TrainConfig::from_file(&dir.join(n)).unwrap();
+        let r66 = load("rigidformer-small-r66.toml");
+        let mut want = r66.clone();
+        want.data.mirror = true;
+        want.run.out_dir = PathBuf::from("runs/rigidformer-small-r68");
+        want.run.threads = 2;
+        want.run.seed = 68;
+        assert_eq!(load("rigidformer-small-r68.toml"), want);
+        let mut want = r66;
+        want.optim.batch_size = 48;
+        want.optim.iterations = 4000;
+        want.optim.warmup = 150;
+        want.run.out_dir = PathBuf::from("runs/rigidformer-small-r69");
+        want.run.threads = 2;
+        want.run.seed = 69;
+        assert_eq!(load("rigidformer-small-r69.toml"), want);
+    }
+
     #[test]
     fn committed_configs_parse_and_validate() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
