@@ -172,7 +172,8 @@ impl Default for DataConfig {
 pub struct ModelSection {
     /// A preset of the model crate (`small`, `paper` or `tiny`); ignored when `config` is set.
     pub preset: String,
-    /// Path of a `config.json` (a [`ModelConfig`]) to use instead of a preset.
+    /// Path of a `config.json` (a [`ModelConfig`]) to use instead of a preset, relative to
+    /// the working directory unless absolute.
     pub config: Option<PathBuf>,
     /// Seed of the random initialisation.
     pub seed: u64,
@@ -345,8 +346,8 @@ impl ModelSection {
     /// resized to its defaults), the units (`object_summary`, `contact_summary`,
     /// `contact_wrench`, `contact_messages`) and
     /// [`ModelSection::apply_settings`] applied.
-    pub fn model_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {
-        let mut c = self.named_config(base)?;
+    pub fn model_config(&self) -> Result<ModelConfig, TrainError> {
+        let mut c = self.named_config()?;
         self.apply_settings(&mut c.dynamics, &mut c.loss);
         for unit in ModelUnit::ALL {
             if let Some(on) = self.unit_switch(unit) {
@@ -389,9 +390,9 @@ impl ModelSection {
         }
     }
 
-    fn named_config(&self, base: &Path) -> Result<ModelConfig, TrainError> {
+    fn named_config(&self) -> Result<ModelConfig, TrainError> {
         if let Some(path) = &self.config {
-            let path = resolve(base, path);
+            let path = path.clone();
             let text = std::fs::read_to_string(&path).map_err(|e| TrainError::Io {
                 path: path.clone(),
                 source: e,
@@ -551,11 +552,6 @@ fn overlay(under: &mut toml::Table, top: toml::Table) {
             }
         }
     }
-}
-
-/// Paths in a config file are relative to the working directory unless absolute.
-fn resolve(_base: &Path, p: &Path) -> PathBuf {
-    p.to_path_buf()
 }
 
 impl TrainConfig {
@@ -741,6 +737,12 @@ mod tests {
         want.run.threads = 2;
         want.run.seed = 68;
         assert_eq!(load("rigidformer-small-r68.toml"), want);
+        let mut want = load("rigidformer-small-r68.toml");
+        want.optim.iterations = 20000;
+        want.optim.ema_decay = 0.9995;
+        want.run.out_dir = PathBuf::from("runs/rigidformer-small-r70");
+        want.run.seed = 70;
+        assert_eq!(load("rigidformer-small-r70.toml"), want);
         let mut want = r66;
         want.optim.batch_size = 48;
         want.optim.iterations = 4000;
@@ -812,20 +814,14 @@ mod tests {
         let r54 = TrainConfig::from_file(&dir.join("rigidformer-small-r54.toml")).unwrap();
         assert_eq!(r54.model.contact_summary, Some(true));
         assert_eq!(r54.optim.lr_scale.get("contact_summary."), Some(&10.0));
-        assert!(
-            r54.model
-                .model_config(Path::new("."))
-                .unwrap()
-                .dynamics
-                .contact_summary
-        );
+        assert!(r54.model.model_config().unwrap().dynamics.contact_summary);
         refused("[optim.lr_scale]\n\"a.\" = 0.0\n", "lr_scale");
         refused("[optim.lr_scale]\n\"a.\" = nan\n", "lr_scale");
-        let lead = r43.model.model_config(Path::new(".")).unwrap();
+        let lead = r43.model.model_config().unwrap();
         assert!(lead.dynamics.kinematic_lead);
         assert!(
             !ModelSection::default()
-                .model_config(Path::new("."))
+                .model_config()
                 .unwrap()
                 .dynamics
                 .kinematic_lead
@@ -834,9 +830,8 @@ mod tests {
 
     #[test]
     fn loss_beta_switches_the_named_config_and_is_checked() {
-        let base = Path::new(".");
         let c: TrainConfig = toml::from_str("[model]\nloss_beta = 0.1\n").unwrap();
-        assert_eq!(c.model.model_config(base).unwrap().loss.beta, 0.1);
+        assert_eq!(c.model.model_config().unwrap().loss.beta, 0.1);
         c.validate().unwrap();
         let zero: TrainConfig = toml::from_str("[model]\nloss_beta = 0.0\n").unwrap();
         assert!(zero.validate().is_err());
@@ -844,17 +839,16 @@ mod tests {
 
     #[test]
     fn rest_weight_switches_the_named_config_and_is_checked() {
-        let base = Path::new(".");
         assert_eq!(
             ModelSection::default()
-                .model_config(base)
+                .model_config()
                 .unwrap()
                 .loss
                 .rest_weight,
             1.0
         );
         let c: TrainConfig = toml::from_str("[model]\nrest_weight = 4.0\n").unwrap();
-        assert_eq!(c.model.model_config(base).unwrap().loss.rest_weight, 4.0);
+        assert_eq!(c.model.model_config().unwrap().loss.rest_weight, 4.0);
         c.validate().unwrap();
         let neg: TrainConfig = toml::from_str("[model]\nrest_weight = -1.0\n").unwrap();
         assert!(neg.validate().is_err());
@@ -862,8 +856,7 @@ mod tests {
 
     #[test]
     fn contact_and_rotation_weights_switch_the_named_config_and_are_checked() {
-        let base = Path::new(".");
-        let loss = |c: &ModelSection| c.model_config(base).unwrap().loss;
+        let loss = |c: &ModelSection| c.model_config().unwrap().loss;
         assert_eq!(loss(&ModelSection::default()).object_contact_weight, 1.0);
         assert_eq!(loss(&ModelSection::default()).rotation_weight, 0.0);
         let c: TrainConfig =
@@ -881,9 +874,8 @@ mod tests {
     /// Each unit's `[model]` switch turns it on in the named configuration; unset, it is off.
     #[test]
     fn unit_switches_change_the_named_config() {
-        let base = Path::new(".");
         for unit in ModelUnit::ALL {
-            let has = |c: &ModelSection| unit.enabled(&c.model_config(base).unwrap().dynamics);
+            let has = |c: &ModelSection| unit.enabled(&c.model_config().unwrap().dynamics);
             assert!(!has(&ModelSection::default()), "{}", unit.key());
             let text = format!("[model]\n{} = true\n", unit.key());
             let c: TrainConfig = toml::from_str(&text).unwrap();
@@ -914,11 +906,10 @@ mod tests {
 
     #[test]
     fn rigid_extrapolation_switches_the_named_config() {
-        let base = Path::new(".");
-        let preset = ModelSection::default().model_config(base).unwrap();
+        let preset = ModelSection::default().model_config().unwrap();
         assert!(preset.dynamics.rigid_extrapolation);
         let c: TrainConfig = toml::from_str("[model]\nrigid_extrapolation = false\n").unwrap();
-        let off = c.model.model_config(base).unwrap();
+        let off = c.model.model_config().unwrap();
         assert!(!off.dynamics.rigid_extrapolation);
         assert_eq!(
             off.dynamics.contact_velocity,
@@ -928,21 +919,20 @@ mod tests {
 
     #[test]
     fn surface_normals_resize_the_named_configs_normalisation() {
-        let base = Path::new(".");
         let c: TrainConfig = toml::from_str("[model]\nsurface_normals = true\n").unwrap();
-        let on = c.model.model_config(base).unwrap();
+        let on = c.model.model_config().unwrap();
         assert!(on.dynamics.surface_normals && on.dynamics.contact_velocity);
         assert_eq!(on.normalization.len(), 22);
         on.validate().unwrap();
         let c: TrainConfig =
             toml::from_str("[model]\nsurface_normals = true\ncontact_velocity = false\n").unwrap();
-        let without_cv = c.model.model_config(base).unwrap();
+        let without_cv = c.model.model_config().unwrap();
         assert_eq!(without_cv.normalization.len(), 19);
         without_cv.validate().unwrap();
         // The approach inputs come last: 3 more, with their own default constants.
         let c: TrainConfig =
             toml::from_str("[model]\nsurface_normals = true\napproach = true\n").unwrap();
-        let approach = c.model.model_config(base).unwrap();
+        let approach = c.model.model_config().unwrap();
         assert!(approach.dynamics.approach);
         assert_eq!(approach.normalization.len(), 25);
         assert_eq!(approach.normalization.mean[22..], [0.0, 1.0, 0.0]);

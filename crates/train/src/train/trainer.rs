@@ -298,7 +298,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                 None => m,
             }
         } else {
-            let mut mc = cfg.model.model_config(Path::new("."))?;
+            let mut mc = cfg.model.model_config()?;
             mc.dt_frame = reader.primary().manifest().dt_frame;
             mc.gravity = reader.primary().manifest().gravity;
             if cfg.model.fit_normalization {
