@@ -392,8 +392,7 @@ impl ModelSection {
 
     fn named_config(&self) -> Result<ModelConfig, TrainError> {
         if let Some(path) = &self.config {
-            let path = path.clone();
-            let text = std::fs::read_to_string(&path).map_err(|e| TrainError::Io {
+            let text = std::fs::read_to_string(path).map_err(|e| TrainError::Io {
                 path: path.clone(),
                 source: e,
             })?;
@@ -688,9 +687,6 @@ impl TrainConfig {
 mod tests {
     use super::*;
 
-    /// Every committed RigidFormer training configuration, the experiments' included, parses
-    /// and validates (a typo in one surfaces here, not an hour into a run); the relative-mass
-    /// run switches it on.
     /// A `base` file's keys stay where the derived file is silent; a derived table key or
     /// array replaces the base's; a chain that returns to a file is an error.
     #[test]
@@ -725,7 +721,7 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
-    /// r68 and r69 are r66 with the changes their headers name, and nothing else.
+    /// r68 and r69 are r66, and r70 is r68, with the changes their headers name and nothing else.
     #[test]
     fn derived_run_configs_differ_from_their_base_as_stated() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
@@ -753,6 +749,9 @@ mod tests {
         assert_eq!(load("rigidformer-small-r69.toml"), want);
     }
 
+    /// Every committed RigidFormer training configuration, the experiments' included, parses
+    /// and validates (a typo in one surfaces here, not an hour into a run); the relative-mass
+    /// run switches it on.
     #[test]
     fn committed_configs_parse_and_validate() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
