@@ -137,7 +137,22 @@ pub(crate) fn write_checkpoint(
             ))
         })
         .collect::<Result<HashMap<String, Tensor>, ModelError>>()?;
-    candle_core::safetensors::save(&data, dir.join(WEIGHTS_FILE))?;
+    save_tensors(&data, &dir.join(WEIGHTS_FILE))
+}
+
+/// Writes `tensors` (any device; each is written as stored) to the safetensors file `path`,
+/// replacing an existing file atomically: the bytes go to a sibling `.tmp` file that is then
+/// renamed over `path`, so a reader never sees a partial file. The file gets the permissions
+/// of any new file of the process (its umask); candle's own writer leaves every weights file
+/// readable by its owner alone, which a model directory served by another user cannot be.
+pub fn save_tensors(tensors: &HashMap<String, Tensor>, path: &Path) -> Result<(), ModelError> {
+    let bytes = safetensors::serialize(tensors, None)
+        .map_err(|e| ModelError::Internal(format!("serialising {}: {e}", path.display())))?;
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    let tmp = std::path::PathBuf::from(tmp);
+    std::fs::write(&tmp, bytes)?;
+    std::fs::rename(&tmp, path)?;
     Ok(())
 }
 

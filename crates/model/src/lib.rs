@@ -25,7 +25,7 @@ pub mod trained_ranges;
 
 pub use api::{ObjectInput, Pose, SceneState, StepItem, WorldModel, rollout};
 pub use batching::PassBudget;
-pub use checkpoint::{load_model, load_rigidformer, read_architecture, read_config};
+pub use checkpoint::{load_model, load_rigidformer, read_architecture, read_config, save_tensors};
 pub use config::{
     APPROACH_FEATURES, BASE_POINT_FEATURES, CONTACT_PARTNER_FEATURES, CONTACT_PARTNER_MAX_LN_RATIO,
     CONTACT_SUMMARY_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig, FeatureNormalization,

@@ -37,6 +37,15 @@ fn save_load_round_trip_is_identical() {
         assert!(max_pose_diff(pa, pb) < 1e-5, "{pa:?} vs {pb:?}");
     }
     assert_eq!(loaded.name(), dir.file_name().unwrap().to_str().unwrap());
+    // The weights file is as readable as the config beside it (any new file of the process),
+    // not owner-only, and no temporary file is left behind.
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let mode = |f: &str| std::fs::metadata(dir.join(f)).unwrap().permissions().mode() & 0o777;
+        assert_eq!(mode("model.safetensors"), mode("config.json"));
+    }
+    assert!(!dir.join("model.safetensors.tmp").exists());
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -143,7 +143,7 @@ pub(super) fn write_model(
     let text = serde_json::to_string_pretty(config)
         .map_err(|e| TrainError::Config(format!("config.json: {e}")))?;
     std::fs::write(&cfg_dst, text + "\n").map_err(io(&cfg_dst))?;
-    candle_core::safetensors::save(weights, out.join(WEIGHTS_FILE))?;
+    dynaserve_model::save_tensors(weights, &out.join(WEIGHTS_FILE))?;
     load_model(out, &Device::Cpu)?;
     Ok(())
 }

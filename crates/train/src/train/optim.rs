@@ -225,7 +225,7 @@ impl AdamW {
             "t".into(),
             Tensor::new(&[t], &candle_core::Device::Cpu)?.to_dtype(DType::F64)?,
         );
-        candle_core::safetensors::save(&map, path)?;
+        dynaserve_model::save_tensors(&map, path)?;
         Ok(())
     }
 
