@@ -4,7 +4,8 @@
 //! An ensemble directory holds a `config.json` of the form
 //! `{"architecture": "rigidformer-ensemble", "members": ["a", "b"]}` (member directories,
 //! relative to the ensemble's own directory, or absolute), optionally `"weights": [2, 1]`
-//! (each member's relative weight in the mean; equal when absent), and a `card.md`. Each
+//! (each member's relative weight in the mean; equal when absent) and `"yaw_copies": 4`
+//! (below), and a `card.md`. Each
 //! member is an ordinary checkpoint directory. Members must serve scenes alike
 //! ([`ModelConfig::serving_mismatch`]: frame interval, gravity, limits, what a prepared scene
 //! depends on, the kinematic lead), so that a scene prepared once by the first member serves
@@ -21,6 +22,14 @@
 //! continues from the mean, so the members never drift apart. Averaging predictions, unlike
 //! averaging weights (`dynaserve train average`), needs no shared training history; it costs
 //! one network pass per member.
+//!
+//! With `yaw_copies = n > 1` every member also steps `n - 1` copies of each scene turned
+//! about the vertical through the scene's centre (the mean of its current centres) by
+//! multiples of 360/n degrees; each copy's answer is turned back and weighs as much as the
+//! original's. Rigid motion under vertical gravity above a horizontal floor is the same in
+//! every turned copy, and a network trained with turned windows is close to, not exactly,
+//! indifferent to the turn, so the mean cancels part of its error. The copies go through the
+//! network in the same pass as the originals (one pass of `n` times the tokens per member).
 
 use std::path::{Path, PathBuf};
 
@@ -29,7 +38,9 @@ use serde::Deserialize;
 
 use crate::checkpoint::{dir_name, load_rigidformer, parse_config};
 use crate::rigidformer::RigidFormer;
-use crate::{ModelConfig, ModelError, ObjectInput, Pose, PreparedScene, StepItem, WorldModel};
+use crate::{
+    ModelConfig, ModelError, ObjectInput, Pose, PreparedScene, SceneState, StepItem, WorldModel,
+};
 
 /// `architecture` of an ensemble directory's `config.json`.
 pub const ENSEMBLE: &str = "rigidformer-ensemble";
@@ -50,7 +61,14 @@ pub struct EnsembleConfig {
     /// need not sum to 1). Equal weights when absent.
     #[serde(default)]
     pub weights: Option<Vec<f32>>,
+    /// Turned copies of each scene every member steps, the original among them (module
+    /// docs; 1 to [`MAX_YAW_COPIES`]). 1 when absent: no copies.
+    #[serde(default)]
+    pub yaw_copies: Option<u32>,
 }
+
+/// Most turned copies of a scene an ensemble may step ([`EnsembleConfig::yaw_copies`]).
+pub const MAX_YAW_COPIES: u32 = 16;
 
 /// RigidFormer checkpoints that serve scenes alike, whose steps are averaged (module docs).
 pub struct Ensemble {
@@ -58,6 +76,8 @@ pub struct Ensemble {
     members: Vec<RigidFormer>,
     /// Each member's weight, summing to 1.
     weights: Vec<f32>,
+    /// Turned copies of each scene every member steps ([`EnsembleConfig::yaw_copies`]).
+    yaw_copies: u32,
 }
 
 impl Ensemble {
@@ -103,7 +123,26 @@ impl Ensemble {
             name,
             members,
             weights,
+            yaw_copies: 1,
         })
+    }
+
+    /// This ensemble stepping `copies` turned copies of every scene (module docs); refuses 0
+    /// and more than [`MAX_YAW_COPIES`].
+    pub fn with_yaw_copies(mut self, copies: u32) -> Result<Ensemble, ModelError> {
+        if copies == 0 || copies > MAX_YAW_COPIES {
+            return Err(ModelError::Checkpoint(format!(
+                "ensemble {:?}: yaw_copies is {copies}; give 1 to {MAX_YAW_COPIES}",
+                self.name
+            )));
+        }
+        self.yaw_copies = copies;
+        Ok(self)
+    }
+
+    /// Turned copies of each scene every member steps (1: none besides the original).
+    pub fn yaw_copies(&self) -> u32 {
+        self.yaw_copies
     }
 
     /// Loads the ensemble directory `dir` (module docs) with its members' weights on `device`.
@@ -132,7 +171,8 @@ impl Ensemble {
                 })
             })
             .collect::<Result<Vec<_>, _>>()?;
-        Ensemble::assemble(dir_name(dir, ENSEMBLE), members, weights)
+        Ensemble::assemble(dir_name(dir, ENSEMBLE), members, weights)?
+            .with_yaw_copies(config.yaw_copies.unwrap_or(1))
     }
 
     /// The members, in the order of `config.json`.
@@ -225,27 +265,66 @@ impl WorldModel for Ensemble {
     }
 
     fn step(&self, batch: &[StepItem<'_>]) -> Result<Vec<Vec<Pose>>, ModelError> {
+        let copies = self.yaw_copies as usize;
+        let turns: Vec<Yaw> = (1..copies)
+            .flat_map(|c| {
+                let angle = std::f32::consts::TAU * c as f32 / copies as f32;
+                batch
+                    .iter()
+                    .map(move |it| Yaw::about_centre(angle, &it.state.current))
+            })
+            .collect();
+        let turned_states: Vec<SceneState> = turns
+            .iter()
+            .zip(batch.iter().cycle())
+            .map(|(yaw, it)| yaw.state(it.state))
+            .collect();
+        let items: Vec<StepItem<'_>> = batch
+            .iter()
+            .copied()
+            .chain(
+                turned_states
+                    .iter()
+                    .zip(batch.iter().cycle())
+                    .map(|(state, it)| StepItem { state, ..*it }),
+            )
+            .collect();
         let outputs = self
             .members
             .iter()
-            .map(|m| m.step(batch))
+            .map(|m| m.step(&items))
             .collect::<Result<Vec<_>, _>>()?;
         let shaped = |o: &Vec<Vec<Pose>>| {
-            o.len() == batch.len() && o.iter().zip(batch).all(|(s, it)| s.len() == it.scene.len())
+            o.len() == items.len()
+                && o.iter()
+                    .zip(&items)
+                    .all(|(s, it)| s.len() == it.scene.len())
         };
         if !outputs.iter().all(shaped) {
             return Err(ModelError::Internal(
                 "an ensemble member returned another number of scenes or objects".into(),
             ));
         }
-        let mut poses = Vec::with_capacity(self.members.len());
+        // Weight of one member's answer on one copy.
+        let weights: Vec<f32> = self
+            .weights
+            .iter()
+            .flat_map(|w| std::iter::repeat_n(w / copies as f32, copies))
+            .collect();
+        let mut poses = Vec::with_capacity(weights.len());
         Ok((0..batch.len())
             .map(|scene| {
                 (0..batch[scene].scene.len())
                     .map(|object| {
                         poses.clear();
-                        poses.extend(outputs.iter().map(|o| o[scene][object]));
-                        weighted_mean_pose(&poses, &self.weights)
+                        for o in &outputs {
+                            poses.push(o[scene][object]);
+                            poses.extend((1..copies).map(|c| {
+                                let k = (c - 1) * batch.len() + scene;
+                                turns[k].back(o[batch.len() + k][object])
+                            }));
+                        }
+                        weighted_mean_pose(&poses, &weights)
                     })
                     .collect()
             })
@@ -254,5 +333,55 @@ impl WorldModel for Ensemble {
 
     fn member_names(&self) -> Vec<String> {
         self.members.iter().map(|m| m.name().to_string()).collect()
+    }
+}
+
+/// A turn about the vertical through a pivot: how a copy of a scene is made and its answer
+/// turned back ([`EnsembleConfig::yaw_copies`]).
+struct Yaw {
+    /// The turn, body to world of the copy.
+    rotation: UnitQuaternion<f32>,
+    /// Point of the vertical axis, metres (z is 0).
+    pivot: Vector3<f32>,
+}
+
+impl Yaw {
+    /// The turn by `angle` radians about the vertical through the mean horizontal position of
+    /// `poses` (the origin for no poses).
+    fn about_centre(angle: f32, poses: &[Pose]) -> Yaw {
+        let n = poses.len().max(1) as f32;
+        let sum = poses.iter().fold(Vector3::zeros(), |s, p| {
+            s + Vector3::new(p.translation[0], p.translation[1], 0.0)
+        });
+        Yaw {
+            rotation: UnitQuaternion::from_axis_angle(&Vector3::z_axis(), angle),
+            pivot: sum / n,
+        }
+    }
+
+    /// `pose` turned by `rotation` about the pivot.
+    fn apply(&self, rotation: &UnitQuaternion<f32>, pose: Pose) -> Pose {
+        let t = Vector3::from(pose.translation) - self.pivot;
+        Pose::from_parts(self.pivot + rotation * t, rotation * pose.unit_quaternion())
+    }
+
+    /// `pose` in the turned copy.
+    fn turn(&self, pose: Pose) -> Pose {
+        self.apply(&self.rotation, pose)
+    }
+
+    /// A pose of the turned copy brought back to the original scene.
+    fn back(&self, pose: Pose) -> Pose {
+        self.apply(&self.rotation.inverse(), pose)
+    }
+
+    /// `state` with every pose turned.
+    fn state(&self, state: &SceneState) -> SceneState {
+        let turn = |poses: &[Pose]| poses.iter().map(|p| self.turn(*p)).collect::<Vec<_>>();
+        SceneState {
+            previous: turn(&state.previous),
+            current: turn(&state.current),
+            earlier: state.earlier.as_deref().map(turn),
+        }
     }
 }

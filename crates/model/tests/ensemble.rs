@@ -3,10 +3,10 @@ mod common;
 
 use std::path::Path;
 
-use common::{load_error, max_pose_diff, step_random_scene, tmp_dir};
+use common::{load_error, max_pose_diff, random_scene, step_one, step_random_scene, tmp_dir};
 use dynaserve_model::ensemble::{MAX_MEMBERS, mean_pose, weighted_mean_pose};
 use dynaserve_model::{
-    Device, ModelConfig, Pose, RigidFormer, WorldModel, load_model, load_rigidformer,
+    Device, ModelConfig, Pose, RigidFormer, SceneState, WorldModel, load_model, load_rigidformer,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 
@@ -201,5 +201,78 @@ fn bad_ensembles_are_refused_with_the_reason() {
     )
     .unwrap();
     assert!(load_error(&dir).contains("not a valid ensemble configuration"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `poses` turned by `angle` radians about the vertical through `(cx, cy)`.
+fn turned(poses: &[Pose], angle: f32, cx: f32, cy: f32) -> Vec<Pose> {
+    let r = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), angle);
+    let c = Vector3::new(cx, cy, 0.0);
+    poses
+        .iter()
+        .map(|p| {
+            Pose::from_parts(
+                c + r * (Vector3::from(p.translation) - c),
+                r * p.unit_quaternion(),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn yaw_copies_make_a_step_indifferent_to_turns_by_their_angle() {
+    let dir = tmp_dir("ensemble", "yaw");
+    ensemble_dir_with(
+        &dir,
+        &[8],
+        serde_json::json!({"members": ["m8"], "yaw_copies": 4}),
+    );
+    let averaged = load_model(&dir, &Device::Cpu).unwrap();
+    let plain = load_rigidformer(&dir.join("m8"), &Device::Cpu, false).unwrap();
+    let (objects, state) = random_scene(31, 4, 96);
+    // The turn is about the scene's centre, which the copies are also made about.
+    let n = state.current.len() as f32;
+    let cx = state.current.iter().map(|p| p.translation[0]).sum::<f32>() / n;
+    let cy = state.current.iter().map(|p| p.translation[1]).sum::<f32>() / n;
+    let quarter = std::f32::consts::FRAC_PI_2;
+    let turned_state = SceneState {
+        previous: turned(&state.previous, quarter, cx, cy),
+        current: turned(&state.current, quarter, cx, cy),
+        earlier: None,
+    };
+    // How far stepping the turned scene is from turning the step.
+    let miss = |model: &dyn WorldModel| {
+        let scene = model.prepare(objects.clone()).unwrap();
+        let then_turned = turned(&step_one(model, &scene, &state, 2), quarter, cx, cy);
+        max_pose_diff(&step_one(model, &scene, &turned_state, 2), &then_turned)
+    };
+    // A network trained or not is not exactly indifferent to the turn; the mean over the
+    // quarter turns is, to rounding.
+    assert!(
+        miss(&plain) > 1e-3,
+        "the plain network is already indifferent"
+    );
+    assert!(
+        miss(averaged.as_ref()) < 1e-5,
+        "{}",
+        miss(averaged.as_ref())
+    );
+    // Its one copy is the member itself.
+    ensemble_dir_with(
+        &dir,
+        &[],
+        serde_json::json!({"members": ["m8"], "yaw_copies": 1}),
+    );
+    let one = load_model(&dir, &Device::Cpu).unwrap();
+    assert!(max_pose_diff(&step(one.as_ref()), &step(&plain)) < 1e-7);
+    for bad in [0, 17] {
+        ensemble_dir_with(
+            &dir,
+            &[],
+            serde_json::json!({"members": ["m8"], "yaw_copies": bad}),
+        );
+        let e = load_error(&dir);
+        assert!(e.contains("yaw_copies") && e.contains("1 to 16"), "{e}");
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
