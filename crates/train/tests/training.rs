@@ -849,3 +849,74 @@ fn a_cuda_run_without_cuda_support_is_refused_clearly() {
     assert!(!dir.join("run/checkpoint").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `[heldout]` scores the run on the generated physics suite before the first iteration, every
+/// `every` iterations and at the end: `heldout.csv` gets one block of rows per score (finite
+/// ratios for the regimes the suite reaches), each score its report and the chart its points;
+/// a resumed run keeps the rows up to its checkpoint and adds the later ones once.
+#[test]
+fn heldout_watch_scores_the_run_and_resumes_its_rows() {
+    let dir = scratch("heldout");
+    let data = tiny_dataset(&dir);
+    let mut c = tiny_config(&data, &dir.join("run"), 4);
+    c.heldout = dynaserve_train::train::heldout::HeldoutConfig {
+        every: 2,
+        scenes: 1,
+        points: 256,
+        step_sizes: vec![1],
+        window_stride: 4,
+        ..Default::default()
+    };
+    let stop = TrainOptions {
+        stop_after: Some(2),
+        ..TrainOptions::default()
+    };
+    assert_eq!(train(&c, &stop).unwrap().step, 2);
+    let resume = TrainOptions {
+        resume: true,
+        ..TrainOptions::default()
+    };
+    assert_eq!(train(&c, &resume).unwrap().step, 4);
+
+    let out = dir.join("run");
+    let csv = std::fs::read_to_string(out.join("heldout.csv")).unwrap();
+    let mut lines = csv.lines();
+    assert_eq!(
+        lines.next(),
+        Some(dynaserve_train::train::heldout::HELDOUT_HEADER)
+    );
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    let steps = |table: &str| -> Vec<u64> {
+        let mut s: Vec<u64> = rows
+            .iter()
+            .filter(|r| r[2] == table)
+            .map(|r| r[0].parse().unwrap())
+            .collect();
+        s.dedup();
+        s
+    };
+    assert_eq!(steps("regime"), [0, 2, 4], "{csv}");
+    assert_eq!(steps("figure"), [0, 2, 4], "{csv}");
+    // Each score once: the resumed run neither lost nor repeated the rows of iteration 2.
+    let count = |step: &str| rows.iter().filter(|r| r[0] == step).count();
+    assert!(count("0") > 0 && count("2") == count("0") && count("4") == count("0"));
+    // Every regime row with windows has a positive finite ratio of two positive errors.
+    let scored: Vec<&Vec<&str>> = rows
+        .iter()
+        .filter(|r| r[2] == "regime" && r[10] != "0")
+        .collect();
+    assert!(scored.iter().any(|r| r[3] == "floor contact"), "{csv}");
+    for r in &scored {
+        let [model, reference, ratio] = [6, 7, 8].map(|i| r[i].parse::<f64>().unwrap());
+        assert!(model > 0.0 && reference > 0.0, "{r:?}");
+        assert!((ratio - reference / model).abs() < 1e-3 * ratio, "{r:?}");
+    }
+    // The tiny configuration keeps a weight average: that is what is scored.
+    assert!(rows.iter().all(|r| r[1] == "average"), "{csv}");
+    for step in [0, 2, 4] {
+        let report = out.join(format!("heldout/step-{step:08}.json"));
+        assert!(report.is_file(), "{}", report.display());
+    }
+    assert!(out.join("heldout.png").is_file());
+    let _ = std::fs::remove_dir_all(&dir);
+}

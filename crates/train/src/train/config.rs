@@ -25,6 +25,8 @@ pub struct TrainConfig {
     pub optim: OptimConfig,
     /// Output directory, checkpoint cadence, logging, threads.
     pub run: RunConfig,
+    /// The physics suite scored along the run (off by default).
+    pub heldout: super::heldout::HeldoutConfig,
 }
 
 /// Data loading and augmentation.
@@ -578,6 +580,7 @@ impl TrainConfig {
     /// Checks ranges; every violation is named.
     pub fn validate(&self) -> Result<(), TrainError> {
         let bad = |m: &str| Err(TrainError::Config(m.to_string()));
+        self.heldout.validate()?;
         if self.run.loader_threads == 0 {
             return bad("run.loader_threads must be at least 1");
         }

@@ -19,6 +19,7 @@ pub mod config;
 pub mod data;
 pub mod events;
 pub mod export;
+pub mod heldout;
 pub mod optim;
 pub mod plot;
 pub mod pushforward;

@@ -9,6 +9,8 @@
 //! - `log.csv`: one row per `run.log_every` iterations (means over the window);
 //! - `loss.png`: the loss curve, redrawn at every checkpoint;
 //! - `train-config.json`: the configuration of the run.
+//! - with `[heldout]` on, `heldout.csv`, `heldout/` and `heldout.png`: the physics suite
+//!   scored along the run ([`super::heldout`]).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -26,6 +28,7 @@ use serde::{Deserialize, Serialize};
 use super::TrainError;
 use super::config::TrainConfig;
 use super::data::{Loader, Sources, fit_normalization};
+use super::heldout::HeldoutWatch;
 use super::optim::{AdamW, learning_rate};
 use super::plot::{Series, line_chart};
 use super::run_dir::{
@@ -352,6 +355,12 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
         .open(&log_path)
         .map_err(io(&log_path))?;
 
+    let watch = HeldoutWatch::start(
+        &cfg.heldout,
+        &out,
+        model.config().gravity,
+        opts.resume.then_some(state.step),
+    )?;
     let dyn_model: Arc<dyn WorldModel> = model.clone();
     let loader = Loader::start(
         reader,
@@ -380,6 +389,26 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
     );
     pb.set_position(state.step);
     let plain = pb.is_hidden();
+    // Scores the weight average (or the raw weights) at the current iteration; a failure is
+    // reported and the run goes on.
+    let score = |step: u64, opt: &AdamW| {
+        let Some(w) = &watch else { return };
+        let scored = opt.ema_weights().and_then(|weights| {
+            w.score(
+                step,
+                model.config(),
+                &weights,
+                cfg.optim.ema_decay > 0.0,
+                model.device(),
+            )
+        });
+        match scored {
+            Ok(s) => {
+                pb.suspend(|| println!("{}", s.summary()));
+            }
+            Err(e) => pb.suspend(|| eprintln!("held-out score at iteration {step} failed: {e}")),
+        }
+    };
 
     let session_start = Instant::now();
     let elapsed_before = state.elapsed_seconds;
@@ -399,6 +428,9 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
     let mut data_wait = 0f64;
 
     let result: Result<(), TrainError> = pool.install(|| {
+        if !opts.resume && state.step == 0 {
+            score(0, &opt);
+        }
         while state.step < cfg.optim.iterations
             && !opts.stop.load(Ordering::SeqCst)
             && budget_end.is_none_or(|e| state.step < e)
@@ -510,6 +542,11 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                 window_start = Instant::now();
             }
             pb.set_position(state.step);
+            if watch.as_ref().is_some_and(|w| w.due(state.step))
+                || (watch.is_some() && state.step == cfg.optim.iterations)
+            {
+                score(state.step, &opt);
+            }
             if last_ckpt.elapsed().as_secs_f64() >= cfg.run.checkpoint_minutes * 60.0 {
                 state.elapsed_seconds = elapsed_before + session_start.elapsed().as_secs_f64();
                 ckpt_path = save_checkpoint(&out, &model, &opt, &state)?;

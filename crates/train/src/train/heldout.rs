@@ -1,0 +1,339 @@
+//! The held-out watch (`[heldout]`): the physics suite scored along a run, so that a training
+//! loss that falls while the contacts on new scenes stay where they were shows while the run
+//! goes on, not after it.
+//!
+//! At the start of a run the suite's scenes are generated once, in memory, from
+//! `heldout.seed` (a seed neither the training splits, 0 to 2, nor the evaluation suite, 7,
+//! uses). Every `heldout.every` iterations, and before the first iteration of a fresh run, the
+//! weight average (the raw weights when the run keeps none) is written as a model directory
+//! (`heldout/model/`), loaded for inference like a served model and scored with the
+//! gravity-ballistic baseline beside it ([`run_suite`]). Each score:
+//! - appends rows to `heldout.csv` (long form, [`HELDOUT_HEADER`]): per regime and step size
+//!   the model's and the baseline's translation RMSE and their ratio; per scenario figure the
+//!   model's mean, rapier's, and how many samples met the figure's target;
+//! - writes the whole report to `heldout/step-NNNNNNNN.json`;
+//! - redraws `heldout.png` (ballistic-over-model ratio by regime against the iteration);
+//! - prints one line with the contact ratios.
+//!
+//! Scoring reads the weights and changes nothing the run depends on, so a run is the same with
+//! or without the watch, and a resumed run keeps the rows up to its checkpoint.
+
+use std::collections::HashMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use candle_core::Tensor;
+use dynaserve_model::{Device, ModelConfig, load_rigidformer};
+use serde::{Deserialize, Serialize};
+
+use super::TrainError;
+use super::export::write_model;
+use super::plot::{Series, line_chart};
+use super::run_dir::{io, truncate_log};
+use crate::eval::physics_suite::{PhysicsSuiteReport, SuiteOptions, SuiteScene, generate_suite};
+use crate::eval::regimes::Regime;
+use crate::eval::{Ballistic, ModelPredictor, Predictor, physics_suite::run_suite};
+
+/// Header of `heldout.csv`. `table` is `regime` or `figure`; for a regime row `model` and
+/// `reference` are the model's and the ballistic baseline's translation RMSE (m) and `ratio`
+/// the second over the first; for a figure row they are the model's and rapier's means (in
+/// `unit`) and `met` the samples meeting the figure's target.
+pub const HELDOUT_HEADER: &str = "step,weights,table,name,unit,k,model,reference,ratio,met,samples";
+
+/// What the held-out watch scores and how often ([`TrainConfig::heldout`](super::TrainConfig)).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct HeldoutConfig {
+    /// Iterations between scores; 0 (the default) turns the watch off.
+    pub every: u64,
+    /// Seed of the generated suite (split `test`).
+    pub seed: u64,
+    /// Scenes per suite group.
+    pub scenes: usize,
+    /// Reference points per object of the generated scenes (the model samples its own count
+    /// from them, as in `dynaserve eval`).
+    pub points: usize,
+    /// Step sizes of the regime rows, frames.
+    pub step_sizes: Vec<u32>,
+    /// Every `n`-th window of a scene enters the regime rows (1: all).
+    pub window_stride: usize,
+}
+
+impl Default for HeldoutConfig {
+    fn default() -> Self {
+        HeldoutConfig {
+            every: 0,
+            seed: 8,
+            scenes: 2,
+            points: 1024,
+            step_sizes: vec![1, 4],
+            window_stride: 1,
+        }
+    }
+}
+
+impl HeldoutConfig {
+    /// Checks ranges; every violation is named.
+    pub fn validate(&self) -> Result<(), TrainError> {
+        let bad = |m: &str| Err(TrainError::Config(format!("heldout.{m}")));
+        if self.every == 0 {
+            return Ok(());
+        }
+        if !(1..=64).contains(&self.scenes) {
+            return bad("scenes must be in 1..=64");
+        }
+        if self.points < 16 {
+            return bad("points must be at least 16");
+        }
+        if self.step_sizes.is_empty() || self.step_sizes.iter().any(|&k| k == 0 || k > 16) {
+            return bad("step_sizes must be non-empty, each in 1..=16");
+        }
+        if self.window_stride == 0 {
+            return bad("window_stride must be at least 1");
+        }
+        Ok(())
+    }
+}
+
+/// The watch of one run: its scenes, generated once, and where the scores go.
+pub struct HeldoutWatch {
+    config: HeldoutConfig,
+    scenes: Vec<SuiteScene>,
+    options: SuiteOptions,
+    out: PathBuf,
+}
+
+/// What one score found, as [`HeldoutWatch::score`] prints it.
+#[derive(Clone, Debug)]
+pub struct HeldoutScore {
+    /// The iteration scored.
+    pub step: u64,
+    /// The whole report.
+    pub report: PhysicsSuiteReport,
+    /// Wall time of the score (writing and loading the weights included), seconds.
+    pub seconds: f64,
+}
+
+impl HeldoutWatch {
+    /// The watch of the run in `out` (`None` when `config.every` is 0): generates the scenes
+    /// and, when resuming from `resumed_step`, keeps the rows of `heldout.csv` up to it.
+    pub fn start(
+        config: &HeldoutConfig,
+        out: &Path,
+        gravity: [f32; 3],
+        resumed_step: Option<u64>,
+    ) -> Result<Option<HeldoutWatch>, TrainError> {
+        if config.every == 0 {
+            return Ok(None);
+        }
+        config.validate()?;
+        let started = Instant::now();
+        let scenes = generate_suite(
+            config.seed,
+            "test",
+            config.scenes,
+            config.points,
+            dynaserve_sim::Materials::Kubric,
+        )
+        .map_err(eval_err)?;
+        eprintln!(
+            "held-out suite: {} scenes (seed {}, {} per group) generated in {:.1} s, scored every {} iterations",
+            scenes.len(),
+            config.seed,
+            config.scenes,
+            started.elapsed().as_secs_f64(),
+            config.every
+        );
+        let csv = out.join("heldout.csv");
+        match resumed_step {
+            Some(step) => truncate_log(&csv, HELDOUT_HEADER, step)?,
+            None => std::fs::write(&csv, format!("{HELDOUT_HEADER}\n")).map_err(io(&csv))?,
+        }
+        Ok(Some(HeldoutWatch {
+            config: config.clone(),
+            scenes,
+            options: SuiteOptions {
+                step_sizes: config.step_sizes.clone(),
+                window_stride: config.window_stride,
+                gravity,
+                ..SuiteOptions::default()
+            },
+            out: out.to_path_buf(),
+        }))
+    }
+
+    /// Whether iteration `step` is scored.
+    pub fn due(&self, step: u64) -> bool {
+        step.is_multiple_of(self.config.every)
+    }
+
+    /// Scores `weights` (by parameter name, for a model of `config`) at iteration `step` on
+    /// `device`; `average` says whether they are the weight average (module docs).
+    pub fn score(
+        &self,
+        step: u64,
+        config: &ModelConfig,
+        weights: &HashMap<String, Tensor>,
+        average: bool,
+        device: &Device,
+    ) -> Result<HeldoutScore, TrainError> {
+        let started = Instant::now();
+        let dir = self.out.join("heldout");
+        let model_dir = dir.join("model");
+        write_model(&model_dir, config, weights)?;
+        let model = load_rigidformer(&model_dir, device, false)?.with_name("rigidformer");
+        let predictor = ModelPredictor::from_rigidformer(Arc::new(model));
+        let ballistic = Ballistic {
+            gravity: self.options.gravity,
+            floor_z: Some(0.0),
+        };
+        let predictors: [(&str, &dyn Predictor); 2] =
+            [("model", &predictor), ("ballistic", &ballistic)];
+        let source = format!("held-out suite (seed {}, split test)", self.config.seed);
+        let report = run_suite(
+            &predictors,
+            &self.scenes,
+            &self.options,
+            &source,
+            &|_, _| {},
+        )
+        .map_err(eval_err)?;
+        let json = dir.join(format!("step-{step:08}.json"));
+        let text = serde_json::to_string_pretty(&report)
+            .map_err(|e| TrainError::Config(format!("held-out report: {e}")))?;
+        std::fs::write(&json, text + "\n").map_err(io(&json))?;
+        let csv = self.out.join("heldout.csv");
+        let rows = csv_rows(step, if average { "average" } else { "raw" }, &report);
+        let mut file = std::fs::OpenOptions::new()
+            .append(true)
+            .open(&csv)
+            .map_err(io(&csv))?;
+        std::io::Write::write_all(&mut file, rows.as_bytes()).map_err(io(&csv))?;
+        if let Err(e) = plot_heldout(&self.out) {
+            eprintln!("held-out chart not drawn: {e}");
+        }
+        Ok(HeldoutScore {
+            step,
+            report,
+            seconds: started.elapsed().as_secs_f64(),
+        })
+    }
+}
+
+impl HeldoutScore {
+    /// One line: the ballistic-over-model ratio of every classified regime at every step size.
+    pub fn summary(&self) -> String {
+        let mut s = format!("held-out at iteration {}:", self.step);
+        for row in &self.report.regimes {
+            if !Regime::ALL.contains(&row.regime) {
+                continue;
+            }
+            if let Some([Some(r), _]) = row.ballistic_over_model {
+                let _ = write!(s, " {} k={} {r:.2}x;", row.regime.name(), row.k);
+            }
+        }
+        let _ = write!(s, " ({:.1} s)", self.seconds);
+        s
+    }
+}
+
+fn eval_err(e: crate::eval::EvalError) -> TrainError {
+    TrainError::Data(format!("held-out suite: {e}"))
+}
+
+fn cell(v: Option<f64>) -> String {
+    v.map(|v| v.to_string()).unwrap_or_default()
+}
+
+/// The `heldout.csv` rows of one report (model first, ballistic second).
+fn csv_rows(step: u64, weights: &str, r: &PhysicsSuiteReport) -> String {
+    let mut out = String::new();
+    for row in &r.regimes {
+        let [model, reference] = [0, 1].map(|i| row.predictors.get(i)?.translation_rmse_m);
+        let ratio = row.ballistic_over_model.and_then(|[t, _]| t);
+        let _ = writeln!(
+            out,
+            "{step},{weights},regime,{},m,{},{},{},{},,{}",
+            row.regime.name(),
+            row.k,
+            cell(model),
+            cell(reference),
+            cell(ratio),
+            row.count
+        );
+    }
+    for f in &r.figures {
+        let model = f.predictors.first();
+        let _ = writeln!(
+            out,
+            "{step},{weights},figure,{}/{}/{},{},1,{},{},,{},{}",
+            f.scenario,
+            f.group,
+            f.figure,
+            f.unit,
+            cell(model.map(|m| m.mean)),
+            cell(f.rapier.as_ref().map(|m| m.mean)),
+            model
+                .and_then(|m| m.met)
+                .map(|m| m.to_string())
+                .unwrap_or_default(),
+            f.samples
+        );
+    }
+    out
+}
+
+/// Redraws `heldout.png` from `heldout.csv`: every classified regime at the smallest step
+/// size, and the two contact regimes at the largest.
+fn plot_heldout(out: &Path) -> Result<(), TrainError> {
+    let path = out.join("heldout.csv");
+    let text = std::fs::read_to_string(&path).map_err(io(&path))?;
+    // (step, regime, k, ratio) of every regime row with a ratio.
+    let rows: Vec<(f64, &str, u32, f64)> = text
+        .lines()
+        .skip(1)
+        .filter_map(|line| {
+            let f: Vec<&str> = line.split(',').collect();
+            if f.len() < 9 || f[2] != "regime" || !Regime::ALL.iter().any(|r| r.name() == f[3]) {
+                return None;
+            }
+            Some((
+                f[0].parse().ok()?,
+                f[3],
+                f[5].parse().ok()?,
+                f[8].parse().ok()?,
+            ))
+        })
+        .collect();
+    let (Some(k_min), Some(k_max)) = (
+        rows.iter().map(|r| r.2).min(),
+        rows.iter().map(|r| r.2).max(),
+    ) else {
+        return Ok(());
+    };
+    let contact = [Regime::FloorContact.name(), Regime::ObjectContact.name()];
+    let mut series: Vec<Series> = Vec::new();
+    for &(step, regime, k, ratio) in &rows {
+        if k != k_min && !(k == k_max && contact.contains(&regime)) {
+            continue;
+        }
+        let name = format!("{regime} k={k}");
+        match series.iter_mut().find(|s| s.name == name) {
+            Some(s) => s.points.push((step, ratio)),
+            None => series.push(Series {
+                name,
+                points: vec![(step, ratio)],
+            }),
+        }
+    }
+    line_chart(
+        &out.join("heldout.png"),
+        "Held-out suite: ballistic error over the model's (higher is better)",
+        "iteration",
+        "translation RMSE ratio",
+        &series,
+        false,
+    )
+}
