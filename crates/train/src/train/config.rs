@@ -752,42 +752,123 @@ mod tests {
         assert_eq!(load("rigidformer-small-r69.toml"), want);
     }
 
+    /// The committed RigidFormer configurations (the experiments' included), by file name
+    /// relative to `configs/`, sorted.
+    fn committed_config_files() -> Vec<(String, PathBuf)> {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
+        let mut files = Vec::new();
+        for (sub, prefix) in [("", "rigidformer"), ("experiments/", "")] {
+            for entry in std::fs::read_dir(dir.join(sub)).unwrap() {
+                let p = entry.unwrap().path();
+                let name = p.file_name().unwrap().to_string_lossy().into_owned();
+                if name.starts_with(prefix) && name.ends_with(".toml") {
+                    files.push((format!("{sub}{name}"), p));
+                }
+            }
+        }
+        files.sort();
+        files
+    }
+
+    /// The leaves of `value` (a serialised configuration) that differ from `default`'s at the
+    /// same path, by dotted path.
+    fn changed_leaves(
+        path: &str,
+        value: &serde_json::Value,
+        default: Option<&serde_json::Value>,
+        out: &mut std::collections::BTreeMap<String, serde_json::Value>,
+    ) {
+        if let (serde_json::Value::Object(map), Some(serde_json::Value::Object(base))) =
+            (value, default)
+        {
+            for (k, v) in map {
+                let p = if path.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{path}.{k}")
+                };
+                changed_leaves(&p, v, base.get(k), out);
+            }
+        } else if default != Some(value) {
+            out.insert(path.to_string(), value.clone());
+        }
+    }
+
+    /// Every committed configuration resolves (bases laid under it) to the settings recorded
+    /// in `configs/resolved.txt`, one line per key that differs from the defaults
+    /// (`file: key = value`, the value as JSON). A file edited in place changes every run
+    /// built on it through `base`; this test names each such run, so that a record is not
+    /// rewritten unnoticed. After a deliberate change (a new run, a new default), rewrite the
+    /// record with `DYNASERVE_WRITE_RESOLVED=1` and review its diff.
+    #[test]
+    fn committed_configs_resolve_as_recorded() {
+        let default = serde_json::to_value(TrainConfig::default()).unwrap();
+        let mut lines = Vec::new();
+        for (name, path) in committed_config_files() {
+            let c = TrainConfig::from_file(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
+            let mut leaves = std::collections::BTreeMap::new();
+            changed_leaves(
+                "",
+                &serde_json::to_value(c).unwrap(),
+                Some(&default),
+                &mut leaves,
+            );
+            for (key, value) in leaves {
+                lines.push(format!("{name}: {key} = {value}"));
+            }
+        }
+        let record = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/resolved.txt");
+        if std::env::var_os("DYNASERVE_WRITE_RESOLVED").is_some() {
+            std::fs::write(&record, lines.join("\n") + "\n").unwrap();
+            return;
+        }
+        let text = std::fs::read_to_string(&record).unwrap();
+        let recorded: Vec<&str> = text.lines().collect();
+        let mut changes: Vec<String> = recorded
+            .iter()
+            .filter(|l| !lines.iter().any(|n| n == *l))
+            .map(|l| format!("- {l}"))
+            .chain(
+                lines
+                    .iter()
+                    .filter(|l| !recorded.contains(&l.as_str()))
+                    .map(|l| format!("+ {l}")),
+            )
+            .collect();
+        changes.sort_by(|a, b| a[2..].cmp(&b[2..]));
+        assert!(
+            changes.is_empty(),
+            "committed configurations no longer resolve as configs/resolved.txt records \
+             (recorded -, now +; DYNASERVE_WRITE_RESOLVED=1 rewrites it):\n{}",
+            changes.join("\n")
+        );
+    }
+
     /// Every committed RigidFormer training configuration, the experiments' included, parses
     /// and validates (a typo in one surfaces here, not an hour into a run); the relative-mass
     /// run switches it on.
     #[test]
     fn committed_configs_parse_and_validate() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
-        let mut n = 0;
-        for entry in std::fs::read_dir(&dir).unwrap() {
-            let p = entry.unwrap().path();
-            let rigid = p
-                .file_name()
-                .is_some_and(|f| f.to_string_lossy().starts_with("rigidformer"));
-            if rigid && p.extension().is_some_and(|e| e == "toml") {
-                TrainConfig::from_file(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
-                n += 1;
-            }
+        let files = committed_config_files();
+        for (name, p) in &files {
+            TrainConfig::from_file(p).unwrap_or_else(|e| panic!("{name}: {e}"));
         }
+        let experiments = files
+            .iter()
+            .filter(|(n, _)| n.starts_with("experiments/"))
+            .count();
+        let runs = files.len() - experiments;
         assert!(
-            n >= 30,
-            "only {n} configurations found in {}",
+            runs >= 30,
+            "only {runs} configurations in {}",
             dir.display()
         );
         // The diagnoses' and experiments' configurations too, so that the card's commands run.
-        let experiments = dir.join("experiments");
-        let mut m = 0;
-        for entry in std::fs::read_dir(&experiments).unwrap() {
-            let p = entry.unwrap().path();
-            if p.extension().is_some_and(|e| e == "toml") {
-                TrainConfig::from_file(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
-                m += 1;
-            }
-        }
         assert!(
-            m >= 20,
-            "only {m} configurations in {}",
-            experiments.display()
+            experiments >= 20,
+            "only {experiments} configurations in {}/experiments",
+            dir.display()
         );
         let r24 = TrainConfig::from_file(&dir.join("rigidformer-small-r24.toml")).unwrap();
         assert_eq!(r24.model.relative_mass, Some(true));
