@@ -237,9 +237,17 @@ pub fn run_cli(args: TrainArgs) -> anyhow::Result<()> {
             stop_after: args.stop_after,
         },
     )?;
+    let heldout = if summary.heldout_seconds > 0.0 {
+        format!(
+            ", {:.0} s scoring the held-out suite (heldout.csv)",
+            summary.heldout_seconds
+        )
+    } else {
+        String::new()
+    };
     println!(
         "stopped at iteration {} of {} ({:.1} it/s this session, {:.0}% of it waiting for data, \
-         last loss {:.4}); checkpoint in {}",
+         last loss {:.4}{heldout}); checkpoint in {}",
         summary.step,
         cfg.optim.iterations,
         summary.iterations_per_second,

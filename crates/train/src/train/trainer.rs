@@ -67,12 +67,14 @@ impl Default for TrainOptions {
 pub struct TrainSummary {
     /// Iterations completed in total (including earlier sessions).
     pub step: u64,
-    /// Iterations per second in this call (excluding set-up).
+    /// Iterations per second in this call (excluding set-up and held-out scores).
     pub iterations_per_second: f64,
-    /// Share of this call's wall time (excluding set-up) the compute loop spent waiting for
-    /// the loader's next batch: near 0 when the data keeps up, large when `run.loader_threads`
-    /// should grow.
+    /// Share of this call's training time (excluding set-up and held-out scores) the compute
+    /// loop spent waiting for the loader's next batch: near 0 when the data keeps up, large
+    /// when `run.loader_threads` should grow.
     pub data_wait_fraction: f64,
+    /// Wall time this call spent scoring the held-out suite (`[heldout]`), seconds.
+    pub heldout_seconds: f64,
     /// Mean loss of the first logged window of this call.
     pub first_loss: f64,
     /// Mean loss of the last logged window of this call.
@@ -389,10 +391,11 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
     );
     pb.set_position(state.step);
     let plain = pb.is_hidden();
-    // Scores the weight average (or the raw weights) at the current iteration; a failure is
-    // reported and the run goes on.
-    let score = |step: u64, opt: &AdamW| {
-        let Some(w) = &watch else { return };
+    // Scores the weight average (or the raw weights) at the current iteration and returns
+    // the seconds it took; a failure is reported and the run goes on.
+    let score = |step: u64, opt: &AdamW| -> f64 {
+        let Some(w) = &watch else { return 0.0 };
+        let started = Instant::now();
         let scored = opt.ema_weights().and_then(|weights| {
             w.score(
                 step,
@@ -408,6 +411,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
             }
             Err(e) => pb.suspend(|| eprintln!("held-out score at iteration {step} failed: {e}")),
         }
+        started.elapsed().as_secs_f64()
     };
 
     let session_start = Instant::now();
@@ -426,10 +430,12 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
     let budget_end = opts.stop_after.map(|n| state.step + n);
     // Seconds the compute loop waited for the loader.
     let mut data_wait = 0f64;
+    let mut heldout_seconds = 0f64;
 
     let result: Result<(), TrainError> = pool.install(|| {
         if !opts.resume && state.step == 0 {
-            score(0, &opt);
+            heldout_seconds += score(0, &opt);
+            window_start = Instant::now();
         }
         while state.step < cfg.optim.iterations
             && !opts.stop.load(Ordering::SeqCst)
@@ -545,7 +551,10 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
             if watch.as_ref().is_some_and(|w| w.due(state.step))
                 || (watch.is_some() && state.step == cfg.optim.iterations)
             {
-                score(state.step, &opt);
+                let secs = score(state.step, &opt);
+                heldout_seconds += secs;
+                // The log's rate is the training's: the score's time leaves the window.
+                window_start += std::time::Duration::from_secs_f64(secs);
             }
             if last_ckpt.elapsed().as_secs_f64() >= cfg.run.checkpoint_minutes * 60.0 {
                 state.elapsed_seconds = elapsed_before + session_start.elapsed().as_secs_f64();
@@ -576,11 +585,12 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
     pb.finish_and_clear();
     result?;
     let done = state.step - start_step;
-    let wall = session_start.elapsed().as_secs_f64().max(1e-9);
+    let wall = (session_start.elapsed().as_secs_f64() - heldout_seconds).max(1e-9);
     Ok(TrainSummary {
         step: state.step,
         iterations_per_second: done as f64 / wall,
         data_wait_fraction: data_wait / wall,
+        heldout_seconds,
         first_loss,
         last_loss,
         checkpoint: ckpt_path,
