@@ -794,6 +794,36 @@ mod tests {
         }
     }
 
+    /// `value` as JSON, with every number that is exactly an `f32` (the configuration's
+    /// single-precision fields, widened by serde) written as that `f32`'s shortest form, so
+    /// that the record reads `0.001`, not `0.0010000000474974513`, and stays exact.
+    fn record_value(value: &serde_json::Value) -> String {
+        use serde_json::Value;
+        match value {
+            Value::Number(n) if !n.is_i64() && !n.is_u64() => match n.as_f64() {
+                Some(x) if f64::from(x as f32) == x => {
+                    let short = format!("{:?}", x as f32);
+                    // As JSON it must still parse to the same f32.
+                    debug_assert_eq!(short.parse::<f32>().ok(), Some(x as f32));
+                    short
+                }
+                _ => value.to_string(),
+            },
+            Value::Array(items) => {
+                let items: Vec<String> = items.iter().map(record_value).collect();
+                format!("[{}]", items.join(","))
+            }
+            Value::Object(map) => {
+                let items: Vec<String> = map
+                    .iter()
+                    .map(|(k, v)| format!("{}:{}", Value::String(k.clone()), record_value(v)))
+                    .collect();
+                format!("{{{}}}", items.join(","))
+            }
+            _ => value.to_string(),
+        }
+    }
+
     /// Every committed configuration resolves (bases laid under it) to the settings recorded
     /// in `configs/resolved.txt`, one line per key that differs from the defaults
     /// (`file: key = value`, the value as JSON). A file edited in place changes every run
@@ -814,7 +844,7 @@ mod tests {
                 &mut leaves,
             );
             for (key, value) in leaves {
-                lines.push(format!("{name}: {key} = {value}"));
+                lines.push(format!("{name}: {key} = {}", record_value(&value)));
             }
         }
         let record = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/resolved.txt");
