@@ -555,6 +555,11 @@ fn overlay(under: &mut toml::Table, top: toml::Table) {
     }
 }
 
+/// Whether `step_sizes` (frames) is a valid list of step sizes: non-empty, each in 1..=16.
+pub(crate) fn valid_step_sizes(step_sizes: &[u32]) -> bool {
+    !step_sizes.is_empty() && step_sizes.iter().all(|k| (1..=16).contains(k))
+}
+
 impl TrainConfig {
     /// Reads a TOML (`.toml`) or JSON (any other extension) configuration and validates it.
     /// A TOML file may name another in a top-level `base = "file.toml"` (relative to its own
@@ -585,7 +590,7 @@ impl TrainConfig {
             return bad("run.loader_threads must be at least 1");
         }
         let d = &self.data;
-        if d.step_sizes.is_empty() || d.step_sizes.iter().any(|&k| k == 0 || k > 16) {
+        if !valid_step_sizes(&d.step_sizes) {
             return bad("data.step_sizes must be non-empty, each in 1..=16");
         }
         if d.points_min == 0 || d.points_max < d.points_min {
@@ -832,6 +837,7 @@ mod tests {
     /// record with `DYNASERVE_WRITE_RESOLVED=1` and review its diff.
     #[test]
     fn committed_configs_resolve_as_recorded() {
+        use std::collections::BTreeSet;
         let default = serde_json::to_value(TrainConfig::default()).unwrap();
         let mut lines = Vec::new();
         for (name, path) in committed_config_files() {
@@ -853,17 +859,12 @@ mod tests {
             return;
         }
         let text = std::fs::read_to_string(&record).unwrap();
-        let recorded: Vec<&str> = text.lines().collect();
+        let recorded: BTreeSet<&str> = text.lines().collect();
+        let now: BTreeSet<&str> = lines.iter().map(String::as_str).collect();
         let mut changes: Vec<String> = recorded
-            .iter()
-            .filter(|l| !lines.iter().any(|n| n == *l))
+            .difference(&now)
             .map(|l| format!("- {l}"))
-            .chain(
-                lines
-                    .iter()
-                    .filter(|l| !recorded.contains(&l.as_str()))
-                    .map(|l| format!("+ {l}")),
-            )
+            .chain(now.difference(&recorded).map(|l| format!("+ {l}")))
             .collect();
         changes.sort_by(|a, b| a[2..].cmp(&b[2..]));
         assert!(

@@ -4,7 +4,7 @@
 //!
 //! At the start of a run the suite's scenes are generated once, in memory, from
 //! `heldout.seed` (a seed neither the training splits, 0 to 2, nor the evaluation suite, 7,
-//! uses). Every `heldout.every` iterations, and before the first iteration of a fresh run, the
+//! uses). Every `heldout.every` iterations, at the last and before the first of a fresh run, the
 //! weight average (the raw weights when the run keeps none) is written as a model directory
 //! (`heldout/model/`), loaded for inference like a served model and scored with the
 //! gravity-ballistic baseline beside it ([`run_suite`]). Each score:
@@ -88,7 +88,7 @@ impl HeldoutConfig {
         if self.points < 16 {
             return bad("points must be at least 16");
         }
-        if self.step_sizes.is_empty() || self.step_sizes.iter().any(|&k| k == 0 || k > 16) {
+        if !super::config::valid_step_sizes(&self.step_sizes) {
             return bad("step_sizes must be non-empty, each in 1..=16");
         }
         if self.window_stride == 0 {
@@ -113,8 +113,6 @@ pub struct HeldoutScore {
     pub step: u64,
     /// The whole report.
     pub report: PhysicsSuiteReport,
-    /// Wall time of the score (writing and loading the weights included), seconds.
-    pub seconds: f64,
 }
 
 impl HeldoutWatch {
@@ -165,9 +163,10 @@ impl HeldoutWatch {
         }))
     }
 
-    /// Whether iteration `step` is scored.
-    pub fn due(&self, step: u64) -> bool {
-        step.is_multiple_of(self.config.every)
+    /// Whether iteration `step` of a schedule of `iterations` is scored: every
+    /// `heldout.every`-th, and the last.
+    pub fn due(&self, step: u64, iterations: u64) -> bool {
+        step.is_multiple_of(self.config.every) || step == iterations
     }
 
     /// Scores `weights` (by parameter name, for a model of `config`) at iteration `step` on
@@ -180,7 +179,6 @@ impl HeldoutWatch {
         average: bool,
         device: &Device,
     ) -> Result<HeldoutScore, TrainError> {
-        let started = Instant::now();
         let dir = self.out.join("heldout");
         let model_dir = dir.join("model");
         write_model(&model_dir, config, weights)?;
@@ -215,11 +213,7 @@ impl HeldoutWatch {
         if let Err(e) = plot_heldout(&self.out) {
             eprintln!("held-out chart not drawn: {e}");
         }
-        Ok(HeldoutScore {
-            step,
-            report,
-            seconds: started.elapsed().as_secs_f64(),
-        })
+        Ok(HeldoutScore { step, report })
     }
 }
 
@@ -236,7 +230,6 @@ impl HeldoutScore {
                 let _ = write!(s, " {} k={} {r:.2}x;", row.regime.name(), row.k);
             }
         }
-        let _ = write!(s, " ({:.1} s)", self.seconds);
         s
     }
 }
@@ -266,6 +259,7 @@ fn csv_rows(step: u64, weights: &str, r: &PhysicsSuiteReport) -> String {
             row.count
         );
     }
+    // The scenario figures come from rollouts at step size 1.
     for f in &r.figures {
         let model = f.predictors.first();
         let _ = writeln!(
@@ -324,4 +318,40 @@ fn plot_heldout(out: &Path) -> Result<(), TrainError> {
         &series,
         false,
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Scored every `every`-th iteration and at the last even off the cadence; off by default.
+    #[test]
+    fn due_at_the_cadence_and_the_last_iteration() {
+        let dir = std::env::temp_dir().join(format!("dynaserve-heldout-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let off = HeldoutWatch::start(&HeldoutConfig::default(), &dir, [0.0, 0.0, -9.81], None);
+        assert!(off.unwrap().is_none());
+        let config = HeldoutConfig {
+            every: 3,
+            scenes: 1,
+            points: 64,
+            ..HeldoutConfig::default()
+        };
+        let watch = HeldoutWatch::start(&config, &dir, [0.0, 0.0, -9.81], None)
+            .unwrap()
+            .unwrap();
+        let due: Vec<u64> = (0..=7).filter(|&s| watch.due(s, 7)).collect();
+        assert_eq!(due, [0, 3, 6, 7]);
+        let bad = HeldoutConfig {
+            step_sizes: vec![0],
+            ..config
+        };
+        assert!(
+            bad.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("heldout.step_sizes")
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

@@ -405,13 +405,12 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                 model.device(),
             )
         });
+        let secs = started.elapsed().as_secs_f64();
         match scored {
-            Ok(s) => {
-                pb.suspend(|| println!("{}", s.summary()));
-            }
+            Ok(s) => pb.suspend(|| println!("{} ({secs:.1} s)", s.summary())),
             Err(e) => pb.suspend(|| eprintln!("held-out score at iteration {step} failed: {e}")),
         }
-        started.elapsed().as_secs_f64()
+        secs
     };
 
     let session_start = Instant::now();
@@ -433,7 +432,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
     let mut heldout_seconds = 0f64;
 
     let result: Result<(), TrainError> = pool.install(|| {
-        if !opts.resume && state.step == 0 {
+        if !opts.resume {
             heldout_seconds += score(0, &opt);
             window_start = Instant::now();
         }
@@ -548,8 +547,9 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                 window_start = Instant::now();
             }
             pb.set_position(state.step);
-            if watch.as_ref().is_some_and(|w| w.due(state.step))
-                || (watch.is_some() && state.step == cfg.optim.iterations)
+            if watch
+                .as_ref()
+                .is_some_and(|w| w.due(state.step, cfg.optim.iterations))
             {
                 let secs = score(state.step, &opt);
                 heldout_seconds += secs;
