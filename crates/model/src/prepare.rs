@@ -94,6 +94,21 @@ impl PreparedScene {
         self.objects.get(j).map(|o| o.anchors.as_slice())
     }
 
+    /// How many distinct points of object `j` its encoder groups (the union of the
+    /// `sa_centres` nearest-neighbour groups of `sa_neighbours` points each), or `None` if out
+    /// of range. Only these points reach the object token through the set abstraction; every
+    /// point still reaches the anchors through their distance-weighted pooling. At most
+    /// `sa_centres * sa_neighbours`, so a cloud larger than that is never fully grouped.
+    pub fn grouped_points(&self, j: usize) -> Option<usize> {
+        self.objects.get(j).map(|o| {
+            let mut seen = vec![false; o.reference.len()];
+            o.neighbours
+                .iter()
+                .filter(|&&i| !std::mem::replace(&mut seen[i], true))
+                .count()
+        })
+    }
+
     /// World-frame points of every object under `poses` (`X = R X_ref + p`), `[objects][n, 3]`.
     pub fn world_points(&self, poses: &[Pose]) -> Result<Vec<Vec<[f32; 3]>>, ModelError> {
         if poses.len() != self.objects.len() {

@@ -404,3 +404,28 @@ fn settings_edits_may_not_switch_inputs_or_units() {
         assert!(flipped.is_err(), "{unit:?}");
     }
 }
+
+/// The encoder's grouping covers a cloud no larger than its slots and at most
+/// `sa_centres * sa_neighbours` points of a larger one; more centres group more of it.
+#[test]
+fn grouped_points_are_bounded_by_the_grouping_slots() {
+    let grouped = |centres: usize, n: usize| {
+        let mut c = ModelConfig::tiny();
+        c.sa_centres = centres;
+        let model = RigidFormer::new(c, 7, &Device::Cpu).unwrap();
+        let (objects, _) = random_scene(11, 1, n);
+        let scene = model.prepare(objects).unwrap();
+        assert_eq!(scene.grouped_points(1), None);
+        scene.grouped_points(0).unwrap()
+    };
+    let g = ModelConfig::tiny().sa_neighbours;
+    // Fewer points than one group: every point is grouped (groups repeat points).
+    assert_eq!(grouped(4, g - 1), g - 1);
+    let small = grouped(4, 4 * g * 8);
+    assert!(small <= 4 * g, "{small} grouped by {} slots", 4 * g);
+    let more = grouped(16, 4 * g * 8);
+    assert!(
+        more > small,
+        "16 centres group {more} points, 4 group {small}"
+    );
+}
