@@ -12,43 +12,44 @@
 //! one of its `sa_centres` groups of `sa_neighbours` nearest points.
 use std::path::Path;
 
-use dynaserve_model::{Device, ObjectInput, load_model};
+use anyhow::{Context, bail};
 use dynaserve_sim::DatasetReader;
+use dynaserve_train::eval::ModelPredictor;
 
-fn main() {
+fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().collect();
     if args.len() < 5 {
-        eprintln!("usage: grouping_coverage SPLIT SCENES COUNTS MODEL_DIR [MODEL_DIR ...]");
-        std::process::exit(2);
+        bail!("usage: grouping_coverage SPLIT SCENES COUNTS MODEL_DIR [MODEL_DIR ...]");
     }
-    let reader = DatasetReader::open(&args[1]).unwrap();
-    let scenes: usize = args[2].parse().unwrap();
-    let counts: Vec<usize> = args[3].split(',').map(|s| s.parse().unwrap()).collect();
+    let reader = DatasetReader::open(&args[1]).with_context(|| format!("opening {}", args[1]))?;
+    let scenes: usize = args[2].parse().context("SCENES must be a count")?;
+    let counts = args[3]
+        .split(',')
+        .map(|s| s.parse::<usize>())
+        .collect::<Result<Vec<_>, _>>()
+        .context("COUNTS must be comma-separated point counts")?;
     println!(
         "model                              centres x neighbours  points  objects  grouped mean / min"
     );
     for dir in &args[4..] {
-        let model = load_model(Path::new(dir), &Device::Cpu).unwrap();
-        let c = model.config();
+        let base =
+            ModelPredictor::load(Path::new(dir)).with_context(|| format!("loading {dir}"))?;
+        let c = base.model().config();
         for &n in &counts {
+            // The evaluation's own selection: the first `n` stored points of each object.
+            let predictor = base.clone().with_points_per_object(n);
             let (mut sum, mut min, mut objects) = (0f64, f64::INFINITY, 0usize);
             for i in 0..scenes.min(reader.len()) {
-                let rec = reader.get(i).unwrap();
-                let inputs: Vec<ObjectInput> = rec
-                    .objects
-                    .iter()
-                    .map(|o| ObjectInput {
-                        reference: o.reference_points[..n.min(o.reference_points.len())].to_vec(),
-                        mass: o.mass,
-                        friction: o.friction,
-                        restitution: o.restitution,
-                        kinematic: o.kinematic,
-                    })
-                    .collect();
-                let scene = model.prepare(inputs).unwrap();
+                let scene = predictor
+                    .model()
+                    .prepare(predictor.inputs(&reader.get(i)?))?;
                 for j in 0..scene.len() {
-                    let share = scene.grouped_points(j).unwrap() as f64
-                        / scene.points_of(j).unwrap() as f64;
+                    let (Some(grouped), Some(points)) =
+                        (scene.grouped_points(j), scene.points_of(j))
+                    else {
+                        continue;
+                    };
+                    let share = grouped as f64 / points as f64;
                     sum += share;
                     min = min.min(share);
                     objects += 1;
@@ -58,9 +59,10 @@ fn main() {
                 "{dir:<34} {:>7} x {:<10}  {n:>6}  {objects:>7}  {:.3} / {:.3}",
                 c.sa_centres,
                 c.sa_neighbours,
-                sum / objects as f64,
+                sum / objects.max(1) as f64,
                 min
             );
         }
     }
+    Ok(())
 }
