@@ -44,22 +44,22 @@ fn main() -> anyhow::Result<()> {
                     .model()
                     .prepare(predictor.inputs(&reader.get(i)?))?;
                 for j in 0..scene.len() {
-                    let (Some(grouped), Some(points)) =
-                        (scene.grouped_points(j), scene.points_of(j))
-                    else {
-                        continue;
-                    };
+                    let grouped = scene.grouped_points(j).context("object index in range")?;
+                    let points = scene.points_of(j).context("object index in range")?;
                     let share = grouped as f64 / points as f64;
                     sum += share;
                     min = min.min(share);
                     objects += 1;
                 }
             }
+            if objects == 0 {
+                bail!("no objects in the first {scenes} scenes of {}", args[1]);
+            }
             println!(
                 "{dir:<34} {:>7} x {:<10}  {n:>6}  {objects:>7}  {:.3} / {:.3}",
                 c.sa_centres,
                 c.sa_neighbours,
-                sum / objects.max(1) as f64,
+                sum / objects as f64,
                 min
             );
         }
