@@ -68,7 +68,7 @@ pub enum SimCommand {
     Push(PushArgs),
     /// Physics scenario: 1-2 round objects (cylinder, cone, mug) lying on their side, set
     /// rolling along the floor until they stop.
-    Roll(ScenarioArgs),
+    Roll(RollArgs),
     /// Physics scenarios: each scene draws one of rest, drop, slide, collide, stack-hit.
     #[command(name = "physics-mix")]
     PhysicsMix(ScenarioArgs),
@@ -152,6 +152,18 @@ pub struct PushArgs {
     pub jitter: f32,
 }
 
+/// Options of `dynaserve sim roll`.
+#[derive(Args, Debug, Clone)]
+pub struct RollArgs {
+    /// Shared scenario options.
+    #[command(flatten)]
+    pub scenario: ScenarioArgs,
+    /// Initial rolling speed range of each object's centre, m/s, as `MIN,MAX` (default
+    /// 0.2,1.5; below about 0.5 m/s most rolls end inside the scene's 4 s).
+    #[arg(long, value_delimiter = ',', value_name = "MIN,MAX")]
+    pub speed: Option<Vec<f32>>,
+}
+
 /// Options of `dynaserve sim wrecking-ball`.
 #[derive(Args, Debug, Clone)]
 pub struct WreckingBallArgs {
@@ -192,6 +204,15 @@ pub struct PreviewArgs {
     pub count: usize,
 }
 
+/// The two numbers of a `MIN,MAX` option (their order and sign are checked with the other
+/// generator parameters).
+fn range_arg(flag: &str, r: &[f32]) -> anyhow::Result<[f32; 2]> {
+    let [lo, hi] = r[..] else {
+        bail!("{flag} takes two numbers, MIN,MAX (got {r:?})");
+    };
+    Ok([lo, hi])
+}
+
 /// Runs a `dynaserve sim` subcommand.
 pub fn run(args: SimArgs) -> anyhow::Result<()> {
     match args.command {
@@ -201,10 +222,7 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
         SimCommand::Rest(a) => {
             let mut p = ScenarioParameters::new(vec![Scenario::Rest]);
             if let Some(r) = &a.tower_scale {
-                let [lo, hi] = r[..] else {
-                    bail!("--tower-scale takes two numbers, MIN,MAX (got {r:?})");
-                };
-                p.tower_scale = [lo, hi];
+                p.tower_scale = range_arg("--tower-scale", r)?;
             }
             a.scenario.run(p)
         }
@@ -217,7 +235,13 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
             p.push_jitter = a.jitter;
             a.scenario.run(p)
         }
-        SimCommand::Roll(a) => a.run(ScenarioParameters::new(vec![Scenario::Roll])),
+        SimCommand::Roll(a) => {
+            let mut p = ScenarioParameters::new(vec![Scenario::Roll]);
+            if let Some(r) = &a.speed {
+                p.roll_speed = range_arg("--speed", r)?;
+            }
+            a.scenario.run(p)
+        }
         SimCommand::PhysicsMix(a) => a.run(ScenarioParameters::new(Scenario::ALL.to_vec())),
         SimCommand::MeshD1(a) => mesh_cli::run_generate(MeshSet::D1, &a),
         SimCommand::MeshD2(a) => mesh_cli::run_generate(MeshSet::D2, &a),
@@ -446,6 +470,29 @@ mod tests {
         })
         .unwrap_err();
         assert!(err.to_string().contains("manifest.json"), "{err}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn roll_speed_reaches_the_scenes_and_bad_ranges_are_refused() {
+        let dir = std::env::temp_dir().join(format!("dynaserve-sim-roll-{}", std::process::id()));
+        let out = dir.to_string_lossy().into_owned();
+        let run = |speed: &str| {
+            let args = ["roll", "--scenes", "3", "--out", &out, "--overwrite"];
+            let mut args = args.to_vec();
+            args.extend(["--speed", speed]);
+            run(SimArgs {
+                command: parse(&args).unwrap(),
+            })
+        };
+        let err = format!("{:#}", run("0.3").unwrap_err());
+        assert!(err.contains("--speed takes two numbers"), "{err}");
+        let err = format!("{:#}", run("0.3,0.1").unwrap_err());
+        assert!(err.contains("range"), "{err}");
+        run("0.05,0.1").unwrap();
+        let reader = DatasetReader::open(&dir).unwrap();
+        let recorded = &reader.manifest().generator_parameters["roll_speed"];
+        assert_eq!(recorded, &serde_json::json!([0.05f32, 0.1f32]));
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
