@@ -67,7 +67,7 @@ pub enum SimCommand {
     /// object, marked kinematic) following a random smooth path through them.
     Push(PushArgs),
     /// Physics scenario: 1-2 round objects (cylinder, cone, mug) lying on their side, set
-    /// rolling along the floor until they stop.
+    /// rolling along the floor; the facets of their sides slow them down.
     Roll(RollArgs),
     /// Physics scenarios: each scene draws one of rest, drop, slide, collide, stack-hit.
     #[command(name = "physics-mix")]
