@@ -351,13 +351,6 @@ pub fn inspect(reader: &DatasetReader, limit: Option<usize>) -> Result<DatasetSt
         return Err(SimError::Invalid("the dataset holds no scene".into()));
     }
     let objects = acc.objects.max(1) as f64;
-    let shape_name = |id: i32| {
-        m.shapes
-            .iter()
-            .find(|s| s.id == id)
-            .map(|s| s.name.clone())
-            .unwrap_or_else(|| format!("shape {id}"))
-    };
     Ok(DatasetStats {
         generator: m.generator.clone(),
         split: m.split.clone(),
@@ -369,7 +362,7 @@ pub fn inspect(reader: &DatasetReader, limit: Option<usize>) -> Result<DatasetSt
         shapes: acc
             .shapes
             .iter()
-            .map(|(&id, &n)| (shape_name(id), n))
+            .map(|(&id, &n)| (m.shape_name(id), n))
             .collect(),
         materials: acc.materials,
         friction: acc.friction,

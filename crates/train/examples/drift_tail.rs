@@ -1,11 +1,12 @@
 //! Where does the resting drift's tail come from? Rolls every scene of a split out from frame
 //! 4 at step size 1 (the evaluation's resting-drift rollout) with a model and with rapier
 //! restarted from the same two frames, and for every object rapier's recording has at rest
-//! over frames 76-100 (centre slower than 0.01 m/s in every frame) compares each predictor's
-//! state at frame 76 with the truth's: is the object *upright* (body z within 30 degrees of
+//! over the evaluation's resting window (its last second, frames 76-100 of MOVi-B, with the
+//! evaluation's thresholds: [`RestingOptions::at_rest`]) compares each predictor's state at
+//! the window's first frame with the truth's: is the object *upright* (body z within 30 degrees of
 //! vertical) in both, and is it still moving (faster than 0.05 m/s)? Prints, per shape and in
-//! total, the mean drift over frames 76-100 and the share of the summed drift carried by objects
-//! whose upright-or-not attitude differs from the truth's at frame 76.
+//! total, the mean drift over the window and the share of the summed drift carried by objects
+//! whose upright-or-not attitude differs from the truth's at its first frame.
 //!
 //! ```sh
 //! cargo run --release -p dynaserve-train --example drift_tail -- \
@@ -18,28 +19,25 @@ use anyhow::Context;
 use dynaserve_model::Pose;
 use dynaserve_sim::DatasetReader;
 use dynaserve_train::eval::{
-    ModelPredictor, PointSelection, Predictor, RapierRestart, RolloutRequest, observed_state,
+    DEFAULT_START_FRAME, ModelPredictor, PointSelection, Predictor, RapierRestart, RestingOptions,
+    RolloutRequest, observed_state,
 };
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 
 /// Start frame of the rollout (the evaluation's).
-const START: usize = 4;
-/// First and last frame of the resting window.
-const WINDOW: (usize, usize) = (76, 100);
-/// Truth at rest: centre speed below this in every frame of the window, m/s.
-const REST_SPEED: f32 = 0.01;
-/// A predicted object still moving at frame 76: faster than this, m/s.
+const START: usize = DEFAULT_START_FRAME;
+/// A predicted object still moving at the window's first frame: faster than this, m/s.
 const MOVING_SPEED: f32 = 0.05;
 
 #[derive(Default, Clone, Copy)]
 struct Acc {
     objects: usize,
     drift: f64,
-    /// Summed drift of the objects whose upright-or-not attitude at frame 76 differs from the truth's.
+    /// Summed drift of the objects whose upright-or-not attitude at the window's first frame differs from the truth's.
     drift_attitude: f64,
     /// Objects whose attitude differs.
     attitude: usize,
-    /// Summed drift of the objects still moving at frame 76.
+    /// Summed drift of the objects still moving at the window's first frame.
     drift_moving: f64,
     /// Objects over 5 cm of drift.
     over_5cm: usize,
@@ -60,12 +58,12 @@ fn main() -> anyhow::Result<()> {
         anyhow::bail!("usage: drift_tail MODEL_DIR SPLIT_DIR");
     };
     let reader = DatasetReader::open(split)?;
-    let names: BTreeMap<i32, String> = reader
-        .manifest()
-        .shapes
-        .iter()
-        .map(|s| (s.id, s.name.clone()))
-        .collect();
+    let dt = reader.manifest().dt_frame;
+    let rest = RestingOptions::default();
+    let window = rest
+        .window(reader.manifest().frames, f64::from(dt))
+        .filter(|&(a, _)| a > START)
+        .ok_or_else(|| anyhow::anyhow!("{split}: too few frames for the resting window"))?;
     let scenes = (0..reader.len())
         .map(|i| reader.get(i))
         .collect::<Result<Vec<_>, _>>()?;
@@ -80,33 +78,27 @@ fn main() -> anyhow::Result<()> {
                 scene,
                 observed: observed_state(scene, START, 1)?,
                 dt_steps: 1,
-                steps: WINDOW.1 - START,
+                steps: window.1 - START,
             })
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
     let predictors: [(&str, &dyn Predictor); 2] = [("model", &model), ("rapier", &rapier)];
     // Predicted poses at frame f are entry f - START - 1 of a rollout.
     let at = |r: &Vec<Vec<Pose>>, f: usize| r[f - START - 1].clone();
-    let dt = reader.manifest().dt_frame;
     for (label, p) in predictors {
         eprintln!("rolling out {} scenes with {label} ...", scenes.len());
         let rollouts = p.rollout_batch(&requests)?;
         let mut by_shape: BTreeMap<String, Acc> = BTreeMap::new();
         for (scene, r) in scenes.iter().zip(&rollouts) {
-            let (p76, p77, p100) = (at(r, WINDOW.0), at(r, WINDOW.0 + 1), at(r, WINDOW.1));
+            let (first, next, last) = (at(r, window.0), at(r, window.0 + 1), at(r, window.1));
             for (i, o) in scene.objects.iter().enumerate() {
-                let resting = (WINDOW.0..WINDOW.1)
-                    .all(|f| dist(o.positions[f + 1], o.positions[f]) / dt <= REST_SPEED);
-                if !resting {
+                if !rest.at_rest(o, window.0, window.1, f64::from(dt)) {
                     continue;
                 }
-                let drift = dist(p100[i].translation, p76[i].translation) as f64;
-                let moving = dist(p77[i].translation, p76[i].translation) / dt > MOVING_SPEED;
-                let differs = upright(o.rotations[WINDOW.0]) != upright(p76[i].rotation);
-                let name = names
-                    .get(&o.shape_id)
-                    .cloned()
-                    .unwrap_or_else(|| format!("shape {}", o.shape_id));
+                let drift = dist(last[i].translation, first[i].translation) as f64;
+                let moving = dist(next[i].translation, first[i].translation) / dt > MOVING_SPEED;
+                let differs = upright(o.rotations[window.0]) != upright(first[i].rotation);
+                let name = reader.manifest().shape_name(o.shape_id);
                 for key in [name, "all".to_string()] {
                     let a = by_shape.entry(key).or_default();
                     a.objects += 1;
@@ -124,7 +116,7 @@ fn main() -> anyhow::Result<()> {
         }
         println!(
             "{label} on {split}: objects at rest over frames {}-{} (truth)",
-            WINDOW.0, WINDOW.1
+            window.0, window.1
         );
         println!(
             "{:<12} {:>7} {:>11} {:>8} {:>15} {:>16} {:>18}",

@@ -140,6 +140,15 @@ pub(crate) fn doc(name: &str, dtype: &str, shape: &str, description: &str) -> Te
 }
 
 impl Manifest {
+    /// The name of shape `id` in [`Manifest::shapes`], or `shape {id}` when it is not listed.
+    pub fn shape_name(&self, id: i32) -> String {
+        self.shapes
+            .iter()
+            .find(|s| s.id == id)
+            .map(|s| s.name.clone())
+            .unwrap_or_else(|| format!("shape {id}"))
+    }
+
     /// Checks format, version, counts and shard names; errors name `path`.
     pub(crate) fn validate(&self, path: &Path) -> Result<()> {
         let bad = |message: String| SimError::Manifest {

@@ -1,6 +1,9 @@
 //! What to evaluate: step sizes, horizons, the stability rollout and the resting window, with
 //! their defaults.
 
+use dynaserve_geometry::geodesic_angle;
+use dynaserve_geometry::metrics::squared_distance;
+use dynaserve_sim::ObjectRecord;
 use serde::{Deserialize, Serialize};
 
 /// Start frame `s` shared by all step sizes (the second observed frame).
@@ -65,6 +68,27 @@ pub struct RestingOptions {
     pub max_speed_m_s: f64,
     /// ... and its angular speed between consecutive frames is below this, degrees/s.
     pub max_angular_speed_deg_s: f64,
+}
+
+impl RestingOptions {
+    /// The window `(a, b)`, frames `a..=b`, of a recording of `frames` frames `dt` seconds
+    /// apart: its last `window_s` seconds (rounded to whole frames), or `None` when the
+    /// recording is not longer than that.
+    pub fn window(&self, frames: usize, dt: f64) -> Option<(usize, usize)> {
+        let w = (self.window_s / dt).round() as usize;
+        (frames > w).then(|| (frames - 1 - w, frames - 1))
+    }
+
+    /// Whether `o` is at rest over frames `a..=b` of its recording: every consecutive pair of
+    /// frames (`dt` seconds apart) moves its centre slower than `max_speed_m_s` and turns it
+    /// slower than `max_angular_speed_deg_s`.
+    pub fn at_rest(&self, o: &ObjectRecord, a: usize, b: usize, dt: f64) -> bool {
+        (a..b).all(|t| {
+            let v = squared_distance(&o.positions[t], &o.positions[t + 1]).sqrt() / dt;
+            let w = geodesic_angle(o.rotations[t], o.rotations[t + 1]).to_degrees() / dt;
+            v < self.max_speed_m_s && w < self.max_angular_speed_deg_s
+        })
+    }
 }
 
 impl Default for RestingOptions {

@@ -174,13 +174,9 @@ pub(super) fn quaternion_norm_error(p: &Pose) -> f64 {
         .abs()
 }
 
-/// At rest over frames `a..=b`: every consecutive pair moves slower than the thresholds.
+/// At rest over the plan's window `a..=b` ([`super::RestingOptions::at_rest`]).
 fn is_at_rest(o: &dynaserve_sim::ObjectRecord, r: &RestPlan, dt: f64) -> bool {
-    (r.a..r.b).all(|t| {
-        let v = squared_distance(&o.positions[t], &o.positions[t + 1]).sqrt() / dt;
-        let w = geodesic_angle(o.rotations[t], o.rotations[t + 1]).to_degrees() / dt;
-        v < r.options.max_speed_m_s && w < r.options.max_angular_speed_deg_s
-    })
+    r.options.at_rest(o, r.a, r.b, dt)
 }
 
 /// Poses of frame `s + step * k` from a rollout (`step = 0` is the observed frame).

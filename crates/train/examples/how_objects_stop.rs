@@ -1,22 +1,19 @@
 //! How do the objects that rapier has at rest at the end of a scene get there? For every
-//! object at rest over the resting-drift window of the evaluation (frames 76-100 of a
-//! 101-frame split, the same 0.01 m/s threshold on the frame-to-frame speed), finds the last
-//! frame it moved faster than 0.02 m/s and classifies the six frames before that: *rolled*
+//! object at rest over the evaluation's resting-drift window (its last second, with the
+//! evaluation's thresholds: [`RestingOptions::at_rest`]), finds the last frame it moved faster
+//! than 0.02 m/s and classifies the six frames before that: *rolled*
 //! when the surface speed its spin gives at its centre height (angular speed x height) is at
 //! least half its centre's speed, else *slid*; and prints, per shape, how many stopped each
 //! way, their mean deceleration (m/s^2) and how many were upright (body z within 30 degrees of
 //! the world's).
 //!
-//! `cargo run --release -p dynaserve-sim --example how_objects_stop -- data/movi-b/test`
+//! `cargo run --release -p dynaserve-train --example how_objects_stop -- data/movi-b/test`
 use std::collections::BTreeMap;
 
-use dynaserve_sim::dataset::DatasetReader;
+use dynaserve_sim::DatasetReader;
+use dynaserve_train::eval::RestingOptions;
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 
-/// First and last frame of the window an object must rest over.
-const REST_WINDOW: (usize, usize) = (76, 100);
-/// Speed below which an object counts as at rest, m/s (the evaluation's threshold).
-const REST_SPEED: f32 = 0.01;
 /// Speed above which an object counts as still moving, m/s.
 const MOVING_SPEED: f32 = 0.02;
 /// Frames before the last moving frame that are classified.
@@ -41,37 +38,27 @@ fn main() -> anyhow::Result<()> {
         .nth(1)
         .ok_or_else(|| anyhow::anyhow!("usage: how_objects_stop SPLIT_DIR"))?;
     let reader = DatasetReader::open(&dir)?;
-    let names: BTreeMap<i32, String> = reader
-        .manifest()
-        .shapes
-        .iter()
-        .map(|s| (s.id, s.name.clone()))
-        .collect();
+    let rest = RestingOptions::default();
     let mut by_shape: BTreeMap<String, Tally> = BTreeMap::new();
     for scene in reader.iter() {
         let scene = scene?;
         let dt = scene.dt_frame;
         for o in &scene.objects {
             let frames = o.positions.len();
-            if frames <= REST_WINDOW.1 {
-                anyhow::bail!("{dir}: scenes of {frames} frames, the window needs 101");
+            let (a, b) = rest.window(frames, f64::from(dt)).ok_or_else(|| {
+                anyhow::anyhow!("{dir}: {frames} frames, shorter than the window")
+            })?;
+            if !rest.at_rest(o, a, b, f64::from(dt)) {
+                continue;
             }
             let speed: Vec<f32> = (0..frames - 1)
                 .map(|f| {
                     (Vector3::from(o.positions[f + 1]) - Vector3::from(o.positions[f])).norm() / dt
                 })
                 .collect();
-            if speed[REST_WINDOW.0..REST_WINDOW.1]
-                .iter()
-                .any(|&v| v > REST_SPEED)
-            {
-                continue;
-            }
-            let name = names
-                .get(&o.shape_id)
-                .cloned()
-                .unwrap_or_else(|| format!("shape {}", o.shape_id));
-            let t = by_shape.entry(name).or_default();
+            let t = by_shape
+                .entry(reader.manifest().shape_name(o.shape_id))
+                .or_default();
             t.at_rest += 1;
             let Some(last) = (0..frames - 1).rev().find(|&f| speed[f] > MOVING_SPEED) else {
                 continue;
@@ -104,8 +91,8 @@ fn main() -> anyhow::Result<()> {
         }
     }
     println!(
-        "{dir}: objects at rest over frames {}-{} and how they stopped",
-        REST_WINDOW.0, REST_WINDOW.1
+        "{dir}: objects at rest over the last {} s (the evaluation's resting set) and how they stopped",
+        rest.window_s
     );
     println!(
         "{:<12} {:>7} {:>7} {:>7} {:>8} {:>14}",
