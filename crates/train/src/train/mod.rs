@@ -12,6 +12,8 @@
 //!   with PhysiFormer runs;
 //! - [`mod@export`]: a checkpoint written as a model directory;
 //! - [`mod@average`]: model directories of one architecture averaged into one;
+//! - [`restarts`]: training scenes that start where a model's own rollout leads, continued by
+//!   rapier;
 //! - [`plot`]: PNG line charts.
 
 pub mod average;
@@ -23,6 +25,7 @@ pub mod heldout;
 pub mod optim;
 pub mod plot;
 pub mod pushforward;
+pub mod restarts;
 pub mod run_dir;
 pub mod stops;
 #[cfg(test)]

@@ -1,0 +1,271 @@
+//! Training scenes that start where a model's own rollout leads, continued by rapier.
+//!
+//! For each scene written, a source scene and a start frame `s` are drawn, the model rolls out
+//! `R` steps at step size 1 from the recording's frames `s - 1` and `s`, and rapier is
+//! restarted from the model's last two poses (with the velocity they imply, as the `rapier`
+//! evaluation baseline is: [`RapierRestart`]) and simulated for [`RestartOptions::frames`]
+//! frames. The scene stored is the model's two poses followed by rapier's frames, with the
+//! source's objects: every window of it is physics, and its first windows start where the
+//! model's errors led (objects a little sunk, tilted or too fast). Pushforward trains a model's
+//! own states against the recording's next pose; these scenes give such states the pose
+//! physics gives them (the data-as-demonstrator idea for learned simulators).
+//!
+//! Sources with kinematic objects (pushers) are refused: their path after a restart is not
+//! known. A draw is skipped, and counted, when rapier cannot rebuild one of its shapes (a
+//! degenerate hull) or when an object's centre goes [`FELL_THROUGH`] below the floor's top: a
+//! model state sunk so far that rapier lets the object fall through the floor is not a lesson
+//! in physics.
+
+use std::path::Path;
+
+use anyhow::Context;
+use dynaserve_model::{Pose, SceneState};
+use dynaserve_sim::dataset::{ShardInfo, encode_shard, prepare_dir, write_file, write_manifest};
+use dynaserve_sim::{DatasetReader, Manifest, ObjectRecord, SceneRecord};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+
+use crate::eval::{ModelPredictor, Predictor, RapierRestart, RolloutRequest, observed_state};
+use crate::train::data::mix;
+
+/// An object whose centre goes below this height has fallen through the floor, metres.
+pub const FELL_THROUGH: f32 = -0.1;
+
+/// What [`write_restarts`] draws and writes.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct RestartOptions {
+    /// Scenes to draw (skipped draws are not replaced).
+    pub scenes: usize,
+    /// Seed of the draws (source scene, start frame, rollout length), per scene.
+    pub seed: u64,
+    /// Longest model rollout before the restart, steps of one frame (drawn from 1 to this).
+    pub rollout_max: usize,
+    /// Frames rapier simulates after the restart; each scene stores two more.
+    pub frames: usize,
+    /// Scenes per shard.
+    pub per_shard: usize,
+}
+
+impl Default for RestartOptions {
+    fn default() -> Self {
+        RestartOptions {
+            scenes: 2000,
+            seed: 0,
+            rollout_max: 48,
+            frames: 30,
+            per_shard: 100,
+        }
+    }
+}
+
+/// What [`write_restarts`] wrote.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RestartSummary {
+    /// Scenes written.
+    pub written: usize,
+    /// Draws skipped (a shape rapier could not rebuild, or an object fell through the floor).
+    pub skipped: usize,
+    /// Objects written.
+    pub objects: usize,
+    /// The manifest written.
+    pub manifest: Manifest,
+}
+
+/// One draw: the source scene's index, the start frame `s` and the rollout's steps `R`, from a
+/// generator keyed on `(seed, scene)`.
+pub fn draw(opts: &RestartOptions, scene: usize, sources: usize, frames: usize) -> [usize; 3] {
+    let mut rng = ChaCha8Rng::seed_from_u64(mix(opts.seed ^ mix(scene as u64)));
+    let source = rng.random_range(0..sources);
+    let start = rng.random_range(1..frames);
+    let steps = rng.random_range(1..=opts.rollout_max);
+    [source, start, steps]
+}
+
+/// `q` or `-q`, whichever is nearer `prev` (quaternions are stored sign-continuous in time).
+fn continuous(prev: [f32; 4], q: [f32; 4]) -> [f32; 4] {
+    let dot: f32 = (0..4).map(|i| prev[i] * q[i]).sum();
+    if dot < 0.0 { q.map(|v| -v) } else { q }
+}
+
+/// `scene` restarted in rapier from `restart` (poses one frame apart) and simulated `frames`
+/// frames: a scene of `frames + 2` frames, `restart.previous`, `restart.current` and then
+/// rapier's, with `scene`'s objects. `None` when rapier cannot rebuild a shape or an object
+/// falls through the floor.
+pub fn continue_in_rapier(
+    rapier: &RapierRestart,
+    scene: &SceneRecord,
+    restart: &SceneState,
+    frames: usize,
+) -> Option<SceneRecord> {
+    let cont = rapier.rollout(scene, restart, 1, frames).ok()?;
+    if cont
+        .iter()
+        .flatten()
+        .any(|p| p.translation[2] < FELL_THROUGH)
+    {
+        return None;
+    }
+    let objects = scene
+        .objects
+        .iter()
+        .enumerate()
+        .map(|(j, o)| {
+            let poses = [&restart.previous[j], &restart.current[j]]
+                .into_iter()
+                .chain(cont.iter().map(|f: &Vec<Pose>| &f[j]));
+            let (mut positions, mut rotations) = (Vec::new(), Vec::<[f32; 4]>::new());
+            for p in poses {
+                positions.push(p.translation);
+                rotations.push(match rotations.last() {
+                    Some(&prev) => continuous(prev, p.rotation),
+                    None => p.rotation,
+                });
+            }
+            ObjectRecord {
+                positions,
+                rotations,
+                ..o.clone()
+            }
+        })
+        .collect();
+    Some(SceneRecord {
+        objects,
+        dt_frame: scene.dt_frame,
+    })
+}
+
+/// Writes a split of restart scenes into `out` (which must not hold a manifest): draws
+/// [`RestartOptions::scenes`] scenes from `source`, rolls `model` out from each (all of a
+/// shard's rollouts batched), continues them in rapier ([`continue_in_rapier`]) and writes the
+/// shards and a manifest: the source's, with `generator` `restart` and the source's generator,
+/// the source and the model named in `generator_parameters`. `on_shard(drawn, skipped)`
+/// reports progress after each shard.
+pub fn write_restarts(
+    model: &ModelPredictor,
+    model_name: &str,
+    source: &DatasetReader,
+    out: &Path,
+    opts: &RestartOptions,
+    mut on_shard: impl FnMut(usize, usize),
+) -> anyhow::Result<RestartSummary> {
+    anyhow::ensure!(
+        opts.scenes > 0 && opts.per_shard > 0 && opts.rollout_max > 0 && opts.frames > 0,
+        "scenes, scenes per shard, the longest rollout and the frames must be at least 1"
+    );
+    let src = source.manifest().clone();
+    anyhow::ensure!(
+        src.frames >= 2 && !source.is_empty(),
+        "{}: no scenes of two frames or more to start from",
+        source.dir().display()
+    );
+    let rapier = RapierRestart::from_manifest(&src)?;
+    prepare_dir(out, false)?;
+    let frames = opts.frames + 2;
+    let (mut shards, mut objects, mut written, mut skipped) = (Vec::new(), 0, 0, 0);
+    for (shard, first) in (0..opts.scenes).step_by(opts.per_shard).enumerate() {
+        let end = (first + opts.per_shard).min(opts.scenes);
+        let draws: Vec<[usize; 3]> = (first..end)
+            .map(|i| draw(opts, i, source.len(), src.frames))
+            .collect();
+        let scenes = draws
+            .iter()
+            .map(|&[i, _, _]| source.get(i))
+            .collect::<Result<Vec<_>, _>>()?;
+        if let Some(([i, _, _], _)) = draws
+            .iter()
+            .zip(&scenes)
+            .find(|(_, s)| s.objects.iter().any(|o| o.kinematic))
+        {
+            anyhow::bail!(
+                "{}: scene {i} has a kinematic object, whose path after a restart is not known",
+                source.dir().display()
+            );
+        }
+        let requests = scenes
+            .iter()
+            .zip(&draws)
+            .map(|(scene, &[_, start, steps])| {
+                Ok(RolloutRequest {
+                    scene,
+                    observed: observed_state(scene, start, 1)?,
+                    dt_steps: 1,
+                    steps,
+                })
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        let rollouts = model.rollout_batch(&requests)?;
+        let made: Vec<Option<SceneRecord>> = requests
+            .par_iter()
+            .zip(&rollouts)
+            .map(|(r, roll)| {
+                // The model's last two poses (the recording's frame s if it stepped once).
+                let n = roll.len();
+                let restart = SceneState {
+                    previous: if n >= 2 {
+                        roll[n - 2].clone()
+                    } else {
+                        r.observed.current.clone()
+                    },
+                    current: roll.last()?.clone(),
+                    earlier: None,
+                };
+                continue_in_rapier(&rapier, r.scene, &restart, opts.frames)
+            })
+            .collect();
+        skipped += made.iter().filter(|s| s.is_none()).count();
+        let made: Vec<SceneRecord> = made.into_iter().flatten().collect();
+        if !made.is_empty() {
+            let file = format!("shard-{shard:05}.safetensors");
+            write_file(
+                &out.join(&file),
+                &encode_shard(&made, frames, src.reference_points)?,
+            )?;
+            let n: usize = made.iter().map(|s| s.objects.len()).sum();
+            objects += n;
+            shards.push(ShardInfo {
+                file,
+                scenes: made.len(),
+                objects: n,
+                first_scene: written,
+            });
+            written += made.len();
+        }
+        on_shard(end, skipped);
+    }
+    anyhow::ensure!(
+        written > 0,
+        "every one of {} draws was skipped",
+        opts.scenes
+    );
+    let mut manifest = src;
+    if let Some(p) = manifest.generator_parameters.as_object_mut() {
+        let params = [
+            (
+                "restart_source_generator",
+                manifest.generator.clone().into(),
+            ),
+            ("restart_source", source.dir().display().to_string().into()),
+            ("restart_model", model_name.into()),
+            ("restart_rollout_max", opts.rollout_max.into()),
+            ("restart_frames", opts.frames.into()),
+        ];
+        for (k, v) in params {
+            p.insert(k.into(), v);
+        }
+    }
+    manifest.generator = "restart".into();
+    manifest.seed = opts.seed;
+    manifest.frames = frames;
+    manifest.scenes = written;
+    manifest.objects = objects;
+    manifest.shards = shards;
+    manifest.scenarios = None;
+    write_manifest(out, &manifest).with_context(|| format!("writing {}", out.display()))?;
+    Ok(RestartSummary {
+        written,
+        skipped,
+        objects,
+        manifest,
+    })
+}
