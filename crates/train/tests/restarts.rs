@@ -74,6 +74,7 @@ fn restart_scenes_are_the_models_poses_then_rapier() {
         rollout_max: 4,
         frames: 6,
         per_shard: 2,
+        overwrite: false,
     };
     let mut reports = Vec::new();
     let summary = write_restarts(&model, "shipped", &reader, &out, &opts, |d, s| {
@@ -148,8 +149,16 @@ fn restart_scenes_are_the_models_poses_then_rapier() {
             );
         }
     }
-    // A second run into the same directory is refused, not merged.
+    // A second run into the same directory is refused, not merged; with `overwrite` it
+    // replaces the split.
     assert!(write_restarts(&model, "shipped", &reader, &out, &opts, |_, _| {}).is_err());
+    let again = RestartOptions {
+        scenes: 1,
+        overwrite: true,
+        ..opts
+    };
+    write_restarts(&model, "shipped", &reader, &out, &again, |_, _| {}).unwrap();
+    assert_eq!(DatasetReader::open(&out).unwrap().len(), 1);
     let _ = std::fs::remove_dir_all(&out);
     let _ = std::fs::remove_dir_all(&src_dir);
 }
@@ -166,6 +175,7 @@ fn sources_with_pushers_are_refused() {
         rollout_max: 2,
         frames: 4,
         per_shard: 1,
+        overwrite: false,
     };
     let err = write_restarts(&shipped(), "shipped", &reader, &out, &opts, |_, _| {})
         .unwrap_err()

@@ -1,5 +1,5 @@
-//! RigidFormer training: `dynaserve train --config FILE [--resume]`, `dynaserve train export`
-//! and `dynaserve train average`.
+//! RigidFormer training: `dynaserve train --config FILE [--resume]`, `dynaserve train export`,
+//! `dynaserve train average` and `dynaserve train restarts`.
 //!
 //! - [`config`]: the documented configuration (TOML or JSON);
 //! - [`data`]: the streaming loader (worker thread, windows, augmentation) and the fit of the
@@ -75,12 +75,12 @@ pub enum TrainError {
     Plot(String),
 }
 
-/// `dynaserve train`: train from a configuration, export a run's checkpoint, or average
-/// model directories.
+/// `dynaserve train`: train from a configuration, export a run's checkpoint, average model
+/// directories, or write restart scenes.
 #[derive(clap::Args, Debug)]
 #[command(args_conflicts_with_subcommands = true)]
 pub struct TrainArgs {
-    /// Export a checkpoint or average models instead of training.
+    /// Export a checkpoint, average models or write restart scenes instead of training.
     #[command(subcommand)]
     pub action: Option<TrainAction>,
     /// Training configuration, TOML (`.toml`) or JSON (docs/training.md lists every knob).
@@ -132,6 +132,76 @@ pub enum TrainAction {
         #[arg(long, default_value = "f32")]
         dtype: String,
     },
+    /// Write a split of scenes that start where a model's own rollout leads, continued by
+    /// rapier ([`restarts`]; docs/dataset.md, "Scenes that start where a model's rollout
+    /// leads").
+    Restarts {
+        /// Model directory whose rollouts start the scenes.
+        #[arg(long)]
+        model: PathBuf,
+        /// Dataset split the scenes start from (no kinematic objects).
+        #[arg(long)]
+        source: PathBuf,
+        /// Output split directory (refused if it holds a dataset, unless `--overwrite`).
+        #[arg(long)]
+        out: PathBuf,
+        /// Scenes to draw (a draw whose shapes rapier cannot rebuild, or in which an object
+        /// falls through the floor, is skipped).
+        #[arg(long, default_value_t = restarts::RestartOptions::default().scenes)]
+        scenes: usize,
+        /// Seed of the draws (source scene, start frame, rollout length).
+        #[arg(long)]
+        seed: u64,
+        /// Longest model rollout before the restart, steps of one frame (drawn from 1 to
+        /// this).
+        #[arg(long, default_value_t = restarts::RestartOptions::default().rollout_max)]
+        rollout_max: usize,
+        /// Frames rapier simulates after the restart; each scene stores two more.
+        #[arg(long, default_value_t = restarts::RestartOptions::default().frames)]
+        frames: usize,
+        /// Scenes per shard.
+        #[arg(long, default_value_t = restarts::RestartOptions::default().per_shard)]
+        per_shard: usize,
+        /// Replace a dataset already in `--out`.
+        #[arg(long)]
+        overwrite: bool,
+    },
+}
+
+/// `dynaserve train restarts`: loads the model and the source, writes the split with progress
+/// per shard, and prints a summary.
+fn run_restarts(
+    model_dir: &std::path::Path,
+    source: &std::path::Path,
+    out: &std::path::Path,
+    opts: &restarts::RestartOptions,
+) -> anyhow::Result<()> {
+    use anyhow::Context;
+    let reader = dynaserve_sim::DatasetReader::open(source)?;
+    let model = crate::eval::ModelPredictor::load(model_dir)
+        .with_context(|| format!("loading {}", model_dir.display()))?
+        .with_points(crate::eval::PointSelection::Nominal);
+    let t0 = std::time::Instant::now();
+    let name = model_dir.display().to_string();
+    let s = restarts::write_restarts(&model, &name, &reader, out, opts, |drawn, skipped| {
+        eprintln!(
+            "{drawn}/{} scenes drawn, {skipped} skipped ({:.0} s)",
+            opts.scenes,
+            t0.elapsed().as_secs_f64()
+        )
+    })?;
+    println!(
+        "wrote {} scenes ({} objects, {} frames; {} of {} drawn skipped: a shape rapier could \
+         not rebuild, or an object fell through the floor) to {} in {:.0} s",
+        s.written,
+        s.objects,
+        s.manifest.frames,
+        s.skipped,
+        opts.scenes,
+        out.display(),
+        t0.elapsed().as_secs_f64()
+    );
+    Ok(())
 }
 
 /// The weight type named by `--dtype`.
@@ -210,10 +280,33 @@ pub fn run_cli(args: TrainArgs) -> anyhow::Result<()> {
             );
             return Ok(());
         }
+        Some(TrainAction::Restarts {
+            model,
+            source,
+            out,
+            scenes,
+            seed,
+            rollout_max,
+            frames,
+            per_shard,
+            overwrite,
+        }) => {
+            let opts = restarts::RestartOptions {
+                scenes,
+                seed,
+                rollout_max,
+                frames,
+                per_shard,
+                overwrite,
+            };
+            return run_restarts(&model, &source, &out, &opts);
+        }
         None => {}
     }
     let Some(path) = args.config else {
-        anyhow::bail!("dynaserve train needs --config FILE (or the export or average subcommand)");
+        anyhow::bail!(
+            "dynaserve train needs --config FILE (or the export, average or restarts subcommand)"
+        );
     };
     if crate::physi::train::is_physi_config(&path) {
         let stop = Arc::new(AtomicBool::new(false));

@@ -45,6 +45,8 @@ pub struct RestartOptions {
     pub frames: usize,
     /// Scenes per shard.
     pub per_shard: usize,
+    /// Replace a dataset already in the output directory instead of refusing.
+    pub overwrite: bool,
 }
 
 impl Default for RestartOptions {
@@ -55,6 +57,7 @@ impl Default for RestartOptions {
             rollout_max: 48,
             frames: 30,
             per_shard: 100,
+            overwrite: false,
         }
     }
 }
@@ -135,7 +138,8 @@ pub fn continue_in_rapier(
     })
 }
 
-/// Writes a split of restart scenes into `out` (which must not hold a manifest): draws
+/// Writes a split of restart scenes into `out` (which must not hold a manifest unless
+/// [`RestartOptions::overwrite`]): draws
 /// [`RestartOptions::scenes`] scenes from `source`, rolls `model` out from each (all of a
 /// shard's rollouts batched), continues them in rapier ([`continue_in_rapier`]) and writes the
 /// shards and a manifest: the source's, with `generator` `restart` and the source's generator,
@@ -160,7 +164,7 @@ pub fn write_restarts(
         source.dir().display()
     );
     let rapier = RapierRestart::from_manifest(&src)?;
-    prepare_dir(out, false)?;
+    prepare_dir(out, opts.overwrite)?;
     let frames = opts.frames + 2;
     let (mut shards, mut objects, mut written, mut skipped) = (Vec::new(), 0, 0, 0);
     for (shard, first) in (0..opts.scenes).step_by(opts.per_shard).enumerate() {
