@@ -133,8 +133,7 @@ pub enum TrainAction {
         dtype: String,
     },
     /// Write a split of scenes that start where a model's own rollout leads, continued by
-    /// rapier ([`restarts`]; docs/dataset.md, "Scenes that start where a model's rollout
-    /// leads").
+    /// rapier (docs/dataset.md, "Scenes that start where a model's rollout leads").
     Restarts {
         /// Model directory whose rollouts start the scenes.
         #[arg(long)]
