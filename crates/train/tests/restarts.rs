@@ -8,9 +8,9 @@ use std::sync::Arc;
 
 use dynaserve_model::{Pose, SceneState};
 use dynaserve_sim::writer::generate_dataset;
-use dynaserve_sim::{DatasetReader, GenerateOptions, Generator, Scenario, SceneRecord};
+use dynaserve_sim::{DatasetReader, GenerateOptions, Generator, Scenario};
 use dynaserve_train::eval::{
-    ModelPredictor, Predictor, RapierRestart, RolloutRequest, observed_state,
+    ModelPredictor, Predictor, RapierRestart, RolloutRequest, observed_state, poses_at,
 };
 use dynaserve_train::train::restarts::{RestartOptions, draw, write_restarts};
 
@@ -31,17 +31,6 @@ fn shipped() -> ModelPredictor {
     let model =
         dynaserve_model::load_rigidformer(&dir, &dynaserve_model::Device::Cpu, false).unwrap();
     ModelPredictor::from_rigidformer(Arc::new(model))
-}
-
-fn poses(scene: &SceneRecord, f: usize) -> Vec<Pose> {
-    scene
-        .objects
-        .iter()
-        .map(|o| Pose {
-            translation: o.positions[f],
-            rotation: o.rotations[f],
-        })
-        .collect()
 }
 
 /// Largest difference of translations (m) and of quaternion components (sign-aligned).
@@ -97,8 +86,9 @@ fn restart_scenes_are_the_models_poses_then_rapier() {
     assert_eq!(m.shards.len(), 2);
     let rapier = RapierRestart::from_manifest(reader.manifest()).unwrap();
     for i in 0..3 {
-        let [s, start, steps] = draw(&opts, i, reader.len(), reader.manifest().frames);
-        let src = reader.get(s).unwrap();
+        let d = draw(&opts, i, reader.len(), reader.manifest().frames);
+        let (start, steps) = (d.start, d.steps);
+        let src = reader.get(d.source).unwrap();
         let got = written.get(i).unwrap();
         assert_eq!(got.objects.len(), src.objects.len());
         for (g, o) in got.objects.iter().zip(&src.objects) {
@@ -127,23 +117,23 @@ fn restart_scenes_are_the_models_poses_then_rapier() {
             request.observed.current.clone()
         };
         assert!(
-            differ(&poses(&got, 0), &before) < 1e-4,
+            differ(&poses_at(&got, 0).unwrap(), &before) < 1e-4,
             "scene {i}: frame 0"
         );
         assert!(
-            differ(&poses(&got, 1), &roll[steps - 1]) < 1e-4,
+            differ(&poses_at(&got, 1).unwrap(), &roll[steps - 1]) < 1e-4,
             "scene {i}: frame 1"
         );
         // Frames 2..: rapier restarted from the stored frames 0 and 1.
         let state = SceneState {
-            previous: poses(&got, 0),
-            current: poses(&got, 1),
+            previous: poses_at(&got, 0).unwrap(),
+            current: poses_at(&got, 1).unwrap(),
             earlier: None,
         };
         let cont = rapier.rollout(&got, &state, 1, opts.frames).unwrap();
         for (f, want) in cont.iter().enumerate() {
             assert!(
-                differ(&poses(&got, f + 2), want) < 1e-5,
+                differ(&poses_at(&got, f + 2).unwrap(), want) < 1e-5,
                 "scene {i}: frame {}",
                 f + 2
             );
@@ -181,6 +171,7 @@ fn sources_with_pushers_are_refused() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("kinematic"), "{err}");
+    assert!(!out.exists(), "refused before the output directory is made");
     let _ = std::fs::remove_dir_all(&out);
     let _ = std::fs::remove_dir_all(&src_dir);
 }

@@ -144,26 +144,9 @@ pub enum TrainAction {
         /// Output split directory (refused if it holds a dataset, unless `--overwrite`).
         #[arg(long)]
         out: PathBuf,
-        /// Scenes to draw (a draw whose shapes rapier cannot rebuild, or in which an object
-        /// falls through the floor, is skipped).
-        #[arg(long, default_value_t = restarts::RestartOptions::default().scenes)]
-        scenes: usize,
-        /// Seed of the draws (source scene, start frame, rollout length).
-        #[arg(long)]
-        seed: u64,
-        /// Longest model rollout before the restart, steps of one frame (drawn from 1 to
-        /// this).
-        #[arg(long, default_value_t = restarts::RestartOptions::default().rollout_max)]
-        rollout_max: usize,
-        /// Frames rapier simulates after the restart; each scene stores two more.
-        #[arg(long, default_value_t = restarts::RestartOptions::default().frames)]
-        frames: usize,
-        /// Scenes per shard.
-        #[arg(long, default_value_t = restarts::RestartOptions::default().per_shard)]
-        per_shard: usize,
-        /// Replace a dataset already in `--out`.
-        #[arg(long)]
-        overwrite: bool,
+        /// What to draw and write.
+        #[command(flatten)]
+        options: restarts::RestartOptions,
     },
 }
 
@@ -283,23 +266,8 @@ pub fn run_cli(args: TrainArgs) -> anyhow::Result<()> {
             model,
             source,
             out,
-            scenes,
-            seed,
-            rollout_max,
-            frames,
-            per_shard,
-            overwrite,
-        }) => {
-            let opts = restarts::RestartOptions {
-                scenes,
-                seed,
-                rollout_max,
-                frames,
-                per_shard,
-                overwrite,
-            };
-            return run_restarts(&model, &source, &out, &opts);
-        }
+            options,
+        }) => return run_restarts(&model, &source, &out, &options),
         None => {}
     }
     let Some(path) = args.config else {

@@ -32,20 +32,27 @@ use crate::train::data::mix;
 /// An object whose centre goes below this height has fallen through the floor, metres.
 pub const FELL_THROUGH: f32 = -0.1;
 
-/// What [`write_restarts`] draws and writes.
-#[derive(Clone, Debug, PartialEq, Eq)]
+/// What [`write_restarts`] draws and writes (also the options of `dynaserve train restarts`).
+#[derive(Clone, Debug, PartialEq, Eq, clap::Args)]
 pub struct RestartOptions {
-    /// Scenes to draw (skipped draws are not replaced).
+    /// Scenes to draw (skipped draws are not replaced: a draw whose shapes rapier cannot
+    /// rebuild, or in which an object falls through the floor).
+    #[arg(long, default_value_t = RestartOptions::default().scenes)]
     pub scenes: usize,
     /// Seed of the draws (source scene, start frame, rollout length), per scene.
+    #[arg(long)]
     pub seed: u64,
     /// Longest model rollout before the restart, steps of one frame (drawn from 1 to this).
+    #[arg(long, default_value_t = RestartOptions::default().rollout_max)]
     pub rollout_max: usize,
     /// Frames rapier simulates after the restart; each scene stores two more.
+    #[arg(long, default_value_t = RestartOptions::default().frames)]
     pub frames: usize,
     /// Scenes per shard.
+    #[arg(long, default_value_t = RestartOptions::default().per_shard)]
     pub per_shard: usize,
     /// Replace a dataset already in the output directory instead of refusing.
+    #[arg(long)]
     pub overwrite: bool,
 }
 
@@ -75,14 +82,51 @@ pub struct RestartSummary {
     pub manifest: Manifest,
 }
 
-/// One draw: the source scene's index, the start frame `s` and the rollout's steps `R`, from a
-/// generator keyed on `(seed, scene)`.
-pub fn draw(opts: &RestartOptions, scene: usize, sources: usize, frames: usize) -> [usize; 3] {
+/// One output scene's draw, from a generator keyed on `(seed, scene)`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Draw {
+    /// Index of the source scene.
+    pub source: usize,
+    /// Start frame `s` (the model observes frames `s - 1` and `s`).
+    pub start: usize,
+    /// Steps the model rolls out before the restart.
+    pub steps: usize,
+}
+
+/// The draw of output scene `scene` from `sources` source scenes of `frames` frames.
+pub fn draw(opts: &RestartOptions, scene: usize, sources: usize, frames: usize) -> Draw {
     let mut rng = ChaCha8Rng::seed_from_u64(mix(opts.seed ^ mix(scene as u64)));
     let source = rng.random_range(0..sources);
     let start = rng.random_range(1..frames);
     let steps = rng.random_range(1..=opts.rollout_max);
-    [source, start, steps]
+    Draw {
+        source,
+        start,
+        steps,
+    }
+}
+
+/// The source scenes of `draws`, in order, each source shard read once (a draw per scene
+/// would decode a whole shard per scene).
+fn read_drawn(source: &DatasetReader, draws: &[Draw]) -> anyhow::Result<Vec<SceneRecord>> {
+    let mut scenes: Vec<Option<SceneRecord>> = vec![None; draws.len()];
+    for (k, info) in source.manifest().shards.iter().enumerate() {
+        let range = info.first_scene..info.first_scene + info.scenes;
+        if !draws.iter().any(|d| range.contains(&d.source)) {
+            continue;
+        }
+        let shard = source.read_shard(k)?;
+        for (slot, d) in scenes.iter_mut().zip(draws) {
+            if range.contains(&d.source) {
+                *slot = shard.get(d.source - info.first_scene).cloned();
+            }
+        }
+    }
+    scenes
+        .into_iter()
+        .zip(draws)
+        .map(|(s, d)| s.with_context(|| format!("source scene {} is in no shard", d.source)))
+        .collect()
 }
 
 /// `q` or `-q`, whichever is nearer `prev` (quaternions are stored sign-continuous in time).
@@ -163,38 +207,35 @@ pub fn write_restarts(
         "{}: no scenes of two frames or more to start from",
         source.dir().display()
     );
+    if let Some(i) = source
+        .object_parameters()?
+        .iter()
+        .position(|objects| objects.iter().any(|&(_, kinematic)| kinematic))
+    {
+        anyhow::bail!(
+            "{}: scene {i} has a kinematic object, whose path after a restart is not known",
+            source.dir().display()
+        );
+    }
     let rapier = RapierRestart::from_manifest(&src)?;
     prepare_dir(out, opts.overwrite)?;
     let frames = opts.frames + 2;
     let (mut shards, mut objects, mut written, mut skipped) = (Vec::new(), 0, 0, 0);
     for (shard, first) in (0..opts.scenes).step_by(opts.per_shard).enumerate() {
         let end = (first + opts.per_shard).min(opts.scenes);
-        let draws: Vec<[usize; 3]> = (first..end)
+        let draws: Vec<Draw> = (first..end)
             .map(|i| draw(opts, i, source.len(), src.frames))
             .collect();
-        let scenes = draws
-            .iter()
-            .map(|&[i, _, _]| source.get(i))
-            .collect::<Result<Vec<_>, _>>()?;
-        if let Some(([i, _, _], _)) = draws
-            .iter()
-            .zip(&scenes)
-            .find(|(_, s)| s.objects.iter().any(|o| o.kinematic))
-        {
-            anyhow::bail!(
-                "{}: scene {i} has a kinematic object, whose path after a restart is not known",
-                source.dir().display()
-            );
-        }
+        let scenes = read_drawn(source, &draws)?;
         let requests = scenes
             .iter()
             .zip(&draws)
-            .map(|(scene, &[_, start, steps])| {
+            .map(|(scene, d)| {
                 Ok(RolloutRequest {
                     scene,
-                    observed: observed_state(scene, start, 1)?,
+                    observed: observed_state(scene, d.start, 1)?,
                     dt_steps: 1,
-                    steps,
+                    steps: d.steps,
                 })
             })
             .collect::<anyhow::Result<Vec<_>>>()?;
