@@ -12,7 +12,9 @@ use dynaserve_sim::{DatasetReader, GenerateOptions, Generator, Scenario};
 use dynaserve_train::eval::{
     ModelPredictor, Predictor, RapierRestart, RolloutRequest, observed_state, poses_at,
 };
-use dynaserve_train::train::restarts::{RestartOptions, draw, write_restarts};
+use dynaserve_train::train::restarts::{
+    RestartOptions, Skip, continue_in_rapier, draw, write_restarts,
+};
 
 fn temp(name: &str) -> PathBuf {
     std::env::temp_dir().join(format!("dynaserve-restarts-{name}-{}", std::process::id()))
@@ -71,7 +73,12 @@ fn restart_scenes_are_the_models_poses_then_rapier() {
     })
     .unwrap();
     assert_eq!(
-        summary.skipped, 0,
+        (
+            summary.skipped,
+            summary.fell_through,
+            &summary.first_rebuild_error
+        ),
+        (0, 0, &None),
         "MOVi-B shapes rebuild and nothing falls through"
     );
     assert_eq!(reports, vec![(2, 0), (3, 0)], "progress after each shard");
@@ -139,6 +146,21 @@ fn restart_scenes_are_the_models_poses_then_rapier() {
             );
         }
     }
+    // A state with every object under the floor slab is skipped as falling through it.
+    let src = reader.get(0).unwrap();
+    let mut sunk = poses_at(&src, 0).unwrap();
+    for p in &mut sunk {
+        p.translation[2] = -5.0;
+    }
+    let state = SceneState {
+        previous: sunk.clone(),
+        current: sunk,
+        earlier: None,
+    };
+    assert_eq!(
+        continue_in_rapier(&rapier, &src, &state, 4).unwrap_err(),
+        Skip::FellThrough
+    );
     // A second run into the same directory is refused, not merged; with `overwrite` it
     // replaces the split.
     assert!(write_restarts(&model, "shipped", &reader, &out, &opts, |_, _| {}).is_err());

@@ -172,16 +172,23 @@ fn run_restarts(
             t0.elapsed().as_secs_f64()
         )
     })?;
+    let rebuild = s.skipped - s.fell_through;
+    let first = s
+        .first_rebuild_error
+        .as_deref()
+        .map(|e| format!(", the first: {e}"))
+        .unwrap_or_default();
     println!(
-        "wrote {} scenes ({} objects, {} frames; {} of {} drawn skipped: a shape rapier could \
-         not rebuild, or an object fell through the floor) to {} in {:.0} s",
+        "wrote {} scenes ({} objects, {} frames) to {} in {:.0} s; {} of {} drawn skipped: \
+         {rebuild} rapier could not rebuild{first}, {} with an object falling through the floor",
         s.written,
         s.objects,
         s.manifest.frames,
+        out.display(),
+        t0.elapsed().as_secs_f64(),
         s.skipped,
         opts.scenes,
-        out.display(),
-        t0.elapsed().as_secs_f64()
+        s.fell_through,
     );
     Ok(())
 }

@@ -76,6 +76,10 @@ pub struct RestartSummary {
     pub written: usize,
     /// Draws skipped (a shape rapier could not rebuild, or an object fell through the floor).
     pub skipped: usize,
+    /// Of the skipped draws, those in which an object fell through the floor.
+    pub fell_through: usize,
+    /// Rapier's message for the first draw it could not rebuild, if any.
+    pub first_rebuild_error: Option<String>,
     /// Objects written.
     pub objects: usize,
     /// The manifest written.
@@ -137,21 +141,22 @@ fn continuous(prev: [f32; 4], q: [f32; 4]) -> [f32; 4] {
 
 /// `scene` restarted in rapier from `restart` (poses one frame apart) and simulated `frames`
 /// frames: a scene of `frames + 2` frames, `restart.previous`, `restart.current` and then
-/// rapier's, with `scene`'s objects. `None` when rapier cannot rebuild a shape or an object
-/// falls through the floor.
+/// rapier's, with `scene`'s objects; [`Skip`] says why there is none.
 pub fn continue_in_rapier(
     rapier: &RapierRestart,
     scene: &SceneRecord,
     restart: &SceneState,
     frames: usize,
-) -> Option<SceneRecord> {
-    let cont = rapier.rollout(scene, restart, 1, frames).ok()?;
+) -> Result<SceneRecord, Skip> {
+    let cont = rapier
+        .rollout(scene, restart, 1, frames)
+        .map_err(|e| Skip::Rebuild(format!("{e:#}")))?;
     if cont
         .iter()
         .flatten()
         .any(|p| p.translation[2] < FELL_THROUGH)
     {
-        return None;
+        return Err(Skip::FellThrough);
     }
     let objects = scene
         .objects
@@ -176,10 +181,19 @@ pub fn continue_in_rapier(
             }
         })
         .collect();
-    Some(SceneRecord {
+    Ok(SceneRecord {
         objects,
         dt_frame: scene.dt_frame,
     })
+}
+
+/// Why [`continue_in_rapier`] made no scene from a draw.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Skip {
+    /// Rapier refused the scene (its message; the cases seen are degenerate random hulls).
+    Rebuild(String),
+    /// An object's centre went below [`FELL_THROUGH`].
+    FellThrough,
 }
 
 /// Writes a split of restart scenes into `out` (which must not hold a manifest unless
@@ -221,6 +235,7 @@ pub fn write_restarts(
     prepare_dir(out, opts.overwrite)?;
     let frames = opts.frames + 2;
     let (mut shards, mut objects, mut written, mut skipped) = (Vec::new(), 0, 0, 0);
+    let (mut fell_through, mut first_rebuild_error) = (0, None);
     for (shard, first) in (0..opts.scenes).step_by(opts.per_shard).enumerate() {
         let end = (first + opts.per_shard).min(opts.scenes);
         let draws: Vec<Draw> = (first..end)
@@ -240,7 +255,7 @@ pub fn write_restarts(
             })
             .collect::<anyhow::Result<Vec<_>>>()?;
         let rollouts = model.rollout_batch(&requests)?;
-        let made: Vec<Option<SceneRecord>> = requests
+        let made: Vec<Result<SceneRecord, Skip>> = requests
             .par_iter()
             .zip(&rollouts)
             .map(|(r, roll)| {
@@ -252,13 +267,24 @@ pub fn write_restarts(
                     } else {
                         r.observed.current.clone()
                     },
-                    current: roll.last()?.clone(),
+                    current: roll
+                        .last()
+                        .ok_or_else(|| Skip::Rebuild("the model returned no step".into()))?
+                        .clone(),
                     earlier: None,
                 };
                 continue_in_rapier(&rapier, r.scene, &restart, opts.frames)
             })
             .collect();
-        skipped += made.iter().filter(|s| s.is_none()).count();
+        for skip in made.iter().filter_map(|m| m.as_ref().err()) {
+            skipped += 1;
+            match skip {
+                Skip::FellThrough => fell_through += 1,
+                Skip::Rebuild(e) => {
+                    first_rebuild_error.get_or_insert_with(|| e.clone());
+                }
+            }
+        }
         let made: Vec<SceneRecord> = made.into_iter().flatten().collect();
         if !made.is_empty() {
             let file = format!("shard-{shard:05}.safetensors");
@@ -310,6 +336,8 @@ pub fn write_restarts(
     Ok(RestartSummary {
         written,
         skipped,
+        fell_through,
+        first_rebuild_error,
         objects,
         manifest,
     })
