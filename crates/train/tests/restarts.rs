@@ -74,7 +74,7 @@ fn restart_scenes_are_the_models_poses_then_rapier() {
     .unwrap();
     assert_eq!(
         (
-            summary.skipped,
+            summary.skipped(),
             summary.fell_through,
             &summary.first_rebuild_error
         ),

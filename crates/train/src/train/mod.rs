@@ -172,7 +172,6 @@ fn run_restarts(
             t0.elapsed().as_secs_f64()
         )
     })?;
-    let rebuild = s.skipped - s.fell_through;
     let first = s
         .first_rebuild_error
         .as_deref()
@@ -180,14 +179,15 @@ fn run_restarts(
         .unwrap_or_default();
     println!(
         "wrote {} scenes ({} objects, {} frames) to {} in {:.0} s; {} of {} drawn skipped: \
-         {rebuild} rapier could not rebuild{first}, {} with an object falling through the floor",
+         {} rapier could not rebuild{first}, {} with an object falling through the floor",
         s.written,
         s.objects,
         s.manifest.frames,
         out.display(),
         t0.elapsed().as_secs_f64(),
-        s.skipped,
+        s.skipped(),
         opts.scenes,
+        s.rebuild_refused,
         s.fell_through,
     );
     Ok(())

@@ -74,9 +74,9 @@ impl Default for RestartOptions {
 pub struct RestartSummary {
     /// Scenes written.
     pub written: usize,
-    /// Draws skipped (a shape rapier could not rebuild, or an object fell through the floor).
-    pub skipped: usize,
-    /// Of the skipped draws, those in which an object fell through the floor.
+    /// Draws skipped because rapier could not rebuild the scene ([`Skip::Rebuild`]).
+    pub rebuild_refused: usize,
+    /// Draws skipped because an object fell through the floor ([`Skip::FellThrough`]).
     pub fell_through: usize,
     /// Rapier's message for the first draw it could not rebuild, if any.
     pub first_rebuild_error: Option<String>,
@@ -84,6 +84,13 @@ pub struct RestartSummary {
     pub objects: usize,
     /// The manifest written.
     pub manifest: Manifest,
+}
+
+impl RestartSummary {
+    /// Draws skipped, for either reason.
+    pub fn skipped(&self) -> usize {
+        self.rebuild_refused + self.fell_through
+    }
 }
 
 /// One output scene's draw, from a generator keyed on `(seed, scene)`.
@@ -234,8 +241,8 @@ pub fn write_restarts(
     let rapier = RapierRestart::from_manifest(&src)?;
     prepare_dir(out, opts.overwrite)?;
     let frames = opts.frames + 2;
-    let (mut shards, mut objects, mut written, mut skipped) = (Vec::new(), 0, 0, 0);
-    let (mut fell_through, mut first_rebuild_error) = (0, None);
+    let (mut shards, mut objects, mut written) = (Vec::new(), 0, 0);
+    let (mut rebuild_refused, mut fell_through, mut first_rebuild_error) = (0, 0, None);
     for (shard, first) in (0..opts.scenes).step_by(opts.per_shard).enumerate() {
         let end = (first + opts.per_shard).min(opts.scenes);
         let draws: Vec<Draw> = (first..end)
@@ -254,33 +261,31 @@ pub fn write_restarts(
                 })
             })
             .collect::<anyhow::Result<Vec<_>>>()?;
-        let rollouts = model.rollout_batch(&requests)?;
-        let made: Vec<Result<SceneRecord, Skip>> = requests
-            .par_iter()
-            .zip(&rollouts)
+        let restarts = requests
+            .iter()
+            .zip(model.rollout_batch(&requests)?)
             .map(|(r, roll)| {
                 // The model's last two poses (the recording's frame s if it stepped once).
-                let n = roll.len();
-                let restart = SceneState {
-                    previous: if n >= 2 {
-                        roll[n - 2].clone()
-                    } else {
-                        r.observed.current.clone()
-                    },
-                    current: roll
-                        .last()
-                        .ok_or_else(|| Skip::Rebuild("the model returned no step".into()))?
-                        .clone(),
+                let mut roll = roll.into_iter().rev();
+                let current = roll.next().context("the model returned an empty rollout")?;
+                let previous = roll.next().unwrap_or_else(|| r.observed.current.clone());
+                Ok(SceneState {
+                    previous,
+                    current,
                     earlier: None,
-                };
-                continue_in_rapier(&rapier, r.scene, &restart, opts.frames)
+                })
             })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        let made: Vec<Result<SceneRecord, Skip>> = requests
+            .par_iter()
+            .zip(&restarts)
+            .map(|(r, restart)| continue_in_rapier(&rapier, r.scene, restart, opts.frames))
             .collect();
         for skip in made.iter().filter_map(|m| m.as_ref().err()) {
-            skipped += 1;
             match skip {
                 Skip::FellThrough => fell_through += 1,
                 Skip::Rebuild(e) => {
+                    rebuild_refused += 1;
                     first_rebuild_error.get_or_insert_with(|| e.clone());
                 }
             }
@@ -302,7 +307,7 @@ pub fn write_restarts(
             });
             written += made.len();
         }
-        on_shard(end, skipped);
+        on_shard(end, rebuild_refused + fell_through);
     }
     anyhow::ensure!(
         written > 0,
@@ -335,7 +340,7 @@ pub fn write_restarts(
     write_manifest(out, &manifest).with_context(|| format!("writing {}", out.display()))?;
     Ok(RestartSummary {
         written,
-        skipped,
+        rebuild_refused,
         fell_through,
         first_rebuild_error,
         objects,
