@@ -42,26 +42,15 @@ pub fn generate_dataset(
             description: k.description().to_string(),
         })
         .collect();
-    let (mut shards, mut bytes, mut objects) = (Vec::new(), 0u64, 0usize);
+    let mut written = dataset::PoseShards::default();
     let labels = dataset::write_shards(
-        out,
         opts.scenes,
         opts.scenes_per_shard,
         |i| generate_scene(opts, i).map(|g| (g.record, g.label)),
         on_scene,
-        |scenes| dataset::encode_shard(scenes, opts.sim.frames, opts.points),
-        |file, first_scene, scenes, size| {
-            bytes += size;
-            let n_obj: usize = scenes.iter().map(|s| s.objects.len()).sum();
-            objects += n_obj;
-            shards.push(ShardInfo {
-                file,
-                scenes: scenes.len(),
-                objects: n_obj,
-                first_scene,
-            });
-        },
+        |_, scenes| written.write(out, scenes, opts.sim.frames, opts.points),
     )?;
+    let (shards, objects, mut bytes) = (written.shards, written.objects, written.bytes);
     let mut manifest = manifest(opts, shapes, shards, objects);
     if matches!(opts.generator, Generator::Scenario(_)) {
         manifest.scenarios = labels.into_iter().collect();

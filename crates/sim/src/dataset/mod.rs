@@ -40,7 +40,7 @@ pub use records::{ObjectRecord, SceneLabel, SceneRecord};
 pub use shard::{ObjectParameters, decode_shard, encode_shard};
 pub(crate) use shard::{ShardTensors, TensorBytes, serialize_tensors};
 pub(crate) use write::write_shards;
-pub use write::{prepare_dir, write_file, write_manifest};
+pub use write::{PoseShards, prepare_dir, shard_file, write_file, write_manifest};
 
 use std::path::Path;
 

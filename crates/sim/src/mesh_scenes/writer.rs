@@ -11,7 +11,8 @@ use super::sets::MeshSet;
 use super::simulate::{MeshPhysics, simulate_mesh_scene};
 use super::templates::templates;
 use crate::dataset::{
-    FORMAT, FORMAT_VERSION, MESH_CONTENT, Units, prepare_dir, write_manifest, write_shards,
+    FORMAT, FORMAT_VERSION, MESH_CONTENT, Units, prepare_dir, shard_file, write_file,
+    write_manifest, write_shards,
 };
 use crate::random::scene_rng;
 use crate::{Result, SimError};
@@ -88,14 +89,15 @@ pub fn generate_mesh_dataset(
     let mut shards = Vec::new();
     let (mut bytes, mut objects, mut vertices, mut faces) = (0u64, 0usize, 0usize, 0usize);
     let starts = write_shards(
-        out,
         opts.scenes,
         opts.scenes_per_shard,
         |i| generate_mesh_scene(opts, i),
         on_scene,
-        |scenes| encode_mesh_shard(scenes, opts.physics.frames),
-        |file, first_scene, scenes: &[MeshScene], size| {
-            bytes += size;
+        |first_scene, scenes: &[MeshScene]| {
+            let file = shard_file(shards.len());
+            let encoded = encode_mesh_shard(scenes, opts.physics.frames)?;
+            write_file(&out.join(&file), &encoded)?;
+            bytes += encoded.len() as u64;
             let info = MeshShardInfo {
                 file,
                 scenes: scenes.len(),
@@ -108,6 +110,7 @@ pub fn generate_mesh_dataset(
             vertices += info.vertices;
             faces += info.faces;
             shards.push(info);
+            Ok(())
         },
     )?;
     let p = &opts.physics;

@@ -20,7 +20,7 @@ use std::path::Path;
 
 use anyhow::Context;
 use dynaserve_model::{Pose, SceneState};
-use dynaserve_sim::dataset::{ShardInfo, encode_shard, prepare_dir, write_file, write_manifest};
+use dynaserve_sim::dataset::{PoseShards, prepare_dir, write_manifest};
 use dynaserve_sim::{DatasetReader, Manifest, ObjectRecord, SceneRecord};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -241,9 +241,9 @@ pub fn write_restarts(
     let rapier = RapierRestart::from_manifest(&src)?;
     prepare_dir(out, opts.overwrite)?;
     let frames = opts.frames + 2;
-    let (mut shards, mut objects, mut written) = (Vec::new(), 0, 0);
+    let mut written = PoseShards::default();
     let (mut rebuild_refused, mut fell_through, mut first_rebuild_error) = (0, 0, None);
-    for (shard, first) in (0..opts.scenes).step_by(opts.per_shard).enumerate() {
+    for first in (0..opts.scenes).step_by(opts.per_shard) {
         let end = (first + opts.per_shard).min(opts.scenes);
         let draws: Vec<Draw> = (first..end)
             .map(|i| draw(opts, i, source.len(), src.frames))
@@ -291,26 +291,11 @@ pub fn write_restarts(
             }
         }
         let made: Vec<SceneRecord> = made.into_iter().flatten().collect();
-        if !made.is_empty() {
-            let file = format!("shard-{shard:05}.safetensors");
-            write_file(
-                &out.join(&file),
-                &encode_shard(&made, frames, src.reference_points)?,
-            )?;
-            let n: usize = made.iter().map(|s| s.objects.len()).sum();
-            objects += n;
-            shards.push(ShardInfo {
-                file,
-                scenes: made.len(),
-                objects: n,
-                first_scene: written,
-            });
-            written += made.len();
-        }
+        written.write(out, &made, frames, src.reference_points)?;
         on_shard(end, rebuild_refused + fell_through);
     }
     anyhow::ensure!(
-        written > 0,
+        written.scenes > 0,
         "every one of {} draws was skipped",
         opts.scenes
     );
@@ -333,17 +318,17 @@ pub fn write_restarts(
     manifest.generator = "restart".into();
     manifest.seed = opts.seed;
     manifest.frames = frames;
-    manifest.scenes = written;
-    manifest.objects = objects;
-    manifest.shards = shards;
+    manifest.scenes = written.scenes;
+    manifest.objects = written.objects;
+    manifest.shards = written.shards;
     manifest.scenarios = None;
     write_manifest(out, &manifest).with_context(|| format!("writing {}", out.display()))?;
     Ok(RestartSummary {
-        written,
+        written: manifest.scenes,
         rebuild_refused,
         fell_through,
         first_rebuild_error,
-        objects,
+        objects: manifest.objects,
         manifest,
     })
 }
