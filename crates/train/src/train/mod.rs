@@ -1,5 +1,5 @@
 //! RigidFormer training: `dynaserve train --config FILE [--resume]`, `dynaserve train export`,
-//! `dynaserve train average` and `dynaserve train restarts`.
+//! `dynaserve train average`, `dynaserve train restarts` and `dynaserve train compare`.
 //!
 //! - [`config`]: the documented configuration (TOML or JSON);
 //! - [`data`]: the streaming loader (worker thread, windows, augmentation) and the fit of the
@@ -14,9 +14,11 @@
 //! - [`mod@average`]: model directories of one architecture averaged into one;
 //! - [`restarts`]: training scenes that start where a model's own rollout leads, continued by
 //!   rapier;
+//! - [`compare`]: candidates against a release on the model card's key figures;
 //! - [`plot`]: PNG line charts.
 
 pub mod average;
+pub mod compare;
 pub mod config;
 pub mod data;
 pub mod events;
@@ -148,6 +150,59 @@ pub enum TrainAction {
         #[command(flatten)]
         options: restarts::RestartOptions,
     },
+    /// Judge candidates against a release on the model card's fourteen key figures and the
+    /// fresh-scene guard (docs/training.md, "Comparing a candidate with the release"). Each
+    /// directory holds `eval.json`, `fresh.json` and `physics-suite.json` from `dynaserve eval`.
+    Compare {
+        /// The release's scorecard directory (e.g. `models/rigidformer-small/eval`).
+        #[arg(long)]
+        reference: PathBuf,
+        /// A candidate's scorecard directory; repeatable.
+        #[arg(long = "candidate", required = true, num_args = 1)]
+        candidates: Vec<PathBuf>,
+        /// Scorecards of one recipe at different seeds (two or more): each change is also
+        /// given in their standard deviations.
+        #[arg(long = "spread", num_args = 1)]
+        spread: Vec<PathBuf>,
+    },
+}
+
+/// `dynaserve train compare`: reads the scorecards and prints one table per candidate.
+fn run_compare(
+    reference: &std::path::Path,
+    candidates: &[PathBuf],
+    spread: &[PathBuf],
+) -> anyhow::Result<()> {
+    let reference = compare::read_scorecard(reference)?;
+    let spread = if spread.is_empty() {
+        None
+    } else {
+        let runs = spread
+            .iter()
+            .map(|d| compare::read_scorecard(d))
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        println!(
+            "seed spread: each figure's standard deviation over {} runs of one recipe ({})\n",
+            runs.len(),
+            spread
+                .iter()
+                .map(|d| d.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        Some(compare::seed_spread(&runs)?)
+    };
+    for (i, dir) in candidates.iter().enumerate() {
+        let candidate = compare::read_scorecard(dir)?;
+        if i > 0 {
+            println!();
+        }
+        print!(
+            "{}",
+            compare::format_comparison(&reference, &candidate, spread.as_deref())
+        );
+    }
+    Ok(())
 }
 
 /// `dynaserve train restarts`: loads the model and the source, writes the split with progress
@@ -275,11 +330,17 @@ pub fn run_cli(args: TrainArgs) -> anyhow::Result<()> {
             out,
             options,
         }) => return run_restarts(&model, &source, &out, &options),
+        Some(TrainAction::Compare {
+            reference,
+            candidates,
+            spread,
+        }) => return run_compare(&reference, &candidates, &spread),
         None => {}
     }
     let Some(path) = args.config else {
         anyhow::bail!(
-            "dynaserve train needs --config FILE (or the export, average or restarts subcommand)"
+            "dynaserve train needs --config FILE (or the export, average, restarts or compare \
+             subcommand)"
         );
     };
     if crate::physi::train::is_physi_config(&path) {

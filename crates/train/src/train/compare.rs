@@ -1,0 +1,437 @@
+//! Candidates against a release on the model card's key figures: `dynaserve train compare`.
+//!
+//! A scorecard is a directory of three `dynaserve eval --json` reports of one model, named as
+//! in a model's `eval/` directory: `eval.json` (the MOVi-B test split, step size 1 among
+//! those scored), `fresh.json` (fresh MOVi-B scenes, step size 1) and `physics-suite.json`
+//! (`--suite physics`). From them come the fourteen key figures the RigidFormer card ships by:
+//! MOVi-B translation RMSE at 0.5, 1, 2 and 4 s and the mean resting drift (test split, k = 1);
+//! the suite's towers, drop height, drop penetration, slide distance and the two collisions'
+//! momentum (both as distance from rapier's), floor and object contact (ballistic over model,
+//! k = 1) and free flight (k = 4). The count is head to head; the fresh-scene guard asks the
+//! fresh split's translation RMSE to stay within 1% of the reference's at every horizon.
+//! Scorecards of one recipe at several seeds give a seed spread: each figure's standard
+//! deviation across them, against which a difference can be read (docs/training.md,
+//! "Comparing a candidate with the release").
+
+use std::fmt::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+
+use crate::eval::SuiteReport;
+use crate::eval::physics_suite::{FigureRow, PhysicsSuiteReport};
+use crate::eval::regimes::Regime;
+
+/// MOVi-B horizons of the key figures, seconds.
+pub const HORIZONS_S: [f64; 4] = [0.5, 1.0, 2.0, 4.0];
+
+/// The fresh-scene guard: the fresh split's translation RMSE may exceed the reference's by at
+/// most this fraction at each horizon.
+pub const FRESH_GUARD: f64 = 0.01;
+
+/// A candidate must be better on more than this many of the fourteen figures.
+pub const COUNT_TO_SHIP: usize = 9;
+
+/// Which way a figure improves.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Better {
+    /// Smaller is better (errors, distances).
+    Lower,
+    /// Larger is better (ratios of the ballistic baseline's error to the model's).
+    Higher,
+}
+
+/// One key figure of one scorecard.
+#[derive(Clone, Debug, PartialEq)]
+pub struct KeyFigure {
+    /// Short name with its unit (`MOVi-B 0.5 s (m)`).
+    pub name: &'static str,
+    /// Which way it improves.
+    pub better: Better,
+    /// Its value.
+    pub value: f64,
+}
+
+/// The key figures of one model, read from a scorecard directory.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Scorecard {
+    /// The directory read.
+    pub dir: PathBuf,
+    /// The fourteen key figures, in the card's order.
+    pub figures: Vec<KeyFigure>,
+    /// Fresh-split translation RMSE at [`HORIZONS_S`], metres (the guard's figures).
+    pub fresh_m: [f64; 4],
+}
+
+fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> anyhow::Result<T> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))
+}
+
+/// Translation RMSE at [`HORIZONS_S`] (k = 1) and the k = 1 resting drift's mean of the first
+/// entry of a `dynaserve eval --json` report.
+fn movi_b(report: &SuiteReport, path: &Path) -> anyhow::Result<([f64; 4], Option<f64>)> {
+    let entry = report
+        .entries
+        .first()
+        .with_context(|| format!("{}: no predictor in the report", path.display()))?;
+    let r = &entry.report;
+    let mut rmse = [0.0; 4];
+    for (slot, &h) in rmse.iter_mut().zip(&HORIZONS_S) {
+        *slot = r
+            .entry(1, h)
+            .and_then(|e| e.translation_rmse_m)
+            .with_context(|| {
+                format!(
+                    "{}: no step size 1 translation RMSE at {h} s (score with --step-sizes 1)",
+                    path.display()
+                )
+            })?;
+    }
+    let drift = r.resting.as_ref().and_then(|rest| {
+        rest.predicted
+            .iter()
+            .find(|d| d.dt_steps == 1)
+            .and_then(|d| d.translation_m)
+            .map(|s| s.mean)
+    });
+    Ok((rmse, drift))
+}
+
+fn figure<'a>(
+    suite: &'a PhysicsSuiteReport,
+    path: &Path,
+    key: (&str, &str, &str),
+) -> anyhow::Result<&'a FigureRow> {
+    suite
+        .figures
+        .iter()
+        .find(|f| (f.scenario.as_str(), f.group.as_str(), f.figure.as_str()) == key)
+        .with_context(|| format!("{}: no figure {key:?}", path.display()))
+}
+
+/// The first predictor's mean of a suite figure.
+fn model_mean(
+    suite: &PhysicsSuiteReport,
+    path: &Path,
+    key: (&str, &str, &str),
+) -> anyhow::Result<f64> {
+    figure(suite, path, key)?
+        .predictors
+        .first()
+        .map(|p| p.mean)
+        .with_context(|| format!("{}: figure {key:?} has no predictor", path.display()))
+}
+
+/// How far the first predictor's mean of a suite figure is from rapier's, as a fraction.
+fn off_rapier(
+    suite: &PhysicsSuiteReport,
+    path: &Path,
+    key: (&str, &str, &str),
+) -> anyhow::Result<f64> {
+    let row = figure(suite, path, key)?;
+    let rapier = row
+        .rapier
+        .as_ref()
+        .with_context(|| format!("{}: figure {key:?} has no rapier value", path.display()))?;
+    Ok((model_mean(suite, path, key)? / rapier.mean - 1.0).abs())
+}
+
+fn regime_row<'a>(
+    suite: &'a PhysicsSuiteReport,
+    path: &Path,
+    regime: Regime,
+    k: u32,
+) -> anyhow::Result<&'a crate::eval::physics_suite::RegimeRow> {
+    suite
+        .regimes
+        .iter()
+        .find(|r| r.regime == regime && r.k == k)
+        .with_context(|| format!("{}: no {regime:?} row at k = {k}", path.display()))
+}
+
+/// Ballistic-with-floor translation RMSE over the model's in a regime at k = 1.
+fn contact_ratio(suite: &PhysicsSuiteReport, path: &Path, regime: Regime) -> anyhow::Result<f64> {
+    regime_row(suite, path, regime, 1)?
+        .ballistic_over_model
+        .and_then(|[t, _]| t)
+        .with_context(|| {
+            format!(
+                "{}: no ballistic-over-model ratio for {regime:?} at k = 1 (score with the ballistic baseline)",
+                path.display()
+            )
+        })
+}
+
+/// Reads the scorecard in `dir` (`eval.json`, `fresh.json`, `physics-suite.json`).
+pub fn read_scorecard(dir: &Path) -> anyhow::Result<Scorecard> {
+    let (test_path, fresh_path, suite_path) = (
+        dir.join("eval.json"),
+        dir.join("fresh.json"),
+        dir.join("physics-suite.json"),
+    );
+    let (test, drift) = movi_b(&read_json(&test_path)?, &test_path)?;
+    let drift =
+        drift.with_context(|| format!("{}: no step size 1 resting drift", test_path.display()))?;
+    let (fresh_m, _) = movi_b(&read_json(&fresh_path)?, &fresh_path)?;
+    let suite: PhysicsSuiteReport = read_json(&suite_path)?;
+    let p = suite_path.as_path();
+    let free_flight = regime_row(&suite, p, Regime::FreeFlight, 4)?
+        .predictors
+        .first()
+        .and_then(|c| c.translation_rmse_m)
+        .with_context(|| format!("{}: no free-flight error at k = 4", p.display()))?;
+    use Better::{Higher, Lower};
+    let figures = [
+        ("MOVi-B 0.5 s (m)", Lower, test[0]),
+        ("MOVi-B 1 s (m)", Lower, test[1]),
+        ("MOVi-B 2 s (m)", Lower, test[2]),
+        ("MOVi-B 4 s (m)", Lower, test[3]),
+        ("resting drift (m)", Lower, drift),
+        (
+            "towers (m)",
+            Lower,
+            model_mean(&suite, p, ("rest", "tower", "max displacement"))?,
+        ),
+        (
+            "drop height (m)",
+            Lower,
+            model_mean(&suite, p, ("drop", "drop", "final height error"))?,
+        ),
+        (
+            "penetration (m)",
+            Lower,
+            model_mean(&suite, p, ("drop", "drop", "deepest penetration"))?,
+        ),
+        (
+            "slide, off rapier",
+            Lower,
+            off_rapier(&suite, p, ("slide", "floor", "stopping distance"))?,
+        ),
+        (
+            "collide air, off rapier",
+            Lower,
+            off_rapier(&suite, p, ("collide", "air", "momentum exchanged"))?,
+        ),
+        (
+            "collide floor, off rapier",
+            Lower,
+            off_rapier(&suite, p, ("collide", "floor", "momentum exchanged"))?,
+        ),
+        (
+            "floor contact (x)",
+            Higher,
+            contact_ratio(&suite, p, Regime::FloorContact)?,
+        ),
+        (
+            "object contact (x)",
+            Higher,
+            contact_ratio(&suite, p, Regime::ObjectContact)?,
+        ),
+        ("free flight k=4 (m)", Lower, free_flight),
+    ]
+    .into_iter()
+    .map(|(name, better, value)| KeyFigure {
+        name,
+        better,
+        value,
+    })
+    .collect();
+    Ok(Scorecard {
+        dir: dir.to_path_buf(),
+        figures,
+        fresh_m,
+    })
+}
+
+/// How a candidate's figure stands against the reference's.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Verdict {
+    /// Better (in the figure's direction).
+    Better,
+    /// Worse.
+    Worse,
+    /// Equal.
+    Tie,
+}
+
+/// The verdict on `candidate` against `reference` for a figure that improves `better`.
+pub fn verdict(better: Better, reference: f64, candidate: f64) -> Verdict {
+    if candidate == reference {
+        Verdict::Tie
+    } else if (candidate < reference) == (better == Better::Lower) {
+        Verdict::Better
+    } else {
+        Verdict::Worse
+    }
+}
+
+/// One candidate judged against the reference by the count and the fresh-scene guard.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Comparison {
+    /// Per key figure: the verdict.
+    pub verdicts: Vec<Verdict>,
+    /// Figures the candidate is better on.
+    pub better: usize,
+    /// Figures it is worse on.
+    pub worse: usize,
+    /// Fresh-split change at each horizon, candidate over reference minus 1.
+    pub fresh_change: [f64; 4],
+    /// Whether the fresh-scene guard holds ([`FRESH_GUARD`] at every horizon).
+    pub guard_holds: bool,
+}
+
+impl Comparison {
+    /// Whether the candidate ships by the count and the guard (the planner clause of the card's
+    /// rule is judged apart).
+    pub fn ships(&self) -> bool {
+        self.better > COUNT_TO_SHIP && self.guard_holds
+    }
+}
+
+/// `candidate` judged against `reference`.
+pub fn compare(reference: &Scorecard, candidate: &Scorecard) -> Comparison {
+    let verdicts: Vec<Verdict> = reference
+        .figures
+        .iter()
+        .zip(&candidate.figures)
+        .map(|(r, c)| verdict(r.better, r.value, c.value))
+        .collect();
+    let count = |v: Verdict| verdicts.iter().filter(|&&x| x == v).count();
+    let mut fresh_change = [0.0; 4];
+    for (i, slot) in fresh_change.iter_mut().enumerate() {
+        *slot = candidate.fresh_m[i] / reference.fresh_m[i] - 1.0;
+    }
+    Comparison {
+        better: count(Verdict::Better),
+        worse: count(Verdict::Worse),
+        guard_holds: fresh_change.iter().all(|&c| c <= FRESH_GUARD),
+        fresh_change,
+        verdicts,
+    }
+}
+
+/// Per key figure, the mean and sample standard deviation over scorecards of one recipe at
+/// different seeds (at least two).
+pub fn seed_spread(runs: &[Scorecard]) -> anyhow::Result<Vec<(f64, f64)>> {
+    anyhow::ensure!(
+        runs.len() >= 2,
+        "a seed spread needs the scorecards of at least two runs, got {}",
+        runs.len()
+    );
+    let n = runs.len() as f64;
+    Ok((0..runs[0].figures.len())
+        .map(|i| {
+            let mean = runs.iter().map(|r| r.figures[i].value).sum::<f64>() / n;
+            let var = runs
+                .iter()
+                .map(|r| (r.figures[i].value - mean).powi(2))
+                .sum::<f64>()
+                / (n - 1.0);
+            (mean, var.sqrt())
+        })
+        .collect())
+}
+
+/// The comparison as a plain-text table: every figure of the reference and the candidate, the
+/// change, the verdict and, with a `spread`, the change in seed standard deviations; then the
+/// count, the guard and the outcome.
+pub fn format_comparison(
+    reference: &Scorecard,
+    candidate: &Scorecard,
+    spread: Option<&[(f64, f64)]>,
+) -> String {
+    let c = compare(reference, candidate);
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "{} against {}",
+        candidate.dir.display(),
+        reference.dir.display()
+    );
+    let _ = write!(
+        out,
+        "{:<27} {:>10} {:>10} {:>8}  {:<7}",
+        "figure", "reference", "candidate", "change", "verdict"
+    );
+    if spread.is_some() {
+        let _ = write!(out, " {:>10} {:>9}", "seed sd", "change/sd");
+    }
+    out.push('\n');
+    for (i, (r, k)) in reference.figures.iter().zip(&candidate.figures).enumerate() {
+        let change = 100.0 * (k.value / r.value - 1.0);
+        let v = match c.verdicts[i] {
+            Verdict::Better => "better",
+            Verdict::Worse => "worse",
+            Verdict::Tie => "tie",
+        };
+        let _ = write!(
+            out,
+            "{:<27} {:>10.4} {:>10.4} {:>+7.1}%  {:<7}",
+            r.name, r.value, k.value, change, v
+        );
+        if let Some(s) = spread {
+            let (_, sd) = s[i];
+            if sd > 0.0 {
+                let z = (k.value - r.value) / sd;
+                let _ = write!(out, " {sd:>10.4} {z:>+9.1}");
+            } else {
+                let _ = write!(out, " {sd:>10.4} {:>9}", "-");
+            }
+        }
+        out.push('\n');
+    }
+    let guard: Vec<String> = c
+        .fresh_change
+        .iter()
+        .zip(&HORIZONS_S)
+        .map(|(x, h)| format!("{h} s {:+.1}%", 100.0 * x))
+        .collect();
+    let _ = writeln!(
+        out,
+        "better on {} of {}, worse on {}; fresh-scene guard (within {:.0}% at every horizon): {} -> {}",
+        c.better,
+        c.verdicts.len(),
+        c.worse,
+        100.0 * FRESH_GUARD,
+        guard.join(", "),
+        if c.guard_holds { "holds" } else { "fails" }
+    );
+    let _ = writeln!(
+        out,
+        "by the count (more than {COUNT_TO_SHIP}) and the guard: {}",
+        if c.ships() { "ships" } else { "does not ship" }
+    );
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn verdicts_follow_each_figures_direction() {
+        assert_eq!(verdict(Better::Lower, 1.0, 0.9), Verdict::Better);
+        assert_eq!(verdict(Better::Lower, 1.0, 1.1), Verdict::Worse);
+        assert_eq!(verdict(Better::Higher, 2.0, 2.1), Verdict::Better);
+        assert_eq!(verdict(Better::Higher, 2.0, 1.9), Verdict::Worse);
+        assert_eq!(verdict(Better::Higher, 2.0, 2.0), Verdict::Tie);
+    }
+
+    #[test]
+    fn a_spread_needs_two_runs_and_uses_the_sample_deviation() {
+        let card = |v: f64| Scorecard {
+            dir: PathBuf::from("x"),
+            figures: vec![KeyFigure {
+                name: "f",
+                better: Better::Lower,
+                value: v,
+            }],
+            fresh_m: [1.0; 4],
+        };
+        assert!(seed_spread(&[card(1.0)]).is_err());
+        let s = seed_spread(&[card(1.0), card(2.0), card(3.0)]).unwrap();
+        assert_eq!(s, vec![(2.0, 1.0)]);
+    }
+}
