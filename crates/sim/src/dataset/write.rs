@@ -186,7 +186,7 @@ mod tests {
             .map(|f| std::fs::metadata(dir.join(f)).unwrap().len())
             .sum();
         assert_eq!(shards.bytes, sizes);
-        let path = dir.join(&files[1]);
+        let path = dir.join(files[1]);
         let back = decode_shard(&std::fs::read(&path).unwrap(), &path, 2, 1, 1.0 / 24.0).unwrap();
         assert_eq!(back.len(), 1);
         assert_eq!(back[0].objects[0].positions[0], [2.0, 0.0, 0.5]);
