@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use dynaserve_train::train::compare::{
-    Verdict, compare, format_comparison, read_scorecard, seed_spread,
+    Verdict, check_same_data, compare, format_comparison, read_scorecard, seed_spread,
 };
 use serde_json::Value;
 
@@ -141,4 +141,22 @@ fn a_scorecard_without_its_fresh_split_is_refused_by_name() {
     std::fs::remove_file(tmp.0.join("fresh.json")).unwrap();
     let err = format!("{:#}", read_scorecard(&tmp.0).unwrap_err());
     assert!(err.contains("fresh.json"), "{err}");
+}
+
+#[test]
+fn scorecards_of_different_data_are_refused() {
+    let tmp = TempDir::new("compare-other-data");
+    copy_with(&tmp.0, |file, v| {
+        if file == "physics-suite.json" {
+            v["source"] = Value::from("generated scenes (seed 8, split test)");
+        }
+    });
+    let reference = read_scorecard(&release()).unwrap();
+    check_same_data(&reference, &reference).unwrap();
+    let other = read_scorecard(&tmp.0).unwrap();
+    let err = format!("{:#}", check_same_data(&reference, &other).unwrap_err());
+    assert!(
+        err.contains("physics-suite.json") && err.contains("seed 8"),
+        "{err}"
+    );
 }

@@ -61,12 +61,30 @@ pub struct Scorecard {
     pub figures: Vec<KeyFigure>,
     /// Fresh-split translation RMSE at [`HORIZONS_S`], metres (the guard's figures).
     pub fresh_m: [f64; 4],
+    /// What each report scored (test split, fresh split, suite): data, seed, scenes and
+    /// protocol; scorecards are comparable only when these agree.
+    pub data: [String; 3],
 }
 
 fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> anyhow::Result<T> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))
+}
+
+/// What a `dynaserve eval --json` report scored: its data, seed, scenes and start frame.
+fn movi_b_data(report: &SuiteReport) -> String {
+    match report.entries.first().map(|e| &e.report) {
+        Some(r) => {
+            let data = r
+                .dataset
+                .as_ref()
+                .map(|d| format!("{} (seed {}, split {})", d.dir, d.seed, d.split))
+                .unwrap_or_else(|| "generated scenes".into());
+            format!("{data}, {} scenes from frame {}", r.scenes, r.start_frame)
+        }
+        None => "no predictor".into(),
+    }
 }
 
 /// Translation RMSE at [`HORIZONS_S`] (k = 1) and the k = 1 resting drift's mean of the first
@@ -171,11 +189,22 @@ pub fn read_scorecard(dir: &Path) -> anyhow::Result<Scorecard> {
         dir.join("fresh.json"),
         dir.join("physics-suite.json"),
     );
-    let (test, drift) = movi_b(&read_json(&test_path)?, &test_path)?;
+    let test_report: SuiteReport = read_json(&test_path)?;
+    let (test, drift) = movi_b(&test_report, &test_path)?;
     let drift =
         drift.with_context(|| format!("{}: no step size 1 resting drift", test_path.display()))?;
-    let (fresh_m, _) = movi_b(&read_json(&fresh_path)?, &fresh_path)?;
+    let fresh_report: SuiteReport = read_json(&fresh_path)?;
+    let (fresh_m, _) = movi_b(&fresh_report, &fresh_path)?;
     let suite: PhysicsSuiteReport = read_json(&suite_path)?;
+    let suite_scenes: u64 = suite.scenes.iter().map(|c| c.scenes).sum();
+    let data = [
+        movi_b_data(&test_report),
+        movi_b_data(&fresh_report),
+        format!(
+            "{}, {suite_scenes} scenes from frame {}, every {} window(s)",
+            suite.source, suite.options.start_frame, suite.options.window_stride
+        ),
+    ];
     let p = suite_path.as_path();
     let free_flight = regime_row(&suite, p, Regime::FreeFlight, 4)?
         .predictors
@@ -242,7 +271,25 @@ pub fn read_scorecard(dir: &Path) -> anyhow::Result<Scorecard> {
         dir: dir.to_path_buf(),
         figures,
         fresh_m,
+        data,
     })
+}
+
+/// Refuses two scorecards whose reports scored different data (another split, seed, scene
+/// count, start frame, suite materials or window stride): their figures are not comparable.
+pub fn check_same_data(a: &Scorecard, b: &Scorecard) -> anyhow::Result<()> {
+    for (what, (x, y)) in ["eval.json", "fresh.json", "physics-suite.json"]
+        .iter()
+        .zip(a.data.iter().zip(&b.data))
+    {
+        anyhow::ensure!(
+            x == y,
+            "{what} of {} and of {} scored different data: {x} against {y}",
+            a.dir.display(),
+            b.dir.display()
+        );
+    }
+    Ok(())
 }
 
 /// How a candidate's figure stands against the reference's.
@@ -429,6 +476,7 @@ mod tests {
                 value: v,
             }],
             fresh_m: [1.0; 4],
+            data: Default::default(),
         };
         assert!(seed_spread(&[card(1.0)]).is_err());
         let s = seed_spread(&[card(1.0), card(2.0), card(3.0)]).unwrap();

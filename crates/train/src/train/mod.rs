@@ -181,6 +181,9 @@ fn run_compare(
             .iter()
             .map(|d| compare::read_scorecard(d))
             .collect::<anyhow::Result<Vec<_>>>()?;
+        for run in &runs {
+            compare::check_same_data(&reference, run)?;
+        }
         println!(
             "seed spread: each figure's standard deviation over {} runs of one recipe ({})\n",
             runs.len(),
@@ -194,6 +197,7 @@ fn run_compare(
     };
     for (i, dir) in candidates.iter().enumerate() {
         let candidate = compare::read_scorecard(dir)?;
+        compare::check_same_data(&reference, &candidate)?;
         if i > 0 {
             println!();
         }
