@@ -182,6 +182,37 @@ fn contact_ratio(suite: &PhysicsSuiteReport, path: &Path, regime: Regime) -> any
         })
 }
 
+/// The suite's scenario figures among the key figures: name, (scenario, group, figure), and
+/// whether the figure is the distance of the model's mean from rapier's (else the mean itself).
+const SUITE_FIGURES: [(&str, (&str, &str, &str), bool); 6] = [
+    ("towers (m)", ("rest", "tower", "max displacement"), false),
+    (
+        "drop height (m)",
+        ("drop", "drop", "final height error"),
+        false,
+    ),
+    (
+        "penetration (m)",
+        ("drop", "drop", "deepest penetration"),
+        false,
+    ),
+    (
+        "slide, off rapier",
+        ("slide", "floor", "stopping distance"),
+        true,
+    ),
+    (
+        "collide air, off rapier",
+        ("collide", "air", "momentum exchanged"),
+        true,
+    ),
+    (
+        "collide floor, off rapier",
+        ("collide", "floor", "momentum exchanged"),
+        true,
+    ),
+];
+
 /// Reads the scorecard in `dir` (`eval.json`, `fresh.json`, `physics-suite.json`).
 pub fn read_scorecard(dir: &Path) -> anyhow::Result<Scorecard> {
     let (test_path, fresh_path, suite_path) = (
@@ -212,61 +243,49 @@ pub fn read_scorecard(dir: &Path) -> anyhow::Result<Scorecard> {
         .and_then(|c| c.translation_rmse_m)
         .with_context(|| format!("{}: no free-flight error at k = 4", p.display()))?;
     use Better::{Higher, Lower};
-    let figures = [
-        ("MOVi-B 0.5 s (m)", Lower, test[0]),
-        ("MOVi-B 1 s (m)", Lower, test[1]),
-        ("MOVi-B 2 s (m)", Lower, test[2]),
-        ("MOVi-B 4 s (m)", Lower, test[3]),
-        ("resting drift (m)", Lower, drift),
-        (
-            "towers (m)",
-            Lower,
-            model_mean(&suite, p, ("rest", "tower", "max displacement"))?,
-        ),
-        (
-            "drop height (m)",
-            Lower,
-            model_mean(&suite, p, ("drop", "drop", "final height error"))?,
-        ),
-        (
-            "penetration (m)",
-            Lower,
-            model_mean(&suite, p, ("drop", "drop", "deepest penetration"))?,
-        ),
-        (
-            "slide, off rapier",
-            Lower,
-            off_rapier(&suite, p, ("slide", "floor", "stopping distance"))?,
-        ),
-        (
-            "collide air, off rapier",
-            Lower,
-            off_rapier(&suite, p, ("collide", "air", "momentum exchanged"))?,
-        ),
-        (
-            "collide floor, off rapier",
-            Lower,
-            off_rapier(&suite, p, ("collide", "floor", "momentum exchanged"))?,
-        ),
-        (
-            "floor contact (x)",
-            Higher,
-            contact_ratio(&suite, p, Regime::FloorContact)?,
-        ),
-        (
-            "object contact (x)",
-            Higher,
-            contact_ratio(&suite, p, Regime::ObjectContact)?,
-        ),
-        ("free flight k=4 (m)", Lower, free_flight),
+    let mut figures: Vec<KeyFigure> = [
+        "MOVi-B 0.5 s (m)",
+        "MOVi-B 1 s (m)",
+        "MOVi-B 2 s (m)",
+        "MOVi-B 4 s (m)",
     ]
     .into_iter()
-    .map(|(name, better, value)| KeyFigure {
+    .zip(test)
+    .chain([("resting drift (m)", drift)])
+    .map(|(name, value)| KeyFigure {
         name,
-        better,
+        better: Lower,
         value,
     })
     .collect();
+    for (name, key, off_rapier_figure) in SUITE_FIGURES {
+        let value = if off_rapier_figure {
+            off_rapier(&suite, p, key)?
+        } else {
+            model_mean(&suite, p, key)?
+        };
+        figures.push(KeyFigure {
+            name,
+            better: Lower,
+            value,
+        });
+    }
+    for (name, regime) in [
+        ("floor contact (x)", Regime::FloorContact),
+        ("object contact (x)", Regime::ObjectContact),
+    ] {
+        let value = contact_ratio(&suite, p, regime)?;
+        figures.push(KeyFigure {
+            name,
+            better: Higher,
+            value,
+        });
+    }
+    figures.push(KeyFigure {
+        name: "free flight k=4 (m)",
+        better: Lower,
+        value: free_flight,
+    });
     Ok(Scorecard {
         dir: dir.to_path_buf(),
         figures,
