@@ -339,10 +339,11 @@ pub fn shard_object_parameters(bytes: &[u8], path: &Path) -> Result<Vec<Vec<Obje
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    fn object(kinematic: bool) -> ObjectRecord {
+    /// A two-frame object one reference point large, moving 0.1 m along x.
+    pub(crate) fn object(kinematic: bool) -> ObjectRecord {
         ObjectRecord {
             positions: vec![[0.0, 0.0, 0.5], [0.1, 0.0, 0.5]],
             rotations: vec![[0.0, 0.0, 0.0, 1.0]; 2],

@@ -148,22 +148,14 @@ pub fn write_manifest(dir: &Path, manifest: &impl Serialize) -> Result<u64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::dataset::{ObjectRecord, decode_shard};
+    use crate::dataset::decode_shard;
 
+    /// A one-object scene whose object starts at `x` along x, metres.
     fn scene(x: f32) -> SceneRecord {
+        let mut object = crate::dataset::shard::tests::object(false);
+        object.positions[0][0] = x;
         SceneRecord {
-            objects: vec![ObjectRecord {
-                positions: vec![[x, 0.0, 0.5], [x + 0.1, 0.0, 0.5]],
-                rotations: vec![[0.0, 0.0, 0.0, 1.0]; 2],
-                reference_points: vec![[0.5, 0.0, 0.0]],
-                mass: 1.0,
-                friction: 0.5,
-                restitution: 0.3,
-                scale: [1.0; 3],
-                shape_id: 0,
-                material: 0,
-                kinematic: false,
-            }],
+            objects: vec![object],
             dt_frame: 1.0 / 24.0,
         }
     }
