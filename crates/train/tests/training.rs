@@ -246,6 +246,52 @@ fn resume_is_exact() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// `run.keep_checkpoints` keeps a copy of the checkpoint after each listed iteration, whole
+/// (its state at that iteration, the last one equal to the final checkpoint) and exportable
+/// with its weight average; an iteration past the run is refused before training.
+#[test]
+fn listed_checkpoints_are_kept_along_the_run() {
+    let dir = scratch("keep");
+    let data = tiny_dataset(&dir);
+    let mut cfg = tiny_config(&data, &dir.join("run"), 4);
+    cfg.run.keep_checkpoints = vec![5];
+    let err = train(&cfg, &TrainOptions::default()).unwrap_err();
+    assert!(err.to_string().contains("run.keep_checkpoints"), "{err}");
+    cfg.run.keep_checkpoints = vec![2, 4];
+    train(&cfg, &TrainOptions::default()).unwrap();
+    let run = dir.join("run");
+    let state = |d: &str| {
+        dynaserve_train::train::trainer::read_state(&run.join(d))
+            .unwrap()
+            .step
+    };
+    assert_eq!(
+        (state("checkpoint-00002"), state("checkpoint-00004")),
+        (2, 4)
+    );
+    assert!(!run.join("checkpoint-00002.tmp").exists());
+    for f in ["model.safetensors", "optimizer.safetensors"] {
+        let kept = std::fs::read(run.join("checkpoint-00004").join(f)).unwrap();
+        let last = std::fs::read(run.join("checkpoint").join(f)).unwrap();
+        assert!(
+            kept == last,
+            "{f}: the copy at the last iteration is the final checkpoint"
+        );
+    }
+    let early = std::fs::read(run.join("checkpoint-00002/model.safetensors")).unwrap();
+    let last = std::fs::read(run.join("checkpoint/model.safetensors")).unwrap();
+    assert!(early != last, "two more iterations changed the weights");
+    dynaserve_train::train::export(&dynaserve_train::train::ExportOptions {
+        run: run.join("checkpoint-00002"),
+        out: dir.join("model"),
+        ema: true,
+        dtype: candle_core::DType::F32,
+    })
+    .unwrap();
+    dynaserve_model::load_model(&dir.join("model"), &dynaserve_model::Device::Cpu).unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// `model.contact_velocity = true` on a 12-feature `model.init` widens it: the run's model
 /// takes 15 features, keeps the 12 old normalisation constants and fits the 3 new ones; a
 /// model that has the inputs cannot lose them. `model.surface_normals = true` then widens

@@ -499,6 +499,11 @@ pub struct RunConfig {
     pub seed: u64,
     /// Show a progress bar (otherwise a plain line per log row).
     pub progress: bool,
+    /// Iterations after which a copy of the checkpoint is kept as `checkpoint-NNNNN/` beside
+    /// `checkpoint/` (weights, optimiser moments with the weight average, state), for
+    /// averaging weights along a run (`dynaserve train export --run DIR/checkpoint-NNNNN
+    /// --ema`, then `dynaserve train average`). Empty keeps none.
+    pub keep_checkpoints: Vec<u64>,
 }
 
 impl Default for RunConfig {
@@ -512,6 +517,7 @@ impl Default for RunConfig {
             device: "cpu".to_string(),
             seed: 0,
             progress: true,
+            keep_checkpoints: Vec::new(),
         }
     }
 }
@@ -686,6 +692,16 @@ impl TrainConfig {
             || r.threads == 0
         {
             return bad("run.checkpoint_minutes > 0, run.log_every >= 1 and run.threads >= 1");
+        }
+        if let Some(k) = r
+            .keep_checkpoints
+            .iter()
+            .find(|&&k| k == 0 || k > o.iterations)
+        {
+            return bad(&format!(
+                "run.keep_checkpoints names iteration {k}: each must be in 1..={} (optim.iterations)",
+                o.iterations
+            ));
         }
         Ok(())
     }

@@ -112,11 +112,40 @@ fn save_checkpoint(
     opt: &AdamW,
     state: &RunState,
 ) -> Result<PathBuf, TrainError> {
-    replace_checkpoint(out, |tmp| {
-        model.save(tmp)?;
-        opt.save(&tmp.join(OPTIMIZER_FILE))?;
-        write_state(tmp, state)
-    })
+    replace_checkpoint(out, |tmp| write_checkpoint_files(tmp, model, opt, state))
+}
+
+/// Writes a checkpoint's files (weights and configuration, optimiser, state) into `dir`.
+fn write_checkpoint_files(
+    dir: &Path,
+    model: &RigidFormer,
+    opt: &AdamW,
+    state: &RunState,
+) -> Result<(), TrainError> {
+    model.save(dir)?;
+    opt.save(&dir.join(OPTIMIZER_FILE))?;
+    write_state(dir, state)
+}
+
+/// Writes a copy of the checkpoint as `out/checkpoint-NNNNN` (the iteration, five digits or
+/// more), atomically: into `checkpoint-NNNNN.tmp`, then renamed. Returns the directory.
+fn keep_checkpoint(
+    out: &Path,
+    model: &RigidFormer,
+    opt: &AdamW,
+    state: &RunState,
+) -> Result<PathBuf, TrainError> {
+    let dir = out.join(format!("checkpoint-{:05}", state.step));
+    let tmp = dir.with_extension("tmp");
+    for d in [&tmp, &dir] {
+        if d.exists() {
+            std::fs::remove_dir_all(d).map_err(io(d))?;
+        }
+    }
+    std::fs::create_dir_all(&tmp).map_err(io(&tmp))?;
+    write_checkpoint_files(&tmp, model, opt, state)?;
+    std::fs::rename(&tmp, &dir).map_err(io(&tmp))?;
+    Ok(dir)
 }
 
 /// Rows of `log.csv` as `(step, loss, pos_post)`.
@@ -567,6 +596,13 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                     println!("checkpoint at iteration {} -> {}", state.step, ckpt_path.display());
                 }
                 last_ckpt = Instant::now();
+            }
+            if cfg.run.keep_checkpoints.contains(&state.step) {
+                state.elapsed_seconds = elapsed_before + session_start.elapsed().as_secs_f64();
+                let kept = keep_checkpoint(&out, &model, &opt, &state)?;
+                if plain {
+                    println!("checkpoint kept at iteration {} -> {}", state.step, kept.display());
+                }
             }
         }
         Ok(())
