@@ -160,7 +160,7 @@ fn the_shipped_checkpoint_runs_through_the_push_figures() {
 /// A frame of the first push scene where the pusher's speed changes enough for the lead to move
 /// the pushed object's step by a few 1e-5 m (scanned over frames 4-76 on the twenty-second
 /// release: 1e-7 to 4e-5 m, 4.1e-5 here; the twenty-third moves it 3.7e-5 m here, the
-/// twenty-fourth 3.6e-5 m; the pusher follows a smooth path, so its coming and last increments
+/// twenty-fourth 3.6e-5 m, the twenty-fifth 4.0e-5 m; the pusher follows a smooth path, so its coming and last increments
 /// differ little). Re-scan when the checkpoint is replaced.
 const LEAD_START: usize = 34;
 
