@@ -41,25 +41,36 @@ pub(crate) fn replace_checkpoint(
     out: &Path,
     write: impl FnOnce(&Path) -> Result<(), TrainError>,
 ) -> Result<PathBuf, TrainError> {
-    let tmp = out.join("checkpoint.tmp");
+    let dir = checkpoint_dir(out);
+    replace_dir(&dir, write)?;
+    Ok(dir)
+}
+
+/// Replaces the directory `dir` atomically by what `write` puts into the empty directory
+/// `dir.tmp`: the old `dir` is renamed to `dir.old`, `dir.tmp` to `dir`, then `dir.old` is
+/// removed.
+pub(crate) fn replace_dir(
+    dir: &Path,
+    write: impl FnOnce(&Path) -> Result<(), TrainError>,
+) -> Result<(), TrainError> {
+    let tmp = dir.with_extension("tmp");
     if tmp.exists() {
         std::fs::remove_dir_all(&tmp).map_err(io(&tmp))?;
     }
     std::fs::create_dir_all(&tmp).map_err(io(&tmp))?;
     write(&tmp)?;
-    let dir = checkpoint_dir(out);
-    let old = out.join("checkpoint.old");
+    let old = dir.with_extension("old");
     if old.exists() {
         std::fs::remove_dir_all(&old).map_err(io(&old))?;
     }
     if dir.exists() {
-        std::fs::rename(&dir, &old).map_err(io(&dir))?;
+        std::fs::rename(dir, &old).map_err(io(dir))?;
     }
-    std::fs::rename(&tmp, &dir).map_err(io(&tmp))?;
+    std::fs::rename(&tmp, dir).map_err(io(&tmp))?;
     if old.exists() {
         std::fs::remove_dir_all(&old).map_err(io(&old))?;
     }
-    Ok(dir)
+    Ok(())
 }
 
 /// The checkpoint to resume from: `checkpoint/`, or `checkpoint.old/` if a swap was cut short.

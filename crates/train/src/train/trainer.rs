@@ -32,8 +32,8 @@ use super::heldout::HeldoutWatch;
 use super::optim::{AdamW, learning_rate};
 use super::plot::{Series, line_chart};
 use super::run_dir::{
-    OPTIMIZER_FILE, STATE_FILE, checkpoint_dir, io, replace_checkpoint, resumable, truncate_log,
-    write_state,
+    OPTIMIZER_FILE, STATE_FILE, checkpoint_dir, io, replace_checkpoint, replace_dir, resumable,
+    truncate_log, write_state,
 };
 
 /// Header of `log.csv`. `rotation` is the unweighted rotation term, empty when it is off (and
@@ -127,25 +127,33 @@ fn write_checkpoint_files(
     write_state(dir, state)
 }
 
-/// Writes a copy of the checkpoint as `out/checkpoint-NNNNN` (the iteration, five digits or
-/// more), atomically: into `checkpoint-NNNNN.tmp`, then renamed. Returns the directory.
-fn keep_checkpoint(
+/// When `state.step` is listed in `run.keep_checkpoints`, writes a copy of the checkpoint as
+/// `out/checkpoint-NNNNN` (the iteration, five digits or more; atomically, as the checkpoint
+/// itself, with `elapsed_seconds` as the run's wall time so far) and says so when `plain`.
+fn keep_if_listed(
+    cfg: &TrainConfig,
     out: &Path,
     model: &RigidFormer,
     opt: &AdamW,
-    state: &RunState,
-) -> Result<PathBuf, TrainError> {
-    let dir = out.join(format!("checkpoint-{:05}", state.step));
-    let tmp = dir.with_extension("tmp");
-    for d in [&tmp, &dir] {
-        if d.exists() {
-            std::fs::remove_dir_all(d).map_err(io(d))?;
-        }
+    state: &mut RunState,
+    elapsed_seconds: f64,
+    plain: bool,
+) -> Result<(), TrainError> {
+    if !cfg.run.keep_checkpoints.contains(&state.step) {
+        return Ok(());
     }
-    std::fs::create_dir_all(&tmp).map_err(io(&tmp))?;
-    write_checkpoint_files(&tmp, model, opt, state)?;
-    std::fs::rename(&tmp, &dir).map_err(io(&tmp))?;
-    Ok(dir)
+    state.elapsed_seconds = elapsed_seconds;
+    let state = &*state;
+    let dir = out.join(format!("checkpoint-{:05}", state.step));
+    replace_dir(&dir, |tmp| write_checkpoint_files(tmp, model, opt, state))?;
+    if plain {
+        println!(
+            "checkpoint kept at iteration {} -> {}",
+            state.step,
+            dir.display()
+        );
+    }
+    Ok(())
 }
 
 /// Rows of `log.csv` as `(step, loss, pos_post)`.
@@ -519,8 +527,11 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                         state.step
                     )));
                 }
-                // The batch is consumed without an update; the stream moves on.
+                // The batch is consumed without an update; the stream moves on (a listed
+                // iteration is still kept).
                 state.step += 1;
+                let elapsed = elapsed_before + session_start.elapsed().as_secs_f64();
+                keep_if_listed(cfg, &out, &model, &opt, &mut state, elapsed, plain)?;
                 continue;
             };
             bad_in_a_row = 0;
@@ -597,13 +608,8 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                 }
                 last_ckpt = Instant::now();
             }
-            if cfg.run.keep_checkpoints.contains(&state.step) {
-                state.elapsed_seconds = elapsed_before + session_start.elapsed().as_secs_f64();
-                let kept = keep_checkpoint(&out, &model, &opt, &state)?;
-                if plain {
-                    println!("checkpoint kept at iteration {} -> {}", state.step, kept.display());
-                }
-            }
+            let elapsed = elapsed_before + session_start.elapsed().as_secs_f64();
+            keep_if_listed(cfg, &out, &model, &opt, &mut state, elapsed, plain)?;
         }
         Ok(())
     });
