@@ -184,33 +184,14 @@ fn contact_ratio(suite: &PhysicsSuiteReport, path: &Path, regime: Regime) -> any
 
 /// The suite's scenario figures among the key figures: name, (scenario, group, figure), and
 /// whether the figure is the distance of the model's mean from rapier's (else the mean itself).
+#[rustfmt::skip]
 const SUITE_FIGURES: [(&str, (&str, &str, &str), bool); 6] = [
-    ("towers (m)", ("rest", "tower", "max displacement"), false),
-    (
-        "drop height (m)",
-        ("drop", "drop", "final height error"),
-        false,
-    ),
-    (
-        "penetration (m)",
-        ("drop", "drop", "deepest penetration"),
-        false,
-    ),
-    (
-        "slide, off rapier",
-        ("slide", "floor", "stopping distance"),
-        true,
-    ),
-    (
-        "collide air, off rapier",
-        ("collide", "air", "momentum exchanged"),
-        true,
-    ),
-    (
-        "collide floor, off rapier",
-        ("collide", "floor", "momentum exchanged"),
-        true,
-    ),
+    ("towers (m)",                ("rest", "tower", "max displacement"),     false),
+    ("drop height (m)",           ("drop", "drop", "final height error"),    false),
+    ("penetration (m)",           ("drop", "drop", "deepest penetration"),   false),
+    ("slide, off rapier",         ("slide", "floor", "stopping distance"),   true),
+    ("collide air, off rapier",   ("collide", "air", "momentum exchanged"),  true),
+    ("collide floor, off rapier", ("collide", "floor", "momentum exchanged"), true),
 ];
 
 /// Reads the scorecard in `dir` (`eval.json`, `fresh.json`, `physics-suite.json`).
