@@ -81,10 +81,16 @@ async fn python_client_tests_and_push_planner_run_against_a_real_server() {
     assert!(tests.contains("OK"), "{tests}");
     // The push planner over each transport, with a small budget, on two seeds.
     let grpc = server.grpc_addr.to_string();
+    let record_dir = std::env::temp_dir().join(format!("dynaserve-planner-{}", std::process::id()));
     for (flag, address) in [("--server", url.as_str()), ("--grpc", grpc.as_str())] {
+        let dir = record_dir.join(&flag[2..]);
+        std::fs::create_dir_all(&dir).unwrap();
+        let record = dir.join("planner.json");
         let planner = run(
             Command::new(&python)
                 .arg(root.join("clients/python/examples/push_planner.py"))
+                .arg("--json")
+                .arg(&record)
                 .args([
                     flag,
                     address,
@@ -127,7 +133,24 @@ async fn python_client_tests_and_push_planner_run_against_a_real_server() {
             planner.contains("over 2 seeds (rapier replay)"),
             "{planner}"
         );
+        // The record holds both seeds' replayed distances, as `train compare` reads them.
+        let read = dynaserve_train::train::planner_record::read_planner(&dir)
+            .unwrap()
+            .expect("planner.json written");
+        assert_eq!(
+            read.seeds.iter().map(|s| s.seed).collect::<Vec<_>>(),
+            [0, 1]
+        );
+        assert_eq!(read.settings["rounds"], 2);
+        assert!(
+            planner.contains(&format!(
+                "planned {:.3} m, random plan {:.3} m",
+                read.seeds[1].planned, read.seeds[1].random
+            )),
+            "{planner}\n{read:?}"
+        );
     }
+    let _ = std::fs::remove_dir_all(&record_dir);
     server.shutdown();
     server.wait().await.unwrap();
 }

@@ -14,6 +14,7 @@ the ground truth, where both executed pusher paths are replayed in rapier by
     python examples/push_planner.py --server http://127.0.0.1:8080
     python examples/push_planner.py --grpc 127.0.0.1:50051     # the same over gRPC
     python examples/push_planner.py --seeds 0-199   # one plan per seed, then a summary line
+    python examples/push_planner.py --seeds 0-199 --json planner.json   # ... and every seed's distances
 
 Planning in the model's own rollout makes the rapier distance a measure of the model: over many
 seeds, a model whose pushes are forecast better ends closer to the goal more often.
@@ -143,6 +144,38 @@ def summary(results: list[tuple[float, float, float, float]]) -> str:
     )
 
 
+SETTINGS = ("goal", "rounds", "horizon", "execute", "samples", "iterations", "speed", "side_weight")
+"""The options that change what a plan does: two records are paired seed by seed only when these
+agree (``dynaserve train compare`` refuses them otherwise)."""
+
+
+def record(model: dict, args: argparse.Namespace, results: list[tuple[int, tuple[float, float, float, float]]]) -> dict:
+    """The JSON record of a planner run: the model planned with, the settings that shape a plan
+    and, per seed, the rapier-replayed final distances to the goal of the executed plan and of
+    the random path and how far the model's final box position was from rapier's on each, in m.
+    ``dynaserve train compare`` reads it as a scorecard's ``planner.json`` (the ship rule's
+    planner clause pairs two such records seed by seed)."""
+    return {
+        "planner": "push",
+        "model": {"name": model.get("name"), "architecture": model.get("architecture")},
+        "settings": {name: getattr(args, name) for name in SETTINGS},
+        "seeds": [
+            {"seed": seed, "planned": d[0], "random": d[1], "planned_off": d[2], "random_off": d[3]}
+            for seed, d in results
+        ],
+    }
+
+
+def write_record(path: str, doc: dict) -> None:
+    """Writes ``doc`` to ``path`` through a temporary file and a rename, so that a run stopped
+    part-way leaves the seeds done so far, never a torn file."""
+    tmp = path + ".tmp"
+    with open(tmp, "w") as f:
+        json.dump(doc, f, indent=1)
+        f.write("\n")
+    os.replace(tmp, path)
+
+
 def plan(client: Any, args: argparse.Namespace, seed: int, dt_frame: float, binary: Optional[str]):
     """Plans one push (scene and sampling from ``seed``) and prints the distances; returns the
     rapier-replayed final distances ``(planned, random)`` and how far the model's final box
@@ -235,12 +268,20 @@ def main() -> None:
         help="plan once per seed (\"0-199\", \"1,4,9-11\") and end with a summary over them; overrides --seed",
     )
     ap.add_argument("--dynaserve", help="dynaserve binary for the rapier replay (default: found)")
+    ap.add_argument(
+        "--json",
+        metavar="FILE",
+        help="write every seed's rapier-replayed distances (and the model and settings) to FILE, "
+        "rewritten after each seed; needs the rapier replay",
+    )
     args = ap.parse_args()
     try:
         seeds = parse_seeds(args.seeds) if args.seeds is not None else [args.seed]
     except ValueError as e:
         ap.error(f"--seeds: {e}")
     binary = find_dynaserve(args.dynaserve)
+    if args.json and binary is None:
+        ap.error("--json records rapier-replayed distances: build dynaserve or give --dynaserve")
     client: Any
     if args.grpc:
         from dynaserve.grpc import GrpcClient
@@ -249,14 +290,17 @@ def main() -> None:
     else:
         client = Client(args.server)
     # The session's model: the one RigidFormer (a PhysiFormer may be resident beside it).
-    dt_frame = next(m for m in client.list_models() if m["architecture"] == "rigidformer")["dt_frame"]
+    model = next(m for m in client.list_models() if m["architecture"] == "rigidformer")
+    dt_frame = model["dt_frame"]
     results = []
     for seed in seeds:
         distances = plan(client, args, seed, dt_frame, binary)
         if distances is not None:
-            results.append(distances)
+            results.append((seed, distances))
+            if args.json:
+                write_record(args.json, record(model, args, results))
     if len(seeds) > 1 and results:
-        print(summary(results))
+        print(summary([d for _, d in results]))
 
 
 if __name__ == "__main__":

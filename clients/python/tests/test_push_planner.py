@@ -1,7 +1,10 @@
 """The push planner example's cost terms (no server needed)."""
 
+import argparse
 import importlib.util
+import json
 import os
+import tempfile
 import unittest
 
 import numpy as np
@@ -45,6 +48,29 @@ class Seeds(unittest.TestCase):
         self.assertIn("planned closer than random on 2 of 3", line)
         self.assertIn("planned paths off by mean 0.060 m (median 0.050)", line)
         self.assertIn("random paths by mean 0.020 m (median 0.020)", line)
+
+
+class Record(unittest.TestCase):
+    def test_the_record_pairs_seeds_with_their_distances_and_keeps_the_settings(self):
+        args = argparse.Namespace(
+            goal=[0.35, 0.15], rounds=8, horizon=10, execute=4, samples=48, iterations=2, speed=0.8,
+            side_weight=0.5, server="http://x", seeds="3,5",
+        )
+        model = {"name": "rigidformer-small", "architecture": "rigidformer", "dt_frame": 1 / 24}
+        doc = planner.record(model, args, [(3, (0.1, 0.3, 0.05, 0.01)), (5, (0.2, 0.1, 0.02, 0.03))])
+        self.assertEqual(doc["model"], {"name": "rigidformer-small", "architecture": "rigidformer"})
+        # Only what shapes a plan: not the transport or the seed list.
+        self.assertEqual(set(doc["settings"]), set(planner.SETTINGS))
+        self.assertEqual(doc["settings"]["goal"], [0.35, 0.15])
+        self.assertEqual([s["seed"] for s in doc["seeds"]], [3, 5])
+        self.assertEqual(doc["seeds"][1]["random_off"], 0.03)
+        with tempfile.TemporaryDirectory() as tmp:
+            path = os.path.join(tmp, "planner.json")
+            planner.write_record(path, doc)
+            planner.write_record(path, doc)  # rewritten in place, no temporary file left
+            self.assertEqual(os.listdir(tmp), ["planner.json"])
+            with open(path) as f:
+                self.assertEqual(json.load(f), doc)
 
 
 if __name__ == "__main__":

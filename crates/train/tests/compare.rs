@@ -1,11 +1,13 @@
 //! `dynaserve train compare` on the shipped release's own scorecard
 //! (`models/rigidformer-small/eval`: the reports its card quotes) and on copies of it with
-//! single figures moved, written to a temporary directory.
+//! single figures moved, written to a temporary directory; the planner clause on the release's
+//! own push planner record (`planner.json`) and on copies of it with the distances moved.
 
 use std::path::{Path, PathBuf};
 
 use dynaserve_train::train::compare::{
-    Verdict, check_same_data, compare, format_comparison, read_scorecard, seed_spread,
+    Verdict, check_same_data, check_same_planner, compare, format_comparison, read_scorecard,
+    seed_spread,
 };
 use serde_json::Value;
 
@@ -158,5 +160,100 @@ fn scorecards_of_different_data_are_refused() {
     assert!(
         err.contains("physics-suite.json") && err.contains("seed 8"),
         "{err}"
+    );
+}
+
+#[test]
+fn the_planner_clause_pairs_the_records_seed_by_seed_and_keeps_the_test_split() {
+    let reference = read_scorecard(&release()).unwrap();
+    let record = reference
+        .planner
+        .as_ref()
+        .expect("the release has a planner.json");
+    assert_eq!(record.seeds.len(), 200);
+    // Against itself: no difference, so not better.
+    let c = compare(&reference, &reference);
+    let p = c.planner.as_ref().unwrap();
+    assert_eq!((p.seeds, p.paired_mean, p.paired_se), (200, 0.0, 0.0));
+    assert!(!p.planner_better() && !c.ships());
+
+    // A candidate whose plans end 5 to 10 mm closer on every seed (never below zero) ships by
+    // the clause alone: its fourteen figures tie.
+    let tmp = TempDir::new("compare-planner");
+    copy_with(&tmp.0, |_, _| {});
+    let mut planner = read("planner.json");
+    for (i, s) in planner["seeds"]
+        .as_array_mut()
+        .unwrap()
+        .iter_mut()
+        .enumerate()
+    {
+        let d = s["planned"].as_f64().unwrap();
+        let closer = if i % 2 == 0 { 0.010 } else { 0.005 };
+        s["planned"] = Value::from((d - closer).max(0.0));
+    }
+    let write = |v: &Value| {
+        std::fs::write(tmp.0.join("planner.json"), v.to_string()).unwrap();
+    };
+    write(&planner);
+    let candidate = read_scorecard(&tmp.0).unwrap();
+    check_same_planner(&reference, &candidate).unwrap();
+    let c = compare(&reference, &candidate);
+    let p = c.planner.as_ref().unwrap();
+    assert!((-0.0076..-0.004).contains(&p.paired_mean), "{p:?}");
+    assert!(p.passes() && !c.ships_by_count() && c.ships(), "{p:?}");
+    let text = format_comparison(&reference, &candidate, None);
+    assert!(
+        text.contains("push planner over 200 paired seeds"),
+        "{text}"
+    );
+    assert!(
+        text.contains("by the count (more than 9) and the guard: does not ship"),
+        "{text}"
+    );
+    assert!(text.contains("outcome: ships"), "{text}");
+
+    // The same planner with MOVi-B's test split 2% worse at 1 s does not ship.
+    copy_with(&tmp.0, |file, v| {
+        if file == "eval.json" {
+            for s in v["entries"][0]["report"]["step_sizes"]
+                .as_array_mut()
+                .unwrap()
+                .iter_mut()
+                .filter(|s| s["dt_steps"] == 1)
+            {
+                for hz in s["horizons"].as_array_mut().unwrap() {
+                    if hz["horizon_s"].as_f64() == Some(1.0) {
+                        let t = &mut hz["translation_rmse_m"];
+                        *t = Value::from(t.as_f64().unwrap() * 1.02);
+                    }
+                }
+            }
+        }
+    });
+    let c = compare(&reference, &read_scorecard(&tmp.0).unwrap());
+    let p = c.planner.as_ref().unwrap();
+    assert!(
+        p.planner_better() && !p.test_guard_holds() && !c.ships(),
+        "{p:?}"
+    );
+
+    // Another pusher speed, or fewer seeds, cannot be paired.
+    planner["settings"]["speed"] = Value::from(0.4);
+    write(&planner);
+    let err = check_same_planner(&reference, &read_scorecard(&tmp.0).unwrap()).unwrap_err();
+    assert!(err.to_string().contains("speed 0.8 against 0.4"), "{err}");
+    planner["settings"]["speed"] = Value::from(0.8);
+    planner["seeds"].as_array_mut().unwrap().truncate(40);
+    write(&planner);
+    let err = check_same_planner(&reference, &read_scorecard(&tmp.0).unwrap()).unwrap_err();
+    assert!(err.to_string().contains("different seeds"), "{err}");
+
+    // Without a record the clause is not judged, and says which file is missing.
+    std::fs::remove_file(tmp.0.join("planner.json")).unwrap();
+    let text = format_comparison(&reference, &read_scorecard(&tmp.0).unwrap(), None);
+    assert!(
+        text.contains("planner clause: not judged (no ") && text.contains("planner.json)"),
+        "{text}"
     );
 }

@@ -9,6 +9,8 @@
 //! momentum (both as distance from rapier's), floor and object contact (ballistic over model,
 //! k = 1) and free flight (k = 4). The count is head to head; the fresh-scene guard asks the
 //! fresh split's translation RMSE to stay within 1% of the reference's at every horizon.
+//! A scorecard may also hold a push planner's record (`planner.json`); when both do, the
+//! rule's planner clause is judged too ([`crate::train::planner_record`]).
 //! Scorecards of one recipe at several seeds give a seed spread: each figure's standard
 //! deviation across them, against which a difference can be read (docs/training.md,
 //! "Comparing a candidate with the release").
@@ -21,6 +23,7 @@ use anyhow::Context;
 use crate::eval::SuiteReport;
 use crate::eval::physics_suite::{FigureRow, PhysicsSuiteReport};
 use crate::eval::regimes::Regime;
+use crate::train::planner_record::{self, PlannerClause, PlannerRecord};
 
 /// MOVi-B horizons of the key figures, seconds.
 pub const HORIZONS_S: [f64; 4] = [0.5, 1.0, 2.0, 4.0];
@@ -64,6 +67,20 @@ pub struct Scorecard {
     /// What each report scored (test split, fresh split, suite): data, seed, scenes and
     /// protocol; scorecards are comparable only when these agree.
     pub data: [String; 3],
+    /// The push planner's record (`planner.json`), when the directory has one.
+    pub planner: Option<PlannerRecord>,
+}
+
+impl Scorecard {
+    /// MOVi-B test-split translation RMSE at [`HORIZONS_S`] (k = 1), metres: the first four
+    /// key figures.
+    pub fn test_m(&self) -> [f64; 4] {
+        let mut m = [0.0; 4];
+        for (slot, f) in m.iter_mut().zip(&self.figures) {
+            *slot = f.value;
+        }
+        m
+    }
 }
 
 fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> anyhow::Result<T> {
@@ -194,7 +211,8 @@ const SUITE_FIGURES: [(&str, (&str, &str, &str), bool); 6] = [
     ("collide floor, off rapier", ("collide", "floor", "momentum exchanged"), true),
 ];
 
-/// Reads the scorecard in `dir` (`eval.json`, `fresh.json`, `physics-suite.json`).
+/// Reads the scorecard in `dir` (`eval.json`, `fresh.json`, `physics-suite.json`, and
+/// `planner.json` when there is one).
 pub fn read_scorecard(dir: &Path) -> anyhow::Result<Scorecard> {
     let (test_path, fresh_path, suite_path) = (
         dir.join("eval.json"),
@@ -272,6 +290,7 @@ pub fn read_scorecard(dir: &Path) -> anyhow::Result<Scorecard> {
         figures,
         fresh_m,
         data,
+        planner: planner_record::read_planner(dir)?,
     })
 }
 
@@ -290,6 +309,17 @@ pub fn check_same_data(a: &Scorecard, b: &Scorecard) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// Refuses a candidate whose planner record cannot be paired with the reference's (other
+/// settings or seeds); passes when either has none.
+pub fn check_same_planner(reference: &Scorecard, candidate: &Scorecard) -> anyhow::Result<()> {
+    match (&reference.planner, &candidate.planner) {
+        (Some(r), Some(c)) => {
+            planner_record::check_pairable(r, c, (&reference.dir, &candidate.dir))
+        }
+        _ => Ok(()),
+    }
 }
 
 /// How a candidate's figure stands against the reference's.
@@ -327,13 +357,19 @@ pub struct Comparison {
     pub fresh_change: [f64; 4],
     /// Whether the fresh-scene guard holds ([`FRESH_GUARD`] at every horizon).
     pub guard_holds: bool,
+    /// The planner clause, when both scorecards hold a planner record.
+    pub planner: Option<PlannerClause>,
 }
 
 impl Comparison {
-    /// Whether the candidate ships by the count and the guard (the planner clause of the card's
-    /// rule is judged apart).
-    pub fn ships(&self) -> bool {
+    /// Whether the candidate ships by the count and the guard.
+    pub fn ships_by_count(&self) -> bool {
         self.better > COUNT_TO_SHIP && self.guard_holds
+    }
+
+    /// Whether the candidate ships: by the count and the guard, or by the planner clause.
+    pub fn ships(&self) -> bool {
+        self.ships_by_count() || self.planner.as_ref().is_some_and(PlannerClause::passes)
     }
 }
 
@@ -350,12 +386,19 @@ pub fn compare(reference: &Scorecard, candidate: &Scorecard) -> Comparison {
     for (i, slot) in fresh_change.iter_mut().enumerate() {
         *slot = candidate.fresh_m[i] / reference.fresh_m[i] - 1.0;
     }
+    let planner = match (&reference.planner, &candidate.planner) {
+        (Some(r), Some(c)) => {
+            planner_record::planner_clause(r, c, reference.test_m(), candidate.test_m())
+        }
+        _ => None,
+    };
     Comparison {
         better: count(Verdict::Better),
         worse: count(Verdict::Worse),
         guard_holds: fresh_change.iter().all(|&c| c <= FRESH_GUARD),
         fresh_change,
         verdicts,
+        planner,
     }
 }
 
@@ -448,6 +491,69 @@ pub fn format_comparison(
     let _ = writeln!(
         out,
         "by the count (more than {COUNT_TO_SHIP}) and the guard: {}",
+        if c.ships_by_count() {
+            "ships"
+        } else {
+            "does not ship"
+        }
+    );
+    match &c.planner {
+        Some(p) => {
+            let test: Vec<String> = p
+                .test_change
+                .iter()
+                .zip(&HORIZONS_S)
+                .map(|(x, h)| format!("{h} s {:+.1}%", 100.0 * x))
+                .collect();
+            let in_se = if p.paired_se > 0.0 {
+                format!("{:+.1}", p.paired_mean / p.paired_se)
+            } else {
+                "-".into()
+            };
+            let _ = writeln!(
+                out,
+                "push planner over {} paired seeds: reference {:.3} m, candidate {:.3} m \
+                 (closer than random on {} and {}); paired difference {:+.4} m, standard error \
+                 {:.4} m ({in_se} SE; better needs below -{:.0})",
+                p.seeds,
+                p.reference_mean,
+                p.candidate_mean,
+                p.closer_than_random.0,
+                p.closer_than_random.1,
+                p.paired_mean,
+                p.paired_se,
+                planner_record::PLANNER_SE
+            );
+            let _ = writeln!(
+                out,
+                "by the planner clause (planner better, MOVi-B test split within {:.0}% at every \
+                 horizon: {}): {}",
+                100.0 * planner_record::TEST_GUARD,
+                test.join(", "),
+                match (p.planner_better(), p.test_guard_holds()) {
+                    (true, true) => "ships",
+                    (true, false) => "does not ship (the test split fails)",
+                    (false, _) => "does not ship (the planner is not better)",
+                }
+            );
+        }
+        None => {
+            let missing: Vec<String> = [reference, candidate]
+                .iter()
+                .filter(|s| s.planner.is_none())
+                .map(|s| s.dir.join("planner.json").display().to_string())
+                .collect();
+            let why = if missing.is_empty() {
+                "fewer than two seeds in common".to_string()
+            } else {
+                format!("no {}", missing.join(" or "))
+            };
+            let _ = writeln!(out, "planner clause: not judged ({why})");
+        }
+    }
+    let _ = writeln!(
+        out,
+        "outcome: {}",
         if c.ships() { "ships" } else { "does not ship" }
     );
     out
@@ -477,6 +583,7 @@ mod tests {
             }],
             fresh_m: [1.0; 4],
             data: Default::default(),
+            planner: None,
         };
         assert!(seed_spread(&[card(1.0)]).is_err());
         let s = seed_spread(&[card(1.0), card(2.0), card(3.0)]).unwrap();

@@ -15,6 +15,7 @@
 //! - [`restarts`]: training scenes that start where a model's own rollout leads, continued by
 //!   rapier;
 //! - [`compare`]: candidates against a release on the model card's key figures;
+//! - [`planner_record`]: a push planner's per-seed record and the ship rule's planner clause;
 //! - [`plot`]: PNG line charts.
 
 pub mod average;
@@ -25,6 +26,7 @@ pub mod events;
 pub mod export;
 pub mod heldout;
 pub mod optim;
+pub mod planner_record;
 pub mod plot;
 pub mod pushforward;
 pub mod restarts;
@@ -151,8 +153,10 @@ pub enum TrainAction {
         options: restarts::RestartOptions,
     },
     /// Judge candidates against a release on the model card's fourteen key figures and the
-    /// fresh-scene guard (docs/training.md, "Comparing a candidate with the release"). Each
-    /// directory holds `eval.json`, `fresh.json` and `physics-suite.json` from `dynaserve eval`.
+    /// fresh-scene guard, and by the planner clause where both directories hold a push planner
+    /// record (docs/training.md, "Comparing a candidate with the release"). Each directory
+    /// holds `eval.json`, `fresh.json` and `physics-suite.json` from `dynaserve eval`, and
+    /// optionally `planner.json` from `push_planner.py --json`.
     Compare {
         /// The release's scorecard directory (e.g. `models/rigidformer-small/eval`).
         #[arg(long)]
@@ -198,6 +202,7 @@ fn run_compare(
     for (i, dir) in candidates.iter().enumerate() {
         let candidate = compare::read_scorecard(dir)?;
         compare::check_same_data(&reference, &candidate)?;
+        compare::check_same_planner(&reference, &candidate)?;
         if i > 0 {
             println!();
         }
