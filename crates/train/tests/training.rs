@@ -292,6 +292,34 @@ fn listed_checkpoints_are_kept_along_the_run() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// `optim.sam_rho` > 0 takes each update from the gradient at weights moved along the first
+/// one: the run differs from the plain run on the same data and seed, and the weights are
+/// restored exactly between the passes (a stopped and resumed run ends bit-identical to a
+/// straight one). A negative radius is refused before training.
+#[test]
+fn sharpness_aware_runs_differ_from_plain_ones_and_resume_exactly() {
+    let dir = scratch("sam");
+    let data = tiny_dataset(&dir);
+    let config = |name: &str| {
+        let mut c = tiny_config(&data, &dir.join(name), 6);
+        c.optim.sam_rho = 0.05;
+        c
+    };
+    assert_resume_is_exact(&dir, config, 3);
+    let mut plain = tiny_config(&data, &dir.join("plain"), 6);
+    train(&plain, &TrainOptions::default()).unwrap();
+    let weights =
+        |run: &str| std::fs::read(dir.join(run).join("checkpoint/model.safetensors")).unwrap();
+    assert!(
+        weights("straight") != weights("plain"),
+        "the second pass changed nothing"
+    );
+    plain.optim.sam_rho = -0.1;
+    let err = train(&plain, &TrainOptions::default()).unwrap_err();
+    assert!(err.to_string().contains("sam_rho"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// `model.contact_velocity = true` on a 12-feature `model.init` widens it: the run's model
 /// takes 15 features, keeps the 12 old normalisation constants and fits the 3 new ones; a
 /// model that has the inputs cannot lose them. `model.surface_normals = true` then widens

@@ -454,6 +454,17 @@ pub struct OptimConfig {
     /// at least one parameter. Empty by default.
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub lr_scale: BTreeMap<String, f64>,
+    /// Sharpness-aware minimisation's radius (0 disables, the default): each iteration takes
+    /// the gradient again at the weights moved by this distance (global L2 norm over all
+    /// parameters) along the batch's normalised gradient, and the update uses that second
+    /// gradient at the unmoved weights. It seeks weights whose loss stays low in a
+    /// neighbourhood, which tends to generalise better; each iteration costs two passes.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub sam_rho: f64,
+}
+
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 
 impl Default for OptimConfig {
@@ -472,6 +483,7 @@ impl Default for OptimConfig {
             grad_clip: 1.0,
             ema_decay: 0.999,
             lr_scale: BTreeMap::new(),
+            sam_rho: 0.0,
         }
     }
 }
@@ -684,6 +696,9 @@ impl TrainConfig {
         }
         if o.lr_scale.values().any(|f| !(f.is_finite() && *f > 0.0)) {
             return bad("optim.lr_scale factors must be finite and > 0");
+        }
+        if !(o.sam_rho.is_finite() && o.sam_rho >= 0.0) {
+            return bad("optim.sam_rho must be finite and >= 0");
         }
         let r = &self.run;
         if r.checkpoint_minutes.is_nan()

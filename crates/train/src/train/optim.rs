@@ -197,6 +197,38 @@ impl AdamW {
         })
     }
 
+    /// Sharpness-aware minimisation's ascent: moves every parameter by `rho * g / |g|` (`|g|`
+    /// the global L2 norm of `grads` over all parameters; parameters without a gradient stay)
+    /// and returns the weights as they were, for [`AdamW::restore`]. A non-finite gradient
+    /// norm moves nothing and is reported as an error.
+    pub fn perturb(&self, grads: &GradStore, rho: f64) -> Result<Vec<Tensor>, TrainError> {
+        let norm = self.grad_norm(grads)?;
+        if !norm.is_finite() {
+            return Err(TrainError::NonFinite(format!(
+                "gradient norm is {norm} before update {}",
+                self.t + 1
+            )));
+        }
+        let scale = rho / (norm + 1e-12);
+        let mut saved = Vec::with_capacity(self.slots.len());
+        for s in &self.slots {
+            let w = s.var.as_tensor().copy()?.detach();
+            if let Some(g) = grads.get(s.var.as_tensor()) {
+                s.var.set(&(&w + (g * scale)?)?)?;
+            }
+            saved.push(w);
+        }
+        Ok(saved)
+    }
+
+    /// Sets every parameter back to the weights [`AdamW::perturb`] returned.
+    pub fn restore(&self, saved: Vec<Tensor>) -> Result<(), TrainError> {
+        for (s, w) in self.slots.iter().zip(saved) {
+            s.var.set(&w)?;
+        }
+        Ok(())
+    }
+
     /// Copies of the averaged weights by name (the raw weights when no average is kept).
     pub fn ema_weights(&self) -> Result<HashMap<String, Tensor>, TrainError> {
         let mut out = HashMap::new();
@@ -271,6 +303,28 @@ impl AdamW {
 mod tests {
     use super::*;
     use candle_core::Device;
+
+    #[test]
+    fn the_sharpness_ascent_moves_rho_along_the_gradient_and_restores_exactly() {
+        let w = Var::new(&[1.0f32, 2.0, 3.0], &Device::Cpu).unwrap();
+        let b = Var::new(&[5.0f32], &Device::Cpu).unwrap();
+        let vars = HashMap::from([("w".to_string(), w.clone()), ("b".to_string(), b.clone())]);
+        let opt = AdamW::new(&vars, |_| false, false).unwrap();
+        // Loss 3 w0 + 4 w1 (b unused): gradient (3, 4, 0), norm 5.
+        let loss = (w.as_tensor() * &Tensor::new(&[3.0f32, 4.0, 0.0], &Device::Cpu).unwrap())
+            .unwrap()
+            .sum_all()
+            .unwrap();
+        let grads = loss.backward().unwrap();
+        let saved = opt.perturb(&grads, 0.5).unwrap();
+        let moved = w.as_tensor().to_vec1::<f32>().unwrap();
+        for (m, want) in moved.iter().zip([1.3f32, 2.4, 3.0]) {
+            assert!((m - want).abs() < 1e-6, "{moved:?}");
+        }
+        assert_eq!(b.as_tensor().to_vec1::<f32>().unwrap(), [5.0]);
+        opt.restore(saved).unwrap();
+        assert_eq!(w.as_tensor().to_vec1::<f32>().unwrap(), [1.0, 2.0, 3.0]);
+    }
 
     #[test]
     fn schedule_warms_up_then_decays() {

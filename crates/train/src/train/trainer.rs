@@ -18,6 +18,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
+use candle_core::backprop::GradStore;
 use dynaserve_model::{
     FeatureNormalization, InputGroup, ModelUnit, RigidFormer, TrainItem, WorldModel,
     load_rigidformer,
@@ -261,6 +262,37 @@ fn init_units(mut m: RigidFormer, cfg: &TrainConfig) -> Result<RigidFormer, Trai
         }
     }
     Ok(m)
+}
+
+/// Sharpness-aware minimisation (`optim.sam_rho` > 0): the batch's gradient taken again at the
+/// weights moved `rho` along its first gradient (normalised), the weights restored before
+/// returning. `None` when either pass is not finite (the batch is then skipped as any
+/// non-finite batch is).
+fn sharpness_aware(
+    model: &RigidFormer,
+    opt: &AdamW,
+    items: &[TrainItem<'_>],
+    grads: Option<GradStore>,
+    rho: f64,
+) -> Result<Option<GradStore>, TrainError> {
+    let Some(grads) = grads else {
+        return Ok(None);
+    };
+    let saved = match opt.perturb(&grads, rho) {
+        Ok(saved) => saved,
+        Err(TrainError::NonFinite(_)) => return Ok(None),
+        Err(e) => return Err(e),
+    };
+    drop(grads);
+    let second = (|| -> Result<Option<GradStore>, TrainError> {
+        let outp = model.train_forward(items)?;
+        if !outp.loss.to_scalar::<f32>()?.is_finite() {
+            return Ok(None);
+        }
+        Ok(Some(outp.loss.backward()?))
+    })();
+    opt.restore(saved)?;
+    second
 }
 
 /// Trains (or resumes) the run described by `cfg`; see the module docs for the outputs.
@@ -507,11 +539,19 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
             let loss = outp.loss.to_scalar::<f32>()? as f64;
             let lr = learning_rate(&cfg.optim, state.step);
             let stats = if loss.is_finite() {
-                let grads = outp.loss.backward()?;
-                opt.step(&grads, lr, &cfg.optim).map(Some).or_else(|e| match e {
-                    TrainError::NonFinite(_) => Ok(None),
-                    e => Err(e),
-                })?
+                let mut grads = Some(outp.loss.backward()?);
+                if cfg.optim.sam_rho > 0.0 {
+                    grads = sharpness_aware(&model, &opt, &items, grads, cfg.optim.sam_rho)?;
+                }
+                match grads {
+                    Some(grads) => opt.step(&grads, lr, &cfg.optim).map(Some).or_else(
+                        |e| match e {
+                            TrainError::NonFinite(_) => Ok(None),
+                            e => Err(e),
+                        },
+                    )?,
+                    None => None,
+                }
             } else {
                 None
             };
