@@ -32,6 +32,26 @@ pub const HORIZONS_S: [f64; 4] = [0.5, 1.0, 2.0, 4.0];
 /// most this fraction at each horizon.
 pub const FRESH_GUARD: f64 = 0.01;
 
+/// Per horizon, the candidate's figure over the reference's minus 1.
+pub fn change_by_horizon(reference: &[f64; 4], candidate: &[f64; 4]) -> [f64; 4] {
+    std::array::from_fn(|i| candidate[i] / reference[i] - 1.0)
+}
+
+/// Whether a change stays within `bound` (a fraction) at every horizon.
+pub fn within_at_every_horizon(changes: &[f64; 4], bound: f64) -> bool {
+    changes.iter().all(|&c| c <= bound)
+}
+
+/// Changes by horizon as text: `0.5 s +0.4%, 1 s -0.2%, ...`.
+fn format_changes(changes: &[f64; 4]) -> String {
+    changes
+        .iter()
+        .zip(&HORIZONS_S)
+        .map(|(x, h)| format!("{h} s {:+.1}%", 100.0 * x))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
 /// A candidate must be better on more than this many of the fourteen figures.
 pub const COUNT_TO_SHIP: usize = 9;
 
@@ -382,10 +402,7 @@ pub fn compare(reference: &Scorecard, candidate: &Scorecard) -> Comparison {
         .map(|(r, c)| verdict(r.better, r.value, c.value))
         .collect();
     let count = |v: Verdict| verdicts.iter().filter(|&&x| x == v).count();
-    let mut fresh_change = [0.0; 4];
-    for (i, slot) in fresh_change.iter_mut().enumerate() {
-        *slot = candidate.fresh_m[i] / reference.fresh_m[i] - 1.0;
-    }
+    let fresh_change = change_by_horizon(&reference.fresh_m, &candidate.fresh_m);
     let planner = match (&reference.planner, &candidate.planner) {
         (Some(r), Some(c)) => {
             planner_record::planner_clause(r, c, reference.test_m(), candidate.test_m())
@@ -395,7 +412,7 @@ pub fn compare(reference: &Scorecard, candidate: &Scorecard) -> Comparison {
     Comparison {
         better: count(Verdict::Better),
         worse: count(Verdict::Worse),
-        guard_holds: fresh_change.iter().all(|&c| c <= FRESH_GUARD),
+        guard_holds: within_at_every_horizon(&fresh_change, FRESH_GUARD),
         fresh_change,
         verdicts,
         planner,
@@ -472,12 +489,6 @@ pub fn format_comparison(
         }
         out.push('\n');
     }
-    let guard: Vec<String> = c
-        .fresh_change
-        .iter()
-        .zip(&HORIZONS_S)
-        .map(|(x, h)| format!("{h} s {:+.1}%", 100.0 * x))
-        .collect();
     let _ = writeln!(
         out,
         "better on {} of {}, worse on {}; fresh-scene guard (within {:.0}% at every horizon): {} -> {}",
@@ -485,7 +496,7 @@ pub fn format_comparison(
         c.verdicts.len(),
         c.worse,
         100.0 * FRESH_GUARD,
-        guard.join(", "),
+        format_changes(&c.fresh_change),
         if c.guard_holds { "holds" } else { "fails" }
     );
     let _ = writeln!(
@@ -499,12 +510,6 @@ pub fn format_comparison(
     );
     match &c.planner {
         Some(p) => {
-            let test: Vec<String> = p
-                .test_change
-                .iter()
-                .zip(&HORIZONS_S)
-                .map(|(x, h)| format!("{h} s {:+.1}%", 100.0 * x))
-                .collect();
             let in_se = if p.paired_se > 0.0 {
                 format!("{:+.1}", p.paired_mean / p.paired_se)
             } else {
@@ -529,7 +534,7 @@ pub fn format_comparison(
                 "by the planner clause (planner better, MOVi-B test split within {:.0}% at every \
                  horizon: {}): {}",
                 100.0 * planner_record::TEST_GUARD,
-                test.join(", "),
+                format_changes(&p.test_change),
                 match (p.planner_better(), p.test_guard_holds()) {
                     (true, true) => "ships",
                     (true, false) => "does not ship (the test split fails)",

@@ -15,12 +15,14 @@ use std::path::Path;
 use anyhow::Context;
 use serde::Deserialize;
 
+use super::compare::{FRESH_GUARD, change_by_horizon, within_at_every_horizon};
+
 /// The planner clause asks the paired difference to exceed this many standard errors.
 pub const PLANNER_SE: f64 = 2.0;
 
 /// Under the planner clause the MOVi-B test split's translation RMSE may exceed the
-/// reference's by at most this fraction at each horizon.
-pub const TEST_GUARD: f64 = 0.01;
+/// reference's by at most this fraction at each horizon: the fresh-scene guard's bound.
+pub const TEST_GUARD: f64 = FRESH_GUARD;
 
 /// One seed of a planner run, distances in metres.
 #[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
@@ -142,7 +144,7 @@ pub struct PlannerClause {
 impl PlannerClause {
     /// Whether the test split stays within [`TEST_GUARD`] at every horizon.
     pub fn test_guard_holds(&self) -> bool {
-        self.test_change.iter().all(|&c| c <= TEST_GUARD)
+        within_at_every_horizon(&self.test_change, TEST_GUARD)
     }
 
     /// Whether the candidate's planner is closer by more than [`PLANNER_SE`] standard errors.
@@ -185,10 +187,6 @@ pub fn planner_clause(
         .map(|&(r, c)| (c - r - paired_mean).powi(2))
         .sum::<f64>()
         / (n - 1.0);
-    let mut test_change = [0.0; 4];
-    for (i, slot) in test_change.iter_mut().enumerate() {
-        *slot = candidate_test_m[i] / reference_test_m[i] - 1.0;
-    }
     Some(PlannerClause {
         seeds: pairs.len(),
         reference_mean: mean(&|&(r, _)| r),
@@ -199,7 +197,7 @@ pub fn planner_clause(
             reference.closer_than_random(),
             candidate.closer_than_random(),
         ),
-        test_change,
+        test_change: change_by_horizon(&reference_test_m, &candidate_test_m),
     })
 }
 

@@ -264,33 +264,40 @@ fn init_units(mut m: RigidFormer, cfg: &TrainConfig) -> Result<RigidFormer, Trai
     Ok(m)
 }
 
+/// `Ok(None)` for a non-finite loss or gradient (the batch is skipped), other errors passed on.
+fn skip_non_finite<T>(r: Result<T, TrainError>) -> Result<Option<T>, TrainError> {
+    match r {
+        Ok(v) => Ok(Some(v)),
+        Err(TrainError::NonFinite(_)) => Ok(None),
+        Err(e) => Err(e),
+    }
+}
+
 /// Sharpness-aware minimisation (`optim.sam_rho` > 0): the batch's gradient taken again at the
-/// weights moved `rho` along its first gradient (normalised), the weights restored before
-/// returning. `None` when either pass is not finite (the batch is then skipped as any
+/// weights moved `rho` along its first gradient `grads` (normalised), the weights restored
+/// before returning. `None` when either pass is not finite (the batch is then skipped as any
 /// non-finite batch is).
 fn sharpness_aware(
     model: &RigidFormer,
     opt: &AdamW,
     items: &[TrainItem<'_>],
-    grads: Option<GradStore>,
+    grads: GradStore,
     rho: f64,
 ) -> Result<Option<GradStore>, TrainError> {
-    let Some(grads) = grads else {
+    let Some(saved) = skip_non_finite(opt.perturb(&grads, rho))? else {
         return Ok(None);
     };
-    let saved = match opt.perturb(&grads, rho) {
-        Ok(saved) => saved,
-        Err(TrainError::NonFinite(_)) => return Ok(None),
-        Err(e) => return Err(e),
-    };
     drop(grads);
-    let second = (|| -> Result<Option<GradStore>, TrainError> {
-        let outp = model.train_forward(items)?;
-        if !outp.loss.to_scalar::<f32>()?.is_finite() {
-            return Ok(None);
-        }
-        Ok(Some(outp.loss.backward()?))
-    })();
+    let second = model
+        .train_forward(items)
+        .map_err(TrainError::from)
+        .and_then(|outp| {
+            if outp.loss.to_scalar::<f32>()?.is_finite() {
+                Ok(Some(outp.loss.backward()?))
+            } else {
+                Ok(None)
+            }
+        });
     opt.restore(saved)?;
     second
 }
@@ -539,17 +546,14 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
             let loss = outp.loss.to_scalar::<f32>()? as f64;
             let lr = learning_rate(&cfg.optim, state.step);
             let stats = if loss.is_finite() {
-                let mut grads = Some(outp.loss.backward()?);
-                if cfg.optim.sam_rho > 0.0 {
-                    grads = sharpness_aware(&model, &opt, &items, grads, cfg.optim.sam_rho)?;
-                }
+                let first = outp.loss.backward()?;
+                let grads = if cfg.optim.sam_rho > 0.0 {
+                    sharpness_aware(&model, &opt, &items, first, cfg.optim.sam_rho)?
+                } else {
+                    Some(first)
+                };
                 match grads {
-                    Some(grads) => opt.step(&grads, lr, &cfg.optim).map(Some).or_else(
-                        |e| match e {
-                            TrainError::NonFinite(_) => Ok(None),
-                            e => Err(e),
-                        },
-                    )?,
+                    Some(grads) => skip_non_finite(opt.step(&grads, lr, &cfg.optim))?,
                     None => None,
                 }
             } else {
