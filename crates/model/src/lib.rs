@@ -47,7 +47,9 @@ pub use rigidformer::features::{
     nearest_object_gap, object_params, object_summary, raw_point_features, surface_normal_features,
 };
 pub use rigidformer::{RigidFormer, StepProfile, TrainItem, TrainOutput};
-pub use runtime::{configure_compute, keep_freed_memory};
+pub use runtime::{
+    configure_compute, configure_compute_split, keep_freed_memory, training_elementwise_threads,
+};
 pub use trained_ranges::{OutOfRange, TrainedRanges};
 
 /// Re-exported so callers can name devices and dtypes without depending on candle directly.

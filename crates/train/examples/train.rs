@@ -13,7 +13,12 @@ struct Cli {
 }
 
 fn main() -> anyhow::Result<()> {
-    // SAFETY: first statement of main; no other thread exists yet.
-    unsafe { dynaserve_model::configure_compute(None) };
-    dynaserve_train::train::run_cli(Cli::parse().args)
+    let args = Cli::parse().args;
+    let elementwise = args
+        .action
+        .is_none()
+        .then(dynaserve_model::training_elementwise_threads);
+    // SAFETY: parsing starts no thread; no other thread exists yet.
+    unsafe { dynaserve_model::configure_compute_split(None, elementwise) };
+    dynaserve_train::train::run_cli(args)
 }
