@@ -782,10 +782,10 @@ impl ModelConfig {
 
     /// The first setting (its `config.json` name) in which `other` serves scenes differently
     /// from `self`, or `None`: the frame interval, gravity and ground, the request limits and
-    /// nominal point count, everything a prepared scene depends on (the [`PreparedKey`], the
-    /// scene-relative mass and whether normals are estimated) and whether the caller leads
-    /// kinematic objects. Two such models can step one prepared scene from one state; their
-    /// sizes, input features, normalisation and loss may differ.
+    /// nominal point count, the scene-relative mass, whether normals are estimated and whether
+    /// the caller leads kinematic objects. Two such models can step one scene from one state,
+    /// each from its own preparation when their [`PreparedKey`]s (anchor and grouping sizes)
+    /// differ; their sizes, input features, normalisation and loss may differ too.
     pub fn serving_mismatch(&self, other: &ModelConfig) -> Option<&'static str> {
         let (a, b) = (&self.dynamics, &other.dynamics);
         [
@@ -801,9 +801,6 @@ impl ModelConfig {
                 self.max_points_per_object == other.max_points_per_object,
             ),
             ("max_objects", self.max_objects == other.max_objects),
-            ("anchors", self.anchors == other.anchors),
-            ("sa_centres", self.sa_centres == other.sa_centres),
-            ("sa_neighbours", self.sa_neighbours == other.sa_neighbours),
             ("dynamics.relative_mass", a.relative_mass == b.relative_mass),
             (
                 "dynamics.surface_normals or dynamics.approach (normals estimated)",

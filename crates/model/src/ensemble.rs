@@ -7,10 +7,11 @@
 //! (each member's relative weight in the mean; equal when absent) and `"yaw_copies": 4`
 //! (below), and a `card.md`. Each
 //! member is an ordinary checkpoint directory. Members must serve scenes alike
-//! ([`ModelConfig::serving_mismatch`]: frame interval, gravity, limits, what a prepared scene
-//! depends on, the kinematic lead), so that a scene prepared once by the first member serves
-//! all of them; their sizes, input features and normalisation may differ, so releases of
-//! different architectures can be combined. The ensemble reports the first member's
+//! ([`ModelConfig::serving_mismatch`]: frame interval, gravity, limits, scene-relative mass,
+//! normal estimation, the kinematic lead); their sizes, input features and normalisation may
+//! differ, so releases of different architectures can be combined. A scene is prepared once
+//! for each distinct anchor and grouping size among the members ([`crate::PreparedKey`]):
+//! once when all share them, as releases of one architecture do. The ensemble reports the first member's
 //! configuration (its trained ranges among it) and its members' names
 //! ([`WorldModel::member_names`]).
 //!
@@ -260,8 +261,28 @@ impl WorldModel for Ensemble {
     }
 
     fn prepare(&self, objects: Vec<ObjectInput>) -> Result<PreparedScene, ModelError> {
-        // Members prepare scenes alike (`Ensemble::new`), so the first one's serves all.
-        self.members[0].prepare(objects)
+        // The first member of each anchor and grouping size prepares the scene for all members
+        // of that size; the first member's preparation carries the others.
+        let mut sizes = Vec::new();
+        let extra: Vec<&RigidFormer> = self.members[1..]
+            .iter()
+            .filter(|m| {
+                let key = m.config().prepared_key();
+                let new = key != self.members[0].config().prepared_key() && !sizes.contains(&key);
+                if new {
+                    sizes.push(key);
+                }
+                new
+            })
+            .collect();
+        if extra.is_empty() {
+            return self.members[0].prepare(objects);
+        }
+        let mut scene = self.members[0].prepare(objects.clone())?;
+        for m in extra {
+            scene.attach(m.prepare(objects.clone())?)?;
+        }
+        Ok(scene)
     }
 
     fn step(&self, batch: &[StepItem<'_>]) -> Result<Vec<Vec<Pose>>, ModelError> {

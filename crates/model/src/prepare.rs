@@ -53,7 +53,8 @@ pub(crate) struct PreparedObject {
 
 /// A validated scene with the per-object caches a model computes once (anchor indices by FPS on
 /// the reference cloud, encoder grouping). Made by [`WorldModel::prepare`](crate::WorldModel::prepare)
-/// and valid only for models with the same anchor and grouping sizes.
+/// and valid only for models with the same anchor and grouping sizes, or with those of one of
+/// the further preparations an ensemble attaches (members of other sizes).
 #[derive(Clone, Debug)]
 pub struct PreparedScene {
     pub(crate) objects: Vec<PreparedObject>,
@@ -61,9 +62,47 @@ pub struct PreparedScene {
     pub(crate) key: PreparedKey,
     /// Total number of points.
     pub(crate) total_points: usize,
+    /// The same objects prepared for models of other anchor or grouping sizes (an ensemble's
+    /// members, [`PreparedScene::attach`]); none of them has further preparations.
+    pub(crate) others: Vec<PreparedScene>,
 }
 
 impl PreparedScene {
+    /// The preparation of this scene for a model whose [`PreparedKey`] is `key`: this one or
+    /// one attached to it, `None` when there is none.
+    pub(crate) fn for_key(&self, key: PreparedKey) -> Option<&PreparedScene> {
+        std::iter::once(self)
+            .chain(&self.others)
+            .find(|s| s.key == key)
+    }
+
+    /// Attaches `other`, the same objects prepared for a model of other anchor or grouping
+    /// sizes, so that models of either size can step this scene. Refuses a preparation of
+    /// another scene (other object count or reference clouds) and one whose sizes this scene
+    /// already serves.
+    pub(crate) fn attach(&mut self, mut other: PreparedScene) -> Result<(), ModelError> {
+        let same_objects = other.objects.len() == self.objects.len()
+            && other
+                .objects
+                .iter()
+                .zip(&self.objects)
+                .all(|(a, b)| a.reference == b.reference);
+        if !same_objects {
+            return Err(ModelError::Internal(
+                "a preparation of another scene was attached".into(),
+            ));
+        }
+        if self.for_key(other.key).is_some() {
+            return Err(ModelError::Internal(format!(
+                "the scene already has a preparation for {:?}",
+                other.key
+            )));
+        }
+        other.others.clear();
+        self.others.push(other);
+        Ok(())
+    }
+
     /// Number of objects.
     pub fn len(&self) -> usize {
         self.objects.len()
@@ -270,6 +309,7 @@ pub(crate) fn prepare_scene(
         objects,
         key: cfg.prepared_key(),
         total_points,
+        others: Vec::new(),
     })
 }
 

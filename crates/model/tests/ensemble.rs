@@ -204,6 +204,81 @@ fn bad_ensembles_are_refused_with_the_reason() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+#[test]
+fn members_of_other_anchor_and_grouping_sizes_each_step_their_own_preparation() {
+    let dir = tmp_dir("ensemble", "sizes");
+    ensemble_dir(&dir, &[5], &["m5", "coarse", "fine", "coarse2"]);
+    let tiny = ModelConfig::tiny();
+    for (name, seed, config) in [
+        (
+            "coarse",
+            6,
+            ModelConfig {
+                sa_centres: tiny.sa_centres * 2,
+                anchors: tiny.anchors + 2,
+                ..ModelConfig::tiny()
+            },
+        ),
+        (
+            "fine",
+            7,
+            ModelConfig {
+                sa_neighbours: tiny.sa_neighbours / 2,
+                ..ModelConfig::tiny()
+            },
+        ),
+        // The same sizes as `coarse`: served by `coarse`'s preparation.
+        (
+            "coarse2",
+            8,
+            ModelConfig {
+                sa_centres: tiny.sa_centres * 2,
+                anchors: tiny.anchors + 2,
+                ..ModelConfig::tiny()
+            },
+        ),
+    ] {
+        RigidFormer::new(config, seed, &Device::Cpu)
+            .unwrap()
+            .save(&dir.join(name))
+            .unwrap();
+    }
+    let ensemble = load_model(&dir, &Device::Cpu).unwrap();
+    let members: Vec<RigidFormer> = ["m5", "coarse", "fine", "coarse2"]
+        .iter()
+        .map(|m| load_rigidformer(&dir.join(m), &Device::Cpu, false).unwrap())
+        .collect();
+    // Each member alone, on a scene it prepared itself.
+    let alone: Vec<Vec<Pose>> = members.iter().map(|m| step(m)).collect();
+    let mean: Vec<Pose> = (0..alone[0].len())
+        .map(|j| mean_pose(&alone.iter().map(|a| a[j]).collect::<Vec<_>>()))
+        .collect();
+    assert!(max_pose_diff(&alone[0], &alone[1]) > 1e-4, "members agree");
+    let got = step(ensemble.as_ref());
+    assert!(max_pose_diff(&got, &mean) < 1e-6, "{got:?} vs {mean:?}");
+    // The ensemble's preparation serves each member; the first member's alone does not serve
+    // a member of other sizes, and the refusal names both sizes.
+    let (objects, state) = random_scene(21, 4, 96);
+    let by_ensemble = ensemble.prepare(objects.clone()).unwrap();
+    for (m, a) in members.iter().zip(&alone) {
+        assert!(max_pose_diff(&step_one(m, &by_ensemble, &state, 2), a) < 1e-6);
+    }
+    let by_first = members[0].prepare(objects).unwrap();
+    let refused = members[1]
+        .step(&[dynaserve_model::StepItem {
+            scene: &by_first,
+            state: &state,
+            dt_steps: 2,
+        }])
+        .unwrap_err()
+        .to_string();
+    assert!(
+        refused.contains("prepared for a model with") && refused.contains("sa_centres: 16"),
+        "{refused}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// `poses` turned by `angle` radians about the vertical through `(cx, cy)`.
 fn turned(poses: &[Pose], angle: f32, cx: f32, cy: f32) -> Vec<Pose> {
     let r = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), angle);

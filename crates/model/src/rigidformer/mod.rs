@@ -283,10 +283,10 @@ impl RigidFormer {
             .enumerate()
             .map(|(i, it)| {
                 let what = format!("batch[{i}]");
-                check_prepared_for(&self.config, it.scene, &what)?;
-                let state = validate_state(it.scene, it.state, it.dt_steps, &what)?;
+                let scene = prepared_for(&self.config, it.scene, &what)?;
+                let state = validate_state(scene, it.state, it.dt_steps, &what)?;
                 Ok(SceneRequest {
-                    scene: it.scene,
+                    scene,
                     previous: state.previous,
                     current: state.current,
                     earlier: state.earlier,
@@ -359,20 +359,20 @@ impl RigidFormer {
     }
 }
 
-/// Fails if `scene` was prepared by a model with other anchor or grouping sizes.
-fn check_prepared_for(
+/// The preparation of `scene` for a model with `cfg`'s anchor and grouping sizes (the scene
+/// itself or one an ensemble attached); fails if it has none.
+fn prepared_for<'a>(
     cfg: &ModelConfig,
-    scene: &PreparedScene,
+    scene: &'a PreparedScene,
     what: &str,
-) -> Result<(), ModelError> {
+) -> Result<&'a PreparedScene, ModelError> {
     let key = cfg.prepared_key();
-    if scene.key != key {
-        return Err(ModelError::InvalidInput(format!(
+    scene.for_key(key).ok_or_else(|| {
+        ModelError::InvalidInput(format!(
             "{what}: the scene was prepared for a model with {:?}, this model uses {key:?}",
             scene.key
-        )));
-    }
-    Ok(())
+        ))
+    })
 }
 
 impl WorldModel for RigidFormer {

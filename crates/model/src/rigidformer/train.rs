@@ -71,8 +71,8 @@ impl RigidFormer {
         let mut targets = Vec::new();
         for (i, it) in items.iter().enumerate() {
             let what = format!("train[{i}]");
-            super::check_prepared_for(&self.config, it.scene, &what)?;
-            let state = validate_state(it.scene, it.state, it.dt_steps, &what)?;
+            let scene = super::prepared_for(&self.config, it.scene, &what)?;
+            let state = validate_state(scene, it.state, it.dt_steps, &what)?;
             if it.target.len() != it.scene.len() {
                 return Err(ModelError::InvalidInput(format!(
                     "{what}: {} target poses for {} objects",
@@ -95,7 +95,7 @@ impl RigidFormer {
                 );
             }
             requests.push(SceneRequest {
-                scene: it.scene,
+                scene,
                 previous: state.previous,
                 current: state.current,
                 earlier: state.earlier,
