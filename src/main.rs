@@ -41,9 +41,10 @@ enum Command {
 fn main() -> anyhow::Result<()> {
     // Parsing the arguments starts no thread, so the compute settings may follow it.
     let cli = Cli::parse();
-    // A training run leaves its data loader a core (`training_elementwise_threads`).
-    let trains = matches!(&cli.command, Command::Train(a) if a.action.is_none());
-    let elementwise = trains.then(dynaserve_model::training_elementwise_threads);
+    let elementwise = match &cli.command {
+        Command::Train(args) => args.elementwise_threads(),
+        _ => None,
+    };
     // SAFETY: no other thread exists yet.
     unsafe { dynaserve_model::configure_compute_split(None, elementwise) };
     dynaserve_model::keep_freed_memory();

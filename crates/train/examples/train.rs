@@ -14,11 +14,7 @@ struct Cli {
 
 fn main() -> anyhow::Result<()> {
     let args = Cli::parse().args;
-    let elementwise = args
-        .action
-        .is_none()
-        .then(dynaserve_model::training_elementwise_threads);
     // SAFETY: parsing starts no thread; no other thread exists yet.
-    unsafe { dynaserve_model::configure_compute_split(None, elementwise) };
+    unsafe { dynaserve_model::configure_compute_split(None, args.elementwise_threads()) };
     dynaserve_train::train::run_cli(args)
 }

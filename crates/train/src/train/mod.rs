@@ -103,6 +103,18 @@ pub struct TrainArgs {
     pub device: Option<String>,
 }
 
+impl TrainArgs {
+    /// candle's element-wise pool size for this invocation: a training run leaves its data
+    /// loader a core ([`dynaserve_model::training_elementwise_threads`]); exporting, averaging
+    /// and writing restart scenes keep the default (`None`). For
+    /// [`dynaserve_model::configure_compute_split`].
+    pub fn elementwise_threads(&self) -> Option<usize> {
+        self.action
+            .is_none()
+            .then(dynaserve_model::training_elementwise_threads)
+    }
+}
+
 /// Subcommands of `dynaserve train`.
 #[derive(clap::Subcommand, Debug)]
 pub enum TrainAction {
