@@ -263,24 +263,16 @@ impl WorldModel for Ensemble {
     fn prepare(&self, objects: Vec<ObjectInput>) -> Result<PreparedScene, ModelError> {
         // The first member of each anchor and grouping size prepares the scene for all members
         // of that size; the first member's preparation carries the others.
-        let mut sizes = Vec::new();
-        let extra: Vec<&RigidFormer> = self.members[1..]
-            .iter()
-            .filter(|m| {
-                let key = m.config().prepared_key();
-                let new = key != self.members[0].config().prepared_key() && !sizes.contains(&key);
-                if new {
-                    sizes.push(key);
-                }
-                new
-            })
-            .collect();
-        if extra.is_empty() {
-            return self.members[0].prepare(objects);
+        let key = |m: &RigidFormer| m.config().prepared_key();
+        let first = &self.members[0];
+        if self.members.iter().all(|m| key(m) == key(first)) {
+            return first.prepare(objects);
         }
-        let mut scene = self.members[0].prepare(objects.clone())?;
-        for m in extra {
-            scene.attach(m.prepare(objects.clone())?)?;
+        let mut scene = first.prepare(objects.clone())?;
+        for m in &self.members[1..] {
+            if scene.for_key(key(m)).is_none() {
+                scene.attach(m.prepare(objects.clone())?)?;
+            }
         }
         Ok(scene)
     }
