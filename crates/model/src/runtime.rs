@@ -71,14 +71,9 @@ pub unsafe fn configure_compute(threads: Option<usize>) -> usize {
 ///
 /// As [`configure_compute`]: call it before any other thread exists.
 pub unsafe fn configure_compute_split(matmul: Option<usize>, elementwise: Option<usize>) -> usize {
-    let wanted = matmul
-        .filter(|&n| n > 0)
-        .unwrap_or_else(default_compute_threads);
-    let elementwise = elementwise.filter(|&n| n > 0).unwrap_or(wanted);
-    for (var, n) in [
-        (RAYON_THREADS_VAR, wanted),
-        (CANDLE_THREADS_VAR, elementwise),
-    ] {
+    let counts = wanted_counts(matmul, elementwise);
+    let wanted = counts[0].1;
+    for (var, n) in counts {
         if parse_positive(std::env::var(var).ok().as_deref()).is_none() {
             // SAFETY: the caller guarantees no other thread is running (see above).
             unsafe { std::env::set_var(var, n.to_string()) };
@@ -88,6 +83,20 @@ pub unsafe fn configure_compute_split(matmul: Option<usize>, elementwise: Option
         crate::team::set_enabled(false);
     }
     parse_positive(std::env::var(RAYON_THREADS_VAR).ok().as_deref()).unwrap_or(wanted)
+}
+
+/// The counts [`configure_compute_split`] gives `RAYON_NUM_THREADS` and `CANDLE_NUM_THREADS`
+/// (in that order) where the environment does not already set them: `matmul` or
+/// [`default_compute_threads`], and `elementwise` or the matmul count (zero counts as absent).
+fn wanted_counts(matmul: Option<usize>, elementwise: Option<usize>) -> [(&'static str, usize); 2] {
+    let matmul = matmul
+        .filter(|&n| n > 0)
+        .unwrap_or_else(default_compute_threads);
+    let elementwise = elementwise.filter(|&n| n > 0).unwrap_or(matmul);
+    [
+        (RAYON_THREADS_VAR, matmul),
+        (CANDLE_THREADS_VAR, elementwise),
+    ]
 }
 
 /// Whether a [`TEAM_VAR`] value switches the team off (`0`, `off`, `false`, any case).
@@ -148,6 +157,19 @@ mod tests {
         let n = training_elementwise_threads();
         assert!(n >= 1);
         assert_eq!(n, if cores > 1 { cores - 1 } else { 1 });
+    }
+
+    #[test]
+    fn the_elementwise_count_follows_the_matmul_count_unless_given() {
+        let cores = default_compute_threads();
+        let counts = |m, e| wanted_counts(m, e).map(|(_, n)| n);
+        assert_eq!(wanted_counts(None, None)[0].0, RAYON_THREADS_VAR);
+        assert_eq!(wanted_counts(None, None)[1].0, CANDLE_THREADS_VAR);
+        assert_eq!(counts(None, None), [cores, cores]);
+        assert_eq!(counts(Some(3), None), [3, 3]);
+        assert_eq!(counts(Some(3), Some(1)), [3, 1]);
+        assert_eq!(counts(None, Some(1)), [cores, 1]);
+        assert_eq!(counts(Some(0), Some(0)), [cores, cores]);
     }
 
     #[test]
