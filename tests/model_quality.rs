@@ -18,7 +18,7 @@ const TOWER_LIMIT_M: f32 = 0.05;
 /// `examples/scenes/box_tower.json` (four 0.5 m boxes resting in a stack), 48 steps of one
 /// frame through gRPC: every box stays within 5 cm of its start (see [`TOWER_LIMIT_M`]), under
 /// the shipped model and under the shipped ensemble (`models/ensembles/`, which averages copies
-/// of the twenty-third and twentieth releases; 0.006 m as well).
+/// of the twenty-fifth and twentieth releases; 0.005 m).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_example_box_tower_stands_for_two_seconds() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
