@@ -208,6 +208,9 @@ fn resume_is_exact() {
 
     // 6 iterations at once equal 3 + resume 3, bit for bit (weights and optimizer state).
     let split = assert_resume_is_exact(&dir, |name| tiny_config(&data, &dir.join(name), 6), 3);
+    // The resumed run's card is titled by the model, as a fresh run's is, not by its directory.
+    let card = std::fs::read_to_string(dir.join("split/checkpoint/card.md")).unwrap();
+    assert!(card.starts_with("# rigidformer\n"), "{card}");
     // Resuming with a different optimiser section is refused.
     let mut changed = split.clone();
     changed.optim.lr *= 2.0;

@@ -339,7 +339,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
             )));
         }
         let m = if let Some(init) = &cfg.model.init {
-            let m = load_rigidformer(init, &device, true)?.with_name("rigidformer");
+            let m = load_rigidformer(init, &device, true)?;
             let manifest = reader.primary().manifest();
             if m.config().dt_frame != manifest.dt_frame || m.config().gravity != manifest.gravity {
                 return Err(TrainError::Config(format!(
@@ -389,7 +389,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                     mc.normalization.mean, mc.normalization.std
                 );
             }
-            RigidFormer::new(mc, cfg.model.seed, &device)?.with_name("rigidformer")
+            RigidFormer::new(mc, cfg.model.seed, &device)?
         };
         let st = RunState {
             step: 0,
@@ -401,7 +401,9 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
     };
     state.config.run = cfg.run.clone();
     state.threads = cfg.run.threads;
-    let model = Arc::new(model);
+    // Named once for every start, so a resumed run writes the same card title as a fresh one
+    // (a loaded checkpoint is otherwise named by its directory).
+    let model = Arc::new(model.with_name("rigidformer"));
     let vars = model
         .varmap()
         .data()
