@@ -11,6 +11,7 @@ use std::sync::Arc;
 use candle_core::{DType, Device, Tensor};
 use candle_nn::VarMap;
 
+use crate::config::RIGIDFORMER;
 use crate::layers::ParamStore;
 use crate::rigidformer::RigidFormer;
 use crate::{ModelConfig, ModelError, WorldModel};
@@ -94,7 +95,7 @@ pub fn load_rigidformer(
     let config = read_config(dir)?;
     let weights = read_weights(dir, device)?;
     let store = ParamStore::loaded(weights, device, trainable);
-    RigidFormer::from_store(dir_name(dir, "rigidformer"), config, store, device)
+    RigidFormer::from_store(dir_name(dir, RIGIDFORMER), config, store, device)
 }
 
 /// Loads the checkpoint in `dir` for inference on `device`: a RigidFormer, or an ensemble of
@@ -104,7 +105,7 @@ pub fn load_rigidformer(
 /// corrupted weights file, or the first tensor whose name, shape, dtype or values do not match.
 pub fn load_model(dir: &Path, device: &Device) -> Result<Arc<dyn WorldModel>, ModelError> {
     match read_architecture(dir)?.as_str() {
-        crate::config::RIGIDFORMER => Ok(Arc::new(load_rigidformer(dir, device, false)?)),
+        RIGIDFORMER => Ok(Arc::new(load_rigidformer(dir, device, false)?)),
         crate::ensemble::ENSEMBLE => Ok(Arc::new(crate::ensemble::Ensemble::load(dir, device)?)),
         other => Err(ModelError::Checkpoint(format!(
             "unknown architecture {other:?}"

@@ -6,7 +6,8 @@ use serde::{Deserialize, Serialize};
 use crate::ModelError;
 use crate::trained_ranges::TrainedRanges;
 
-/// Name of the only architecture this crate implements so far.
+/// Architecture name stored in a RigidFormer `config.json`; also the name a newly built or
+/// trained model carries (a loaded checkpoint is named by its directory).
 pub const RIGIDFORMER: &str = "rigidformer";
 
 /// Current `config.json` format version.

@@ -28,7 +28,7 @@ use candle_core::{D, DType, Device, Tensor};
 use candle_nn::VarMap;
 
 use self::block::{AttentionKind, Block, modulate};
-use self::config::PhysiConfig;
+use self::config::{PHYSIFORMER, PhysiConfig};
 use self::inputs::{
     Condition, DenoiseItem, PassInputs, PreparedItem, PreparedScene, SceneLayout,
     assemble_prepared, build,
@@ -88,7 +88,7 @@ impl PhysiFormer {
         let config = read_physi_config(dir)?;
         let weights = crate::checkpoint::read_weights(dir, device)?;
         let store = ParamStore::loaded(weights, device, trainable);
-        PhysiFormer::from_store(dir_name(dir, "physiformer"), config, store, device)
+        PhysiFormer::from_store(dir_name(dir, PHYSIFORMER), config, store, device)
     }
 
     fn from_store(

@@ -39,6 +39,7 @@ use self::messages::ContactMessages;
 use self::summary::SummaryMlp;
 use crate::api::{Pose, StepItem, WorldModel};
 use crate::batching::PassBudget;
+use crate::config::RIGIDFORMER;
 use crate::layers::{Exec, Mode, ParamStore};
 use crate::prepare::{PreparedScene, prepare_scene, validate_state};
 use crate::scene_threads::run_scene_groups;
@@ -111,7 +112,7 @@ impl RigidFormer {
     pub fn new(config: ModelConfig, seed: u64, device: &Device) -> Result<RigidFormer, ModelError> {
         config.validate()?;
         let store = ParamStore::random(seed, device, true);
-        Self::from_store("rigidformer".into(), config, store, device)
+        Self::from_store(RIGIDFORMER.into(), config, store, device)
     }
 
     /// A randomly initialised model for inference only, as a loaded checkpoint is (weights are
@@ -124,7 +125,7 @@ impl RigidFormer {
     ) -> Result<RigidFormer, ModelError> {
         config.validate()?;
         let store = ParamStore::random(seed, device, false);
-        Self::from_store("rigidformer".into(), config, store, device)
+        Self::from_store(RIGIDFORMER.into(), config, store, device)
     }
 
     /// Builds the network from a parameter store (random or loaded). Parameters are created in

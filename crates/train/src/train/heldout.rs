@@ -26,6 +26,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use candle_core::Tensor;
+use dynaserve_model::config::RIGIDFORMER;
 use dynaserve_model::{Device, ModelConfig, load_rigidformer};
 use serde::{Deserialize, Serialize};
 
@@ -182,7 +183,7 @@ impl HeldoutWatch {
         let dir = self.out.join("heldout");
         let model_dir = dir.join("model");
         write_model(&model_dir, config, weights)?;
-        let model = load_rigidformer(&model_dir, device, false)?.with_name("rigidformer");
+        let model = load_rigidformer(&model_dir, device, false)?.with_name(RIGIDFORMER);
         let predictor = ModelPredictor::from_rigidformer(Arc::new(model));
         let ballistic = Ballistic {
             gravity: self.options.gravity,

@@ -19,6 +19,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use candle_core::backprop::GradStore;
+use dynaserve_model::config::RIGIDFORMER;
 use dynaserve_model::{
     FeatureNormalization, InputGroup, ModelUnit, RigidFormer, TrainItem, WorldModel,
     load_rigidformer,
@@ -403,7 +404,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
     state.threads = cfg.run.threads;
     // Named once for every start, so a resumed run writes the same card title as a fresh one
     // (a loaded checkpoint is otherwise named by its directory).
-    let model = Arc::new(model.with_name("rigidformer"));
+    let model = Arc::new(model.with_name(RIGIDFORMER));
     let vars = model
         .varmap()
         .data()
