@@ -2,6 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::official::config::OfficialConfig;
 use crate::ModelError;
 
 /// Architecture name stored in a PhysiFormer `config.json`.
@@ -106,6 +107,12 @@ pub struct PhysiConfig {
     /// before the option).
     #[serde(default)]
     pub correction_ramp_frames: usize,
+    /// The official PhysiFormer network ([`OfficialConfig`]) in place of this crate's own:
+    /// set for checkpoints imported from the official code, whose sizes and conventions it
+    /// holds (the fields above then describe it: `width` its hidden size, `blocks` its depth).
+    /// The prior and the correction ramp are this crate's additions and are off for it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub official: Option<OfficialConfig>,
 }
 
 impl PhysiConfig {
@@ -135,6 +142,7 @@ impl PhysiConfig {
             default_steps: 50,
             prior: TrajectoryPrior::Ballistic,
             correction_ramp_frames: 0,
+            official: None,
         }
     }
 
@@ -183,6 +191,17 @@ impl PhysiConfig {
             other => Err(ModelError::InvalidInput(format!(
                 "unknown PhysiFormer preset {other:?} (expected small, b or tiny)"
             ))),
+        }
+    }
+
+    /// The per-axis affine map `(scale, offset)` from the network's coordinates to metres,
+    /// `x = x_n * scale + offset`, in which the sampler's starting noise is drawn: the
+    /// identity for this crate's network (it works in metres), the official network's
+    /// normalisation for an imported checkpoint.
+    pub fn noise_frame(&self) -> ([f32; 3], [f32; 3]) {
+        match &self.official {
+            Some(o) => o.to_network(self.box_half_extent),
+            None => ([1.0; 3], [0.0; 3]),
         }
     }
 
@@ -262,6 +281,22 @@ impl PhysiConfig {
         }
         if self.t_eps >= 1.0 {
             return bad("t_eps must be below 1".into());
+        }
+        if let Some(o) = &self.official {
+            o.validate()?;
+            if self.prior != TrajectoryPrior::Static || self.correction_ramp_frames != 0 {
+                return bad(
+                    "the official network takes no prior and no correction ramp (prior static, \
+                     correction_ramp_frames 0)"
+                        .into(),
+                );
+            }
+            if self.frames > o.max_frames {
+                return bad(format!(
+                    "frames {} exceed the official network's max_frames {}",
+                    self.frames, o.max_frames
+                ));
+            }
         }
         Ok(())
     }

@@ -184,6 +184,25 @@ impl Sampler {
         seed: u64,
         kind: SamplerKind,
     ) -> Result<Sampler, ModelError> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let eps: Vec<f32> = (0..frames * scene.vertices() * 3)
+            .map(|_| standard_normal(&mut rng))
+            .collect();
+        Sampler::with_noise(config, scene, frames, steps, kind, &eps)
+    }
+
+    /// [`Sampler::with_kind`] from given standard-normal draws `eps [frames, V, 3]` instead of
+    /// a seed (to reproduce a sampling run of another implementation): the starting noise is
+    /// `noise_scale * eps` in the network's coordinates ([`PhysiConfig::noise_frame`]), frame
+    /// 0's included.
+    pub fn with_noise(
+        config: &PhysiConfig,
+        scene: &MeshScene,
+        frames: usize,
+        steps: usize,
+        kind: SamplerKind,
+        eps: &[f32],
+    ) -> Result<Sampler, ModelError> {
         scene.validate(config)?;
         if frames < 2 || frames > config.frames {
             return Err(ModelError::InvalidInput(format!(
@@ -197,9 +216,23 @@ impl Sampler {
             )));
         }
         let nv = scene.vertices();
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let z: Vec<f32> = (0..frames * nv * 3)
-            .map(|_| config.noise_scale * standard_normal(&mut rng))
+        if eps.len() != frames * nv * 3 {
+            return Err(ModelError::InvalidInput(format!(
+                "noise: {} values for {frames} frames of {nv} vertices (expected {})",
+                eps.len(),
+                frames * nv * 3
+            )));
+        }
+        if let Some(i) = eps.iter().position(|e| !e.is_finite()) {
+            return Err(ModelError::InvalidInput(format!(
+                "noise[{i}] is not finite"
+            )));
+        }
+        let (scale, offset) = config.noise_frame();
+        let z: Vec<f32> = eps
+            .iter()
+            .enumerate()
+            .map(|(i, e)| config.noise_scale * e * scale[i % 3] + offset[i % 3])
             .collect();
         let n0 = z[..nv * 3].to_vec();
         let x0 = scene.positions.iter().flatten().copied().collect();

@@ -14,6 +14,7 @@
 use candle_core::{Device, Tensor};
 
 use super::config::{PhysiConfig, TrajectoryPrior};
+use super::official::OfficialScene;
 use super::scene::MeshScene;
 use crate::ModelError;
 
@@ -479,20 +480,36 @@ fn pad_and_stack(parts: &[&Tensor], v: usize) -> candle_core::Result<Tensor> {
 /// and the flow time change per step ([`PreparedItem`]).
 #[derive(Clone, Debug)]
 pub struct PreparedScene {
-    pub(crate) layout: SceneLayout,
-    /// The embedded condition `[1, 1, V, D]`.
-    pub(crate) embedded: Tensor,
+    pub(crate) kind: Prepared,
+}
+
+/// What a network keeps of a prepared scene.
+#[derive(Clone, Debug)]
+pub(crate) enum Prepared {
+    /// This crate's network: the layout and the embedded condition `[1, 1, V, D]`.
+    Native {
+        layout: SceneLayout,
+        embedded: Tensor,
+    },
+    /// The official network's prepared scene.
+    Official(OfficialScene),
 }
 
 impl PreparedScene {
     /// Frames the scene was prepared for (frame 0 included).
     pub fn frames(&self) -> usize {
-        self.layout.frames
+        match &self.kind {
+            Prepared::Native { layout, .. } => layout.frames,
+            Prepared::Official(s) => s.frames(),
+        }
     }
 
     /// Number of vertices V.
     pub fn vertices(&self) -> usize {
-        self.layout.vertices
+        match &self.kind {
+            Prepared::Native { layout, .. } => layout.vertices,
+            Prepared::Official(s) => s.vertices(),
+        }
     }
 }
 
@@ -515,15 +532,25 @@ pub(crate) fn assemble_prepared(
     items: &[PreparedItem<'_>],
     device: &Device,
 ) -> Result<PassInputs, ModelError> {
-    let scenes: Vec<PassScene<'_>> = items
-        .iter()
-        .map(|it| PassScene {
-            layout: &it.scene.layout,
+    let mut scenes: Vec<PassScene<'_>> = Vec::with_capacity(items.len());
+    let mut embedded: Vec<&Tensor> = Vec::with_capacity(items.len());
+    for it in items {
+        let Prepared::Native {
+            layout,
+            embedded: e,
+        } = &it.scene.kind
+        else {
+            return Err(ModelError::InvalidInput(
+                "the scene was prepared for another network".into(),
+            ));
+        };
+        scenes.push(PassScene {
+            layout,
             z: it.z,
             t: it.t,
-        })
-        .collect();
-    let embedded: Vec<&Tensor> = items.iter().map(|it| &it.scene.embedded).collect();
+        });
+        embedded.push(e);
+    }
     assemble(config, &scenes, Some(&embedded), device)
 }
 
