@@ -3,6 +3,7 @@
 
 use clap::{Parser, Subcommand};
 
+mod import;
 mod view;
 
 #[global_allocator]
@@ -36,6 +37,9 @@ enum Command {
     /// Generate, inspect and preview ground-truth datasets (rapier3d): movi-a, movi-b,
     /// wrecking-ball.
     Sim(dynaserve_sim::cli::SimArgs),
+    /// Convert a checkpoint of another implementation into a model directory: `dynaserve
+    /// import physiformer --checkpoint FILE --out DIR` for the official PhysiFormer code's.
+    Import(import::ImportArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -62,6 +66,7 @@ fn main() -> anyhow::Result<()> {
         Command::Train(args) => dynaserve_train::train::run_cli(args),
         Command::Eval(args) => dynaserve_train::cli::run_eval(args),
         Command::Sim(args) => dynaserve_sim::cli::run(args),
+        Command::Import(args) => import::run(args),
     }
 }
 

@@ -64,6 +64,7 @@ fn request(frames: u32, steps: u32, samples: u32, seed: u64) -> json::GenerateRe
                     faces: vec![[0, 1, 3], [0, 3, 2]],
                     material: json::Material::Rigid,
                     velocity: None,
+                    vertex_velocities: None,
                 },
                 json::MeshObject {
                     vertices: cube([0.05, 0.0, 0.1], 0.15),
@@ -73,6 +74,7 @@ fn request(frames: u32, steps: u32, samples: u32, seed: u64) -> json::GenerateRe
                         linear: [0.5, 0.0, -1.0],
                         angular: [0.0, 0.0, 1.0],
                     }),
+                    vertex_velocities: None,
                 },
             ],
         },
@@ -83,6 +85,7 @@ fn request(frames: u32, steps: u32, samples: u32, seed: u64) -> json::GenerateRe
         seed,
         timeout_ms: 0,
         raw_vertices: false,
+        noise: None,
         stream: false,
     }
 }

@@ -71,6 +71,36 @@ pub fn check_generate(
             format!("{samples} is outside 1..={}", limits.max_samples),
         ));
     }
+    if !spec.noise.is_empty() {
+        if spec.noise.len() != samples as usize {
+            return Err(FieldError::new(
+                "noise",
+                format!(
+                    "{} noise lists for {samples} samples (one per sample)",
+                    spec.noise.len()
+                ),
+            ));
+        }
+        let vertices: usize = spec.objects.iter().map(|o| o.vertices.len()).sum();
+        let want = frames as usize * vertices * 3;
+        for (i, n) in spec.noise.iter().enumerate() {
+            if n.len() != want {
+                return Err(FieldError::new(
+                    format!("noise[{i}]"),
+                    format!(
+                        "{} values; {frames} frames of {vertices} vertices need {want}",
+                        n.len()
+                    ),
+                ));
+            }
+            if let Some(k) = n.iter().position(|x| !x.is_finite()) {
+                return Err(FieldError::new(
+                    format!("noise[{i}][{k}]"),
+                    "must be finite (NaN or infinity given)",
+                ));
+            }
+        }
+    }
     Ok(GenerateParams {
         frames: frames as usize,
         steps: steps as usize,
@@ -172,14 +202,41 @@ pub fn build_mesh_scene(
         }
         finite_triple(&o.linear, &format!("{field}.velocity.linear"))?;
         finite_triple(&o.angular, &format!("{field}.velocity.angular"))?;
+        let per_vertex = !o.vertex_velocities.is_empty();
+        if per_vertex && (o.linear != [0.0; 3] || o.angular != [0.0; 3]) {
+            return Err(FieldError::new(
+                format!("{field}.vertex_velocities"),
+                "give either velocity or vertex_velocities, not both",
+            ));
+        }
+        if per_vertex && o.vertex_velocities.len() != o.vertices.len() {
+            return Err(FieldError::new(
+                format!("{field}.vertex_velocities"),
+                format!(
+                    "{} velocities for {} vertices",
+                    o.vertex_velocities.len(),
+                    o.vertices.len()
+                ),
+            ));
+        }
         let c = centroid(&o.vertices);
-        for v in &o.vertices {
-            let r = [v[0] - c[0], v[1] - c[1], v[2] - c[2]];
-            let w = cross(o.angular, r);
-            let u = [o.linear[0] + w[0], o.linear[1] + w[1], o.linear[2] + w[2]];
+        for (k, v) in o.vertices.iter().enumerate() {
+            let (u, vf) = if per_vertex {
+                (
+                    o.vertex_velocities[k],
+                    format!("{field}.vertex_velocities[{k}]"),
+                )
+            } else {
+                let r = [v[0] - c[0], v[1] - c[1], v[2] - c[2]];
+                let w = cross(o.angular, r);
+                (
+                    [o.linear[0] + w[0], o.linear[1] + w[1], o.linear[2] + w[2]],
+                    format!("{field}.velocity"),
+                )
+            };
             if u.iter().any(|x| !x.is_finite() || x.abs() > MAX_SPEED) {
                 return Err(FieldError::new(
-                    format!("{field}.velocity"),
+                    vf,
                     format!(
                         "gives a vertex the initial velocity {u:?} m/s; the model accepts at \
                          most {MAX_SPEED} m/s per component"
@@ -288,6 +345,7 @@ mod tests {
             material,
             linear: [1.0, 0.0, 0.0],
             angular: [0.0, 0.0, 2.0],
+            vertex_velocities: Vec::new(),
         }
     }
 
@@ -302,6 +360,7 @@ mod tests {
             seed: 0,
             timeout_ms: 0,
             raw_vertices: false,
+            noise: Vec::new(),
         }
     }
 

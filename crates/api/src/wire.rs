@@ -150,6 +150,13 @@ impl crate::json::GenerateRequest {
                     linear: Some(vec3_to(v.linear)),
                     angular: Some(vec3_to(v.angular)),
                 }),
+                vertex_velocities: o
+                    .vertex_velocities
+                    .iter()
+                    .flatten()
+                    .flatten()
+                    .copied()
+                    .collect(),
             })
             .collect();
         v1::GenerateRequest {
@@ -165,6 +172,7 @@ impl crate::json::GenerateRequest {
             seed: self.seed,
             timeout_ms: self.timeout_ms,
             raw_vertices: self.raw_vertices,
+            noise: self.noise.iter().flatten().flatten().copied().collect(),
         }
     }
 }

@@ -44,6 +44,7 @@ fn job(scene: &Arc<MeshScene>, stream_id: u64, seed: u64) -> GenerateJob {
         steps: 8,
         sampler: SamplerKind::Heun,
         seed,
+        noise: None,
         priority: Priority::Interactive,
         deadline: None,
         stream_id,

@@ -48,6 +48,10 @@ pub struct MeshObject {
     /// Absent: at rest.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub velocity: Option<Velocity>,
+    /// Per-vertex initial velocities `[[vx, vy, vz], ...]`, m/s, one per vertex, instead of
+    /// `velocity` (the official PhysiFormer data's form). Give one or the other.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vertex_velocities: Option<Vec<[f32; 3]>>,
 }
 
 /// Objects in the model's closed box `[-e, e]^3`, gravity along -z.
@@ -91,6 +95,12 @@ pub struct GenerateRequest {
     /// vertices moved by the fitted rigid motion, so rigid objects stay exactly rigid.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub raw_vertices: bool,
+    /// Starting noise instead of `seed`, to reproduce another implementation's sampling run:
+    /// one list per sample of standard-normal draws, flattened `[frames][V][3]` (V the
+    /// scene's vertices in request order), scaled by the model's noise scale in its network
+    /// coordinates.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub noise: Option<Vec<Vec<f32>>>,
     /// Stream `progress` and `sample` events as Server-Sent Events (same as
     /// `Accept: text/event-stream`).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]

@@ -26,6 +26,9 @@ pub struct MeshObjectSpec {
     pub linear: [f32; 3],
     /// Angular velocity about the vertex centroid, rad/s (axis times rate).
     pub angular: [f32; 3],
+    /// Per-vertex initial velocities `[n, 3]`, m/s, instead of `linear` and `angular`; empty
+    /// when not given.
+    pub vertex_velocities: Vec<[f32; 3]>,
 }
 
 /// A Generate request.
@@ -49,6 +52,9 @@ pub struct GenerateSpec {
     pub timeout_ms: u32,
     /// Rigid objects' vertices as sampled instead of moved by their fitted rigid motion.
     pub raw_vertices: bool,
+    /// Starting noise per sample (standard-normal draws `[frames, V, 3]` flattened) instead
+    /// of the seed; empty when not given.
+    pub noise: Vec<Vec<f32>>,
 }
 
 /// One denoising step completed by every sample of a request.
@@ -138,6 +144,7 @@ impl GenerateSpec {
                     material: material_from_json(o.material),
                     linear,
                     angular,
+                    vertex_velocities: o.vertex_velocities.clone().unwrap_or_default(),
                 }
             })
             .collect();
@@ -154,6 +161,7 @@ impl GenerateSpec {
             seed: r.seed,
             timeout_ms: r.timeout_ms,
             raw_vertices: r.raw_vertices,
+            noise: r.noise.clone().unwrap_or_default(),
         })
     }
 
@@ -186,6 +194,10 @@ impl GenerateSpec {
                     material,
                     linear: vec3_from(v.and_then(|v| v.linear.as_ref())),
                     angular: vec3_from(v.and_then(|v| v.angular.as_ref())),
+                    vertex_velocities: triples(
+                        &o.vertex_velocities,
+                        &format!("{field}.vertex_velocities"),
+                    )?,
                 })
             })
             .collect::<Result<_, _>>()?;
@@ -209,8 +221,27 @@ impl GenerateSpec {
             seed: r.seed,
             timeout_ms: r.timeout_ms,
             raw_vertices: r.raw_vertices,
+            noise: split_noise(&r.noise, r.samples.max(1))?,
         })
     }
+}
+
+/// The flattened gRPC `noise` split into one list per sample (empty when not given).
+fn split_noise(noise: &[f32], samples: u32) -> Result<Vec<Vec<f32>>, FieldError> {
+    if noise.is_empty() {
+        return Ok(Vec::new());
+    }
+    let s = samples as usize;
+    if !noise.len().is_multiple_of(s) {
+        return Err(FieldError::new(
+            "noise",
+            format!(
+                "{} values do not split into {s} samples of equal length",
+                noise.len()
+            ),
+        ));
+    }
+    Ok(noise.chunks(noise.len() / s).map(<[f32]>::to_vec).collect())
 }
 
 fn timing_json(t: &StepTiming) -> json::StepTiming {

@@ -198,6 +198,7 @@ impl Engine {
             scene,
             sampler: req.sampler,
             seed: req.seed,
+            noise: req.noise.iter().map(|n| Arc::new(n.clone())).collect(),
             deadline,
             request_id: ctx.request_id.clone(),
         };
@@ -288,6 +289,8 @@ struct GenerateRun {
     scene: Arc<MeshScene>,
     sampler: dynaserve_api::spec::generate::SamplerKind,
     seed: u64,
+    /// Starting noise per sample, when the request gave it.
+    noise: Vec<Arc<Vec<f32>>>,
     deadline: Option<Instant>,
     request_id: Arc<str>,
 }
@@ -319,6 +322,7 @@ impl GenerateRun {
                 steps: self.params.steps,
                 sampler: self.sampler,
                 seed: self.seed.wrapping_add(u64::from(i)),
+                noise: self.noise.get(i as usize).cloned(),
                 priority: Priority::Interactive,
                 deadline: self.deadline,
                 stream_id: self.engine.next_stream.fetch_add(1, Ordering::Relaxed),

@@ -100,6 +100,7 @@ impl Engine {
                 steps: 1,
                 sampler: SamplerKind::Heun,
                 seed: 0,
+                noise: None,
                 priority: Priority::Interactive,
                 deadline: None,
                 stream_id: self.next_stream.fetch_add(1, Ordering::Relaxed),

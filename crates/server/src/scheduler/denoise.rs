@@ -94,6 +94,9 @@ pub struct GenerateJob {
     pub sampler: SamplerKind,
     /// Seed of the starting noise.
     pub seed: u64,
+    /// Standard-normal draws of the starting noise `[frames, V, 3]` in place of the seed
+    /// ([`Sampler::with_noise`]).
+    pub noise: Option<Arc<Vec<f32>>>,
     /// Scheduling class.
     pub priority: Priority,
     /// Instant after which the result is no longer wanted.
@@ -156,14 +159,19 @@ pub async fn generate(
     mut progress: impl FnMut(StepProgress),
 ) -> Result<Vec<f32>, GenerateError> {
     let config = scheduler.family().model().config().clone();
-    let mut sampler = Sampler::with_kind(
-        &config,
-        &job.scene,
-        job.frames,
-        job.steps,
-        job.seed,
-        job.sampler,
-    )
+    let mut sampler = match &job.noise {
+        Some(eps) => {
+            Sampler::with_noise(&config, &job.scene, job.frames, job.steps, job.sampler, eps)
+        }
+        None => Sampler::with_kind(
+            &config,
+            &job.scene,
+            job.frames,
+            job.steps,
+            job.seed,
+            job.sampler,
+        ),
+    }
     .map_err(|e| GenerateError::Invalid(e.to_string()))?;
     let prepared = Arc::new(
         scheduler

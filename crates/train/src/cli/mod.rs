@@ -66,7 +66,7 @@ pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
     if let (Some(model), [data]) = (&args.model, args.data.as_slice())
         && crate::physi::eval::is_physi_model(model)
     {
-        return crate::physi::eval::run(&crate::physi::eval::PhysiEvalOptions {
+        let options = crate::physi::eval::PhysiEvalOptions {
             model: model.clone(),
             data: data.clone(),
             scenes: args.max_scenes.unwrap_or(50),
@@ -74,7 +74,13 @@ pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
             steps: args.denoise_steps,
             seed: args.seed,
             plot: args.plot.clone(),
-        });
+        };
+        // The official example scenes (metadata.json + one OBJ per frame) get the official
+        // metrics; our mesh datasets our own report.
+        if crate::physi::official_data::is_official_examples(data) {
+            return crate::physi::official_eval::run(&options);
+        }
+        return crate::physi::eval::run(&options);
     }
     if args.suite.is_some() {
         return suite::run(&args);

@@ -33,7 +33,7 @@ pub struct PhysiEvalOptions {
 }
 
 /// Mean over frames `1..` and vertices of the squared distance, m^2, per frame `[T]`.
-fn per_frame_sq(pred: &[f32], truth: &[f32], frames: usize) -> Vec<f64> {
+pub(crate) fn per_frame_sq(pred: &[f32], truth: &[f32], frames: usize) -> Vec<f64> {
     let per = pred.len() / frames;
     (0..frames)
         .map(|t| {
@@ -47,7 +47,9 @@ fn per_frame_sq(pred: &[f32], truth: &[f32], frames: usize) -> Vec<f64> {
         .collect()
 }
 
-fn baseline(s: &TrainScene, g: [f32; 3], dt: f32, gravity: bool) -> Vec<f32> {
+/// Constant velocity (`gravity` false) or free flight (constant velocity plus gravity) from
+/// the scene's frame 0, `[T, V, 3]`, unclamped.
+pub(crate) fn baseline(s: &TrainScene, g: [f32; 3], dt: f32, gravity: bool) -> Vec<f32> {
     let mut out = Vec::with_capacity(s.trajectory.len());
     for t in 0..s.frames {
         let tt = t as f32 * dt;
