@@ -31,7 +31,7 @@ enum Command {
     Rollout(dynaserve_client::cli::RolloutArgs),
     /// Train a world model from a configuration file, or export a run's checkpoint.
     Train(dynaserve_train::train::TrainArgs),
-    /// Score a baseline (static, ballistic) or a trained model on a dataset split:
+    /// Score a baseline (static, ballistic, rapier) or a trained model on a dataset split:
     /// translation and orientation RMSE at 0.5, 1, 2 and 4 s, as a table and JSON.
     Eval(dynaserve_train::cli::EvalArgs),
     /// Generate, inspect and preview ground-truth datasets (rapier3d): movi-a, movi-b,

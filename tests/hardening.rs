@@ -493,6 +493,7 @@ async fn cors_allow_list_and_json_only_bodies() {
         s.write_all(&body).await.unwrap();
         let got = String::from_utf8(read_to_close(&mut s, HANG).await.unwrap()).unwrap();
         assert!(got.starts_with("HTTP/1.1 415"), "{got}");
+        assert!(got.contains("\"UNSUPPORTED_MEDIA_TYPE\""), "{got}");
         assert!(got.contains(ct), "{got}");
     }
     let text = metrics(&server).await;

@@ -320,6 +320,12 @@ async fn kinematic_objects_follow_given_poses_over_http() {
     let info: json::SessionInfo = created.json();
     assert_eq!(info.kinematic, vec![1]);
     let path = format!("/v1/sessions/{}", info.session_id);
+    // A bodiless POST (as `curl -X POST` sends it: no content type, no body) needs no
+    // content type (a body of another type is still refused: tests/hardening.rs).
+    let forked = http(server.http_addr, "POST", &format!("{path}/fork"), &[], None).await;
+    assert_eq!(forked.status, 201, "{}", forked.text());
+    let forked: json::SessionInfo = forked.json();
+    assert_ne!(forked.session_id, info.session_id);
     let steps = 12u32;
     let target = |k: u32| json::Pose {
         translation: [-0.45 + 0.03 * k as f32, 0.0, 0.2],

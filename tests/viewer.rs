@@ -98,6 +98,11 @@ async fn viewer_routes_serve_embedded_pages_and_every_example_scene_rolls_out() 
     assert!(again.body.is_empty());
     let licence = http(addr, "GET", "/viewer/vendor/three.LICENSE", &[], None).await;
     assert!(licence.text().contains("MIT License"));
+    // The page icon, under the path browsers ask for by themselves.
+    let icon = http(addr, "GET", "/favicon.ico", &[], None).await;
+    assert_eq!(icon.status, 200);
+    assert_eq!(icon.header("content-type"), Some("image/svg+xml"));
+    assert!(icon.text().starts_with("<svg"));
     for missing in ["/viewer/nope.js", "/viewer/../Cargo.toml", "/viewer/"] {
         let r = http(addr, "GET", missing, &[], None).await;
         assert_eq!(r.status, 404, "{missing}");
@@ -351,6 +356,27 @@ fn a_person_opens_the_viewer_runs_an_example_and_scrubs_the_timeline() {
         count.as_str().unwrap().parse::<u32>().unwrap() >= 2,
         "rollouts counted: {count}"
     );
+
+    // A link can open the viewer on a model and a scene: ?model=NAME&scene=NAME.
+    b.navigate(&format!(
+        "{base}?model=physiformer-small&scene=elastic_drop&autoplay=0"
+    ))
+    .unwrap();
+    let picked = b
+        .wait_for(
+            "document.body.dataset.state === 'idle' && [document.getElementById('model').value, \
+             document.getElementById('example').selectedOptions[0].textContent, \
+             document.body.dataset.family]",
+            WAIT,
+            PAGE_STATE,
+        )
+        .unwrap();
+    assert_eq!(picked[0], "physiformer-small", "{picked}");
+    assert!(
+        picked[1].as_str().unwrap().starts_with("elastic_drop"),
+        "{picked}"
+    );
+    assert_eq!(picked[2], "generate", "{picked}");
     drop(b);
     server.shutdown();
     runtime.block_on(server.wait()).unwrap();

@@ -62,6 +62,19 @@ pub fn mass_ratios(objects: &[(f32, bool)]) -> Vec<Option<f32>> {
         .collect()
 }
 
+/// `x` to 3 significant digits, as a person writes it (`0.100038625` -> `0.1`,
+/// `0.9999935` -> `1`, `1234.5` -> `1230`).
+fn human(x: f32) -> String {
+    if x == 0.0 || !x.is_finite() {
+        return format!("{x}");
+    }
+    let digits = 2 - x.abs().log10().floor() as i32;
+    let scale = 10f64.powi(digits);
+    let r = (f64::from(x) * scale).round() / scale;
+    // Shortest form of the rounded value (f32 keeps out f64 tails such as 0.30000000000000004).
+    format!("{}", r as f32)
+}
+
 impl OutOfRange {
     /// One line for a caller, ASCII only (it travels in HTTP headers and gRPC metadata);
     /// `path` names the scene (`scene`, `variants[2]`).
@@ -95,8 +108,8 @@ impl OutOfRange {
              ({} to {}); its forecast there is less accurate",
             list.join(","),
             self.field,
-            self.trained[0],
-            self.trained[1]
+            human(self.trained[0]),
+            human(self.trained[1])
         )
     }
 }
@@ -305,6 +318,15 @@ mod tests {
              on (0.1 to 1); its forecast there is less accurate"
         );
         assert!(m.is_ascii());
+        // Trained bounds read as a person writes them.
+        let mut raw = ranges();
+        raw.friction = [0.100_038_625, 0.999_993_5];
+        let m = check(&raw, &[object(1.0, 2.0, 0.2)])[0].message("scene");
+        assert!(m.contains("(0.1 to 1)"), "{m}");
+        assert_eq!(
+            (human(1234.5), human(0.012345), human(-2.5)),
+            ("1230".into(), "0.0123".into(), "-2.5".into())
+        );
     }
 
     #[test]

@@ -137,11 +137,18 @@ impl ApiError {
         }
     }
 
-    /// The JSON error document.
+    /// The JSON error document. Its `code` is the gRPC code name, except for the two HTTP
+    /// conditions gRPC has no code for: `UNSUPPORTED_MEDIA_TYPE` (415) and `REQUEST_TIMEOUT`
+    /// (408).
     pub fn body(&self) -> ErrorResponse {
+        let code = match self.http_override {
+            Some(StatusCode::UNSUPPORTED_MEDIA_TYPE) => "UNSUPPORTED_MEDIA_TYPE",
+            Some(StatusCode::REQUEST_TIMEOUT) => "REQUEST_TIMEOUT",
+            _ => self.code_name(),
+        };
         ErrorResponse {
             error: ErrorDetail {
-                code: self.code_name().to_string(),
+                code: code.to_string(),
                 message: self.message.clone(),
                 field: self.field.clone(),
                 retry_after_ms: self.retry_after.map(|d| d.as_millis() as u64),

@@ -338,14 +338,23 @@ pub fn http_policy(
 }
 
 /// Middleware of the HTTP API: POST bodies must be JSON (`application/json` or `+json`),
-/// otherwise 415 naming the content type received.
+/// otherwise 415 naming the content type received. A POST without a body (no content type,
+/// and `Content-Length: 0` or neither a length nor a chunked encoding, as `curl -X POST`
+/// sends it) passes: there is nothing to be JSON.
 pub async fn require_json(req: Request, next: Next) -> Response {
     if req.method() == Method::POST {
-        let ct = req
-            .headers()
+        let h = req.headers();
+        let ct = h
             .get(header::CONTENT_TYPE)
             .and_then(|v| v.to_str().ok())
             .unwrap_or("");
+        let bodiless = ct.is_empty()
+            && !h.contains_key(header::TRANSFER_ENCODING)
+            && h.get(header::CONTENT_LENGTH)
+                .is_none_or(|v| v.to_str().is_ok_and(|s| s.trim() == "0"));
+        if bodiless {
+            return next.run(req).await;
+        }
         let essence = ct
             .split(';')
             .next()

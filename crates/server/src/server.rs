@@ -82,8 +82,13 @@ pub fn model_dirs(config: &ServeConfig) -> anyhow::Result<Vec<PathBuf>> {
         return Ok(config.models.clone());
     }
     let dir = &config.models_dir;
-    let entries = std::fs::read_dir(dir)
-        .with_context(|| format!("cannot read the models directory {}", dir.display()))?;
+    let entries = std::fs::read_dir(dir).with_context(|| {
+        format!(
+            "cannot read the models directory {} (it is relative to the working directory; \
+                 pass --models-dir DIR or --model DIR to name the models)",
+            dir.display()
+        )
+    })?;
     let mut dirs: Vec<PathBuf> = entries
         .filter_map(Result::ok)
         .map(|e| e.path())
@@ -380,4 +385,24 @@ pub fn run_with_viewer(config: ServeConfig, viewer: Viewer) -> anyhow::Result<()
         server.shutdown();
         server.wait().await
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Run outside the repository, the default `models` directory is missing: the error says
+    /// how to name the models.
+    #[test]
+    fn a_missing_models_directory_names_the_flags() {
+        let config = ServeConfig {
+            models_dir: PathBuf::from("no-such-models-directory"),
+            ..ServeConfig::local(vec![])
+        };
+        let e = format!("{:#}", model_dirs(&config).unwrap_err());
+        assert!(
+            e.contains("--models-dir") && e.contains("no-such-models-directory"),
+            "{e}"
+        );
+    }
 }

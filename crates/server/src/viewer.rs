@@ -193,6 +193,7 @@ const JS: &str = "text/javascript; charset=utf-8";
 const HTML: &str = "text/html; charset=utf-8";
 const CSS: &str = "text/css; charset=utf-8";
 const TEXT: &str = "text/plain; charset=utf-8";
+const SVG: &str = "image/svg+xml";
 
 const ASSETS: &[Asset] = &[
     asset!("index.html", HTML),
@@ -206,6 +207,7 @@ const ASSETS: &[Asset] = &[
     asset!("prom.js", JS),
     asset!("vendor/three.min.js", JS),
     asset!("vendor/three.LICENSE", TEXT),
+    asset!("favicon.svg", SVG),
 ];
 
 /// The pages load scripts, styles and data from this server only.
@@ -271,6 +273,11 @@ async fn dashboard(headers: HeaderMap) -> Response {
     serve_asset("dashboard.html", &headers)
 }
 
+/// The page icon (an SVG, which browsers take under the conventional `.ico` path too).
+async fn favicon(headers: HeaderMap) -> Response {
+    serve_asset("favicon.svg", &headers)
+}
+
 async fn file(Path(path): Path<String>, headers: HeaderMap) -> Response {
     serve_asset(&path, &headers)
 }
@@ -302,6 +309,7 @@ pub fn router(viewer: Viewer) -> Router {
     Router::new()
         .route("/", get(index))
         .route("/dashboard", get(dashboard))
+        .route("/favicon.ico", get(favicon))
         .route("/viewer/{*path}", get(file))
         .route("/v1/examples", get(examples))
         .with_state(Arc::new(viewer))

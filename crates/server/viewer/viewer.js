@@ -601,12 +601,22 @@ async function loadLists() {
       return o;
     }),
   );
-  // Start with a model that rolls scenes out when there is one (the first example is a
-  // rollout scene), else the first model.
-  const first = st.models.find((m) => familyOf(m) === 'rollout' && st.examples.rollout.length) || st.models[0];
+  // Start with the model of ?model=NAME, else one that rolls scenes out when there is one
+  // (the first example is a rollout scene), else the first model; ?scene=NAME picks the scene.
+  const params = new URLSearchParams(location.search);
+  const first =
+    st.models.find((m) => m.name === params.get('model')) ||
+    st.models.find((m) => familyOf(m) === 'rollout' && st.examples.rollout.length) ||
+    st.models[0];
   if (first) $('model').value = first.name;
   setFamily(familyOf(first));
-  fillExamples(examples()[0] && examples()[0].name);
+  fillExamples(params.get('scene') || (examples()[0] && examples()[0].name));
+}
+
+/** The example of ?scene=NAME among the current model's, else its first. */
+function firstExample() {
+  const want = new URLSearchParams(location.search).get('scene');
+  return examples().find((e) => e.name === want) || examples()[0];
 }
 
 /** A model was chosen: switch to its family's scenes unless they are already shown. */
@@ -683,9 +693,10 @@ async function start() {
     $('status').textContent = 'no example scenes; drop a scene JSON file';
     return;
   }
-  if (!selectExample(examples()[0])) return;
+  if (!selectExample(firstExample())) return;
   setState('idle');
-  // Opening the page shows a scene rolling out; ?autoplay=0 waits for Run.
+  // Opening the page shows a scene rolling out (or sampled, for a PhysiFormer model);
+  // ?autoplay=0 waits for Run.
   if (new URLSearchParams(location.search).get('autoplay') !== '0') run();
 }
 

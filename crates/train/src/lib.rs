@@ -2,5 +2,6 @@
 
 pub mod cli;
 pub mod eval;
+pub mod ledger;
 pub mod physi;
 pub mod train;

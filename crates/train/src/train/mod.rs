@@ -181,6 +181,19 @@ pub enum TrainAction {
         #[arg(long = "spread", num_args = 1)]
         spread: Vec<PathBuf>,
     },
+    /// Print the experiment ledger (`docs/experiments.jsonl`): every training run with its
+    /// parent, length, key figures, verdict and why (`docs/experiments.md` reads them).
+    Ledger {
+        /// The ledger file.
+        #[arg(long, default_value = crate::ledger::DEFAULT_LEDGER)]
+        file: PathBuf,
+        /// Only runs whose id, verdict or why contains this text.
+        #[arg(long)]
+        grep: Option<String>,
+        /// Line width of the table.
+        #[arg(long, default_value_t = 160)]
+        width: usize,
+    },
 }
 
 /// `dynaserve train compare`: reads the scorecards and prints one table per candidate.
@@ -356,6 +369,19 @@ pub fn run_cli(args: TrainArgs) -> anyhow::Result<()> {
             candidates,
             spread,
         }) => return run_compare(&reference, &candidates, &spread),
+        Some(TrainAction::Ledger { file, grep, width }) => {
+            let mut runs = crate::ledger::read(&file)?;
+            if let Some(g) = &grep {
+                runs.retain(|r| {
+                    r.id.contains(g.as_str())
+                        || r.verdict.contains(g.as_str())
+                        || r.why.contains(g.as_str())
+                });
+            }
+            print!("{}", crate::ledger::table(&runs, width));
+            println!("{} runs ({})", runs.len(), file.display());
+            return Ok(());
+        }
         None => {}
     }
     let Some(path) = args.config else {

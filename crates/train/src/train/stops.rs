@@ -1,8 +1,8 @@
 //! Windows at the end of an object's motion (`data.stop_share`).
 //!
 //! The resting drift of a rollout comes mostly from objects that the model keeps moving after
-//! rapier's have stopped: a roll, a slide or a tumble that should end (the model card, "Where
-//! the resting drift comes from"). The moment of stopping is a few frames of each object's
+//! rapier's have stopped: a roll, a slide or a tumble that should end (`docs/experiments.md`,
+//! on the resting drift). The moment of stopping is a few frames of each object's
 //! record, and a gentle one: the deceleration that ends changes the acceleration by about
 //! `friction * g * dt^2`, far less than an impact does, so neither uniform nor
 //! [`super::events`]-weighted draws favour it.
