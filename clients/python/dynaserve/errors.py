@@ -46,6 +46,14 @@ class OutOfRangeWarning(UserWarning):
     """
 
 
+class BodyFrameWarning(UserWarning):
+    """A :class:`~dynaserve.Body`'s points look like a world-frame cloud: their centroid lies
+    far (over 10% of the cloud's extent and over 1 cm) from the body-frame origin, which is
+    the centre of mass. The server would take them as given, with other dynamics than meant;
+    :meth:`Body.from_world_points <dynaserve.Body.from_world_points>` makes the body from such
+    a cloud."""
+
+
 def warn_out_of_range(pairs: Iterable[tuple]) -> None:
     """Issues one :class:`OutOfRangeWarning` per ``x-dynaserve-warning`` entry of ``pairs``
     (header or metadata ``(key, value)`` pairs)."""

@@ -1,9 +1,10 @@
 """Synchronous and asyncio clients of the Dynaserve gRPC API (grpcio), numpy arrays in and out.
 
-The same surface as the HTTP :class:`~dynaserve.client.Client`: ``list_models``, ``rollout``
-(an iterator of frames), ``predict`` and sessions, plus what only gRPC carries: the closed
-``interact`` loop (send the scene or a session id once, then one action per step and receive
-each frame) and ``generate`` for PhysiFormer models. Needs the ``grpc`` extra::
+The same surface as the HTTP :class:`~dynaserve.client.Client` (``list_models``, ``rollout``
+as an iterator of frames, ``predict``, ``generate`` for PhysiFormer models, sessions created or
+reattached by id), with the same arguments, defaults and argument checks, plus what only gRPC
+carries: the closed ``interact`` loop (send the scene or a session id once, then one action per
+step and receive each frame). Needs the ``grpc`` extra::
 
     pip install './clients/python[grpc]'
 
@@ -56,8 +57,8 @@ except ImportError as _missing:  # pragma: no cover - depends on the environment
 
 from .client import AFFINITY_HEADER, Frame
 from .errors import DynaserveError, warn_out_of_range
-from .mesh import Generated, MeshObject
-from .scene import Body
+from .mesh import Collector, Generated, MeshObject, check_sampler, checked_objects
+from .scene import Body, array_arg, index_arg, kinematic_paths, number
 from .v1 import sessions_pb2 as spb
 from .v1 import sessions_pb2_grpc, world_model_pb2_grpc
 from .v1 import world_model_pb2 as pb
@@ -142,9 +143,9 @@ def _deadline(what: str, seconds: float) -> DynaserveError:
 # ---- numpy <-> messages ----
 
 
-def pose_pb(pose: npt.ArrayLike) -> pb.Pose:
-    """A ``[7]`` pose as a ``Pose`` message."""
-    p = np.asarray(pose, dtype=float).reshape(7)
+def pose_pb(pose: npt.ArrayLike, name: str = "pose") -> pb.Pose:
+    """A ``[7]`` pose as a ``Pose`` message (a ``ValueError`` names ``name`` otherwise)."""
+    p = array_arg(pose, name, (7,))
     return pb.Pose(
         translation=pb.Vec3(x=p[0], y=p[1], z=p[2]),
         rotation=pb.Quaternion(x=p[3], y=p[4], z=p[5], w=p[6]),
@@ -165,109 +166,124 @@ def poses_np(poses: Sequence[pb.Pose]) -> np.ndarray:
     return np.stack([pose_np(p) for p in poses]) if len(poses) else np.zeros((0, 7))
 
 
-def _velocity(v: npt.ArrayLike) -> pb.Velocity:
-    a = np.asarray(v, dtype=float).reshape(6)
+def _velocity(v: npt.ArrayLike, name: str = "velocity") -> pb.Velocity:
+    a = array_arg(v, name, (6,))
     return pb.Velocity(linear=pb.Vec3(x=a[0], y=a[1], z=a[2]), angular=pb.Vec3(x=a[3], y=a[4], z=a[5]))
 
 
-def object_spec(b: Body) -> pb.ObjectSpec:
-    """A :class:`Body` as an ``ObjectSpec`` message (its points as the reference cloud)."""
+def object_spec(b: Body, name: str = "body") -> pb.ObjectSpec:
+    """A :class:`Body` as an ``ObjectSpec`` message (its points as the reference cloud); a
+    ``ValueError`` names ``name`` and the field of an array of the wrong shape or a value that
+    is not finite."""
     o = pb.ObjectSpec(
-        points=pb.PointCloud(xyz=np.asarray(b.points, dtype=float).reshape(-1).tolist()),
-        pose=pose_pb(b.pose),
-        mass=float(b.mass),
-        friction=float(b.friction),
-        restitution=float(b.restitution),
+        points=pb.PointCloud(xyz=array_arg(b.points, f"{name}.points", ("N", 3)).reshape(-1).tolist()),
+        pose=pose_pb(b.pose, f"{name}.pose"),
+        mass=number(b.mass, f"{name}.mass"),
+        friction=number(b.friction, f"{name}.friction"),
+        restitution=number(b.restitution, f"{name}.restitution"),
     )
     if b.velocity is not None:
-        o.velocity.CopyFrom(_velocity(b.velocity))
+        o.velocity.CopyFrom(_velocity(b.velocity, f"{name}.velocity"))
     return o
 
 
-def _pose_doc_pb(d: Mapping[str, Any]) -> pb.Pose:
-    return pose_pb(list(d["translation"]) + list(d.get("rotation", [0.0, 0.0, 0.0, 1.0])))
+def _pose_doc_pb(d: Mapping[str, Any], name: str) -> pb.Pose:
+    return pose_pb(list(d["translation"]) + list(d.get("rotation", [0.0, 0.0, 0.0, 1.0])), name)
 
 
-def object_doc_pb(d: Mapping[str, Any]) -> pb.ObjectSpec:
+def object_doc_pb(d: Mapping[str, Any], name: str = "object") -> pb.ObjectSpec:
     """An ``ObjectSpec`` JSON document of the HTTP API (``points`` ``[[x, y, z], ...]`` or a
     ``mesh``; ``pose``; ``velocity`` or ``previous_pose``; ``mass``, ``friction``,
-    ``restitution``) as an ``ObjectSpec`` message. A key the format does not have raises
-    ``KeyError`` rather than being dropped."""
+    ``restitution``) as an ``ObjectSpec`` message, read as the server reads the document over
+    HTTP: ``mass`` is required, an absent ``friction`` or ``restitution`` is 0. A missing or
+    unknown key raises ``KeyError``, a bad value ``ValueError``, naming ``name`` and the key."""
     known = {"points", "mesh", "pose", "previous_pose", "velocity", "mass", "friction", "restitution"}
     unknown = set(d) - known
     if unknown:
-        raise KeyError(f"unknown object keys {sorted(unknown)}; expected some of {sorted(known)}")
+        raise KeyError(f"{name}: unknown keys {sorted(unknown)}; expected some of {sorted(known)}")
+    for key in ("pose", "mass"):
+        if key not in d:
+            raise KeyError(f"{name}.{key}: required")
     o = pb.ObjectSpec(
-        pose=_pose_doc_pb(d["pose"]),
-        mass=float(d["mass"]),
-        friction=float(d.get("friction", 0.0)),
-        restitution=float(d.get("restitution", 0.0)),
+        pose=_pose_doc_pb(d["pose"], f"{name}.pose"),
+        mass=number(d["mass"], f"{name}.mass"),
+        friction=number(d.get("friction", 0.0), f"{name}.friction"),
+        restitution=number(d.get("restitution", 0.0), f"{name}.restitution"),
     )
     if "points" in d:
-        o.points.CopyFrom(pb.PointCloud(xyz=np.asarray(d["points"], dtype=float).reshape(-1).tolist()))
+        xyz = array_arg(d["points"], f"{name}.points", ("N", 3)).reshape(-1).tolist()
+        o.points.CopyFrom(pb.PointCloud(xyz=xyz))
     if "mesh" in d:
         m = d["mesh"]
         o.mesh.CopyFrom(
             pb.TriangleMesh(
-                vertices=np.asarray(m["vertices"], dtype=float).reshape(-1).tolist(),
-                faces=[int(k) for k in np.asarray(m.get("faces", []), dtype=np.int64).reshape(-1)],
+                vertices=array_arg(m["vertices"], f"{name}.mesh.vertices", ("N", 3)).reshape(-1).tolist(),
+                faces=index_arg(m.get("faces", []), f"{name}.mesh.faces").reshape(-1).tolist(),
                 samples=int(m.get("samples", 0)),
                 seed=int(m.get("seed", 0)),
             )
         )
     if "velocity" in d:
         v = d["velocity"]
-        o.velocity.CopyFrom(_velocity(list(v.get("linear", [0.0] * 3)) + list(v.get("angular", [0.0] * 3))))
+        o.velocity.CopyFrom(
+            _velocity(list(v.get("linear", [0.0] * 3)) + list(v.get("angular", [0.0] * 3)), f"{name}.velocity")
+        )
     if "previous_pose" in d:
-        o.previous_pose.CopyFrom(_pose_doc_pb(d["previous_pose"]))
+        o.previous_pose.CopyFrom(_pose_doc_pb(d["previous_pose"], f"{name}.previous_pose"))
     return o
 
 
-def scene_pb(scene: Scene) -> pb.Scene:
+def scene_pb(scene: Scene, variant: Optional[int] = None) -> pb.Scene:
     """Bodies, a ``Scene`` JSON document of the HTTP API (e.g. the ``scene`` of a file in
-    ``examples/scenes/``) or a ready ``Scene`` message, as a ``Scene`` message."""
+    ``examples/scenes/``) or a ready ``Scene`` message, as a ``Scene`` message. Errors name
+    ``bodies[i]`` or ``scene.objects[i]`` (``variants[k][i]`` or ``variants[k].objects[i]``
+    for the ``variant`` ``k`` of a Predict call)."""
     if isinstance(scene, pb.Scene):
         return scene
     if isinstance(scene, Mapping):
-        return pb.Scene(objects=[object_doc_pb(o) for o in scene["objects"]])
-    return pb.Scene(objects=[object_spec(b) for b in scene])
+        at = "scene" if variant is None else f"variants[{variant}]"
+        return pb.Scene(objects=[object_doc_pb(o, f"{at}.objects[{i}]") for i, o in enumerate(scene["objects"])])
+    at = "bodies" if variant is None else f"variants[{variant}]"
+    return pb.Scene(objects=[object_spec(b, f"{at}[{i}]") for i, b in enumerate(scene)])
 
 
-def action_pb(kinematic: Optional[Mapping[int, npt.ArrayLike]]) -> spb.Action:
+def action_pb(kinematic: Optional[Mapping[int, npt.ArrayLike]], name: str = "kinematic") -> spb.Action:
     """One step's action: ``{object index: [7] pose at the end of the step}``."""
     return spb.Action(
-        kinematic=[spb.ObjectPose(object=int(j), pose=pose_pb(p)) for j, p in (kinematic or {}).items()]
+        kinematic=[
+            spb.ObjectPose(object=int(j), pose=pose_pb(p, f"{name}[{j}]")) for j, p in (kinematic or {}).items()
+        ]
     )
 
 
-def actions_pb(kinematic: Optional[Mapping[int, Any]]) -> List[spb.Action]:
+def actions_pb(kinematic: Optional[Mapping[int, npt.ArrayLike]], name: str = "kinematic") -> List[spb.Action]:
     """Per-step actions from kinematic paths ``{object index: [steps, 7] poses}``."""
-    if not kinematic:
-        return []
-    paths = {j: np.asarray(p, dtype=float).reshape(-1, 7) for j, p in kinematic.items()}
-    steps = {len(p) for p in paths.values()}
-    if len(steps) != 1:
-        raise ValueError("every kinematic path needs the same number of steps")
-    return [action_pb({j: p[k] for j, p in paths.items()}) for k in range(steps.pop())]
+    n, paths = kinematic_paths(kinematic or {}, name)
+    return [action_pb({j: p[k] for j, p in paths.items()}) for k in range(n)]
 
 
 def object_state_pb(
-    index: int, pose: npt.ArrayLike, velocity: Optional[npt.ArrayLike] = None
+    index: int,
+    pose: npt.ArrayLike,
+    velocity: Optional[npt.ArrayLike] = None,
+    names: Tuple[str, str] = ("poses", "velocities"),
 ) -> spb.ObjectState:
     """Object ``index`` at ``pose`` ``[7]``, at rest or with ``velocity`` ``[6]`` (linear m/s,
-    angular rad/s, world frame)."""
-    s = spb.ObjectState(object=int(index), pose=pose_pb(pose))
+    angular rad/s, world frame); errors name ``poses[index]`` / ``velocities[index]`` (the
+    prefixes ``names``)."""
+    s = spb.ObjectState(object=int(index), pose=pose_pb(pose, f"{names[0]}[{index}]"))
     if velocity is not None:
-        s.velocity.CopyFrom(_velocity(velocity))
+        s.velocity.CopyFrom(_velocity(velocity, f"{names[1]}[{index}]"))
     return s
 
 
 def _states(
     poses: Optional[Mapping[int, npt.ArrayLike]],
     velocities: Optional[Mapping[int, npt.ArrayLike]] = None,
+    names: Tuple[str, str] = ("poses", "velocities"),
 ) -> List[spb.ObjectState]:
     velocities = velocities or {}
-    return [object_state_pb(j, p, velocities.get(j)) for j, p in (poses or {}).items()]
+    return [object_state_pb(j, p, velocities.get(j), names) for j, p in (poses or {}).items()]
 
 
 def frame_of(f: pb.StepFrame) -> Frame:
@@ -322,19 +338,16 @@ def model_info(m: pb.ModelInfo) -> Dict[str, Any]:
 
 
 def mesh_scene_pb(objects: Sequence[MeshObject]) -> pb.MeshScene:
-    """Mesh objects as a ``MeshScene`` message."""
+    """Mesh objects as a ``MeshScene`` message (checked first; errors name ``objects[i]``)."""
     out = []
-    for i, o in enumerate(objects):
-        if o.material not in _MATERIALS:
-            raise ValueError(f"objects[{i}].material: {o.material!r} is not one of {sorted(_MATERIALS)}")
-        m = pb.MeshObject(
-            vertices=np.asarray(o.vertices, dtype=float).reshape(-1).tolist(),
-            material=_MATERIALS[o.material],
-        )
+    for o in checked_objects(objects):
+        m = pb.MeshObject(vertices=np.ravel(o.vertices).tolist(), material=_MATERIALS[o.material])
         if o.faces is not None:
-            m.faces.extend(int(k) for k in np.asarray(o.faces).reshape(-1))
+            m.faces.extend(np.ravel(o.faces).tolist())
         if o.velocity is not None:
             m.velocity.CopyFrom(_velocity(o.velocity))
+        if o.vertex_velocities is not None:
+            m.vertex_velocities.extend(np.ravel(o.vertex_velocities).tolist())
         out.append(m)
     return pb.MeshScene(objects=out)
 
@@ -350,14 +363,12 @@ def _generate_request(
     timeout_ms: int,
     raw_vertices: bool,
 ) -> pb.GenerateRequest:
-    if sampler not in _SAMPLERS:
-        raise ValueError(f"sampler: {sampler!r} is not one of {sorted(_SAMPLERS)}")
     return pb.GenerateRequest(
         model=model,
         scene=mesh_scene_pb(objects),
         frames=frames,
         denoise_steps=denoise_steps,
-        sampler=_SAMPLERS[sampler],
+        sampler=_SAMPLERS[check_sampler(sampler)],
         samples=samples,
         seed=seed,
         timeout_ms=timeout_ms,
@@ -365,21 +376,12 @@ def _generate_request(
     )
 
 
-class _Collector:
-    """Gathers the events of one Generate call into a :class:`Generated`."""
-
-    def __init__(self, objects: Sequence[MeshObject], on_progress: Optional[Callable[[dict], None]]) -> None:
-        counts = [len(np.asarray(o.vertices).reshape(-1, 3)) for o in objects]
-        self.offsets = np.concatenate([[0], np.cumsum(counts)]).astype(int)
-        self.rigid = [o.material == "rigid" for o in objects]
-        self.on_progress = on_progress
-        self.progress: List[dict] = []
-        self.samples: Dict[int, pb.GeneratedSample] = {}
-
-    def add(self, e: pb.GenerateEvent) -> None:
-        if e.HasField("progress"):
-            p = e.progress
-            d = {
+def _collect(out: Collector, e: pb.GenerateEvent) -> None:
+    """Adds one ``GenerateEvent`` to ``out``."""
+    if e.HasField("progress"):
+        p = e.progress
+        out.add_progress(
+            {
                 "step": int(p.step),
                 "steps": int(p.steps),
                 "t": _f32(p.t),
@@ -387,40 +389,13 @@ class _Collector:
                 "forward_ms": float(p.timing.forward_ms),
                 "batch_scenes": int(p.timing.batch_scenes),
             }
-            self.progress.append(d)
-            if self.on_progress is not None:
-                self.on_progress(d)
-        elif e.HasField("sample"):
-            self.samples[int(e.sample.sample)] = e.sample
-
-    def result(self, model: str, request_id: str) -> Generated:
-        order = [self.samples[k] for k in sorted(self.samples)]
-        n_obj = len(self.rigid)
-        if not order:
-            raise DynaserveError(500, "INTERNAL", "the Generate stream ended without a sample")
-        n_frames = len(order[0].frames)
-        verts = np.zeros((len(order), n_frames, int(self.offsets[-1]), 3))
-        poses = np.full((len(order), n_frames, n_obj, 7), np.nan)
-        rms = np.full((len(order), n_frames, n_obj), np.nan)
-        for s, sample in enumerate(order):
-            for f, frame in enumerate(sample.frames):
-                for j, o in enumerate(frame.objects):
-                    a, b = self.offsets[j], self.offsets[j + 1]
-                    verts[s, f, a:b] = np.asarray(o.vertices, dtype=float).reshape(-1, 3)
-                    if o.HasField("pose"):
-                        poses[s, f, j] = pose_np(o.pose)
-                        rms[s, f, j] = o.fit_rms
-        return Generated(
-            vertices=verts,
-            offsets=self.offsets,
-            poses=poses,
-            fit_rms=rms,
-            times=np.array([fr.time for fr in order[0].frames], dtype=float),
-            seeds=np.array([s.seed for s in order], dtype=np.uint64),
-            model=model,
-            request_id=request_id,
-            progress=self.progress,
         )
+    elif e.HasField("sample"):
+        frames = [
+            (f.time, [(o.vertices, pose_np(o.pose) if o.HasField("pose") else None, o.fit_rms) for o in f.objects])
+            for f in e.sample.frames
+        ]
+        out.add_sample(e.sample.sample, e.sample.seed, frames)
 
 
 def _interact_open(
@@ -447,7 +422,7 @@ def _interact_step(
     correct: Optional[Mapping[int, npt.ArrayLike]],
     velocities: Optional[Mapping[int, npt.ArrayLike]],
 ) -> spb.InteractRequest:
-    return spb.InteractRequest(action=action_pb(kinematic), correct=_states(correct, velocities))
+    return spb.InteractRequest(action=action_pb(kinematic), correct=_states(correct, velocities, ("correct", "velocities")))
 
 
 def _target(target: str, root_certificates: Optional[bytes]) -> Tuple[str, bool]:
@@ -568,7 +543,9 @@ class GrpcClient(_Base):
     ) -> "FrameStream":
         """Rolls a scene forward; the returned stream yields every :class:`Frame`
         (``poses`` ``[objects, 7]``) as the server computes it. ``cancel()`` on it (or leaving
-        its ``with`` block early) stops the rollout on the server."""
+        its ``with`` block early) stops the rollout on the server. Arguments and defaults as
+        for :meth:`dynaserve.Client.rollout` (``scene`` may also be a ``Scene`` message);
+        ``timeout``: the whole call's deadline, seconds (default ``None``: ``stream_timeout``)."""
         req = pb.RolloutRequest(
             model=model, scene=scene_pb(scene), steps=steps, dt_steps=dt_steps, timeout_ms=timeout_ms
         )
@@ -585,10 +562,12 @@ class GrpcClient(_Base):
         timeout: Optional[float] = None,
     ) -> np.ndarray:
         """Rolls every scene variant forward; returns ``[variants, frames, objects, 7]`` (the
-        final frame only unless ``every`` > 0)."""
+        final frame only unless ``every`` > 0). Arguments and defaults as for
+        :meth:`dynaserve.Client.predict`; ``timeout``: the call's deadline, seconds (default
+        ``None``: the client's ``timeout``)."""
         req = pb.PredictRequest(
             model=model,
-            variants=[scene_pb(v) for v in variants],
+            variants=[scene_pb(v, k) for k, v in enumerate(variants)],
             steps=steps,
             dt_steps=dt_steps,
             every=every,
@@ -614,15 +593,18 @@ class GrpcClient(_Base):
         ``denoise_steps`` of 0 take the model's defaults. ``on_progress`` is called once per
         denoising step. The result's ``vertices`` are ``[samples, frames, vertices, 3]``; a rigid
         object's are its frame-0 vertices moved by its fitted pose (exactly rigid) unless
-        ``raw_vertices`` asks for the network's own."""
+        ``raw_vertices`` asks for the network's own. Arguments and defaults as for
+        :meth:`dynaserve.Client.generate`; ``timeout``: the whole call's deadline, seconds
+        (default ``None``: ``stream_timeout``)."""
+        objects = checked_objects(objects)
         req = _generate_request(
             objects, frames, denoise_steps, sampler, samples, seed, model, timeout_ms, raw_vertices
         )
         call = self.world.Generate(req, timeout=timeout or self.stream_timeout, metadata=self.metadata)
-        out = _Collector(objects, on_progress)
+        out = Collector(objects, on_progress)
         try:
             for e in call:
-                out.add(e)
+                _collect(out, e)
             md = dict(_pairs(call.initial_metadata()))
         except grpc.RpcError as e:
             raise error_of(e) from None
@@ -639,11 +621,20 @@ class GrpcClient(_Base):
         timeout: Optional[float] = None,
     ) -> "GrpcSession":
         """Sends a scene once and keeps it on the server with its state; ``kinematic`` lists
-        the objects whose poses the caller gives every step."""
+        the objects whose poses the caller gives every step. Arguments and defaults as for
+        :meth:`dynaserve.Client.create_session`; ``timeout``: the call's deadline, seconds
+        (default ``None``: the client's ``timeout``)."""
         req = spb.CreateSessionRequest(
             model=model, scene=scene_pb(scene), dt_steps=dt_steps, kinematic=list(kinematic)
         )
         return GrpcSession(self, self._unary(self.sessions.CreateSession, req, timeout))
+
+    def session(self, session_id: str, timeout: Optional[float] = None) -> "GrpcSession":
+        """The existing session ``session_id`` (e.g. created by another client or process),
+        checked with one ``GetState`` call: ``DynaserveError`` ``NOT_FOUND`` when it is unknown
+        or expired. The server's state does not report its ``model``, ``dt_steps`` or
+        ``kinematic`` objects: those attributes are ``None`` on the returned session."""
+        return GrpcSession(self, self._unary(self.sessions.GetState, spb.GetStateRequest(session_id=session_id), timeout))
 
     def interact(
         self,
@@ -706,23 +697,40 @@ class FrameStream(Iterator[Frame]):
         self.cancel()
 
 
-class GrpcSession:
-    """A scene kept on the server with its state, over gRPC. Kinematic paths are ``{object
-    index: [steps, 7] poses}``: each kinematic object's pose at the end of every step."""
+class _SessionFields:
+    """What a session object knows of its session: all of its ``SessionInfo``, or of a
+    ``SessionState`` (a session reattached by id) the id, object count and expiry only."""
 
-    def __init__(self, client: GrpcClient, info: spb.SessionInfo) -> None:
+    def __init__(self, client: Any, info: Union[spb.SessionInfo, spb.SessionState]) -> None:
         self.client = client
         self.id: str = info.session_id
-        self.model: str = info.model
-        self.objects: int = int(info.objects)
-        self.dt_steps: int = int(info.dt_steps)
-        self.kinematic: List[int] = list(info.kinematic)
         self.expires_at_unix_ms: int = int(info.expires_at_unix_ms)
+        known = isinstance(info, spb.SessionInfo)
+        self.objects: int = int(info.objects) if known else len(info.poses)
+        self.model: Optional[str] = info.model if known else None
+        self.dt_steps: Optional[int] = int(info.dt_steps) if known else None
+        self.kinematic: Optional[List[int]] = list(info.kinematic) if known else None
+
+
+class GrpcSession(_SessionFields):
+    """A scene kept on the server with its state, over gRPC. Kinematic paths are ``{object
+    index: [steps, 7] poses}``: each kinematic object's pose at the end of every step.
+
+    Attributes:
+        id: the session id (32 hex digits).
+        objects: objects in its scene.
+        expires_at_unix_ms: when it expires unless used again (as of the last call that
+            returned it), milliseconds since the Unix epoch.
+        model: the model that serves it; ``None`` for a session reattached with
+            :meth:`GrpcClient.session` (the server's state does not report it).
+        dt_steps: frames per step; ``None`` when reattached.
+        kinematic: indices of its kinematic objects; ``None`` when reattached.
+    """
 
     def step(
         self,
         steps: int,
-        kinematic: Optional[Mapping[int, Any]] = None,
+        kinematic: Optional[Mapping[int, npt.ArrayLike]] = None,
         timeout_ms: int = 0,
         timeout: Optional[float] = None,
     ) -> List[Frame]:
@@ -755,7 +763,7 @@ class GrpcSession:
     def predict(
         self,
         steps: int,
-        kinematic: Optional[Sequence[Mapping[int, Any]]] = None,
+        kinematic: Optional[Sequence[Mapping[int, npt.ArrayLike]]] = None,
         poses: Optional[Sequence[Mapping[int, npt.ArrayLike]]] = None,
         every: int = 0,
         timeout_ms: int = 0,
@@ -784,14 +792,14 @@ class GrpcSession:
 
 
 def _variants(
-    kinematic: Optional[Sequence[Mapping[int, Any]]],
+    kinematic: Optional[Sequence[Mapping[int, npt.ArrayLike]]],
     poses: Optional[Sequence[Mapping[int, npt.ArrayLike]]],
 ) -> List[spb.SessionVariant]:
     n = max(len(kinematic or []), len(poses or []), 1)
     return [
         spb.SessionVariant(
-            actions=actions_pb(kinematic[i]) if kinematic else [],
-            state=_states(poses[i]) if poses else [],
+            actions=actions_pb(kinematic[i], f"kinematic[{i}]") if kinematic else [],
+            state=_states(poses[i], names=(f"poses[{i}]", "")) if poses else [],
         )
         for i in range(n)
     ]
@@ -986,7 +994,7 @@ class AsyncGrpcClient(_Base):
         """See :meth:`GrpcClient.predict`; ``[variants, frames, objects, 7]``."""
         req = pb.PredictRequest(
             model=model,
-            variants=[scene_pb(v) for v in variants],
+            variants=[scene_pb(v, k) for k, v in enumerate(variants)],
             steps=steps,
             dt_steps=dt_steps,
             every=every,
@@ -1009,14 +1017,15 @@ class AsyncGrpcClient(_Base):
         raw_vertices: bool = False,
     ) -> Generated:
         """See :meth:`GrpcClient.generate`; ``vertices`` ``[samples, frames, vertices, 3]``."""
+        objects = checked_objects(objects)
         req = _generate_request(
             objects, frames, denoise_steps, sampler, samples, seed, model, timeout_ms, raw_vertices
         )
         call = self.world.Generate(req, timeout=timeout or self.stream_timeout, metadata=self.metadata)
-        out = _Collector(objects, on_progress)
+        out = Collector(objects, on_progress)
         try:
             async for e in call:
-                out.add(e)
+                _collect(out, e)
             md = dict(_pairs(await call.initial_metadata()))
         except grpc.aio.AioRpcError as e:
             raise error_of(e) from None
@@ -1035,6 +1044,11 @@ class AsyncGrpcClient(_Base):
             model=model, scene=scene_pb(scene), dt_steps=dt_steps, kinematic=list(kinematic)
         )
         return AsyncGrpcSession(self, await self._unary(self.sessions.CreateSession, req, timeout))
+
+    async def session(self, session_id: str, timeout: Optional[float] = None) -> "AsyncGrpcSession":
+        """See :meth:`GrpcClient.session`."""
+        req = spb.GetStateRequest(session_id=session_id)
+        return AsyncGrpcSession(self, await self._unary(self.sessions.GetState, req, timeout))
 
     async def interact(
         self,
@@ -1092,22 +1106,14 @@ class AsyncFrameStream(AsyncIterator[Frame]):
         return dict(_pairs(await self._call.initial_metadata())).get("x-request-id", "")
 
 
-class AsyncGrpcSession:
-    """A session of :class:`AsyncGrpcClient`; the methods of :class:`GrpcSession`, awaited."""
-
-    def __init__(self, client: AsyncGrpcClient, info: spb.SessionInfo) -> None:
-        self.client = client
-        self.id: str = info.session_id
-        self.model: str = info.model
-        self.objects: int = int(info.objects)
-        self.dt_steps: int = int(info.dt_steps)
-        self.kinematic: List[int] = list(info.kinematic)
-        self.expires_at_unix_ms: int = int(info.expires_at_unix_ms)
+class AsyncGrpcSession(_SessionFields):
+    """A session of :class:`AsyncGrpcClient`; the attributes and methods of
+    :class:`GrpcSession`, awaited."""
 
     async def step(
         self,
         steps: int,
-        kinematic: Optional[Mapping[int, Any]] = None,
+        kinematic: Optional[Mapping[int, npt.ArrayLike]] = None,
         timeout_ms: int = 0,
         timeout: Optional[float] = None,
     ) -> List[Frame]:
@@ -1139,7 +1145,7 @@ class AsyncGrpcSession:
     async def predict(
         self,
         steps: int,
-        kinematic: Optional[Sequence[Mapping[int, Any]]] = None,
+        kinematic: Optional[Sequence[Mapping[int, npt.ArrayLike]]] = None,
         poses: Optional[Sequence[Mapping[int, npt.ArrayLike]]] = None,
         every: int = 0,
         timeout_ms: int = 0,

@@ -8,7 +8,7 @@ import warnings
 
 import numpy as np
 
-from dynaserve import Body, Client, DynaserveError, OutOfRangeWarning, box_points
+from dynaserve import Body, Client, DynaserveError, OutOfRangeWarning, Session, box_points
 
 
 def bodies():
@@ -76,6 +76,26 @@ class ClientTest(unittest.TestCase):
         with self.assertRaises(DynaserveError) as e:
             s.state()
         self.assertEqual((e.exception.status, e.exception.code), (404, "NOT_FOUND"))
+
+    def test_a_session_is_reattached_by_id(self):
+        s = self.c.create_session(bodies(), kinematic=[1])
+        s.step(2)
+        # Another client (as another process would) takes the session up by its id.
+        again = Client(os.environ["DYNASERVE_HTTP"]).session(s.id)
+        self.assertIsInstance(again, Session)
+        self.assertEqual((again.id, again.objects), (s.id, 2))
+        self.assertEqual((again.model, again.dt_steps, again.kinematic), (None, None, None))
+        self.assertEqual(again.state()["step"], 2)
+        self.assertEqual([f.step for f in again.step(1)], [3])
+        np.testing.assert_allclose(s.state()["poses"], again.state()["poses"])
+        again.delete()
+        for gone in (s.id, "0" * 32):
+            with self.assertRaises(DynaserveError) as e:
+                self.c.session(gone)
+            self.assertEqual((e.exception.status, e.exception.code), (404, "NOT_FOUND"))
+        # An id is one path segment, never a way to another endpoint.
+        with self.assertRaises(DynaserveError):
+            self.c.session("../models")
 
 
 if __name__ == "__main__":

@@ -13,7 +13,7 @@ import warnings
 import numpy as np
 
 from dynaserve import Body, Client, DynaserveError, OutOfRangeWarning, box_points
-from dynaserve.grpc import AsyncGrpcClient, GrpcClient
+from dynaserve.grpc import AsyncGrpcClient, GrpcClient, GrpcSession
 from dynaserve.mesh import MeshObject
 
 
@@ -186,6 +186,18 @@ class GrpcTest(unittest.TestCase):
         with self.assertRaises(ValueError):
             self.g.interact()
 
+    def test_generate_takes_per_vertex_velocities(self):
+        objs = mesh_scene()
+        per_vertex = [objs[0], MeshObject(objs[1].vertices, "elastic", vertex_velocities=np.tile([1.0, 0.0, -1.0], (8, 1)))]
+        a = self.g.generate(objs, frames=6, denoise_steps=2, seed=3)
+        b = self.g.generate(per_vertex, frames=6, denoise_steps=2, seed=3)
+        np.testing.assert_allclose(a.vertices, b.vertices, atol=1e-5)
+        with self.assertRaises(ValueError):
+            self.g.generate([MeshObject(CUBE, "rigid", vertex_velocities=np.zeros((8, 2)))])
+        with self.assertRaises(DynaserveError) as e:
+            self.g.generate([MeshObject(CUBE, "rigid", vertex_velocities=np.zeros((7, 3)))])
+        self.assertEqual(e.exception.field, "scene.objects[0].vertex_velocities")
+
     def test_generate_equals_http_and_repeats_with_its_seed(self):
         seen = []
         g = self.g.generate(mesh_scene(), frames=6, denoise_steps=2, samples=2, seed=7, on_progress=seen.append)
@@ -244,6 +256,50 @@ class GrpcTest(unittest.TestCase):
         moved = np.sqrt(((raw.object_vertices(0) - cube) ** 2).sum(-1).mean(-1))
         np.testing.assert_allclose(moved, raw.fit_rms[:, :, 0], atol=1e-4)
         np.testing.assert_allclose(raw.object_vertices(1), g.object_vertices(1), atol=1e-5)
+
+    def test_http_generate_equals_grpc(self):
+        seen = []
+        h = self.h.generate(mesh_scene(), frames=6, denoise_steps=2, samples=2, seed=7, on_progress=seen.append)
+        g = self.g.generate(mesh_scene(), frames=6, denoise_steps=2, samples=2, seed=7)
+        self.assertEqual(h.vertices.shape, (2, 6, 16, 3))
+        for key in ("vertices", "poses", "fit_rms", "times"):
+            np.testing.assert_allclose(getattr(h, key), getattr(g, key), atol=1e-5, err_msg=key)
+        self.assertEqual((list(h.offsets), list(h.seeds), h.model), (list(g.offsets), [7, 8], g.model))
+        self.assertTrue(h.request_id)
+        self.assertEqual([p["step"] for p in seen], [1, 2])
+        self.assertEqual([p["t"] for p in h.progress], [0.5, 1.0])
+        self.assertEqual(seen, h.progress)
+        # Per-vertex velocities and raw vertices too.
+        objs = mesh_scene()
+        objs[1].vertex_velocities, objs[1].velocity = np.tile([1.0, 0.0, -1.0], (8, 1)), None
+        a = self.h.generate(objs, frames=4, denoise_steps=2, seed=3, raw_vertices=True)
+        b = self.g.generate(objs, frames=4, denoise_steps=2, seed=3, raw_vertices=True)
+        np.testing.assert_allclose(a.vertices, b.vertices, atol=1e-5)
+        with self.assertRaises(DynaserveError) as e:
+            self.h.generate([MeshObject(CUBE * 20, "rigid")], frames=4, denoise_steps=1)
+        self.assertEqual((e.exception.status, e.exception.code), (422, "INVALID_ARGUMENT"))
+        self.assertTrue(e.exception.field.startswith("scene.objects[0].vertices"), e.exception.field)
+
+    def test_a_session_is_reattached_by_id(self):
+        s = self.g.create_session(bodies(), kinematic=[1])
+        s.step(2, kinematic={1: pusher_path(2)})
+        again = self.g.session(s.id)
+        self.assertIsInstance(again, GrpcSession)
+        self.assertEqual((again.id, again.objects), (s.id, 2))
+        self.assertEqual((again.model, again.dt_steps, again.kinematic), (None, None, None))
+        with again.interact() as loop:
+            frame = loop.step({1: pusher_path(3)[-1]})
+        self.assertEqual(frame.step, 3)
+        np.testing.assert_allclose(s.state()["poses"], frame.poses, atol=1e-6)
+        # A session made over HTTP, taken up over gRPC.
+        h = self.h.create_session(bodies())
+        np.testing.assert_allclose(self.g.session(h.id).state()["poses"], h.state()["poses"], atol=1e-6)
+        h.delete()
+        again.delete()
+        for gone in (s.id, h.id):
+            with self.assertRaises(DynaserveError) as e:
+                self.g.session(gone)
+            self.assertEqual((e.exception.status, e.exception.code), (404, "NOT_FOUND"))
 
     def test_errors_carry_status_code_and_field(self):
         bad = bodies()
@@ -305,6 +361,7 @@ class GrpcTest(unittest.TestCase):
                 async with await f.interact() as loop:
                     looped = [await loop.step({1: p}) for p in path]
                 state = await f.state()
+                self.assertEqual((await (await a.session(f.id)).state())["step"], state["step"])
                 with self.assertRaises(DynaserveError) as e:
                     async with await a.interact(bodies(), kinematic=[1]) as bad:
                         await bad.step({0: path[0]})

@@ -224,16 +224,18 @@ class ListModelsResponse(_message.Message):
     def __init__(self, models: _Optional[_Iterable[_Union[ModelInfo, _Mapping]]] = ...) -> None: ...
 
 class MeshObject(_message.Message):
-    __slots__ = ("vertices", "faces", "material", "velocity")
+    __slots__ = ("vertices", "faces", "material", "velocity", "vertex_velocities")
     VERTICES_FIELD_NUMBER: _ClassVar[int]
     FACES_FIELD_NUMBER: _ClassVar[int]
     MATERIAL_FIELD_NUMBER: _ClassVar[int]
     VELOCITY_FIELD_NUMBER: _ClassVar[int]
+    VERTEX_VELOCITIES_FIELD_NUMBER: _ClassVar[int]
     vertices: _containers.RepeatedScalarFieldContainer[float]
     faces: _containers.RepeatedScalarFieldContainer[int]
     material: Material
     velocity: Velocity
-    def __init__(self, vertices: _Optional[_Iterable[float]] = ..., faces: _Optional[_Iterable[int]] = ..., material: _Optional[_Union[Material, str]] = ..., velocity: _Optional[_Union[Velocity, _Mapping]] = ...) -> None: ...
+    vertex_velocities: _containers.RepeatedScalarFieldContainer[float]
+    def __init__(self, vertices: _Optional[_Iterable[float]] = ..., faces: _Optional[_Iterable[int]] = ..., material: _Optional[_Union[Material, str]] = ..., velocity: _Optional[_Union[Velocity, _Mapping]] = ..., vertex_velocities: _Optional[_Iterable[float]] = ...) -> None: ...
 
 class MeshScene(_message.Message):
     __slots__ = ("objects",)
@@ -242,7 +244,7 @@ class MeshScene(_message.Message):
     def __init__(self, objects: _Optional[_Iterable[_Union[MeshObject, _Mapping]]] = ...) -> None: ...
 
 class GenerateRequest(_message.Message):
-    __slots__ = ("model", "scene", "frames", "denoise_steps", "sampler", "samples", "seed", "timeout_ms", "raw_vertices")
+    __slots__ = ("model", "scene", "frames", "denoise_steps", "sampler", "samples", "seed", "timeout_ms", "raw_vertices", "noise")
     MODEL_FIELD_NUMBER: _ClassVar[int]
     SCENE_FIELD_NUMBER: _ClassVar[int]
     FRAMES_FIELD_NUMBER: _ClassVar[int]
@@ -252,6 +254,7 @@ class GenerateRequest(_message.Message):
     SEED_FIELD_NUMBER: _ClassVar[int]
     TIMEOUT_MS_FIELD_NUMBER: _ClassVar[int]
     RAW_VERTICES_FIELD_NUMBER: _ClassVar[int]
+    NOISE_FIELD_NUMBER: _ClassVar[int]
     model: str
     scene: MeshScene
     frames: int
@@ -261,7 +264,8 @@ class GenerateRequest(_message.Message):
     seed: int
     timeout_ms: int
     raw_vertices: bool
-    def __init__(self, model: _Optional[str] = ..., scene: _Optional[_Union[MeshScene, _Mapping]] = ..., frames: _Optional[int] = ..., denoise_steps: _Optional[int] = ..., sampler: _Optional[_Union[Sampler, str]] = ..., samples: _Optional[int] = ..., seed: _Optional[int] = ..., timeout_ms: _Optional[int] = ..., raw_vertices: _Optional[bool] = ...) -> None: ...
+    noise: _containers.RepeatedScalarFieldContainer[float]
+    def __init__(self, model: _Optional[str] = ..., scene: _Optional[_Union[MeshScene, _Mapping]] = ..., frames: _Optional[int] = ..., denoise_steps: _Optional[int] = ..., sampler: _Optional[_Union[Sampler, str]] = ..., samples: _Optional[int] = ..., seed: _Optional[int] = ..., timeout_ms: _Optional[int] = ..., raw_vertices: _Optional[bool] = ..., noise: _Optional[_Iterable[float]] = ...) -> None: ...
 
 class GenerateProgress(_message.Message):
     __slots__ = ("step", "steps", "t", "timing")
