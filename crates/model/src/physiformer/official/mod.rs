@@ -25,6 +25,7 @@ pub(crate) mod rope;
 use candle_core::{D, DType, Device, IndexOp, Tensor};
 
 use self::config::{Axis, NORM_EPS, OfficialConfig, TIME_FEATURES};
+use super::block::modulate;
 use super::config::PhysiConfig;
 use super::scene::{Material, MeshScene};
 use crate::ModelError;
@@ -112,11 +113,6 @@ fn linear(
     output: usize,
 ) -> Result<Linear, ModelError> {
     p.linear(name, input, output, true)
-}
-
-/// `x * (1 + scale) + shift` with `[1, D]` modulation over `[.., D]` rows.
-fn modulate(x: &Tensor, shift: &Tensor, scale: &Tensor) -> candle_core::Result<Tensor> {
-    x.broadcast_mul(&(scale + 1.0)?)?.broadcast_add(shift)
 }
 
 /// Sinusoidal features `[1, 256]` of flow time `t`: `[cos(t w), sin(t w)]`,
