@@ -5,9 +5,9 @@
 //! - Frame code (temporal attention): phase `frame * 10000^(-2i / dh)`; prefix tokens sit at
 //!   frame 0 (no rotation).
 //! - Vertex code (spatial and per-object attention): the position's three coordinates, each
-//!   times `n = max(1, (dh / 2) / 3)` frequencies `2^linspace(0, log2(n - 1), n)` (all 1 when
-//!   `n < 3`... exactly as the official code: `[1]` for `n = 1`), laid out axis-major, cut or
-//!   zero-padded to `dh / 2` phases.
+//!   times `n = max(1, (dh / 2) / 3)` frequencies `2^linspace(0, log2(n - 1), n)` (`[1]` for
+//!   `n = 1`, `[1, 1]` for `n = 2`, as the official code computes them), laid out axis-major,
+//!   cut or zero-padded to `dh / 2` phases.
 
 use candle_core::{D, Device, Tensor};
 
