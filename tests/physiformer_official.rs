@@ -118,35 +118,29 @@ async fn imported_official_checkpoint_serves_the_official_trajectory() {
     assert!(diff / scale < 1e-3, "relative error {:e}", diff / scale);
 
     // Bad per-vertex velocities and noise are refused with the field named.
+    let refused = |req: json::GenerateRequest, field: &'static str| {
+        let addr = server.http_addr;
+        async move {
+            let resp = post_json(addr, "/v1/generate", &req).await;
+            assert_eq!(resp.status, 422, "{}", resp.text());
+            assert!(resp.text().contains(field), "{field}: {}", resp.text());
+        }
+    };
     req.scene.objects[0]
         .vertex_velocities
         .as_mut()
         .unwrap()
         .pop();
-    let resp = post_json(server.http_addr, "/v1/generate", &req).await;
-    assert_eq!(resp.status, 422, "{}", resp.text());
-    assert!(
-        resp.text().contains("scene.objects[0].vertex_velocities"),
-        "{}",
-        resp.text()
-    );
+    refused(req.clone(), "scene.objects[0].vertex_velocities").await;
     req.scene.objects[0].vertex_velocities = None;
     req.scene.objects[0].velocity = Some(json::Velocity {
         linear: [1.0, 0.0, 0.0],
         angular: [0.0; 3],
     });
     req.scene.objects[1].velocity = req.scene.objects[0].velocity;
-    let resp = post_json(server.http_addr, "/v1/generate", &req).await;
-    assert_eq!(resp.status, 422, "{}", resp.text());
-    assert!(
-        resp.text().contains("scene.objects[1].vertex_velocities"),
-        "{}",
-        resp.text()
-    );
+    refused(req.clone(), "scene.objects[1].vertex_velocities").await;
     req.scene.objects[1].vertex_velocities = None;
     req.noise.as_mut().unwrap()[0].truncate(10);
-    let resp = post_json(server.http_addr, "/v1/generate", &req).await;
-    assert_eq!(resp.status, 422, "{}", resp.text());
-    assert!(resp.text().contains("noise[0]"), "{}", resp.text());
+    refused(req, "noise[0]").await;
     server.shutdown();
 }

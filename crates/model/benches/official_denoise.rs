@@ -12,7 +12,6 @@ use std::time::Instant;
 
 use candle_core::Device;
 use dynaserve_model::PhysiFormer;
-use dynaserve_model::physiformer::flow::Sampler;
 use dynaserve_model::physiformer::inputs::PreparedItem;
 use dynaserve_model::physiformer::scene::{Material, MeshScene};
 
@@ -77,26 +76,14 @@ fn main() {
         materials,
     };
     let frames = sc["frames"].as_u64().unwrap() as usize;
-    let prepared = model.prepare(&scene, frames).unwrap();
     let mut seconds = Vec::new();
     if let Some(steps) = what.strip_prefix("sample:") {
         let steps: usize = steps.parse().expect("sample:STEPS");
         let t0 = Instant::now();
-        let mut s = Sampler::new(model.config(), &scene, frames, steps, 0).unwrap();
-        while !s.done() {
-            let (z, t) = s.query();
-            let x = model
-                .denoise_prepared(&[PreparedItem {
-                    scene: &prepared,
-                    z,
-                    t,
-                }])
-                .unwrap()
-                .remove(0);
-            s.advance(&x).unwrap();
-        }
+        model.sample(&[(&scene, frames)], steps, 0).unwrap();
         seconds.push(t0.elapsed().as_secs_f64());
     } else {
+        let prepared = model.prepare(&scene, frames).unwrap();
         let z: Vec<f32> = (0..frames * scene.vertices() * 3)
             .map(|i| 0.1 * ((i as f32) * 0.37).sin())
             .collect();

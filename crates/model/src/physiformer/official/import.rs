@@ -448,10 +448,8 @@ pub fn config_from(
         correction_ramp_frames: 0,
         official: Some(official),
     };
+    // Also refuses num_frames beyond max_frames.
     config.validate()?;
-    if frames > config.official.as_ref().map_or(0, |o| o.max_frames) {
-        return Err(bad(format!("num_frames {frames} exceeds max_frames")));
-    }
     Ok(config)
 }
 
