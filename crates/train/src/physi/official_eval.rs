@@ -31,11 +31,19 @@ fn score(e: &OfficialExample, traj: &[f32], dt: f64) -> anyhow::Result<Scores> {
     })
 }
 
-/// Means of `mse`, `rigidity`, `per_vertex` over `rows`, and the pooled momentum drift ratio
-/// (mean predicted drift over mean true drift `truth`).
+/// NaN-skipping means of `mse`, `rigidity`, `per_vertex` over `rows`, and the pooled momentum
+/// drift ratio (mean predicted drift over mean true drift `truth`).
 fn summary(rows: &[Scores], truth: f64) -> (f64, f64, f64, f64) {
-    let n = rows.len().max(1) as f64;
-    let m = |f: fn(&Scores) -> f64| rows.iter().map(f).sum::<f64>() / n;
+    // NaN-skipping means, as the official report's (a scene without an object of 3 vertices
+    // has no rigidity).
+    let m = |f: fn(&Scores) -> f64| {
+        let v: Vec<f64> = rows.iter().map(f).filter(|x| x.is_finite()).collect();
+        if v.is_empty() {
+            f64::NAN
+        } else {
+            v.iter().sum::<f64>() / v.len() as f64
+        }
+    };
     (
         m(|r| r.mse),
         m(|r| r.rigidity),
