@@ -65,8 +65,8 @@ pub fn run(args: ImportArgs) -> anyhow::Result<()> {
                  blocks, {} frames, up to {} vertices and {} objects",
                 a.out.display(),
                 model.parameter_count() as f64 / 1e6,
-                c.width,
-                c.blocks,
+                c.official.hidden,
+                c.official.depth,
                 c.frames,
                 c.max_vertices,
                 c.max_objects

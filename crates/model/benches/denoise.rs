@@ -4,8 +4,9 @@
 //! - the per-step path ([`PhysiFormer::denoise`]: lays every step out from the scene),
 //! - the prepared one ([`PhysiFormer::denoise_prepared`]: the step-invariant part laid out
 //!   once per sample), on the process pool (`RAYON_NUM_THREADS`),
-//! - the prepared one inside a rayon pool of one thread (every kernel on that thread),
-//! - the prepared one with one forward pass per scene instead of one padded pass for all.
+//! - the prepared one inside a rayon pool of one thread (every kernel on that thread).
+//!
+//! Every path runs each scene of a pass as its own forward (`docs/physiformer.md`, Serving).
 //!
 //! Widths and paths run interleaved, round after round, so a machine that changes speed moves
 //! all of them alike; medians print.
@@ -90,8 +91,8 @@ fn main() {
         .build()
         .expect("one-thread pool");
     // [width][path] -> per-scene ms of each round; paths: per-step, prepared, prepared on one
-    // thread, prepared with one forward per scene.
-    let mut times = vec![[Vec::new(), Vec::new(), Vec::new(), Vec::new()]; widths.len()];
+    // thread.
+    let mut times = vec![[Vec::new(), Vec::new(), Vec::new()]; widths.len()];
     for round in 0..=rounds {
         for (wi, &w) in widths.iter().enumerate() {
             let items: Vec<DenoiseItem<'_>> = (0..w)
@@ -121,35 +122,25 @@ fn main() {
                 .install(|| model.denoise_prepared(&pitems))
                 .expect("denoise_prepared");
             let single = t0.elapsed().as_secs_f64() * 1e3 / w as f64;
-            let t0 = Instant::now();
-            let d: Vec<Vec<f32>> = pitems
-                .iter()
-                .map(|it| model.denoise_prepared(&[*it]).map(|mut o| o.remove(0)))
-                .collect::<Result<_, _>>()
-                .expect("denoise_prepared");
-            let each = t0.elapsed().as_secs_f64() * 1e3 / w as f64;
-            assert_eq!(a.len(), b.len());
+            assert_eq!(a, b, "preparing changed a result");
             assert_eq!(b, c, "the thread count changed a result");
-            assert_eq!(c.len(), d.len());
             if round > 0 {
                 times[wi][0].push(per_step);
                 times[wi][1].push(cached);
                 times[wi][2].push(single);
-                times[wi][3].push(each);
             }
         }
     }
     println!(
-        "pass width | per-step | prepared | prepared, 1 thread | prepared, per scene \
-         | (ms per scene) prepared / per-step | 1 thread / pool | per scene / one pass"
+        "pass width | per-step | prepared | prepared, 1 thread \
+         | (ms per scene) prepared / per-step | 1 thread / pool"
     );
     for (wi, &w) in widths.iter().enumerate() {
-        let [a, b, c, d] = times[wi].clone().map(median);
+        let [a, b, c] = times[wi].clone().map(median);
         println!(
-            "{w} | {a:.2} | {b:.2} | {c:.2} | {d:.2} | {:.3} | {:.3} | {:.3}",
+            "{w} | {a:.2} | {b:.2} | {c:.2} | {:.3} | {:.3}",
             b / a,
-            c / b,
-            d / b
+            c / b
         );
     }
 }

@@ -287,7 +287,7 @@ fn prepared_scenes_give_what_the_per_step_path_gives() {
     assert!(err.to_string().contains("noisy trajectory"), "{err}");
     let err = model.prepare(&a.scene, 1).unwrap_err();
     assert!(err.to_string().contains("frames"), "{err}");
-    assert!(model.denoise_prepared(&[]).is_err());
+    assert!(model.denoise_prepared(&[]).unwrap().is_empty());
 }
 
 /// With `correction_ramp_frames = n`, the network's correction of the prior at frame `f` is
@@ -298,6 +298,7 @@ fn the_correction_ramp_scales_the_correction_by_frame() {
     use dynaserve_model::physiformer::config::TrajectoryPrior;
     let plain = PhysiConfig {
         prior: TrajectoryPrior::Static,
+        correction_ramp_frames: 0,
         ..PhysiConfig::tiny()
     };
     let ramped = PhysiConfig {
@@ -344,7 +345,13 @@ fn every_parameter_receives_a_gradient() {
     let grads = loss.loss.backward().unwrap();
     let data = model.varmap().data().lock().unwrap();
     let missing = common::params_without_gradient(&grads, &data);
-    assert!(missing.is_empty(), "no gradient for {missing:?}");
+    // The official state dict holds an object-id table its forward pass never reads (kept so
+    // that the parameters map one to one).
+    assert_eq!(
+        missing,
+        ["object_id_embed.weight"],
+        "no gradient for {missing:?}"
+    );
 }
 
 #[test]

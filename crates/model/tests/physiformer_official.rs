@@ -12,6 +12,7 @@ use std::path::{Path, PathBuf};
 
 use candle_core::{Device, Tensor};
 use dynaserve_model::PhysiFormer;
+use dynaserve_model::physiformer::config::TrajectoryPrior;
 use dynaserve_model::physiformer::flow::{Sampler, SamplerKind};
 use dynaserve_model::physiformer::inputs::PreparedItem;
 use dynaserve_model::physiformer::scene::{Material, MeshScene};
@@ -185,7 +186,11 @@ fn sample(model: &PhysiFormer, r: &Reference) -> Vec<f32> {
 fn denoiser_call_and_sample_match_the_official_code() {
     let r = Reference::load();
     let (model, dir) = import("parity", true);
-    assert!(model.is_official());
+    assert_eq!(
+        model.config().prior,
+        TrajectoryPrior::None,
+        "published weights: no prior"
+    );
     let err = call_error(&model, &r);
     eprintln!("denoiser call: relative error {err:e}");
     assert!(err < 1e-4, "denoiser call: relative error {err:e}");

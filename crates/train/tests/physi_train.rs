@@ -94,7 +94,7 @@ fn a_run_starts_from_an_init_model_with_the_ramp_it_asks_for() {
     assert_eq!(cfg.correction_ramp_frames, 6);
     // The init model's configuration (tiny, static prior), not the named preset's.
     assert_eq!(cfg.prior, TrajectoryPrior::Static);
-    assert_eq!(cfg.width, read_physi_config(&init).unwrap().width);
+    assert_eq!(cfg.official, read_physi_config(&init).unwrap().official);
     let weights = |d: &Path| {
         let m = PhysiFormer::load(d, &Device::Cpu, false).unwrap();
         let data = m.varmap().data().lock().unwrap();

@@ -156,7 +156,7 @@ pub struct MeshFrame {
 pub struct GeneratedSample {
     /// Sample index.
     pub sample: u32,
-    /// Seed of its starting noise.
+    /// Seed of its starting noise (not used when the request gives `noise`).
     pub seed: u64,
     /// Frames 0 to `frames - 1`.
     pub frames: Vec<MeshFrame>,

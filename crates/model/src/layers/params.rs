@@ -62,6 +62,11 @@ impl ParamStore {
         }
     }
 
+    /// True when the parameters are training variables.
+    pub fn trainable(&self) -> bool {
+        self.trainable
+    }
+
     /// The parameter `name` of `shape`.
     pub fn get(&mut self, name: &str, shape: &[usize], init: Init) -> Result<Tensor, ModelError> {
         if !self.used.insert(name.to_string()) {

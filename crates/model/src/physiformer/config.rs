@@ -2,7 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::official::config::OfficialConfig;
+use super::official::config::{DEFAULT_PATTERN, OfficialConfig};
 use crate::ModelError;
 
 /// Architecture name stored in a PhysiFormer `config.json`.
@@ -15,14 +15,16 @@ pub const RIGID_MATERIAL: [f32; 2] = [0.0, 0.01];
 /// Per-object material input `(softness, friction)` of an elastic object.
 pub const ELASTIC_MATERIAL: [f32; 2] = [1.0, 0.15];
 
-/// The trajectory the network's output is added to: the network predicts the clean trajectory
-/// as this prior plus a learned correction, so an untrained network already forecasts the prior.
+/// The trajectory the network's output is added to. Without one (the official network's
+/// training) the network predicts the clean trajectory itself; with one it predicts a
+/// correction of it, so an untrained network already forecasts the prior.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum TrajectoryPrior {
-    /// Every frame at the initial positions `X_0` (checkpoints written before the prior was
-    /// configurable have this one).
+    /// No prior: the network's output is the trajectory (published checkpoints).
     #[default]
+    None,
+    /// Every frame at the initial positions `X_0`.
     Static,
     /// Each vertex's ballistic path from its initial position and velocity under gravity,
     /// `X_0 + V_0 s + g s^2 / 2` at `s = frame * dt_frame` seconds, clamped to the box.
@@ -33,15 +35,9 @@ pub enum TrajectoryPrior {
     ObjectBallistic,
 }
 
-impl TrajectoryPrior {
-    /// True when the prior differs from frame to frame (both ballistic kinds), so a pass lays
-    /// it out `[B, T, V, 3]`; the static prior is the frame-0 positions `[B, 1, V, 3]`.
-    pub fn per_frame(self) -> bool {
-        self != TrajectoryPrior::Static
-    }
-}
-
-/// Every size and constant of a PhysiFormer network; nothing about its shape is hard-coded.
+/// A PhysiFormer checkpoint's `config.json`: the data conventions, the flow, this crate's
+/// options on the network's output, and the network (in the official architecture,
+/// [`OfficialConfig`]); nothing about its shape is hard-coded.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PhysiConfig {
@@ -64,29 +60,9 @@ pub struct PhysiConfig {
     /// Largest accepted object count of one scene.
     pub max_objects: usize,
 
-    // ---- network ----
-    /// Token width D.
-    pub width: usize,
-    /// Attention heads; `width` must be divisible by it, head width even.
-    pub heads: usize,
-    /// Transformer blocks; block `i` attends spatially (`i % 4 == 0`), per object
-    /// (`i % 4 == 2`) or over time (odd `i`).
-    pub blocks: usize,
-    /// Learned global register tokens.
-    pub registers: usize,
-    /// SwiGLU hidden width.
-    pub ffn_hidden: usize,
-    /// Sinusoidal features of the flow time before its MLP.
-    pub time_features: usize,
-    /// Hidden width of the material MLP.
-    pub material_hidden: usize,
-    /// Base of the temporal rotary frequencies (1D RoPE over the frame index).
-    pub temporal_rope_base: f32,
-    /// RMSNorm epsilon.
-    pub norm_eps: f32,
-
     // ---- flow matching ----
-    /// Standard deviation of the noise the flow starts from, metres (0.1).
+    /// Standard deviation of the noise the flow starts from, in the network's coordinates
+    /// (metres when they are metres; 0.1).
     pub noise_scale: f32,
     /// Mean of the logit-normal flow-time distribution of training.
     pub t_mu: f32,
@@ -96,27 +72,57 @@ pub struct PhysiConfig {
     pub t_eps: f32,
     /// Denoising steps a request gets when it does not ask for a number.
     pub default_steps: usize,
-    /// The trajectory the network's output corrects ([`TrajectoryPrior`]); absent in older
-    /// checkpoints, which are `static`.
+
+    // ---- this crate's options on the network's output (off for published checkpoints) ----
+    /// The trajectory the network's output corrects ([`TrajectoryPrior`]).
     #[serde(default)]
     pub prior: TrajectoryPrior,
     /// Frames over which the network's correction of the prior grows from nothing to its full
-    /// size: the output at frame `f` is `prior + min(1, f / n) * head`. Near frame 0 the prior
-    /// (the initial state moving with its initial velocity) is nearly exact, and the ramp lets
-    /// the network depart from it only as far as time allows. 0 = no ramp (checkpoints written
-    /// before the option).
+    /// size: the output at frame `f` is `prior + min(1, f / n) * correction`. Near frame 0 the
+    /// prior (the initial state moving with its initial velocity) is nearly exact, and the
+    /// ramp lets the network depart from it only as far as time allows. 0 = no ramp; needs a
+    /// prior.
     #[serde(default)]
     pub correction_ramp_frames: usize,
-    /// The official PhysiFormer network ([`OfficialConfig`]) in place of this crate's own:
-    /// set for checkpoints imported from the official code, whose sizes and conventions it
-    /// holds (the fields above then describe it: `width` its hidden size, `blocks` its depth).
-    /// The prior and the correction ramp are this crate's additions and are off for it.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub official: Option<OfficialConfig>,
+
+    // ---- the network ----
+    /// The network's sizes and coordinate conventions, in the official PhysiFormer
+    /// architecture (the only one this crate runs).
+    pub official: OfficialConfig,
+}
+
+/// The official network of `hidden` width and the conventions of this crate's training data
+/// (metres, this crate's material rows, no scene tokens).
+fn network(hidden: usize, depth: usize, heads: usize, registers: usize) -> OfficialConfig {
+    OfficialConfig {
+        hidden,
+        depth,
+        heads,
+        ffn_hidden: hidden * 8 / 3,
+        registers,
+        scene_tokens: 0,
+        scene_cond_dim: 0,
+        scene_cond_out_tokens: 0,
+        material_dim: 2,
+        max_objects: 16,
+        classes: 1,
+        label: 0,
+        rope: true,
+        max_frames: 49,
+        pattern: DEFAULT_PATTERN.to_vec(),
+        coord_scale: 1.0,
+        coord_shift: 0.0,
+        norm_mean: [0.0; 3],
+        norm_std: [1.0; 3],
+        normalize_to_scene_box: false,
+        velocity_condition: true,
+        rigid_material: RIGID_MATERIAL,
+        elastic_material: ELASTIC_MATERIAL,
+    }
 }
 
 impl PhysiConfig {
-    fn base() -> PhysiConfig {
+    fn base(official: OfficialConfig) -> PhysiConfig {
         PhysiConfig {
             architecture: PHYSIFORMER.into(),
             format_version: PHYSI_FORMAT_VERSION,
@@ -126,63 +132,43 @@ impl PhysiConfig {
             gravity: [0.0, 0.0, -9.81],
             max_vertices: 512,
             max_objects: 16,
-            width: 64,
-            heads: 4,
-            blocks: 4,
-            registers: 4,
-            ffn_hidden: 172,
-            time_features: 64,
-            material_hidden: 64,
-            temporal_rope_base: 10_000.0,
-            norm_eps: 1e-6,
             noise_scale: 0.1,
             t_mu: -0.8,
             t_sigma: 0.8,
             t_eps: 0.05,
             default_steps: 50,
-            prior: TrajectoryPrior::Ballistic,
-            correction_ramp_frames: 0,
-            official: None,
+            prior: TrajectoryPrior::ObjectBallistic,
+            correction_ramp_frames: 8,
+            official,
         }
     }
 
-    /// The CPU-trainable configuration: width 64, 4 heads of 16, 4 blocks (one cycle of
-    /// spatial / temporal / per-object / temporal), 4 registers, about 0.2 M parameters.
+    /// The CPU-trainable configuration: width 64, 2 heads of 32 (the vertex rotary code gets
+    /// 5 frequencies per axis), 4 blocks (one cycle of spatial / temporal / object /
+    /// temporal), 4 registers, about 0.2 M parameters, correcting the object-wise ballistic
+    /// prior with a ramp of 8 frames.
     pub fn small() -> PhysiConfig {
-        PhysiConfig::base()
+        PhysiConfig::base(network(64, 4, 2, 4))
     }
 
-    /// The publication's "B" size: width 768, 12 heads, 12 blocks, 16 registers, SwiGLU hidden
-    /// `4 * 768 * 2 / 3`, 256 time features.
+    /// The official default size ("B"): width 768, 12 heads, 12 blocks, 16 registers, SwiGLU
+    /// hidden `4 * 768 * 2 / 3`, about 130 M parameters; same output options as `small`.
     pub fn b() -> PhysiConfig {
-        PhysiConfig {
-            width: 768,
-            heads: 12,
-            blocks: 12,
-            registers: 16,
-            ffn_hidden: 2048,
-            time_features: 256,
-            material_hidden: 768,
-            ..PhysiConfig::base()
-        }
+        PhysiConfig::base(network(768, 12, 12, 16))
     }
 
-    /// A very small network for tests (width 32, 2 heads, 4 blocks, 2 registers).
+    /// A very small network for tests (width 32, 2 heads, 4 blocks, 2 registers, 9 frames).
     pub fn tiny() -> PhysiConfig {
         PhysiConfig {
-            width: 32,
-            heads: 2,
-            blocks: 4,
-            registers: 2,
-            ffn_hidden: 64,
-            time_features: 16,
-            material_hidden: 16,
             frames: 9,
-            ..PhysiConfig::base()
+            ..PhysiConfig::base(OfficialConfig {
+                max_frames: 9,
+                ..network(32, 4, 2, 2)
+            })
         }
     }
 
-    /// A preset by name: `small` or `b`.
+    /// A preset by name: `small`, `b` or `tiny`.
     pub fn preset(name: &str) -> Result<PhysiConfig, ModelError> {
         match name {
             "small" => Ok(PhysiConfig::small()),
@@ -195,24 +181,11 @@ impl PhysiConfig {
     }
 
     /// The per-axis affine map `(scale, offset)` from the network's coordinates to metres,
-    /// `x = x_n * scale + offset`, in which the sampler's starting noise is drawn: the
-    /// identity for this crate's network (it works in metres), the official network's
-    /// normalisation for an imported checkpoint.
+    /// `x = x_n * scale + offset`, in which the sampler's starting noise is drawn (the
+    /// identity for a network in metres, the official normalisation of an imported
+    /// checkpoint).
     pub fn noise_frame(&self) -> ([f32; 3], [f32; 3]) {
-        match &self.official {
-            Some(o) => o.to_network(self.box_half_extent),
-            None => ([1.0; 3], [0.0; 3]),
-        }
-    }
-
-    /// Channels of one attention head.
-    pub fn head_dim(&self) -> usize {
-        self.width / self.heads.max(1)
-    }
-
-    /// Coordinate frequencies per axis of the spatial rotary code: `(head_dim / 2) / 3`.
-    pub fn coord_freqs(&self) -> usize {
-        self.head_dim() / 2 / 3
+        self.official.to_network(self.box_half_extent)
     }
 
     /// Checks every size and constant; the error names the field.
@@ -232,12 +205,6 @@ impl PhysiConfig {
         }
         let positive = [
             ("frames", self.frames),
-            ("width", self.width),
-            ("heads", self.heads),
-            ("blocks", self.blocks),
-            ("ffn_hidden", self.ffn_hidden),
-            ("time_features", self.time_features),
-            ("material_hidden", self.material_hidden),
             ("max_vertices", self.max_vertices),
             ("max_objects", self.max_objects),
             ("default_steps", self.default_steps),
@@ -250,26 +217,12 @@ impl PhysiConfig {
         if self.frames < 2 {
             return bad("frames must be at least 2".into());
         }
-        if !self.width.is_multiple_of(self.heads) || !self.head_dim().is_multiple_of(2) {
-            return bad(format!(
-                "width {} must split into {} heads of an even width",
-                self.width, self.heads
-            ));
-        }
-        if self.coord_freqs() == 0 {
-            return bad("head width must be at least 6 for the coordinate rotary code".into());
-        }
-        if !self.time_features.is_multiple_of(2) {
-            return bad("time_features must be even".into());
-        }
         let floats = [
             ("dt_frame", self.dt_frame),
             ("box_half_extent", self.box_half_extent),
             ("noise_scale", self.noise_scale),
             ("t_sigma", self.t_sigma),
             ("t_eps", self.t_eps),
-            ("temporal_rope_base", self.temporal_rope_base),
-            ("norm_eps", self.norm_eps),
         ];
         for (name, v) in floats {
             if !(v.is_finite() && v > 0.0) {
@@ -282,21 +235,15 @@ impl PhysiConfig {
         if self.t_eps >= 1.0 {
             return bad("t_eps must be below 1".into());
         }
-        if let Some(o) = &self.official {
-            o.validate()?;
-            if self.prior != TrajectoryPrior::Static || self.correction_ramp_frames != 0 {
-                return bad(
-                    "the official network takes no prior and no correction ramp (prior static, \
-                     correction_ramp_frames 0)"
-                        .into(),
-                );
-            }
-            if self.frames > o.max_frames {
-                return bad(format!(
-                    "frames {} exceed the official network's max_frames {}",
-                    self.frames, o.max_frames
-                ));
-            }
+        if self.prior == TrajectoryPrior::None && self.correction_ramp_frames != 0 {
+            return bad("correction_ramp_frames needs a prior (prior is none)".into());
+        }
+        self.official.validate()?;
+        if self.frames > self.official.max_frames {
+            return bad(format!(
+                "frames {} exceed the network's max_frames {}",
+                self.frames, self.official.max_frames
+            ));
         }
         Ok(())
     }
@@ -307,11 +254,21 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_config_written_before_the_prior_option_reads_as_static() {
+    fn a_config_without_a_prior_reads_as_none_and_a_ramp_needs_one() {
         let mut json = serde_json::to_value(PhysiConfig::small()).unwrap();
-        json.as_object_mut().unwrap().remove("prior");
-        let old: PhysiConfig = serde_json::from_value(json).unwrap();
-        assert_eq!(old.prior, TrajectoryPrior::Static);
-        assert_eq!(PhysiConfig::small().prior, TrajectoryPrior::Ballistic);
+        let o = json.as_object_mut().unwrap();
+        o.remove("prior");
+        let c: PhysiConfig = serde_json::from_value(json).unwrap();
+        assert_eq!(c.prior, TrajectoryPrior::None);
+        assert!(
+            c.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("needs a prior")
+        );
+        assert_eq!(PhysiConfig::small().prior, TrajectoryPrior::ObjectBallistic);
+        for p in ["small", "b", "tiny"] {
+            PhysiConfig::preset(p).unwrap().validate().unwrap();
+        }
     }
 }

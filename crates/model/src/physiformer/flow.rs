@@ -5,13 +5,13 @@
 //! the network predicts `x_hat`, the velocity is `v_hat = (x_hat - z_t) / max(1 - t, t_eps)`
 //! and the loss is the mean over valid `(frame, vertex)` tokens of `|v_hat - (x - e)|^2`.
 
-use candle_core::{D, Device, Tensor};
+use candle_core::Tensor;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::PhysiFormer;
 use super::config::PhysiConfig;
-use super::inputs::{DenoiseItem, PreparedItem, build};
+use super::inputs::PreparedItem;
 use super::scene::MeshScene;
 use crate::ModelError;
 use crate::layers::Mode;
@@ -50,73 +50,58 @@ pub struct TrainLoss {
 
 impl PhysiFormer {
     /// The flow-matching loss of `items`, each at its own logit-normal flow time drawn from
-    /// `rng` (training kernels: every parameter receives its gradient).
+    /// `rng`, in the network's coordinates (metres for this crate's presets); training
+    /// kernels, so every parameter receives its gradient. The mean over `(frame, vertex)`
+    /// tokens of all items.
     pub fn train_loss(
         &self,
         items: &[&TrainScene],
         rng: &mut impl Rng,
     ) -> Result<TrainLoss, ModelError> {
         let c = &self.config;
-        let mut zs = Vec::with_capacity(items.len());
-        let mut targets = Vec::with_capacity(items.len());
         let mut times = Vec::with_capacity(items.len());
+        let mut total: Option<Tensor> = None;
+        let mut tokens = 0usize;
         for (i, it) in items.iter().enumerate() {
-            it.scene
-                .validate(c)
-                .map_err(|e| ModelError::InvalidInput(format!("training scene {i}: {e}")))?;
+            let s = self
+                .prepare(&it.scene, it.frames)
+                .map_err(|e| ModelError::InvalidInput(format!("training scene {i}: {e}")))?
+                .scene;
+            let n = it.frames * it.scene.vertices() * 3;
+            if it.trajectory.len() != n {
+                return Err(ModelError::InvalidInput(format!(
+                    "training scene {i}: the trajectory holds {} values, expected {n}",
+                    it.trajectory.len()
+                )));
+            }
+            let x = s.to_network(&it.trajectory);
             let t = logit_normal(rng, c.t_mu, c.t_sigma);
-            let mut z = Vec::with_capacity(it.trajectory.len());
-            let mut v = Vec::with_capacity(it.trajectory.len());
-            for x in &it.trajectory {
+            let mut z = Vec::with_capacity(n);
+            let mut v = Vec::with_capacity(n);
+            for x in &x {
                 let e = c.noise_scale * standard_normal(rng);
                 z.push(t * x + (1.0 - t) * e);
                 v.push(x - e);
             }
-            zs.push(z);
-            targets.push(v);
+            let x_hat = self.net.forward(&s, &z, t, Mode::Training)?;
+            let shape = (n / 3, 3);
+            let z = Tensor::from_vec(z, shape, &self.device)?;
+            let v = Tensor::from_vec(v, shape, &self.device)?;
+            let v_hat = ((x_hat - z)? / f64::from((1.0 - t).max(c.t_eps)))?;
+            let err = (v_hat - v)?.sqr()?.sum_all()?;
+            total = Some(match total {
+                Some(acc) => (acc + err)?,
+                None => err,
+            });
+            tokens += n / 3;
             times.push(t);
         }
-        let den: Vec<DenoiseItem<'_>> = items
-            .iter()
-            .zip(&zs)
-            .zip(&times)
-            .map(|((it, z), &t)| DenoiseItem {
-                scene: &it.scene,
-                z,
-                frames: it.frames,
-                t,
-            })
-            .collect();
-        let inp = build(c, &den, &self.device)?;
-        let x_hat = self.forward(&inp, Mode::Training)?;
-        let target = pad(&targets, &den, inp.t, inp.v, &self.device)?;
-        let denom: Vec<f32> = times.iter().map(|t| (1.0 - t).max(c.t_eps)).collect();
-        let denom = Tensor::from_vec(denom, (items.len(), 1, 1, 1), &Device::Cpu)?
-            .to_device(&self.device)?;
-        let v_hat = (x_hat - &inp.z)?.broadcast_div(&denom)?;
-        let err = (v_hat - target)?.sqr()?.sum_keepdim(D::Minus1)?;
-        let loss = (err.broadcast_mul(&inp.token_mask)?.sum_all()? / inp.token_mask.sum_all()?)?;
-        Ok(TrainLoss { loss, times })
+        let total = total.ok_or_else(|| ModelError::InvalidInput("no training scene".into()))?;
+        Ok(TrainLoss {
+            loss: (total / tokens as f64)?,
+            times,
+        })
     }
-}
-
-/// Pads per-scene `[frames, V, 3]` values into `[B, T, V, 3]` as the pass layout does.
-fn pad(
-    values: &[Vec<f32>],
-    items: &[DenoiseItem<'_>],
-    t: usize,
-    v: usize,
-    device: &Device,
-) -> Result<Tensor, ModelError> {
-    let mut out = vec![0f32; items.len() * t * v * 3];
-    for (s, (vals, it)) in values.iter().zip(items).enumerate() {
-        let nv = it.scene.vertices();
-        for fr in 0..it.frames {
-            out[((s * t + fr) * v) * 3..][..nv * 3]
-                .copy_from_slice(&vals[fr * nv * 3..(fr + 1) * nv * 3]);
-        }
-    }
-    Ok(Tensor::from_vec(out, (items.len(), t, v, 3), &Device::Cpu)?.to_device(device)?)
 }
 
 #[derive(Clone, Debug)]

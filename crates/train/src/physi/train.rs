@@ -180,6 +180,7 @@ pub fn run(
             None => {
                 let mut mc = PhysiConfig::preset(&cfg.preset)?;
                 mc.frames = scenes.iter().map(|s| s.frames).max().unwrap_or(mc.frames);
+                mc.official.max_frames = mc.official.max_frames.max(mc.frames);
                 adjust(&mut mc);
                 PhysiFormer::new("physiformer", mc, cfg.seed, &device)?
             }
@@ -191,8 +192,9 @@ pub fn run(
             .with_context(|| format!("training scene {i}"))?;
     }
     let vars: HashMap<String, _> = model.varmap().data().lock().unwrap().clone();
+    // Norm gains, biases, embeddings and learned tokens keep their size.
     let no_decay = |n: &str| {
-        n.contains("norm") || n.ends_with(".bias") || n == "registers" || n.contains("embed")
+        n.contains("norm") || n.ends_with(".bias") || n.contains("embed") || n.contains("token")
     };
     let mut opt = AdamW::new(&vars, no_decay, cfg.optim.ema_decay > 0.0)?
         .with_lr_scale(&cfg.optim.lr_scale)?;

@@ -430,23 +430,14 @@ pub fn config_from(
         gravity: [0.0, 0.0, -9.81],
         max_vertices: arg_usize(a, "max_vertices", 8192)?,
         max_objects: max_objects.unwrap_or(slots.max(10)),
-        width: hidden,
-        heads: hidden / head_dim,
-        blocks: depth,
-        registers,
-        ffn_hidden,
-        time_features: TIME_FEATURES,
-        material_hidden: hidden,
-        temporal_rope_base: 10_000.0,
-        norm_eps: super::config::NORM_EPS,
         noise_scale: arg_f32(a, "noise_scale", 0.1)?,
         t_mu: arg_f32(a, "P_mean", -0.8)?,
         t_sigma: arg_f32(a, "P_std", 0.8)?,
         t_eps: arg_f32(a, "t_eps", 0.05)?,
         default_steps: arg_usize(a, "num_sampling_steps", 50)?,
-        prior: TrajectoryPrior::Static,
+        prior: TrajectoryPrior::None,
         correction_ramp_frames: 0,
-        official: Some(official),
+        official,
     };
     // Also refuses num_frames beyond max_frames.
     config.validate()?;
@@ -461,7 +452,7 @@ pub fn card(
     config: &PhysiConfig,
     parameters: usize,
 ) -> String {
-    let o = config.official.as_ref();
+    let o = &config.official;
     let model = ckpt
         .args
         .get("model")
@@ -486,18 +477,18 @@ pub fn card(
          its training, not on this import.\n",
         params = parameters as f64 / 1e6,
         source = ckpt.source,
-        w = config.width,
-        blocks = config.blocks,
-        heads = config.heads,
-        regs = config.registers,
-        scene = o.map_or(0, |o| o.scene_tokens),
+        w = o.hidden,
+        blocks = o.depth,
+        heads = o.heads,
+        regs = o.registers,
+        scene = o.scene_tokens,
         frames = config.frames,
         dt = config.dt_frame,
-        cs = o.map_or(1.0, |o| o.coord_scale),
-        sh = o.map_or(0.0, |o| o.coord_shift),
-        nm = o.map_or([0.0; 3], |o| o.norm_mean),
-        ns = o.map_or([1.0; 3], |o| o.norm_std),
-        nb = o.is_some_and(|o| o.normalize_to_scene_box),
+        cs = o.coord_scale,
+        sh = o.coord_shift,
+        nm = o.norm_mean,
+        ns = o.norm_std,
+        nb = o.normalize_to_scene_box,
         noise = config.noise_scale,
         steps = config.default_steps,
     )

@@ -10,7 +10,9 @@
 //! object attention rotate queries and keys by the vertex coordinate code of the noisy
 //! positions (prefix tokens at the centre of all positions, or of the object in that frame),
 //! temporal attention by the frame index. The final layer maps every token to 3 numbers: the
-//! predicted clean trajectory in network coordinates ([`OfficialConfig`]).
+//! predicted clean trajectory in network coordinates ([`OfficialConfig`]), or, for a model
+//! with a prior (this crate's options, off for published checkpoints), the prior plus that
+//! output, ramped in over the first frames (`docs/physiformer.md`).
 //!
 //! Parameter names are the official state dict's without the denoiser's `net.` prefix
 //! (`blocks.3.attn.qkv.weight`, ...), shapes as in PyTorch (`[out, in]`).
@@ -25,12 +27,12 @@ pub(crate) mod rope;
 use candle_core::{D, DType, Device, IndexOp, Tensor};
 
 use self::config::{Axis, NORM_EPS, OfficialConfig, TIME_FEATURES};
-use super::block::modulate;
 use super::config::PhysiConfig;
+use super::inputs::prior_trajectory;
 use super::scene::{Material, MeshScene};
 use crate::ModelError;
 use crate::kernels::activation::swiglu_product;
-use crate::layers::{Init, Linear, Mode, ParamStore, RmsNorm, softmax_last};
+use crate::layers::{Exec, Init, Linear, Mode, ParamStore, RmsNorm, softmax_last};
 
 /// Largest attention score tensor of one chunk of groups, in elements (64 MiB of f32).
 const SCORE_BUDGET: usize = 16 << 20;
@@ -92,6 +94,11 @@ pub struct OfficialScene {
     scatter: Tensor,
     /// Key bias of the object groups `[F * O, 1, 1, P + n]` (0 or -1e9).
     object_bias: Tensor,
+    /// The prior the output corrects, `[F V, 3]` network coordinates
+    /// ([`super::config::TrajectoryPrior`]), and the correction's weight per token `[F V, 1]`
+    /// (`correction_ramp_frames`).
+    prior: Option<Tensor>,
+    ramp: Option<Tensor>,
 }
 
 impl OfficialScene {
@@ -104,6 +111,14 @@ impl OfficialScene {
     pub fn vertices(&self) -> usize {
         self.vertices
     }
+
+    /// Positions `[.., 3]` flattened, metres -> network coordinates.
+    pub(crate) fn to_network(&self, x: &[f32]) -> Vec<f32> {
+        x.iter()
+            .enumerate()
+            .map(|(i, x)| (x - self.offset[i % 3]) / self.scale[i % 3])
+            .collect()
+    }
 }
 
 fn linear(
@@ -113,6 +128,37 @@ fn linear(
     output: usize,
 ) -> Result<Linear, ModelError> {
     p.linear(name, input, output, true)
+}
+
+/// A layer that starts at zero (adaLN modulations and the final projection, as the official
+/// initialisation: a fresh block is the identity and a fresh network outputs zeros).
+fn zero_linear(
+    p: &mut ParamStore,
+    name: &str,
+    input: usize,
+    output: usize,
+) -> Result<Linear, ModelError> {
+    Ok(Linear::new(
+        p.get(
+            &format!("{name}.weight"),
+            &[output, input],
+            Init::Const(0.0),
+        )?,
+        Some(p.get(&format!("{name}.bias"), &[output], Init::Const(0.0))?),
+    ))
+}
+
+/// `x * (1 + scale) + shift` with `[1, D]` modulation.
+fn modulate(x: &Tensor, shift: &Tensor, scale: &Tensor) -> candle_core::Result<Tensor> {
+    x.broadcast_mul(&(scale + 1.0)?)?.broadcast_add(shift)
+}
+
+/// The kernels of a pass in `mode` on `device`.
+fn exec(mode: Mode, device: &Device) -> Exec {
+    Exec {
+        mode,
+        fused: device.is_cpu(),
+    }
 }
 
 /// Sinusoidal features `[1, 256]` of flow time `t`: `[cos(t w), sin(t w)]`,
@@ -143,7 +189,7 @@ impl Block {
             norm2: p.rms_norm(&n("norm2"), d, NORM_EPS)?,
             w12: linear(p, &n("mlp.w12"), d, 2 * cfg.ffn_hidden)?,
             w3: linear(p, &n("mlp.w3"), cfg.ffn_hidden, d)?,
-            ada: linear(p, &n("adaLN_modulation.1"), d, 6 * d)?,
+            ada: zero_linear(p, &n("adaLN_modulation.1"), d, 6 * d)?,
         })
     }
 
@@ -156,6 +202,7 @@ impl Block {
         heads: usize,
         rope: Option<&(Tensor, Tensor)>,
         bias: Option<&Tensor>,
+        exec: Exec,
     ) -> candle_core::Result<Tensor> {
         let (g, l, d) = seq.dims3()?;
         let chunk = (SCORE_BUDGET / (heads * l * l).max(1)).clamp(1, g);
@@ -180,6 +227,7 @@ impl Block {
                 heads,
                 rope.as_ref(),
                 bias.as_ref(),
+                exec,
             )?);
             start += n;
         }
@@ -199,6 +247,7 @@ impl Block {
         heads: usize,
         rope: Option<&(Tensor, Tensor)>,
         bias: Option<&Tensor>,
+        exec: Exec,
     ) -> candle_core::Result<Tensor> {
         let (g, l, d) = seq.dims3()?;
         let dh = d / heads;
@@ -206,8 +255,8 @@ impl Block {
         let part = |i: usize| -> candle_core::Result<Tensor> {
             qkv.i((.., .., i))?.transpose(1, 2)?.contiguous()
         };
-        let mut q = self.q_norm.forward(&part(0)?, Mode::Inference)?;
-        let mut k = self.k_norm.forward(&part(1)?, Mode::Inference)?;
+        let mut q = self.q_norm.forward_exec(&part(0)?, exec)?;
+        let mut k = self.k_norm.forward_exec(&part(1)?, exec)?;
         let v = part(2)?;
         if let Some((c, s)) = rope {
             q = rope::apply(&q, c, s)?;
@@ -218,7 +267,7 @@ impl Block {
         if let Some(b) = bias {
             scores = scores.broadcast_add(b)?;
         }
-        let w = softmax_last(&scores, Mode::Inference)?;
+        let w = softmax_last(&scores, exec.mode)?;
         w.matmul(&v)?.transpose(1, 2)?.reshape((g, l, d))
     }
 
@@ -231,10 +280,10 @@ impl Block {
         ctx: &CallContext<'_>,
     ) -> candle_core::Result<Tensor> {
         let m = self.ada.forward(c)?.chunk(6, D::Minus1)?;
-        let h = modulate(&self.norm1.forward(x, Mode::Inference)?, &m[0], &m[1])?;
+        let h = modulate(&self.norm1.forward_exec(x, ctx.exec)?, &m[0], &m[1])?;
         let a = self.mix(&h, ctx)?;
         let x = (x + a.broadcast_mul(&m[2])?)?;
-        let h = modulate(&self.norm2.forward(&x, Mode::Inference)?, &m[3], &m[4])?;
+        let h = modulate(&self.norm2.forward_exec(&x, ctx.exec)?, &m[3], &m[4])?;
         let f = self.w3.forward(&swiglu_product(&self.w12.forward(&h)?)?)?;
         x + f.broadcast_mul(&m[5])?
     }
@@ -266,13 +315,13 @@ impl Block {
         let (pre_out, tok_out) = match self.axis {
             Axis::Spatial => {
                 let seq = with_prefix(f, &tok.reshape((f, v, d))?)?;
-                let out = self.attend(&seq, heads, ctx.spatial_rope.as_ref(), None)?;
+                let out = self.attend(&seq, heads, ctx.spatial_rope.as_ref(), None, ctx.exec)?;
                 let (pre, body) = split(&out, v)?;
                 (pre, body.reshape((f * v, d))?)
             }
             Axis::Temporal => {
                 let seq = with_prefix(v, &tok.reshape((f, v, d))?.transpose(0, 1)?)?;
-                let out = self.attend(&seq, heads, ctx.time_rope, None)?;
+                let out = self.attend(&seq, heads, ctx.time_rope, None, ctx.exec)?;
                 let (pre, body) = split(&out, f)?;
                 (pre, body.transpose(0, 1)?.reshape((f * v, d))?)
             }
@@ -282,8 +331,13 @@ impl Block {
                     .index_select(&s.gather, 0)?
                     .reshape((groups, s.nmax, d))?;
                 let seq = with_prefix(groups, &body)?;
-                let out =
-                    self.attend(&seq, heads, ctx.object_rope.as_ref(), Some(&s.object_bias))?;
+                let out = self.attend(
+                    &seq,
+                    heads,
+                    ctx.object_rope.as_ref(),
+                    Some(&s.object_bias),
+                    ctx.exec,
+                )?;
                 let (pre, body) = split(&out, s.nmax)?;
                 let body = body
                     .reshape((groups * s.nmax, d))?
@@ -306,6 +360,7 @@ struct CallContext<'a> {
     spatial_rope: Option<(Tensor, Tensor)>,
     time_rope: Option<&'a (Tensor, Tensor)>,
     object_rope: Option<(Tensor, Tensor)>,
+    exec: Exec,
 }
 
 impl OfficialNet {
@@ -370,8 +425,8 @@ impl OfficialNet {
             .map(|i| Block::new(p, i, &cfg))
             .collect::<Result<Vec<_>, _>>()?;
         let final_norm = p.rms_norm("final_layer.norm_final", d, NORM_EPS)?;
-        let final_linear = linear(p, "final_layer.linear", d, 3)?;
-        let final_ada = linear(p, "final_layer.adaLN_modulation.1", d, 2 * d)?;
+        let final_linear = zero_linear(p, "final_layer.linear", d, 3)?;
+        let final_ada = zero_linear(p, "final_layer.adaLN_modulation.1", d, 2 * d)?;
         let freqs = rope::vertex_freqs(cfg.coord_freqs());
         Ok(OfficialNet {
             cfg,
@@ -509,6 +564,26 @@ impl OfficialNet {
             }
         }
         let groups = frames * objects;
+        let prior = match prior_trajectory(physi, scene, frames) {
+            Some(m) => {
+                let n: Vec<f32> = m
+                    .iter()
+                    .enumerate()
+                    .map(|(i, x)| (x - offset[i % 3]) / scale[i % 3])
+                    .collect();
+                Some(Tensor::from_vec(n, (frames * v, 3), device)?)
+            }
+            None => None,
+        };
+        let ramp = match physi.correction_ramp_frames {
+            0 => None,
+            n => {
+                let w: Vec<f32> = (0..frames * v)
+                    .map(|i| ((i / v) as f32 / n as f32).min(1.0))
+                    .collect();
+                Some(Tensor::from_vec(w, (frames * v, 1), device)?)
+            }
+        };
         Ok(OfficialScene {
             frames,
             vertices: v,
@@ -522,6 +597,8 @@ impl OfficialNet {
             gather: Tensor::from_vec(gather, groups * nmax, device)?,
             scatter: Tensor::from_vec(scatter, frames * v, device)?,
             object_bias: Tensor::from_vec(bias, (groups, 1, 1, p + nmax), device)?,
+            prior,
+            ramp,
         })
     }
 
@@ -596,12 +673,15 @@ impl OfficialNet {
     }
 
     /// The predicted clean trajectory `[F V, 3]` (network coordinates) of noisy trajectory
-    /// `z [F V * 3]` (network coordinates) at flow time `t`.
+    /// `z [F V * 3]` (network coordinates) at flow time `t`: the network's output, or the
+    /// scene's prior plus the (ramped) output when the model has a prior. `mode` picks the
+    /// kernels (training ones pass gradients to every parameter).
     pub(crate) fn forward(
         &self,
         s: &OfficialScene,
         z: &[f32],
         t: f32,
+        mode: Mode,
     ) -> Result<Tensor, ModelError> {
         let device = s.cond.device();
         let (p, f, v, d) = (
@@ -648,12 +728,20 @@ impl OfficialNet {
             spatial_rope,
             time_rope: self.cfg.rope.then_some(&s.time_rope),
             object_rope,
+            exec: exec(mode, device),
         };
         for b in &self.blocks {
             x = b.forward(&x, &c, &ctx)?;
         }
         let m = self.final_ada.forward(&c)?.chunk(2, D::Minus1)?;
-        let y = modulate(&self.final_norm.forward(&x, Mode::Inference)?, &m[0], &m[1])?;
-        Ok(self.final_linear.forward(&y.narrow(0, p, f * v)?)?)
+        let y = modulate(&self.final_norm.forward_exec(&x, ctx.exec)?, &m[0], &m[1])?;
+        let mut out = self.final_linear.forward(&y.narrow(0, p, f * v)?)?;
+        if let Some(r) = &s.ramp {
+            out = out.broadcast_mul(r)?;
+        }
+        if let Some(prior) = &s.prior {
+            out = (out + prior)?;
+        }
+        Ok(out)
     }
 }
