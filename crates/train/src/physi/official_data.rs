@@ -1,13 +1,25 @@
-//! The official PhysiFormer example scenes: a folder per scene with `metadata.json` (objects
-//! with `vertex_count` and `material.kind`, scene `density`), `meshes/combined_frame_NNN.obj`
-//! (every object's vertices at one frame, in object order, faces on frame 0) and
-//! `vertex_velocities/combined_frame_000.npy` (`[V, 3]` float velocities at frame 0, m/s).
-//! Read into the model's condition and true trajectory, with each object's mass (density
-//! times the volume of its frame-0 mesh) for the momentum metric.
+//! The official PhysiFormer data, read into the model's condition and true trajectory with
+//! each object's mass (for the momentum metric):
+//!
+//! - **Example scene folders**: `metadata.json` (objects with `vertex_count` and
+//!   `material.kind`, scene `density`), `meshes/combined_frame_NNN.obj` (every object's
+//!   vertices at one frame, in object order, faces on frame 0) and
+//!   `vertex_velocities/combined_frame_000.npy` (`[V, 3]` velocities at frame 0, m/s); masses
+//!   are density times the volume of the frame-0 mesh. An object without a material kind
+//!   takes the official demo's default by name (horse, fish, bunny elastic; others rigid).
+//! - **Material variants** of such a folder (the out-of-distribution examples):
+//!   `SCENE/all_rigid/vertices.npz`, `all_elastic`, `K_elastic_M_rigid` (`vertices [F, V, 3]`),
+//!   the scene's condition with the materials the name gives.
+//! - **Precomputed evaluation samples** (`sample_NNNNNN.npz`, as the official evaluation's
+//!   preparation writes them): `vertices [F, V, 3]`, `mask [F, V]`, `object_ids [V]`,
+//!   `num_objects`, `first_frame_velocity [V, 3]`, `object_masses [O]`; materials from a
+//!   `metadata.json` beside the file, else from the folder's name (`2obj_elastic`).
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail, ensure};
+
+use super::npz::{npz_members, read_npy, read_npz};
 use dynaserve_model::physiformer::flow::TrainScene;
 use dynaserve_model::physiformer::scene::{Material, MeshScene};
 
@@ -21,31 +33,71 @@ pub struct OfficialExample {
     pub masses: Vec<f64>,
 }
 
-/// True when `dir` holds official example scenes (a `metadata.json` beside a `meshes/`
-/// folder, at any depth).
+/// True when `dir` holds official data (any of the three forms, at any depth).
 pub fn is_official_examples(dir: &Path) -> bool {
-    !scene_dirs(dir).is_empty()
+    !sources(dir).is_empty()
 }
 
-fn scene_dirs(dir: &Path) -> Vec<PathBuf> {
+/// Where one official example comes from.
+#[derive(Clone, Debug, PartialEq)]
+enum Source {
+    /// An example scene folder.
+    Folder(PathBuf),
+    /// A material variant `npz` of the scene folder `scene`.
+    Variant { scene: PathBuf, npz: PathBuf },
+    /// A precomputed evaluation sample.
+    Precomputed(PathBuf),
+}
+
+impl Source {
+    fn path(&self) -> &Path {
+        match self {
+            Source::Folder(p) | Source::Precomputed(p) => p,
+            Source::Variant { npz, .. } => npz,
+        }
+    }
+}
+
+fn is_scene_folder(d: &Path) -> bool {
+    d.join("metadata.json").is_file() && d.join("meshes/combined_frame_000.obj").is_file()
+}
+
+fn sources(dir: &Path) -> Vec<Source> {
     let mut out = Vec::new();
     let mut stack = vec![dir.to_path_buf()];
     while let Some(d) = stack.pop() {
-        if d.join("metadata.json").is_file() && d.join("meshes/combined_frame_000.obj").is_file() {
-            out.push(d);
+        let Ok(rd) = std::fs::read_dir(&d) else {
+            continue;
+        };
+        let mut entries: Vec<PathBuf> = rd.flatten().map(|e| e.path()).collect();
+        entries.sort();
+        if is_scene_folder(&d) {
+            out.push(Source::Folder(d.clone()));
+            for sub in entries.iter().filter(|p| p.is_dir()) {
+                let npz = sub.join("vertices.npz");
+                if npz.is_file() {
+                    out.push(Source::Variant {
+                        scene: d.clone(),
+                        npz,
+                    });
+                }
+            }
             continue;
         }
-        if let Ok(rd) = std::fs::read_dir(&d) {
-            for e in rd.flatten() {
-                if e.path().is_dir() {
-                    stack.push(e.path());
-                }
+        for e in entries {
+            if e.is_dir() {
+                stack.push(e);
+            } else if e.extension().is_some_and(|x| x == "npz")
+                && npz_members(&e).is_ok_and(|m| m.iter().any(|n| n == "first_frame_velocity"))
+            {
+                out.push(Source::Precomputed(e));
             }
         }
     }
     // Natural order: rigid/2 before rigid/10.
-    let key = |p: &PathBuf| -> Vec<(u64, String)> {
-        p.iter()
+    let key = |s: &Source| -> Vec<(u64, String)> {
+        s.path()
+            .iter()
             .map(|c| {
                 let s = c.to_string_lossy().to_string();
                 (s.parse::<u64>().unwrap_or(u64::MAX), s)
@@ -88,9 +140,10 @@ fn read_obj(path: &Path) -> anyhow::Result<Mesh> {
                             .next()
                             .unwrap_or("")
                             .parse::<u32>()
-                            .map(|i| i - 1)
+                            .ok()
+                            .and_then(|i| i.checked_sub(1))
                     })
-                    .collect::<Result<_, _>>()
+                    .collect::<Option<_>>()
                     .with_context(|| format!("{}:{}: bad face", path.display(), n + 1))?;
                 for k in 1..idx.len().saturating_sub(1) {
                     f.push([idx[0], idx[k], idx[k + 1]]);
@@ -100,49 +153,6 @@ fn read_obj(path: &Path) -> anyhow::Result<Mesh> {
         }
     }
     Ok((v, f))
-}
-
-/// A little-endian float `.npy` array (`<f4` or `<f8`, C order) as f32 with its shape.
-fn read_npy(path: &Path) -> anyhow::Result<(Vec<f32>, Vec<usize>)> {
-    let b = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
-    ensure!(
-        b.len() > 10 && &b[..6] == b"\x93NUMPY",
-        "{} is not a .npy file",
-        path.display()
-    );
-    let (hlen, start) = if b[6] == 1 {
-        (u16::from_le_bytes([b[8], b[9]]) as usize, 10)
-    } else {
-        (u32::from_le_bytes([b[8], b[9], b[10], b[11]]) as usize, 12)
-    };
-    let header = std::str::from_utf8(&b[start..start + hlen])?;
-    ensure!(
-        !header.contains("'fortran_order': True"),
-        "{}: Fortran order is not supported",
-        path.display()
-    );
-    let shape: Vec<usize> = header
-        .split("'shape':")
-        .nth(1)
-        .and_then(|s| s.split(['(', ')']).nth(1))
-        .map(|s| s.split(',').filter_map(|x| x.trim().parse().ok()).collect())
-        .unwrap_or_default();
-    let data = &b[start + hlen..];
-    let values = if header.contains("'<f4'") {
-        data.chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect()
-    } else if header.contains("'<f8'") {
-        data.chunks_exact(8)
-            .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")) as f32)
-            .collect()
-    } else {
-        bail!(
-            "{}: only little-endian float32/float64 arrays are supported",
-            path.display()
-        );
-    };
-    Ok((values, shape))
 }
 
 /// Volume enclosed by a closed triangle mesh (absolute value of the signed volume), m^3.
@@ -190,7 +200,16 @@ fn load_one(root: &Path, dir: &Path) -> anyhow::Result<OfficialExample> {
             offsets.last().expect("offsets") + n,
         );
         offsets.push(e);
-        let kind = o["material"]["kind"].as_str().unwrap_or("rigid");
+        // Without a material (the out-of-distribution scenes), the official demo's default
+        // by object name.
+        let name = o["name"].as_str().unwrap_or("");
+        let kind = o["material"]["kind"].as_str().unwrap_or(
+            if DEFAULT_ELASTIC.iter().any(|e| name.contains(e)) {
+                "elastic"
+            } else {
+                "rigid"
+            },
+        );
         materials.push(if kind == "rigid" {
             Material::Rigid
         } else {
@@ -213,7 +232,8 @@ fn load_one(root: &Path, dir: &Path) -> anyhow::Result<OfficialExample> {
         dir.display(),
         offsets.last().expect("offsets")
     );
-    let (vel, shape) = read_npy(&dir.join("vertex_velocities/combined_frame_000.npy"))?;
+    let vel = read_npy(&dir.join("vertex_velocities/combined_frame_000.npy"))?;
+    let (vel, shape) = (vel.f32s(), vel.shape);
     ensure!(
         shape == [v, 3],
         "{}: velocities of shape {shape:?}, expected [{v}, 3]",
@@ -230,13 +250,8 @@ fn load_one(root: &Path, dir: &Path) -> anyhow::Result<OfficialExample> {
         );
         trajectory.extend(p.iter().flatten());
     }
-    let name = dir.strip_prefix(root).unwrap_or(dir).display().to_string();
     Ok(OfficialExample {
-        name: if name.is_empty() {
-            dir.display().to_string()
-        } else {
-            name
-        },
+        name: relative(root, dir),
         scene: TrainScene {
             scene: MeshScene {
                 positions: first,
@@ -251,43 +266,302 @@ fn load_one(root: &Path, dir: &Path) -> anyhow::Result<OfficialExample> {
     })
 }
 
-/// Every example scene under `root`, in natural order.
-pub fn load_examples(root: &Path) -> anyhow::Result<Vec<OfficialExample>> {
-    let dirs = scene_dirs(root);
+/// The official demo's default materials of the out-of-distribution objects, by name:
+/// these are elastic, the others rigid.
+const DEFAULT_ELASTIC: [&str; 3] = ["horse", "fish", "bunny"];
+
+/// Materials of a variant folder's name for objects named `names`: `all_rigid`,
+/// `all_elastic`, or `K_elastic_M_rigid` when the official demo's default assignment has K
+/// elastic objects. An error names the variant: the name does not say which objects are
+/// elastic otherwise.
+fn variant_materials(variant: &str, names: &[String]) -> anyhow::Result<Vec<Material>> {
+    let n = names.len();
+    match variant {
+        "all_rigid" => return Ok(vec![Material::Rigid; n]),
+        "all_elastic" => return Ok(vec![Material::Elastic; n]),
+        _ => {}
+    }
+    let parts: Vec<&str> = variant.split('_').collect();
+    if let [k, "elastic", m, "rigid"] = parts[..]
+        && let (Ok(k), Ok(m)) = (k.parse::<usize>(), m.parse::<usize>())
+    {
+        if k + m != n {
+            return Err(UnknownMaterials(format!(
+                "variant {variant}: {} objects named, the scene has {n}",
+                k + m
+            ))
+            .into());
+        }
+        let mats: Vec<Material> = names
+            .iter()
+            .map(|s| {
+                if DEFAULT_ELASTIC.iter().any(|e| s.contains(e)) {
+                    Material::Elastic
+                } else {
+                    Material::Rigid
+                }
+            })
+            .collect();
+        let elastic = mats.iter().filter(|m| **m == Material::Elastic).count();
+        if elastic != k {
+            return Err(UnknownMaterials(format!(
+                "variant {variant}: the name does not say which {k} of {names:?} are elastic \
+                 (the default assignment has {elastic})"
+            ))
+            .into());
+        }
+        return Ok(mats);
+    }
+    Err(UnknownMaterials(format!(
+        "variant {variant}: expected all_rigid, all_elastic or K_elastic_M_rigid"
+    ))
+    .into())
+}
+
+/// A material variant: the scene folder's condition with the variant's materials and true
+/// trajectory.
+fn load_variant(root: &Path, scene: &Path, npz: &Path) -> anyhow::Result<OfficialExample> {
+    let mut ex = load_one(root, scene)?;
+    let variant = npz
+        .parent()
+        .and_then(Path::file_name)
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(scene.join("metadata.json"))?)?;
+    let names: Vec<String> = meta["objects"]
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .map(|o| o["name"].as_str().unwrap_or("").to_string())
+                .collect()
+        })
+        .unwrap_or_default();
+    ex.scene.scene.materials = variant_materials(&variant, &names)
+        .map_err(|e| UnknownMaterials(format!("{}: {e}", npz.display())))?;
+    let arrays = read_npz(npz, &["vertices"])?;
+    let verts = arrays
+        .get("vertices")
+        .with_context(|| format!("{}: no vertices", npz.display()))?;
+    let v = ex.scene.scene.vertices();
     ensure!(
-        !dirs.is_empty(),
-        "no official example scenes (metadata.json + meshes/) under {}",
+        verts.shape.len() == 3 && verts.shape[1] == v && verts.shape[2] == 3,
+        "{}: vertices of shape {:?}, the scene has {v} vertices",
+        npz.display(),
+        verts.shape
+    );
+    ex.scene.trajectory = verts.f32s();
+    ex.scene.frames = verts.shape[0];
+    ex.name = relative(root, npz.parent().unwrap_or(npz));
+    Ok(ex)
+}
+
+/// The materials of a precomputed sample: its `metadata.json` beside it (`material.kind` of
+/// every object), else the name of its folder (`..._rigid` or `..._elastic`).
+fn precomputed_materials(npz: &Path, objects: usize) -> anyhow::Result<Vec<Material>> {
+    let dir = npz.parent().unwrap_or(Path::new("."));
+    if let Ok(text) = std::fs::read_to_string(dir.join("metadata.json"))
+        && let Ok(meta) = serde_json::from_str::<serde_json::Value>(&text)
+        && let Some(objs) = meta["objects"].as_array()
+        && objs.len() == objects
+        && objs.iter().all(|o| o["material"]["kind"].is_string())
+    {
+        return Ok(objs
+            .iter()
+            .map(|o| match o["material"]["kind"].as_str() {
+                Some("rigid") => Material::Rigid,
+                _ => Material::Elastic,
+            })
+            .collect());
+    }
+    let name = dir
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    if name.ends_with("_rigid") {
+        Ok(vec![Material::Rigid; objects])
+    } else if name.ends_with("_elastic") {
+        Ok(vec![Material::Elastic; objects])
+    } else {
+        bail!(
+            "{}: no materials (a metadata.json beside it with material.kind per object, or a \
+             folder named ..._rigid or ..._elastic)",
+            npz.display()
+        )
+    }
+}
+
+/// A precomputed evaluation sample: the present vertices (`mask` at frame 0), grouped by
+/// object id.
+fn load_precomputed(root: &Path, npz: &Path) -> anyhow::Result<OfficialExample> {
+    let names = [
+        "vertices",
+        "mask",
+        "object_ids",
+        "num_objects",
+        "first_frame_velocity",
+        "object_masses",
+    ];
+    let mut a = read_npz(npz, &names)?;
+    let what = npz.display();
+    let mut take = |k: &str| a.remove(k).with_context(|| format!("{what}: no {k}"));
+    let verts = take("vertices")?;
+    let mask = take("mask")?;
+    let ids = take("object_ids")?;
+    let objects = take("num_objects")?.values.first().copied().unwrap_or(0.0) as usize;
+    let vel = take("first_frame_velocity")?;
+    let masses = take("object_masses")?.values;
+    ensure!(
+        verts.shape.len() == 3 && verts.shape[2] == 3,
+        "{what}: vertices of shape {:?}, expected [F, V, 3]",
+        verts.shape
+    );
+    let (f, v) = (verts.shape[0], verts.shape[1]);
+    ensure!(f >= 2, "{what}: fewer than 2 frames");
+    ensure!(
+        mask.shape == [f, v] && ids.shape == [v] && vel.shape == [v, 3],
+        "{what}: mask {:?}, object_ids {:?}, first_frame_velocity {:?} do not match {f} frames \
+         of {v} vertices",
+        mask.shape,
+        ids.shape,
+        vel.shape
+    );
+    ensure!(
+        objects >= 1 && masses.len() == objects,
+        "{what}: {objects} objects, {} masses",
+        masses.len()
+    );
+    // Present vertices, stably grouped by object.
+    let mut order: Vec<usize> = (0..v).filter(|&i| mask.values[i] > 0.0).collect();
+    for &i in &order {
+        let id = ids.values[i];
+        ensure!(
+            id >= 0.0 && (id as usize) < objects,
+            "{what}: vertex {i} has object id {id}, outside 0..{objects}"
+        );
+    }
+    order.sort_by_key(|&i| ids.values[i] as usize);
+    let mut offsets = vec![0usize];
+    for o in 0..objects {
+        let n = order
+            .iter()
+            .filter(|&&i| ids.values[i] as usize == o)
+            .count();
+        ensure!(n > 0, "{what}: object {o} has no present vertex");
+        offsets.push(offsets[o] + n);
+    }
+    let at = |fr: usize, i: usize| {
+        let b = (fr * v + i) * 3;
+        [
+            verts.values[b] as f32,
+            verts.values[b + 1] as f32,
+            verts.values[b + 2] as f32,
+        ]
+    };
+    let positions: Vec<[f32; 3]> = order.iter().map(|&i| at(0, i)).collect();
+    let velocities: Vec<[f32; 3]> = order
+        .iter()
+        .map(|&i| {
+            [
+                vel.values[i * 3] as f32,
+                vel.values[i * 3 + 1] as f32,
+                vel.values[i * 3 + 2] as f32,
+            ]
+        })
+        .collect();
+    let mut trajectory = Vec::with_capacity(f * order.len() * 3);
+    for fr in 0..f {
+        trajectory.extend(order.iter().flat_map(|&i| at(fr, i)));
+    }
+    Ok(OfficialExample {
+        name: relative(root, npz),
+        scene: TrainScene {
+            scene: MeshScene {
+                positions,
+                velocities,
+                vertex_offsets: offsets,
+                materials: precomputed_materials(npz, objects)?,
+            },
+            trajectory,
+            frames: f,
+        },
+        masses,
+    })
+}
+
+/// `path` relative to `root` for display (the path itself when it is the root).
+fn relative(root: &Path, path: &Path) -> String {
+    let r = path
+        .strip_prefix(root)
+        .unwrap_or(path)
+        .display()
+        .to_string();
+    if r.is_empty() {
+        path.display().to_string()
+    } else {
+        r
+    }
+}
+
+/// The official examples under a folder.
+pub struct OfficialData {
+    /// Scene folders, their material variants and precomputed samples, in natural order.
+    pub examples: Vec<OfficialExample>,
+    /// Material variants left out, with why (their name does not say which objects are
+    /// elastic).
+    pub skipped: Vec<String>,
+}
+
+/// Every official example under `root` (scene folders, their material variants, precomputed
+/// samples); a variant whose materials its name does not give is skipped and reported, any
+/// other unreadable file is an error naming it.
+pub fn load_examples(root: &Path) -> anyhow::Result<OfficialData> {
+    let found = sources(root);
+    ensure!(
+        !found.is_empty(),
+        "no official examples (metadata.json + meshes/, or sample .npz files) under {}",
         root.display()
     );
-    dirs.iter().map(|d| load_one(root, d)).collect()
+    let mut out = OfficialData {
+        examples: Vec::new(),
+        skipped: Vec::new(),
+    };
+    for s in &found {
+        match s {
+            Source::Folder(d) => out.examples.push(load_one(root, d)?),
+            Source::Variant { scene, npz } => match load_variant(root, scene, npz) {
+                Ok(e) => out.examples.push(e),
+                Err(e) if e.downcast_ref::<UnknownMaterials>().is_some() => {
+                    out.skipped.push(format!("{e:#}"))
+                }
+                Err(e) => return Err(e),
+            },
+            Source::Precomputed(p) => out.examples.push(load_precomputed(root, p)?),
+        }
+    }
+    Ok(out)
 }
+
+/// A variant's name does not give its materials.
+#[derive(Debug)]
+struct UnknownMaterials(String);
+
+impl std::fmt::Display for UnknownMaterials {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for UnknownMaterials {}
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
-    fn npy_and_obj_readers_and_the_volume_of_a_cube() {
-        let dir = std::env::temp_dir().join(format!("dynaserve-npy-{}", std::process::id()));
+    fn obj_reader_and_the_volume_of_a_cube() {
+        let dir = std::env::temp_dir().join(format!("dynaserve-obj-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let header = "{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3), }";
-        let mut h = header.to_string();
-        while !(10 + h.len() + 1).is_multiple_of(64) {
-            h.push(' ');
-        }
-        h.push('\n');
-        let mut b = b"\x93NUMPY\x01\x00".to_vec();
-        b.extend((h.len() as u16).to_le_bytes());
-        b.extend(h.as_bytes());
-        for x in [1f32, 2.0, 3.0, 4.0, 5.0, -6.0] {
-            b.extend(x.to_le_bytes());
-        }
-        std::fs::write(dir.join("a.npy"), b).unwrap();
-        let (v, shape) = read_npy(&dir.join("a.npy")).unwrap();
-        assert_eq!(
-            (v, shape),
-            (vec![1.0, 2.0, 3.0, 4.0, 5.0, -6.0], vec![2, 3])
-        );
         // A unit cube as quads: volume 1 whichever way its faces turn.
         let obj = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\n\
                    f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 2 3 7 6\nf 3 4 8 7\nf 4 1 5 8\n";
@@ -295,6 +569,9 @@ mod tests {
         let (v, f) = read_obj(&dir.join("c.obj")).unwrap();
         assert_eq!((v.len(), f.len()), (8, 12));
         assert!((volume(&v, &f) - 1.0).abs() < 1e-9);
+        std::fs::write(dir.join("z.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n").unwrap();
+        let err = read_obj(&dir.join("z.obj")).unwrap_err();
+        assert!(err.to_string().contains("bad face"), "{err}");
         std::fs::remove_dir_all(dir).unwrap();
     }
 }

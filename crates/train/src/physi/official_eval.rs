@@ -56,7 +56,11 @@ fn summary(rows: &[Scores], truth: f64) -> (f64, f64, f64, f64) {
 pub fn run(o: &PhysiEvalOptions) -> anyhow::Result<()> {
     let model = PhysiFormer::load(&o.model, &Device::Cpu, false)?;
     let c = model.config().clone();
-    let mut examples = load_examples(&o.data)?;
+    let data = load_examples(&o.data)?;
+    for why in &data.skipped {
+        println!("skipped {why}");
+    }
+    let mut examples = data.examples;
     examples.truncate(o.scenes.max(1));
     let dt = f64::from(c.dt_frame);
     let samples = o.samples.max(1);
