@@ -147,6 +147,11 @@ pub struct EvalArgs {
     /// PhysiFormer models: denoising steps per sample.
     #[arg(long, default_value_t = 25)]
     pub denoise_steps: usize,
+    /// PhysiFormer models on a mesh dataset: score with the official PhysiFormer metrics
+    /// (`mse`, `rigidity`, `momentum_drift_ratio`) instead of the per-frame report (the
+    /// official data always gets them).
+    #[arg(long)]
+    pub official_metrics: bool,
 }
 
 impl EvalArgs {

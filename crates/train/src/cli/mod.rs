@@ -78,7 +78,10 @@ pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
         // The official example scenes (metadata.json + one OBJ per frame) get the official
         // metrics; our mesh datasets our own report.
         if crate::physi::official_data::is_official_examples(data) {
-            return crate::physi::official_eval::run(&options);
+            return crate::physi::official_eval::run(&options).map(|_| ());
+        }
+        if args.official_metrics {
+            return crate::physi::official_eval::run_on_dataset(&options).map(|_| ());
         }
         return crate::physi::eval::run(&options);
     }

@@ -1,12 +1,16 @@
-//! `dynaserve eval --model PHYSIFORMER --data DIR` on the official PhysiFormer example scenes
-//! ([`super::official_data`]): the model's samples and two baselines (constant velocity,
+//! `dynaserve eval --model PHYSIFORMER --data DIR` on the official PhysiFormer data
+//! ([`super::official_data`]), or with `--official-metrics` on a mesh dataset of ours: the
+//! model's samples and two baselines (constant velocity,
 //! free flight: constant velocity plus gravity) scored with the official metrics
 //! ([`super::official_metrics`]) beside our per-vertex squared error, per scene and in all.
 
 use std::time::Instant;
 
+use anyhow::Context;
 use dynaserve_model::{Device, PhysiFormer};
+use dynaserve_sim::mesh_scenes::MeshDatasetReader;
 
+use super::data::to_train_scene;
 use super::eval::{PhysiEvalOptions, baseline, per_frame_sq};
 use super::official_data::{OfficialExample, load_examples};
 use super::official_metrics::{momentum_drift, mse, rigidity};
@@ -52,22 +56,57 @@ fn summary(rows: &[Scores], truth: f64) -> (f64, f64, f64, f64) {
     )
 }
 
-/// Runs the evaluation and prints its tables.
-pub fn run(o: &PhysiEvalOptions) -> anyhow::Result<()> {
-    let model = PhysiFormer::load(&o.model, &Device::Cpu, false)?;
-    let c = model.config().clone();
+/// The summary of an evaluation with the official metrics: per method (`model`, `constant
+/// velocity`, `free flight`) its `mse` and `rigidity` (m^2 per coordinate), momentum drift
+/// ratio to the ground truth's, and per-vertex squared error (m^2, frames 1..).
+#[derive(Clone, Debug)]
+pub struct OfficialReport {
+    /// `(method, mse, rigidity, momentum_drift_ratio, per_vertex)`.
+    pub rows: Vec<(&'static str, f64, f64, f64, f64)>,
+}
+
+/// Runs the evaluation on the official data at `o.data` and prints its tables.
+pub fn run(o: &PhysiEvalOptions) -> anyhow::Result<OfficialReport> {
     let data = load_examples(&o.data)?;
     for why in &data.skipped {
         println!("skipped {why}");
     }
-    let mut examples = data.examples;
+    score_examples(o, data.examples, "official example scenes")
+}
+
+/// Runs the evaluation with the official metrics on a mesh dataset of ours (`o.data`, a
+/// `dynaserve sim mesh-*` split: each object's simulated mass) and prints its tables.
+pub fn run_on_dataset(o: &PhysiEvalOptions) -> anyhow::Result<OfficialReport> {
+    let reader = MeshDatasetReader::open(&o.data)
+        .with_context(|| format!("cannot open mesh dataset {}", o.data.display()))?;
+    let mut examples = Vec::new();
+    for (i, s) in reader.iter().take(o.scenes.max(1)).enumerate() {
+        let s = s?;
+        examples.push(OfficialExample {
+            name: format!("scene {i}"),
+            masses: s.objects.iter().map(|obj| f64::from(obj.mass)).collect(),
+            scene: to_train_scene(&s),
+        });
+    }
+    score_examples(o, examples, "scenes")
+}
+
+/// Samples and scores `examples` (at most `o.scenes` of them) and prints the tables.
+fn score_examples(
+    o: &PhysiEvalOptions,
+    mut examples: Vec<OfficialExample>,
+    what: &str,
+) -> anyhow::Result<OfficialReport> {
+    anyhow::ensure!(!examples.is_empty(), "no scenes in {}", o.data.display());
+    let model = PhysiFormer::load(&o.model, &Device::Cpu, false)?;
+    let c = model.config().clone();
     examples.truncate(o.scenes.max(1));
     let dt = f64::from(c.dt_frame);
     let samples = o.samples.max(1);
     let (mut m_rows, mut cv_rows, mut ff_rows, mut truth) = (vec![], vec![], vec![], vec![]);
     let started = Instant::now();
     println!(
-        "{} official example scenes of {}, {samples} samples each, {} steps",
+        "{} {what} of {}, {samples} samples each, {} steps",
         examples.len(),
         o.data.display(),
         o.steps
@@ -120,6 +159,7 @@ pub fn run(o: &PhysiEvalOptions) -> anyhow::Result<()> {
         started.elapsed().as_secs_f64() / (examples.len() * samples) as f64
     );
     println!("method            mse         rigidity    momentum_drift_ratio  per-vertex m^2");
+    let mut report = OfficialReport { rows: Vec::new() };
     for (name, rows) in [
         ("model", &m_rows),
         ("constant velocity", &cv_rows),
@@ -127,6 +167,7 @@ pub fn run(o: &PhysiEvalOptions) -> anyhow::Result<()> {
     ] {
         let (a, b, d, p) = summary(rows, truth_mean);
         println!("{name:<17} {a:.3e}   {b:.3e}   {d:<20.3}  {p:.3e}");
+        report.rows.push((name, a, b, d, p));
     }
-    Ok(())
+    Ok(report)
 }
