@@ -518,3 +518,67 @@ async fn bad_generate_input_gets_a_clear_error_and_slots_are_freed() {
     server.shutdown();
     server.wait().await.unwrap();
 }
+
+/// A Generate call above `--max-generate-cost` (vertices x frames x network evaluations x
+/// samples) is refused at admission with INVALID_ARGUMENT / 422 naming `denoise_steps`, its
+/// factors and the flag; one at the ceiling runs (Euler takes fewer evaluations than Heun for
+/// the same steps), and ListModels reports each family's ceiling.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn generate_above_the_cost_ceiling_is_refused_naming_denoise_steps_and_the_flag() {
+    // Two cubes of 8 vertices, 4 frames: Heun with 2 steps takes 3 evaluations (192
+    // vertex-frame evaluations), with 3 steps 5 (320); Euler with 3 steps takes 3 (192).
+    let server = start(|c| {
+        c.max_generate_cost = 192;
+        c.max_request_cost = 5000;
+    })
+    .await;
+    let mut c = grpc(&server).await;
+    let models = c
+        .list_models(v1::ListModelsRequest {})
+        .await
+        .unwrap()
+        .into_inner()
+        .models;
+    let physi = models.iter().find(|m| m.name == PHYSI).unwrap();
+    let rigid = models.iter().find(|m| m.name == RIGID).unwrap();
+    assert_eq!(physi.max_request_cost, 192);
+    assert_eq!(rigid.max_request_cost, 5000);
+    let listed: json::ListModelsResponse = http(server.http_addr, "GET", "/v1/models", &[], None)
+        .await
+        .json();
+    let physi = listed.models.iter().find(|m| m.name == PHYSI).unwrap();
+    assert_eq!(physi.max_request_cost, 192);
+
+    let over = request(4, 3, 1, 0);
+    let want = "denoise_steps: 16 vertices x 4 frames x 5 network evaluations (Heun: 2 x 3 \
+                denoise steps - 1) x 1 sample = 320 vertex-frame evaluations exceeds the \
+                server's limit of 192 (--max-generate-cost); lower denoise_steps, frames, \
+                samples or vertices";
+    let e = generate_grpc(&mut c, &over).await.unwrap_err();
+    assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
+    assert_eq!(e.message(), want);
+    let resp = post_json(server.http_addr, "/v1/generate", &over).await;
+    assert_eq!(resp.status, 422, "{}", resp.text());
+    let err: json::ErrorResponse = resp.json();
+    assert_eq!(err.error.code, "INVALID_ARGUMENT");
+    assert_eq!(err.error.field.as_deref(), Some("denoise_steps"));
+    assert_eq!(err.error.message, want);
+    // Two samples at the ceiling of one are above it too.
+    let resp = post_json(server.http_addr, "/v1/generate", &request(4, 2, 2, 0)).await;
+    assert_eq!(resp.status, 422, "{}", resp.text());
+    assert!(resp.text().contains("x 2 samples = 384"), "{}", resp.text());
+    // Refused at admission: no denoising step ran.
+    let text = metrics(&server).await;
+    let steps_metric = format!("dynaserve_denoise_steps_total{{model=\"{PHYSI}\"}}");
+    assert_eq!(sample(&text, &steps_metric).unwrap_or(0.0), 0.0);
+
+    // At the ceiling: Heun with 2 steps, and Euler with 3.
+    let (_, samples) = generate_grpc(&mut c, &request(4, 2, 1, 0)).await.unwrap();
+    assert_eq!(samples.len(), 1);
+    let mut euler = over.clone();
+    euler.sampler = json::Sampler::Euler;
+    let resp = post_json(server.http_addr, "/v1/generate", &euler).await;
+    assert_eq!(resp.status, 200, "{}", resp.text());
+    server.shutdown();
+    server.wait().await.unwrap();
+}

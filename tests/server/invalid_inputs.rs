@@ -271,3 +271,131 @@ impl EncodedLenOk for v1::RolloutRequest {
         n > limit && n <= 4 * limit
     }
 }
+
+/// A request above `--max-request-cost` (objects x steps, summed over a Predict's variants) is
+/// refused at admission, before any step runs, with INVALID_ARGUMENT / 422 naming `steps`, its
+/// factors and the flag: Predict over both protocols, Rollout, and a session's Step and
+/// Predict. A Predict at the ceiling runs, and ListModels reports the ceiling.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn requests_above_the_cost_ceiling_are_refused_naming_steps_and_the_flag() {
+    let m = test_model();
+    let server = start(&m.dir, |c| c.max_request_cost = 100).await;
+    let mut c = client(&server).await;
+    // ListModels reports the ceiling, over both protocols.
+    let listed = c.list_models().await.unwrap();
+    assert_eq!(listed[0].max_request_cost, 100);
+    let listed: json::ListModelsResponse = http(server.http_addr, "GET", "/v1/models", &[], None)
+        .await
+        .json();
+    assert_eq!(listed.models[0].max_request_cost, 100);
+
+    // 5 variants of 2 objects: 10 steps cost 100 object-steps, 11 steps 110.
+    let predict = |steps: u32| json::PredictRequest {
+        model: m.name.clone(),
+        variants: (0..5).map(|i| scene(40 + i, 2, 16)).collect(),
+        steps,
+        dt_steps: 1,
+        every: 0,
+        timeout_ms: 0,
+    };
+    let want = "steps: 2 objects x 11 steps x 5 variants = 110 object-steps exceeds the server's \
+                limit of 100 (--max-request-cost); lower steps, variants or objects";
+    match c.predict(&predict(11)).await {
+        Err(dynaserve_client::ClientError::Status(s)) => {
+            assert_eq!(s.code(), Code::InvalidArgument, "{s:?}");
+            assert_eq!(s.message(), want);
+        }
+        other => panic!("a Predict above the ceiling over gRPC: {other:?}"),
+    }
+    let resp = post_json(server.http_addr, "/v1/predict", &predict(11)).await;
+    assert_eq!(resp.status, 422, "{}", resp.text());
+    let e: json::ErrorResponse = resp.json();
+    assert_eq!(e.error.code, "INVALID_ARGUMENT");
+    assert_eq!(e.error.field.as_deref(), Some("steps"));
+    assert_eq!(e.error.message, want);
+    // Variants of different sizes count each its own objects: 1 + 2 + 3 objects x 17 steps.
+    let mut mixed = predict(17);
+    mixed.variants = (1..=3).map(|k| scene(60 + k as u64, k, 16)).collect();
+    let resp = post_json(server.http_addr, "/v1/predict", &mixed).await;
+    assert_eq!(resp.status, 422, "{}", resp.text());
+    assert_eq!(
+        resp.json::<json::ErrorResponse>().error.message,
+        "steps: 6 objects (summed over 3 variants) x 17 steps = 102 object-steps exceeds the \
+         server's limit of 100 (--max-request-cost); lower steps, variants or objects"
+    );
+    // A rollout: 2 objects x 51 steps.
+    let resp = post_json(
+        server.http_addr,
+        "/v1/rollout",
+        &rollout_request(&m.name, scene(50, 2, 16), 51),
+    )
+    .await;
+    assert_eq!(resp.status, 422, "{}", resp.text());
+    let e: json::ErrorResponse = resp.json();
+    assert_eq!(e.error.field.as_deref(), Some("steps"));
+    assert_eq!(
+        e.error.message,
+        "steps: 2 objects x 51 steps = 102 object-steps exceeds the server's limit of 100 \
+         (--max-request-cost); lower steps or objects"
+    );
+    // A session of 2 objects: Step and Predict.
+    let created = post_json(
+        server.http_addr,
+        "/v1/sessions",
+        &json::CreateSessionRequest {
+            model: m.name.clone(),
+            scene: scene(51, 2, 16),
+            dt_steps: 1,
+            kinematic: vec![],
+        },
+    )
+    .await;
+    assert_eq!(created.status, 201, "{}", created.text());
+    let path = format!(
+        "/v1/sessions/{}",
+        created.json::<json::SessionInfo>().session_id
+    );
+    let step = json::StepRequest {
+        steps: 51,
+        actions: vec![],
+        timeout_ms: 0,
+    };
+    let resp = post_json(server.http_addr, &format!("{path}/step"), &step).await;
+    assert_eq!(resp.status, 422, "{}", resp.text());
+    let e: json::ErrorResponse = resp.json();
+    assert_eq!(e.error.field.as_deref(), Some("steps"));
+    assert!(
+        e.error
+            .message
+            .contains("2 objects x 51 steps = 102 object-steps")
+            && e.error.message.contains("(--max-request-cost)"),
+        "{}",
+        e.error.message
+    );
+    let session_predict = json::SessionPredictRequest {
+        variants: vec![json::SessionVariant::default(); 5],
+        steps: 11,
+        every: 0,
+        timeout_ms: 0,
+    };
+    let resp = post_json(
+        server.http_addr,
+        &format!("{path}/predict"),
+        &session_predict,
+    )
+    .await;
+    assert_eq!(resp.status, 422, "{}", resp.text());
+    assert_eq!(resp.json::<json::ErrorResponse>().error.message, want);
+
+    // Refused at admission: not one step ran.
+    let steps_metric = format!("dynaserve_scene_steps_total{{model=\"{}\"}}", m.name);
+    assert_eq!(sample(&metrics(&server).await, &steps_metric), Some(0.0));
+    // At the ceiling the call runs, over both protocols.
+    let done = c.predict(&predict(10)).await.unwrap();
+    assert_eq!(done.trajectories.len(), 5);
+    assert_eq!(done.trajectories[0].frames.last().unwrap().step, 10);
+    let resp = post_json(server.http_addr, "/v1/predict", &predict(10)).await;
+    assert_eq!(resp.status, 200, "{}", resp.text());
+    server.shutdown();
+    server.wait().await.unwrap();
+}

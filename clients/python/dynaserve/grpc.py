@@ -324,6 +324,7 @@ def model_info(m: pb.ModelInfo) -> Dict[str, Any]:
         "max_steps": m.max_steps,
         "max_dt_steps": m.max_dt_steps,
         "max_variants": m.max_variants,
+        "max_request_cost": m.max_request_cost,
         "gravity": [_f32(m.gravity.x), _f32(m.gravity.y), _f32(m.gravity.z)],
         "config": json.loads(m.config_json) if m.config_json else {},
     }

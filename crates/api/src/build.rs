@@ -13,7 +13,9 @@
 //!   quaternion, is rejected rather than guessed at);
 //! - speeds up to [`MAX_SPEED`] and [`MAX_ANGULAR_SPEED`] per component;
 //! - mass in [[`MIN_MASS`], [`MAX_MASS`]] kg, friction in [0, [`MAX_FRICTION`]], restitution in [0, 1];
-//! - steps in 1..=`max_steps`, dt_steps in 1..=`max_dt_steps` (0 means 1).
+//! - steps in 1..=`max_steps`, dt_steps in 1..=`max_dt_steps` (0 means 1);
+//! - objects x steps, summed over a Predict call's variants, at most `max_request_cost`
+//!   object-steps ([`check_request_cost`], named `steps`).
 
 use dynaserve_geometry::{TriMesh, sample_surface};
 use dynaserve_model::{ObjectInput, Pose, SceneState};
@@ -21,7 +23,7 @@ use dynaserve_model::{ObjectInput, Pose, SceneState};
 use crate::error::FieldError;
 use crate::limits::{
     Limits, MAX_ANGULAR_SPEED, MAX_BODY_EXTENT, MAX_FRICTION, MAX_MASS, MAX_SPEED,
-    MAX_WORLD_EXTENT, MIN_MASS, MIN_POINTS, QUATERNION_TOLERANCE,
+    MAX_WORLD_EXTENT, MIN_MASS, MIN_POINTS, QUATERNION_TOLERANCE, object_steps,
 };
 use crate::spec::{Motion, Scene, Shape};
 
@@ -230,6 +232,27 @@ fn parameter(
     }
 }
 
+/// Checks that `scene` (at path `field`) holds 1..=`max_objects` objects; [`build_scene`]
+/// checks this first, and the server before it weighs a request's cost
+/// ([`check_request_cost`]), so that a scene with too many objects is refused naming them.
+pub fn check_object_count(scene: &Scene, field: &str, limits: &Limits) -> Result<(), FieldError> {
+    let of = || format!("{field}.objects");
+    if scene.objects.is_empty() {
+        return Err(FieldError::new(of(), "must hold at least one object"));
+    }
+    if scene.objects.len() > limits.caps.max_objects {
+        return Err(FieldError::new(
+            of(),
+            format!(
+                "{} objects exceed the limit of {}",
+                scene.objects.len(),
+                limits.caps.max_objects
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// Validates `scene` (at path `field`, e.g. `scene` or `variants[3]`) and builds model inputs.
 /// `dt_seconds` is the step duration (`dt_steps * dt_frame`), used to turn velocities into a
 /// previous pose.
@@ -239,20 +262,8 @@ pub fn build_scene(
     limits: &Limits,
     dt_seconds: f32,
 ) -> Result<BuiltScene, FieldError> {
+    check_object_count(scene, field, limits)?;
     let of = format!("{field}.objects");
-    if scene.objects.is_empty() {
-        return Err(FieldError::new(of, "must hold at least one object"));
-    }
-    if scene.objects.len() > limits.caps.max_objects {
-        return Err(FieldError::new(
-            of,
-            format!(
-                "{} objects exceed the limit of {}",
-                scene.objects.len(),
-                limits.caps.max_objects
-            ),
-        ));
-    }
     // Count points before sampling meshes, so an oversized scene costs nothing.
     let total_points: usize = scene
         .objects
@@ -341,6 +352,63 @@ pub fn check_steps(steps: u32, dt_steps: u32, limits: &Limits) -> Result<u32, Fi
     Ok(dt)
 }
 
+/// `n` and the word for one or for many: `1 step`, `3 steps`.
+pub(crate) fn count(n: u64, one: &str, many: &str) -> String {
+    if n == 1 {
+        format!("{n} {one}")
+    } else {
+        format!("{n} {many}")
+    }
+}
+
+/// Checks the cost of a RigidFormer request against the server's `--max-request-cost`: `steps`
+/// steps of scenes with `objects[i]` objects each ([`object_steps`]). `variants`: the scenes
+/// are a Predict call's variants (one count per variant); otherwise `objects` holds the one
+/// scene of a Rollout or a session's Step. Above the limit: an error naming `steps` whose
+/// message names every factor and the flag. Returns the cost.
+pub fn check_request_cost(
+    objects: &[usize],
+    steps: u32,
+    variants: bool,
+    limits: &Limits,
+) -> Result<u64, FieldError> {
+    let cost = object_steps(objects.iter().copied(), steps);
+    let max = limits.caps.max_request_cost;
+    if cost <= max {
+        return Ok(cost);
+    }
+    let total = object_steps(objects.iter().copied(), 1);
+    let steps_x = count(u64::from(steps), "step", "steps");
+    let (factors, lower) = if !variants {
+        (
+            format!("{} x {steps_x}", count(total, "object", "objects")),
+            "steps or objects",
+        )
+    } else {
+        let n = count(objects.len() as u64, "variant", "variants");
+        let first = objects.first().copied().unwrap_or(0);
+        let factors = if objects.iter().all(|&o| o == first) {
+            format!(
+                "{} x {steps_x} x {n}",
+                count(first as u64, "object", "objects")
+            )
+        } else {
+            format!(
+                "{} (summed over {n}) x {steps_x}",
+                count(total, "object", "objects")
+            )
+        };
+        (factors, "steps, variants or objects")
+    };
+    Err(FieldError::new(
+        "steps",
+        format!(
+            "{factors} = {cost} object-steps exceeds the server's limit of {max} \
+             (--max-request-cost); lower {lower}"
+        ),
+    ))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -356,6 +424,7 @@ mod tests {
                 max_steps: 100,
                 max_dt_steps: 4,
                 max_variants: 8,
+                max_request_cost: 1000,
             },
             default_points: 32,
         }
@@ -449,6 +518,39 @@ mod tests {
         assert_eq!(check_steps(0, 1, &limits()).unwrap_err().field, "steps");
         assert_eq!(check_steps(5, 5, &limits()).unwrap_err().field, "dt_steps");
         assert_eq!(check_steps(5, 0, &limits()).unwrap(), 1);
+    }
+
+    #[test]
+    fn request_cost_names_every_factor_and_the_flag() {
+        let l = limits();
+        assert_eq!(check_request_cost(&[10], 100, false, &l), Ok(1000));
+        let e = check_request_cost(&[10], 101, false, &l).unwrap_err();
+        assert_eq!(e.field, "steps");
+        assert_eq!(
+            e.message,
+            "10 objects x 101 steps = 1010 object-steps exceeds the server's limit of 1000 \
+             (--max-request-cost); lower steps or objects"
+        );
+        let e = check_request_cost(&[4; 3], 100, true, &l).unwrap_err();
+        assert_eq!(
+            e.message,
+            "4 objects x 100 steps x 3 variants = 1200 object-steps exceeds the server's limit \
+             of 1000 (--max-request-cost); lower steps, variants or objects"
+        );
+        let e = check_request_cost(&[1, 4, 6], 100, true, &l).unwrap_err();
+        assert_eq!(
+            e.message,
+            "11 objects (summed over 3 variants) x 100 steps = 1100 object-steps exceeds the \
+             server's limit of 1000 (--max-request-cost); lower steps, variants or objects"
+        );
+        let e = check_request_cost(&[1001], 1, true, &l).unwrap_err();
+        assert!(
+            e.message
+                .starts_with("1001 objects x 1 step x 1 variant = 1001 object-steps"),
+            "{}",
+            e.message
+        );
+        assert_eq!(check_request_cost(&[2, 3], 200, true, &l), Ok(1000));
     }
 
     #[test]

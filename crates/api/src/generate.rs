@@ -9,14 +9,19 @@
 //! - velocities finite, and every vertex's initial speed (`linear + angular x (x - c)`) at
 //!   most [`MAX_SPEED`] m/s per component;
 //! - `frames` 0 (the maximum) or 2..=`max_frames`; `denoise_steps` 0 (the default) or
-//!   1..=`max_denoise_steps`; `samples` 0 (one) or 1..=`max_samples`.
+//!   1..=`max_denoise_steps`; `samples` 0 (one) or 1..=`max_samples`;
+//! - vertices x frames x network evaluations x samples at most `max_cost` vertex-frame
+//!   evaluations ([`check_generate_cost`], named `denoise_steps`).
 
 use dynaserve_model::physiformer::rigid::fit_rigid;
 use dynaserve_model::physiformer::scene::{MAX_SPEED, Material, MeshScene};
 
+use crate::build::count;
 use crate::error::FieldError;
-use crate::limits::GenerateLimits;
-use crate::spec::generate::{GenerateSpec, MeshFrame, MeshObjectSpec, ObjectFrame, RigidFit};
+use crate::limits::{GenerateLimits, network_evaluations, vertex_frame_evaluations};
+use crate::spec::generate::{
+    GenerateSpec, MeshFrame, MeshObjectSpec, ObjectFrame, RigidFit, SamplerKind,
+};
 
 /// The sampling parameters of a checked request, defaults applied.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -107,6 +112,44 @@ pub fn check_generate(
         samples,
         raw_vertices: spec.raw_vertices,
     })
+}
+
+/// Checks the cost of a checked Generate request, `params` with the `sampler` given, on a scene
+/// of `vertices` vertices, against the server's `--max-generate-cost`: vertices x frames x
+/// network evaluations per sample x samples ([`vertex_frame_evaluations`]). Above the limit:
+/// an error naming `denoise_steps` whose message names every factor and the flag. Returns the
+/// cost.
+pub fn check_generate_cost(
+    params: &GenerateParams,
+    sampler: SamplerKind,
+    vertices: usize,
+    limits: &GenerateLimits,
+) -> Result<u64, FieldError> {
+    let steps = u32::try_from(params.steps).unwrap_or(u32::MAX);
+    let evaluations = network_evaluations(steps, sampler);
+    let cost = vertex_frame_evaluations(vertices, params.frames, evaluations, params.samples);
+    if cost <= limits.max_cost {
+        return Ok(cost);
+    }
+    let how = match sampler {
+        SamplerKind::Heun => format!(
+            "Heun: 2 x {} - 1",
+            count(u64::from(steps), "denoise step", "denoise steps")
+        ),
+        SamplerKind::Euler => "Euler: one per denoise step".to_string(),
+    };
+    Err(FieldError::new(
+        "denoise_steps",
+        format!(
+            "{} x {} x {} ({how}) x {} = {cost} vertex-frame evaluations exceeds the server's \
+             limit of {} (--max-generate-cost); lower denoise_steps, frames, samples or vertices",
+            count(vertices as u64, "vertex", "vertices"),
+            count(params.frames as u64, "frame", "frames"),
+            count(evaluations, "network evaluation", "network evaluations"),
+            count(u64::from(params.samples), "sample", "samples"),
+            limits.max_cost
+        ),
+    ))
 }
 
 fn finite_triple(v: &[f32; 3], field: &str) -> Result<(), FieldError> {
@@ -328,10 +371,8 @@ pub fn mesh_frames(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use dynaserve_model::physiformer::config::PhysiConfig;
-    use dynaserve_model::physiformer::flow::SamplerKind;
-
     use crate::limits::GenerateCaps;
+    use dynaserve_model::physiformer::config::PhysiConfig;
 
     fn cube(c: [f32; 3], material: Material) -> MeshObjectSpec {
         let mut vertices = Vec::new();
@@ -382,6 +423,44 @@ mod tests {
         s.denoise_steps = 2;
         s.samples = 1000;
         assert_eq!(check_generate(&s, &l).unwrap_err().field, "samples");
+    }
+
+    #[test]
+    fn generate_cost_names_every_factor_and_the_flag() {
+        let mut l = limits();
+        l.max_cost = 16 * 49 * 99 * 2;
+        let mut s = spec(vec![]);
+        s.denoise_steps = 50;
+        s.samples = 2;
+        let p = check_generate(&s, &l).unwrap();
+        assert_eq!(
+            check_generate_cost(&p, SamplerKind::Heun, 16, &l),
+            Ok(l.max_cost)
+        );
+        // Euler takes half the evaluations (and one more step still fits).
+        assert_eq!(
+            check_generate_cost(&p, SamplerKind::Euler, 16, &l),
+            Ok(16 * 49 * 50 * 2)
+        );
+        let e = check_generate_cost(&p, SamplerKind::Heun, 17, &l).unwrap_err();
+        assert_eq!(e.field, "denoise_steps");
+        assert_eq!(
+            e.message,
+            "17 vertices x 49 frames x 99 network evaluations (Heun: 2 x 50 denoise steps - 1) \
+             x 2 samples = 164934 vertex-frame evaluations exceeds the server's limit of 155232 \
+             (--max-generate-cost); lower denoise_steps, frames, samples or vertices"
+        );
+        s.denoise_steps = 100;
+        let p = check_generate(&s, &l).unwrap();
+        let e = check_generate_cost(&p, SamplerKind::Euler, 16, &l).unwrap_err();
+        assert!(
+            e.message.starts_with(
+                "16 vertices x 49 frames x 100 network evaluations (Euler: one per denoise step) \
+                 x 2 samples = 156800 vertex-frame evaluations"
+            ),
+            "{}",
+            e.message
+        );
     }
 
     #[test]

@@ -278,6 +278,14 @@ pub struct ModelInfo {
     pub max_dt_steps: u32,
     /// Maximum variants per predict request.
     pub max_variants: u32,
+    /// Largest cost of one request (`--max-request-cost` / `--max-generate-cost`), in the
+    /// unit of the model's family: object-steps for RigidFormer models (objects x steps,
+    /// summed over a Predict's variants), vertex-frame evaluations for PhysiFormer models
+    /// (vertices x frames x network evaluations x samples, the evaluations `2 denoise_steps -
+    /// 1` with Heun and `denoise_steps` with Euler). A request above it is refused naming
+    /// `steps` / `denoise_steps`. 0 from a server that predates it.
+    #[serde(default)]
+    pub max_request_cost: u64,
     /// Gravity the model was trained with, m/s^2, world frame.
     pub gravity: [f32; 3],
     /// The checkpoint's `config.json`.

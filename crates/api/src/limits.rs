@@ -6,6 +6,7 @@
 use dynaserve_model::ModelConfig;
 use dynaserve_model::physiformer::config::PhysiConfig;
 use dynaserve_model::physiformer::flow::MAX_STEPS as MAX_DENOISE_STEPS;
+use dynaserve_model::physiformer::flow::SamplerKind;
 
 pub use dynaserve_model::{MAX_BODY_EXTENT, MAX_DT_STEPS, MAX_WORLD_EXTENT};
 
@@ -41,6 +42,9 @@ pub struct Caps {
     pub max_dt_steps: u32,
     /// Variants per Predict call.
     pub max_variants: usize,
+    /// Cost of one request in object-steps ([`object_steps`]: objects x steps, summed over a
+    /// Predict call's variants).
+    pub max_request_cost: u64,
 }
 
 impl Caps {
@@ -52,6 +56,8 @@ impl Caps {
         max_steps: 10_000,
         max_dt_steps: 8,
         max_variants: 256,
+        // About 4 minutes of a 2-core machine at ~4,000 object-steps/s (256-object scenes).
+        max_request_cost: 1_000_000,
     };
 
     /// These caps lowered to the own limits of a model with configuration `model` (objects
@@ -101,6 +107,8 @@ pub struct GenerateCaps {
     pub max_denoise_steps: u32,
     /// Samples per request.
     pub max_samples: u32,
+    /// Cost of one request in vertex-frame evaluations ([`vertex_frame_evaluations`]).
+    pub max_cost: u64,
 }
 
 impl GenerateCaps {
@@ -108,6 +116,8 @@ impl GenerateCaps {
     pub const DEFAULT: GenerateCaps = GenerateCaps {
         max_denoise_steps: 200,
         max_samples: 16,
+        // About 5 minutes at ~53,000 vertex-frame evaluations/s (the bundled small model).
+        max_cost: 16_000_000,
     };
 }
 
@@ -132,6 +142,8 @@ pub struct GenerateLimits {
     pub default_denoise_steps: u32,
     /// Samples per request.
     pub max_samples: u32,
+    /// Cost of one request in vertex-frame evaluations ([`vertex_frame_evaluations`]).
+    pub max_cost: u64,
     /// Half extent `e` of the model's box `[-e, e]^3`, metres; vertices must lie within `2e`.
     pub box_half_extent: f32,
     /// Interval between frames, seconds.
@@ -150,8 +162,96 @@ impl GenerateLimits {
             max_denoise_steps,
             default_denoise_steps: (model.default_steps as u32).clamp(1, max_denoise_steps),
             max_samples: caps.max_samples.max(1),
+            max_cost: caps.max_cost.max(1),
             box_half_extent: model.box_half_extent,
             dt_frame: f64::from(model.dt_frame),
         }
+    }
+}
+
+/// The cost of a RigidFormer request in object-steps: `steps` steps of every scene whose object
+/// count `objects` yields (one scene for Rollout and a session's Step, one per variant for
+/// Predict), i.e. the sum of objects x steps. Saturates at `u64::MAX`.
+pub fn object_steps(objects: impl IntoIterator<Item = usize>, steps: u32) -> u64 {
+    objects.into_iter().fold(0u64, |sum, n| {
+        sum.saturating_add((n as u64).saturating_mul(u64::from(steps)))
+    })
+}
+
+/// Network evaluations one Generate sample of `denoise_steps` steps takes: `2 steps - 1` with
+/// the Heun sampler (two per interval, one in the last), `steps` with Euler.
+pub fn network_evaluations(denoise_steps: u32, sampler: SamplerKind) -> u64 {
+    let steps = u64::from(denoise_steps);
+    match sampler {
+        SamplerKind::Heun => (2 * steps).saturating_sub(1),
+        SamplerKind::Euler => steps,
+    }
+}
+
+/// The cost of a Generate request in vertex-frame evaluations: vertices x frames x network
+/// evaluations per sample ([`network_evaluations`]) x samples. Saturates at `u64::MAX`.
+pub fn vertex_frame_evaluations(
+    vertices: usize,
+    frames: usize,
+    evaluations: u64,
+    samples: u32,
+) -> u64 {
+    (vertices as u64)
+        .saturating_mul(frames as u64)
+        .saturating_mul(evaluations)
+        .saturating_mul(u64::from(samples))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn object_steps_sum_each_scene_and_saturate() {
+        assert_eq!(object_steps([256], 10_000), 2_560_000);
+        assert_eq!(object_steps([256; 256], 10_000), 655_360_000);
+        assert_eq!(object_steps([3, 5, 0], 7), 56);
+        assert_eq!(object_steps(std::iter::empty(), 7), 0);
+        assert_eq!(object_steps([usize::MAX], u32::MAX), u64::MAX);
+        assert_eq!(object_steps([usize::MAX, usize::MAX], 1), u64::MAX);
+    }
+
+    #[test]
+    fn heun_takes_two_evaluations_a_step_but_one_in_the_last() {
+        assert_eq!(network_evaluations(1, SamplerKind::Heun), 1);
+        assert_eq!(network_evaluations(50, SamplerKind::Heun), 99);
+        assert_eq!(network_evaluations(50, SamplerKind::Euler), 50);
+        assert_eq!(network_evaluations(0, SamplerKind::Heun), 0);
+        assert_eq!(
+            network_evaluations(u32::MAX, SamplerKind::Heun),
+            2 * u64::from(u32::MAX) - 1
+        );
+    }
+
+    #[test]
+    fn vertex_frame_evaluations_multiply_and_saturate() {
+        assert_eq!(vertex_frame_evaluations(16, 49, 99, 2), 16 * 49 * 99 * 2);
+        assert_eq!(vertex_frame_evaluations(0, 49, 99, 2), 0);
+        assert_eq!(
+            vertex_frame_evaluations(usize::MAX, usize::MAX, u64::MAX, u32::MAX),
+            u64::MAX
+        );
+    }
+
+    #[test]
+    fn the_cost_caps_survive_a_model_and_are_at_least_one() {
+        let caps = Caps {
+            max_request_cost: 1234,
+            ..Caps::DEFAULT
+        };
+        assert_eq!(caps.for_model(&ModelConfig::tiny()).max_request_cost, 1234);
+        let caps = GenerateCaps {
+            max_cost: 0,
+            ..GenerateCaps::DEFAULT
+        };
+        assert_eq!(
+            GenerateLimits::new(&caps, 8, &PhysiConfig::small()).max_cost,
+            1
+        );
     }
 }

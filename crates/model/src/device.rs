@@ -2,8 +2,9 @@
 //!
 //! Every model, trainer and server path takes a [`Device`]; this module turns the names users
 //! write (`cpu`, `cuda`, `cuda:1`) into one, with a clear error where the build cannot serve
-//! the request. CUDA needs the binary built with `--features cuda` (and the CUDA toolkit at
-//! build time); without it, asking for `cuda` is an error, never a silent fall back to the CPU.
+//! the request. CUDA needs the binary built with `--features cuda` (the CUDA toolkit at build
+//! time comes from `deploy/cuda/toolkit.sh`); without it, asking for `cuda` is an error, never
+//! a silent fall back to the CPU.
 
 use candle_core::Device;
 
@@ -44,7 +45,8 @@ fn parse_device_name(name: &str) -> Result<DeviceSpec, ModelError> {
     if !cuda_compiled() {
         return Err(ModelError::InvalidInput(format!(
             "device {name:?}: this build has no CUDA support; rebuild with \
-             `cargo build --release --features cuda` (needs the CUDA toolkit), or use cpu"
+             `cargo build --release --features cuda` (the CUDA toolkit comes from \
+             `deploy/cuda/toolkit.sh`), or use cpu"
         )));
     }
     Ok(DeviceSpec::Cuda(ordinal))
@@ -68,8 +70,15 @@ pub fn check_device_name(name: &str) -> Result<(), ModelError> {
 pub fn device_from_name(name: &str) -> Result<Device, ModelError> {
     match parse_device_name(name)? {
         DeviceSpec::Cpu => Ok(Device::Cpu),
-        DeviceSpec::Cuda(ordinal) => Device::new_cuda(ordinal)
-            .map_err(|e| ModelError::InvalidInput(format!("device {name:?}: cannot open it: {e}"))),
+        DeviceSpec::Cuda(ordinal) => Device::new_cuda(ordinal).map_err(|e| {
+            let e = e.to_string();
+            let why = if e.contains("STUB_LIBRARY") {
+                " (this machine has no NVIDIA driver: the library answering is the build stub)"
+            } else {
+                ""
+            };
+            ModelError::InvalidInput(format!("device {name:?}: cannot open it: {e}{why}"))
+        }),
     }
 }
 

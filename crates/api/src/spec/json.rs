@@ -178,6 +178,7 @@ impl ModelInfo {
             max_steps: v.max_steps,
             max_dt_steps: v.max_dt_steps,
             max_variants: v.max_variants,
+            max_request_cost: v.max_request_cost,
             gravity: crate::wire::vec3_from(v.gravity.as_ref()),
             config: self.config_json(),
             max_vertices: v.max_vertices,

@@ -195,6 +195,7 @@ impl ModelInfo {
                 out.max_steps = l.caps.max_steps;
                 out.max_dt_steps = l.caps.max_dt_steps;
                 out.max_variants = l.caps.max_variants as u32;
+                out.max_request_cost = l.caps.max_request_cost;
                 out.gravity = Some(vec3_to(config.gravity));
             }
             ModelKind::Physi { config, limits: l } => {
@@ -210,6 +211,7 @@ impl ModelInfo {
                     out.max_samples,
                 ] = super::generate::generate_fields(l);
                 out.box_half_extent = l.box_half_extent;
+                out.max_request_cost = l.max_cost;
             }
         }
         out

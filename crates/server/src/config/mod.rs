@@ -84,6 +84,12 @@ pub struct ServeConfig {
     /// Most samples per Generate call.
     #[arg(long, env = "DYNASERVE_MAX_SAMPLES", default_value_t = GenerateCaps::DEFAULT.max_samples)]
     pub max_samples: u32,
+    /// Largest cost of one Generate call in vertex-frame evaluations: vertices x frames x
+    /// network evaluations (2 x denoise steps - 1 with Heun, denoise steps with Euler) x
+    /// samples. A call above it is refused with INVALID_ARGUMENT / 422 naming `denoise_steps`.
+    /// The default is about 5 minutes of the bundled small model on a 2-core machine.
+    #[arg(long, env = "DYNASERVE_MAX_GENERATE_COST", default_value_t = GenerateCaps::DEFAULT.max_cost)]
+    pub max_generate_cost: u64,
     /// Retry hint sent with RESOURCE_EXHAUSTED / 429, milliseconds.
     #[arg(long, env = "DYNASERVE_RETRY_AFTER_MS", default_value_t = 1000)]
     pub retry_after_ms: u64,
@@ -109,6 +115,12 @@ pub struct ServeConfig {
     /// Most scene variants per Predict call.
     #[arg(long, env = "DYNASERVE_MAX_VARIANTS", default_value_t = Caps::DEFAULT.max_variants)]
     pub max_variants: usize,
+    /// Largest cost of one RigidFormer request (Rollout, Predict, a session's Step or Predict)
+    /// in object-steps: objects x steps, summed over a Predict's variants. A request above it
+    /// is refused with INVALID_ARGUMENT / 422 naming `steps`. The default is about 4 minutes
+    /// of a 2-core machine on 256-object scenes.
+    #[arg(long, env = "DYNASERVE_MAX_REQUEST_COST", default_value_t = Caps::DEFAULT.max_request_cost)]
+    pub max_request_cost: u64,
     /// Largest request payload in bytes (gRPC message or HTTP body); larger ones are rejected
     /// with INVALID_ARGUMENT / 422 naming `request`.
     #[arg(long, env = "DYNASERVE_MAX_REQUEST_BYTES", default_value_t = 16 << 20)]
@@ -189,6 +201,7 @@ impl ServeConfig {
             // A Predict call above the in-flight cap could never be admitted, so the cap on one
             // call (reported by ListModels) is the smaller of the two.
             max_variants: self.max_variants.min(self.max_predict_variants),
+            max_request_cost: self.max_request_cost,
         }
     }
 
@@ -201,6 +214,7 @@ impl ServeConfig {
             max_samples: self
                 .max_samples
                 .min(u32::try_from(self.max_generate_samples).unwrap_or(u32::MAX)),
+            max_cost: self.max_generate_cost,
         }
     }
 
@@ -251,6 +265,12 @@ impl ServeConfig {
                 return Err(format!("{name} must be at least 1"));
             }
         }
+        if self.max_request_cost == 0 {
+            return Err("--max-request-cost must be at least 1".into());
+        }
+        if self.max_generate_cost == 0 {
+            return Err("--max-generate-cost must be at least 1".into());
+        }
         if self.max_steps == 0 || self.max_dt_steps == 0 {
             return Err("--max-steps and --max-dt-steps must be at least 1".into());
         }
@@ -283,9 +303,16 @@ mod tests {
         assert_eq!(c.models_dir, PathBuf::from("models"));
         assert!(c.validate().is_ok());
         assert_eq!(c.caps(), Caps::DEFAULT);
+        assert_eq!(c.generate_caps(), GenerateCaps::DEFAULT);
         let mut bad = c.clone();
         bad.max_batch_scenes = 0;
         assert!(bad.validate().unwrap_err().contains("--max-batch-scenes"));
+        let mut bad = c.clone();
+        bad.max_request_cost = 0;
+        assert!(bad.validate().unwrap_err().contains("--max-request-cost"));
+        let mut bad = c.clone();
+        bad.max_generate_cost = 0;
+        assert!(bad.validate().unwrap_err().contains("--max-generate-cost"));
     }
 
     #[test]

@@ -7,7 +7,9 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Instant;
 
-use dynaserve_api::generate::{GenerateParams, build_mesh_scene, check_generate, mesh_frames};
+use dynaserve_api::generate::{
+    GenerateParams, build_mesh_scene, check_generate, check_generate_cost, mesh_frames,
+};
 use dynaserve_api::limits::{GenerateCaps, GenerateLimits};
 use dynaserve_api::spec::generate::{
     GenerateEvent, GenerateProgress, GenerateSpec, GeneratedSample,
@@ -239,7 +241,8 @@ impl Engine {
         })
     }
 
-    /// Admission: readiness, the model, the request's numbers and scene, then the sample slots.
+    /// Admission: readiness, the model, the request's numbers and scene, its cost, then the
+    /// sample slots.
     #[allow(clippy::type_complexity)]
     fn admit_generate(
         &self,
@@ -263,6 +266,8 @@ impl Engine {
         scene
             .validate(config)
             .map_err(|e| ApiError::invalid("scene", e))?;
+        // The call's cost, now that the scene's vertices are counted; before any slot is taken.
+        check_generate_cost(&params, req.sampler, scene.vertices(), &entry.limits)?;
         let permit = self
             .generate_slots
             .clone()

@@ -5,7 +5,7 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Instant;
 
-use dynaserve_api::build::check_steps;
+use dynaserve_api::build::{check_object_count, check_request_cost, check_steps};
 use dynaserve_api::spec::{Frame, PredictSpec, Prediction, Timing};
 use futures::future::try_join_all;
 use tokio::sync::OwnedSemaphorePermit;
@@ -54,6 +54,13 @@ impl Engine {
         let dt_steps = check_steps(req.steps, req.dt_steps, &entry.limits)?;
         let n = req.variants.len();
         check_variant_count(&entry, n)?;
+        // The call's cost, before any slot is taken or scene prepared: object counts first,
+        // so that a scene with too many objects is refused naming them.
+        for (i, v) in req.variants.iter().enumerate() {
+            check_object_count(v, &format!("variants[{i}]"), &entry.limits)?;
+        }
+        let objects: Vec<usize> = req.variants.iter().map(|v| v.objects.len()).collect();
+        check_request_cost(&objects, req.steps, true, &entry.limits)?;
         let deadline = ctx.deadline_with(req.timeout_ms);
         let _slots = self.variant_slots(&entry, n)?;
         let prepared = with_deadline(

@@ -8,7 +8,7 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Instant;
 
-use dynaserve_api::build::check_steps;
+use dynaserve_api::build::{check_object_count, check_request_cost, check_steps};
 use dynaserve_api::spec::{Frame, RolloutSpec};
 use tokio::sync::{OwnedSemaphorePermit, mpsc, watch};
 use tracing::Instrument;
@@ -58,6 +58,9 @@ impl Engine {
             let entry = self.resolve(&req.model)?;
             tracing::Span::current().record("model", entry.name.as_str());
             let dt_steps = check_steps(req.steps, req.dt_steps, &entry.limits)?;
+            // The rollout's cost, before the slot is taken or the scene prepared.
+            check_object_count(&req.scene, "scene", &entry.limits)?;
+            check_request_cost(&[req.scene.objects.len()], req.steps, false, &entry.limits)?;
             let deadline = ctx.deadline_with(req.timeout_ms);
             let permit = self
                 .rollout_slots

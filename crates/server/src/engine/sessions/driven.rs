@@ -4,7 +4,7 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Instant;
 
-use dynaserve_api::build::check_steps;
+use dynaserve_api::build::{check_request_cost, check_steps};
 use dynaserve_api::session_input::{Targets, check_actions, drive};
 use dynaserve_api::spec::Frame;
 use dynaserve_api::spec::session::StepSpec;
@@ -145,6 +145,12 @@ impl Engine {
             self.admit_check()?;
             let session = self.sessions.get(&req.session_id)?;
             check_steps(req.steps, session.dt_steps, &session.entry.limits)?;
+            check_request_cost(
+                &[session.scene().len()],
+                req.steps,
+                false,
+                &session.entry.limits,
+            )?;
             let targets = check_actions(&req.actions, req.steps, &session.kinematic, "actions")?;
             Ok::<_, ApiError>((session, targets))
         }

@@ -5,7 +5,7 @@
 
 use std::sync::Arc;
 
-use dynaserve_api::build::check_steps;
+use dynaserve_api::build::{check_request_cost, check_steps};
 use dynaserve_api::session_input::{Targets, apply_states, check_actions};
 use dynaserve_api::spec::session::SessionPredictSpec;
 use dynaserve_api::spec::{Frame, Prediction};
@@ -56,6 +56,13 @@ impl Engine {
         check_steps(req.steps, session.dt_steps, &entry.limits)?;
         let n = req.variants.len();
         check_variant_count(&entry, n)?;
+        // Every variant steps the session's scene.
+        check_request_cost(
+            &vec![session.scene().len(); n],
+            req.steps,
+            true,
+            &entry.limits,
+        )?;
         let deadline = ctx.deadline_with(req.timeout_ms);
         // The session's state now; later calls on the session do not affect this one.
         let (base, base_step) = {
