@@ -77,7 +77,8 @@ pub fn device_from_name(name: &str) -> Result<Device, ModelError> {
             } else {
                 ""
             };
-            ModelError::InvalidInput(format!("device {name:?}: cannot open it: {e}{why}"))
+            // The hint first: candle's message may carry a backtrace.
+            ModelError::InvalidInput(format!("device {name:?}: cannot open it{why}: {e}"))
         }),
     }
 }
