@@ -178,6 +178,7 @@ fn the_official_metrics_score_a_mesh_dataset_of_ours() {
         steps: 2,
         seed: 0,
         plot: None,
+        device: "cpu".into(),
     })
     .unwrap();
     let row = |name: &str| *report.rows.iter().find(|r| r.0 == name).unwrap();

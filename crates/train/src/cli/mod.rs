@@ -74,6 +74,7 @@ pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
             steps: args.denoise_steps,
             seed: args.seed,
             plot: args.plot.clone(),
+            device: args.device.clone(),
         };
         // The official example scenes (metadata.json + one OBJ per frame) get the official
         // metrics; our mesh datasets our own report.

@@ -5,10 +5,10 @@
 use std::path::{Path, PathBuf};
 
 use dynaserve_geometry::metrics::rigidity_residual;
+use dynaserve_model::PhysiFormer;
 use dynaserve_model::physiformer::flow::TrainScene;
 use dynaserve_model::physiformer::rigid::project_rigid;
 use dynaserve_model::physiformer::scene::Material;
-use dynaserve_model::{Device, PhysiFormer};
 
 use super::data::load_scenes;
 use crate::train::plot::{Series, line_chart};
@@ -30,6 +30,8 @@ pub struct PhysiEvalOptions {
     pub seed: u64,
     /// Error-by-frame PNG.
     pub plot: Option<PathBuf>,
+    /// Device the model samples on (`cpu`, `cuda`, `cuda:N`).
+    pub device: String,
 }
 
 /// Mean over frames `1..` and vertices of the squared distance, m^2, per frame `[T]`.
@@ -92,7 +94,8 @@ fn rigidity(s: &TrainScene, traj: &[f32]) -> anyhow::Result<Option<f64>> {
 
 /// Runs the evaluation and prints its tables.
 pub fn run(o: &PhysiEvalOptions) -> anyhow::Result<()> {
-    let model = PhysiFormer::load(&o.model, &Device::Cpu, false)?;
+    let device = dynaserve_model::device_from_name(&o.device)?;
+    let model = PhysiFormer::load(&o.model, &device, false)?;
     let c = model.config().clone();
     let mut scenes = load_scenes(std::slice::from_ref(&o.data))?;
     scenes.truncate(o.scenes.max(1));

@@ -7,7 +7,7 @@
 use std::time::Instant;
 
 use anyhow::Context;
-use dynaserve_model::{Device, PhysiFormer};
+use dynaserve_model::PhysiFormer;
 use dynaserve_sim::mesh_scenes::MeshDatasetReader;
 
 use super::data::to_train_scene;
@@ -98,7 +98,8 @@ fn score_examples(
     what: &str,
 ) -> anyhow::Result<OfficialReport> {
     anyhow::ensure!(!examples.is_empty(), "no scenes in {}", o.data.display());
-    let model = PhysiFormer::load(&o.model, &Device::Cpu, false)?;
+    let device = dynaserve_model::device_from_name(&o.device)?;
+    let model = PhysiFormer::load(&o.model, &device, false)?;
     let c = model.config().clone();
     examples.truncate(o.scenes.max(1));
     let dt = f64::from(c.dt_frame);
