@@ -1,5 +1,6 @@
 //! Admission and release: a disconnected stream frees its slot before the next step, a
-//! deadline in the queue ends the call on time, overload is refused with a retry hint.
+//! deadline in the queue ends the call on time (the server's default one too), overload is
+//! refused with a retry hint.
 
 use std::time::{Duration, Instant};
 
@@ -59,6 +60,64 @@ async fn a_disconnected_stream_frees_its_slot_before_the_next_step() {
     let mut short = req.clone();
     short.steps = 3;
     assert_eq!(c.rollout_collect(&short).await.unwrap().len(), 3);
+    server.shutdown();
+    server.wait().await.unwrap();
+}
+
+/// A request that names no deadline gets the server's `--default-timeout-s`; one that names
+/// its own keeps it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_request_without_a_deadline_gets_the_server_default() {
+    let m = test_model();
+    let server = start(&m.dir, |c| {
+        c.max_batch_scenes = 1;
+        c.default_timeout_s = 0.15;
+    })
+    .await;
+    let c = client(&server).await;
+    // Interactive streams with their own long deadline keep the queue full.
+    let busy: Vec<_> = (0..8)
+        .map(|i| {
+            let mut c = c.clone();
+            let mut req = rollout_request(&m.name, scene(60 + i, 3, 48), 10_000);
+            req.timeout_ms = 60_000;
+            tokio::spawn(async move {
+                let mut r = c.rollout(&req).await.unwrap();
+                let mut frames = 0;
+                while let Some(f) = r.frames.next().await {
+                    if f.is_err() {
+                        break;
+                    }
+                    frames += 1;
+                }
+                frames
+            })
+        })
+        .collect();
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let predict = json::PredictRequest {
+        model: m.name.clone(),
+        variants: vec![scene(5, 2, 32)],
+        steps: 5,
+        dt_steps: 1,
+        every: 0,
+        timeout_ms: 0,
+    };
+    let t = Instant::now();
+    let resp = post_json(server.http_addr, "/v1/predict", &predict).await;
+    assert_eq!(resp.status, 504, "{}", resp.text());
+    assert!(
+        t.elapsed() >= Duration::from_millis(145),
+        "early: {:?}",
+        t.elapsed()
+    );
+    assert!(
+        busy.iter().all(|b| !b.is_finished()),
+        "the streams naming their own deadline ended"
+    );
+    for b in busy {
+        b.abort();
+    }
     server.shutdown();
     server.wait().await.unwrap();
 }

@@ -131,6 +131,11 @@ pub struct ServeConfig {
     #[arg(long, env = "DYNASERVE_STREAM_STALL_TIMEOUT_S", default_value_t = 30.0)]
     pub stream_stall_timeout_s: f64,
 
+    /// Deadline of a Rollout, Predict, session Step or Predict, or Generate that names none
+    /// (no `grpc-timeout`, `timeout_ms` 0), seconds after arrival; 0 disables.
+    #[arg(long, env = "DYNASERVE_DEFAULT_TIMEOUT_S", default_value_t = 900.0)]
+    pub default_timeout_s: f64,
+
     /// Connection limits and timeouts of both listeners.
     #[command(flatten)]
     pub connections: ConnectionConfig,
@@ -218,6 +223,11 @@ impl ServeConfig {
         }
     }
 
+    /// `default_timeout_s` as a duration; `None` when 0 (disabled).
+    pub fn default_timeout(&self) -> Option<Duration> {
+        secs(self.default_timeout_s)
+    }
+
     /// `stream_stall_timeout_s` as a duration; `None` when 0 (disabled).
     pub fn stream_stall_timeout(&self) -> Option<Duration> {
         secs(self.stream_stall_timeout_s)
@@ -282,6 +292,9 @@ impl ServeConfig {
         }
         if !self.stream_stall_timeout_s.is_finite() || self.stream_stall_timeout_s < 0.0 {
             return Err("--stream-stall-timeout-s must be a finite number >= 0".into());
+        }
+        if !self.default_timeout_s.is_finite() || self.default_timeout_s < 0.0 {
+            return Err("--default-timeout-s must be a finite number >= 0".into());
         }
         dynaserve_model::check_device_name(&self.device).map_err(|e| format!("--device: {e}"))?;
         self.connections.validate()?;

@@ -191,7 +191,7 @@ impl Engine {
             Ok(a) => a,
             Err(e) => return Err(span.in_scope(|| rec.fail(e))),
         };
-        let deadline = ctx.deadline_with(req.timeout_ms);
+        let deadline = ctx.deadline_with(req.timeout_ms, self.config.default_timeout());
         let (tx, rx) = mpsc::channel(params.steps + params.samples as usize + 1);
         let run = GenerateRun {
             engine: self.clone(),

@@ -61,7 +61,7 @@ impl Engine {
         }
         let objects: Vec<usize> = req.variants.iter().map(|v| v.objects.len()).collect();
         check_request_cost(&objects, req.steps, true, &entry.limits)?;
-        let deadline = ctx.deadline_with(req.timeout_ms);
+        let deadline = ctx.deadline_with(req.timeout_ms, self.config.default_timeout());
         let _slots = self.variant_slots(&entry, n)?;
         let prepared = with_deadline(
             deadline,

@@ -56,12 +56,18 @@ impl RequestCtx {
         }
     }
 
-    /// The earlier of the transport deadline and `timeout_ms` after arrival (0: none).
-    pub(crate) fn deadline_with(&self, timeout_ms: u32) -> Option<Instant> {
+    /// The earlier of the transport deadline and `timeout_ms` after arrival (0: none); when
+    /// the request names neither, `default` after arrival (the server's `--default-timeout-s`).
+    pub(crate) fn deadline_with(
+        &self,
+        timeout_ms: u32,
+        default: Option<Duration>,
+    ) -> Option<Instant> {
         let field =
             (timeout_ms > 0).then(|| self.arrival + Duration::from_millis(timeout_ms.into()));
         match (self.deadline, field) {
             (Some(a), Some(b)) => Some(a.min(b)),
+            (None, None) => default.map(|d| self.arrival + d),
             (a, b) => a.or(b),
         }
     }

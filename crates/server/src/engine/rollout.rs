@@ -61,7 +61,7 @@ impl Engine {
             // The rollout's cost, before the slot is taken or the scene prepared.
             check_object_count(&req.scene, "scene", &entry.limits)?;
             check_request_cost(&[req.scene.objects.len()], req.steps, false, &entry.limits)?;
-            let deadline = ctx.deadline_with(req.timeout_ms);
+            let deadline = ctx.deadline_with(req.timeout_ms, self.config.default_timeout());
             let permit = self
                 .rollout_slots
                 .clone()

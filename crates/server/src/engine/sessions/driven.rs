@@ -160,7 +160,7 @@ impl Engine {
             Ok(p) => p,
             Err(e) => return Err(span.in_scope(|| rec.fail(e))),
         };
-        let deadline = ctx.deadline_with(req.timeout_ms);
+        let deadline = ctx.deadline_with(req.timeout_ms, self.config.default_timeout());
         // Room for every frame and the final error: the call's own frames are its only backlog,
         // and the error always reaches a client that reads again.
         let (tx, rx) = mpsc::channel(targets.len() + 1);

@@ -63,7 +63,7 @@ impl Engine {
             true,
             &entry.limits,
         )?;
-        let deadline = ctx.deadline_with(req.timeout_ms);
+        let deadline = ctx.deadline_with(req.timeout_ms, self.config.default_timeout());
         // The session's state now; later calls on the session do not affect this one.
         let (base, base_step) = {
             let p = with_deadline(deadline, async { Ok(session.progress.lock().await) }).await?;
