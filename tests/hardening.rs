@@ -37,6 +37,26 @@ async fn read_to_close(s: &mut TcpStream, within: Duration) -> Result<Vec<u8>, S
     }
 }
 
+/// Sends `body` by `method` to `path` with exactly the content type `ct` over raw HTTP/1.1
+/// (the shared client always adds `application/json`) and reads the whole answer.
+async fn send_typed(
+    addr: std::net::SocketAddr,
+    method: &str,
+    path: &str,
+    ct: &str,
+    body: &[u8],
+) -> String {
+    let mut s = TcpStream::connect(addr).await.unwrap();
+    let head = format!(
+        "{method} {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\ncontent-type: {ct}\r\n\
+         origin: https://evil.example\r\ncontent-length: {}\r\n\r\n",
+        body.len()
+    );
+    s.write_all(head.as_bytes()).await.unwrap();
+    s.write_all(body).await.unwrap();
+    String::from_utf8(read_to_close(&mut s, HANG).await.unwrap()).unwrap()
+}
+
 /// One object at `x` metres moving at `vx` m/s along x.
 fn fast_object(x: f32, vx: f32) -> json::Scene {
     let mut s = scene(5, 1, 32);
@@ -480,22 +500,89 @@ async fn cors_allow_list_and_json_only_bodies() {
     );
     let other = preflight("https://evil.example").await;
     assert_eq!(other.header("access-control-allow-origin"), None);
+    // A browser app may also replace a session's state (PUT) and delete a session (DELETE):
+    // their preflights allow exactly the methods the API serves.
+    for (method, path) in [
+        ("PUT", "/v1/sessions/0123456789abcdef/state"),
+        ("DELETE", "/v1/sessions/0123456789abcdef"),
+    ] {
+        let headers = [
+            ("origin", "https://viewer.example"),
+            ("access-control-request-method", method),
+            ("access-control-request-headers", "content-type"),
+        ];
+        let r = http(server.http_addr, "OPTIONS", path, &headers, None).await;
+        assert_eq!(r.status, 200, "{method} {path}: {}", r.text());
+        assert_eq!(
+            r.header("access-control-allow-origin"),
+            Some("https://viewer.example")
+        );
+        let mut allowed: Vec<&str> = r
+            .header("access-control-allow-methods")
+            .unwrap_or_default()
+            .split(',')
+            .map(str::trim)
+            .collect();
+        allowed.sort_unstable();
+        assert_eq!(allowed, ["DELETE", "GET", "POST", "PUT"], "{method} {path}");
+    }
     // A "simple" cross-origin post (text/plain, no preflight) is refused before any work.
     let body = serde_json::to_vec(&rollout_request(&m.name, scene(71, 1, 16), 2)).unwrap();
     for ct in ["text/plain", "application/x-www-form-urlencoded"] {
-        let mut s = TcpStream::connect(server.http_addr).await.unwrap();
-        let head = format!(
-            "POST /v1/rollout HTTP/1.1\r\nHost: x\r\nConnection: close\r\ncontent-type: {ct}\r\n\
-             origin: https://evil.example\r\ncontent-length: {}\r\n\r\n",
-            body.len()
-        );
-        s.write_all(head.as_bytes()).await.unwrap();
-        s.write_all(&body).await.unwrap();
-        let got = String::from_utf8(read_to_close(&mut s, HANG).await.unwrap()).unwrap();
+        let got = send_typed(server.http_addr, "POST", "/v1/rollout", ct, &body).await;
         assert!(got.starts_with("HTTP/1.1 415"), "{got}");
         assert!(got.contains("\"UNSUPPORTED_MEDIA_TYPE\""), "{got}");
         assert!(got.contains(ct), "{got}");
     }
+    // So is a session state PUT in either type: the state stays as it was. As JSON it is
+    // applied.
+    let created = post_json(
+        server.http_addr,
+        "/v1/sessions",
+        &json::CreateSessionRequest {
+            model: m.name.clone(),
+            scene: scene(72, 1, 16),
+            dt_steps: 1,
+            kinematic: vec![],
+        },
+    )
+    .await;
+    assert_eq!(created.status, 201, "{}", created.text());
+    let path = format!(
+        "/v1/sessions/{}",
+        created.json::<json::SessionInfo>().session_id
+    );
+    let state_of = || async {
+        let r = http(server.http_addr, "GET", &path, &[], None).await;
+        assert_eq!(r.status, 200, "{}", r.text());
+        r.json::<json::SessionState>()
+    };
+    let before = state_of().await;
+    let moved = json::Pose {
+        translation: [0.25, -0.125, 0.5],
+        rotation: [0.0, 0.0, 0.0, 1.0],
+    };
+    let put = serde_json::to_vec(&json::SetStateRequest {
+        objects: vec![json::ObjectState {
+            object: 0,
+            pose: moved,
+            previous_pose: None,
+            velocity: None,
+        }],
+    })
+    .unwrap();
+    let state_path = format!("{path}/state");
+    for ct in ["text/plain", "application/x-www-form-urlencoded"] {
+        let got = send_typed(server.http_addr, "PUT", &state_path, ct, &put).await;
+        assert!(got.starts_with("HTTP/1.1 415"), "{got}");
+        assert!(got.contains("\"UNSUPPORTED_MEDIA_TYPE\""), "{got}");
+        assert!(got.contains(ct), "{got}");
+    }
+    assert_eq!(state_of().await.poses, before.poses);
+    let r = http(server.http_addr, "PUT", &state_path, &[], Some(&put)).await;
+    assert_eq!(r.status, 200, "{}", r.text());
+    assert_eq!(r.json::<json::SessionState>().poses[0], moved);
+    assert_eq!(state_of().await.poses[0], moved);
     let text = metrics(&server).await;
     assert_eq!(
         sample(
@@ -580,6 +667,163 @@ async fn odd_requests_get_the_right_status() {
         details.bad_request().unwrap().field_violations[0].field,
         "request"
     );
+    server.shutdown();
+    server.wait().await.unwrap();
+}
+
+/// A gRPC codec that sends and receives message bytes as they are, so that a test can frame
+/// bytes that are no protobuf message.
+#[derive(Clone, Copy, Default)]
+struct RawCodec;
+
+impl tonic::codec::Codec for RawCodec {
+    type Encode = Vec<u8>;
+    type Decode = Vec<u8>;
+    type Encoder = RawCodec;
+    type Decoder = RawCodec;
+    fn encoder(&mut self) -> RawCodec {
+        RawCodec
+    }
+    fn decoder(&mut self) -> RawCodec {
+        RawCodec
+    }
+}
+
+impl tonic::codec::Encoder for RawCodec {
+    type Item = Vec<u8>;
+    type Error = tonic::Status;
+    fn encode(
+        &mut self,
+        item: Vec<u8>,
+        dst: &mut tonic::codec::EncodeBuf<'_>,
+    ) -> Result<(), tonic::Status> {
+        use prost::bytes::BufMut;
+        dst.put_slice(&item);
+        Ok(())
+    }
+}
+
+impl tonic::codec::Decoder for RawCodec {
+    type Item = Vec<u8>;
+    type Error = tonic::Status;
+    fn decode(
+        &mut self,
+        src: &mut tonic::codec::DecodeBuf<'_>,
+    ) -> Result<Option<Vec<u8>>, tonic::Status> {
+        use prost::bytes::Buf;
+        Ok(Some(src.copy_to_bytes(src.remaining()).to_vec()))
+    }
+}
+
+/// Asserts `e` is INVALID_ARGUMENT (grpc-status 3) naming `request`, with the
+/// google.rpc.BadRequest detail, and not the INTERNAL tonic's codec answers.
+fn assert_invalid_request(e: &tonic::Status, what: &str) {
+    assert_eq!(e.code(), Code::InvalidArgument, "{what}: {e:?}");
+    assert!(
+        e.message().starts_with("request: ")
+            && e.message().contains("failed to decode Protobuf message"),
+        "{what}: {}",
+        e.message()
+    );
+    use tonic_types::StatusExt;
+    let details = e.get_error_details();
+    assert_eq!(
+        details.bad_request().unwrap().field_violations[0].field,
+        "request",
+        "{what}"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn undecodable_grpc_messages_are_invalid_argument_naming_request() {
+    let m = test_model();
+    let server = start(&m.dir, |_| {}).await;
+    let channel = tonic::transport::Endpoint::from_shared(format!("http://{}", server.grpc_addr))
+        .unwrap()
+        .connect()
+        .await
+        .unwrap();
+    let mut g = tonic::client::Grpc::new(channel.clone());
+    // Well-framed gRPC messages (flag 0, the right length) whose bytes are no protobuf: an
+    // overlong varint, wire type 7, a length-delimited field longer than the message.
+    let garbage: [&[u8]; 3] = [&[0xff; 16], &[0x0f, 0x01], &[0x0a, 0x05, 0x61]];
+    for bytes in garbage {
+        let what = format!("{bytes:02x?}");
+        // Unary (Predict) and server-streaming (Rollout) calls.
+        g.ready().await.unwrap();
+        let e = g
+            .unary(
+                tonic::Request::new(bytes.to_vec()),
+                "/dynaserve.v1.WorldModel/Predict".parse().unwrap(),
+                RawCodec,
+            )
+            .await
+            .map(|_| ())
+            .expect_err("undecodable Predict answered");
+        assert_invalid_request(&e, &format!("Predict {what}"));
+        g.ready().await.unwrap();
+        let e = g
+            .server_streaming(
+                tonic::Request::new(bytes.to_vec()),
+                "/dynaserve.v1.WorldModel/Rollout".parse().unwrap(),
+                RawCodec,
+            )
+            .await
+            .map(|_| ())
+            .expect_err("undecodable Rollout answered");
+        assert_invalid_request(&e, &format!("Rollout {what}"));
+        // The first message of a client stream (Sessions.Interact).
+        g.ready().await.unwrap();
+        let e = g
+            .streaming(
+                tonic::Request::new(futures::stream::iter(vec![bytes.to_vec()])),
+                "/dynaserve.v1.Sessions/Interact".parse().unwrap(),
+                RawCodec,
+            )
+            .await
+            .map(|_| ())
+            .expect_err("undecodable Interact opening answered");
+        assert_invalid_request(&e, &format!("Interact opening {what}"));
+    }
+    // A later message of an Interact stream that does not decode ends the stream with the
+    // same refusal (not CANCELLED).
+    let mut sessions = dynaserve_api::v1::sessions_client::SessionsClient::new(channel.clone());
+    let info = sessions
+        .create_session(v1::CreateSessionRequest {
+            model: m.name.clone(),
+            scene: Some(scene(73, 1, 16).to_proto()),
+            dt_steps: 1,
+            kinematic: vec![],
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let open = prost::Message::encode_to_vec(&v1::InteractRequest {
+        session_id: info.session_id.clone(),
+        ..Default::default()
+    });
+    g.ready().await.unwrap();
+    let mut frames = g
+        .streaming(
+            tonic::Request::new(futures::stream::iter(vec![open, vec![0xff; 16]])),
+            "/dynaserve.v1.Sessions/Interact".parse().unwrap(),
+            RawCodec,
+        )
+        .await
+        .expect("a valid opening message is accepted")
+        .into_inner();
+    let e = loop {
+        match tokio::time::timeout(HANG, frames.message()).await {
+            Ok(Ok(Some(_))) => continue,
+            Ok(Ok(None)) => panic!("the stream ended without refusing the undecodable step"),
+            Ok(Err(e)) => break e,
+            Err(_) => panic!("no answer within {HANG:?}"),
+        }
+    };
+    assert_invalid_request(&e, "Interact step");
+    // The server is unharmed: a well-formed call is served on the same connection.
+    let mut w = WorldModelClient::new(channel);
+    w.list_models(v1::ListModelsRequest {}).await.unwrap();
     server.shutdown();
     server.wait().await.unwrap();
 }

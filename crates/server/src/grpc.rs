@@ -234,35 +234,73 @@ pub async fn router(engine: Arc<Engine>) -> anyhow::Result<(axum::Router, Health
     let router = routes
         .into_axum_router()
         .layer(axum::middleware::map_response(move |r| {
-            oversized_is_invalid(r, hard_cap)
+            client_faults_are_invalid(r, hard_cap)
         }));
     Ok((router, reporter))
 }
 
-/// tonic refuses a message above the decoding cap with OUT_OF_RANGE and its own text; our
-/// contract is INVALID_ARGUMENT naming `request`, like every other payload limit.
-async fn oversized_is_invalid(
+/// The start of tonic's text (prost's `DecodeError`) for a message whose bytes do not decode.
+const DECODE_ERROR: &str = "failed to decode Protobuf message";
+
+/// tonic's text for a message frame cut short by the end of the request body.
+const TRUNCATED: &str = "Unexpected EOF decoding stream";
+
+/// The refusal of a request message that did not decode, when `code` and `message` are
+/// tonic's status for one: tonic's codec answers INTERNAL for every prost `DecodeError` (and
+/// for a frame cut short), but the fault is the client's, so it is INVALID_ARGUMENT naming
+/// `request` like every other malformed input.
+pub(crate) fn undecodable(code: tonic::Code, message: &str) -> Option<ApiError> {
+    (code == tonic::Code::Internal
+        && (message.starts_with(DECODE_ERROR) || message.starts_with(TRUNCATED)))
+    .then(|| {
+        ApiError::invalid(
+            "request",
+            format!("the message is not valid protobuf: {message}"),
+        )
+    })
+}
+
+/// Rewrites tonic's own refusals of a request message (trailers-only responses, answered
+/// before a handler runs or by a handler passing the stream's error on) into our contract,
+/// INVALID_ARGUMENT naming `request`: a message above the decoding cap (tonic: OUT_OF_RANGE)
+/// and one whose bytes do not decode (tonic: INTERNAL). Other statuses pass untouched.
+async fn client_faults_are_invalid(
     mut r: axum::response::Response,
     hard_cap: usize,
 ) -> axum::response::Response {
     let h = r.headers();
-    let oversized = h.get("grpc-status").is_some_and(|v| v == "11")
-        && h.get("grpc-message")
-            .and_then(|v| v.to_str().ok())
-            .is_some_and(|m| {
-                m.contains("message%20length%20too%20large")
-                    || m.contains("message length too large")
-            });
-    if oversized {
-        let status = ApiError::invalid(
+    let Some(code) = h
+        .get("grpc-status")
+        .map(|v| tonic::Code::from_bytes(v.as_bytes()))
+        .filter(|c| matches!(c, tonic::Code::OutOfRange | tonic::Code::Internal))
+    else {
+        return r;
+    };
+    let message = h
+        .get("grpc-message")
+        .map(|v| percent_decode(v.as_bytes()))
+        .unwrap_or_default();
+    let refusal = if code == tonic::Code::OutOfRange && message.contains("message length too large")
+    {
+        Some(ApiError::invalid(
             "request",
             format!("the message is larger than the server accepts ({hard_cap} bytes)"),
-        )
-        .to_status();
-        let mut fresh = status.into_http::<axum::body::Body>();
+        ))
+    } else {
+        undecodable(code, &message)
+    };
+    if let Some(e) = refusal {
+        let mut fresh = e.to_status().into_http::<axum::body::Body>();
         std::mem::swap(r.headers_mut(), fresh.headers_mut());
     }
     r
+}
+
+/// A `grpc-message` header value, percent-decoded (tonic encodes spaces and a few others).
+fn percent_decode(v: &[u8]) -> String {
+    percent_encoding::percent_decode(v)
+        .decode_utf8_lossy()
+        .into_owned()
 }
 
 #[cfg(test)]
@@ -278,5 +316,24 @@ mod tests {
         assert_eq!(parse_grpc_timeout("m"), None);
         assert_eq!(parse_grpc_timeout("12x"), None);
         assert_eq!(parse_grpc_timeout("123456789S"), None);
+    }
+
+    #[test]
+    fn undecodable_messages_are_invalid_naming_request() {
+        assert_eq!(
+            percent_decode(b"failed%20to%20decode%20Protobuf%20message:%20invalid%20varint%zz%"),
+            "failed to decode Protobuf message: invalid varint%zz%"
+        );
+        let e = undecodable(
+            tonic::Code::Internal,
+            "failed to decode Protobuf message: invalid varint",
+        )
+        .unwrap()
+        .to_status();
+        assert_eq!(e.code(), tonic::Code::InvalidArgument);
+        assert!(e.message().starts_with("request: "), "{}", e.message());
+        assert!(undecodable(tonic::Code::Internal, "Unexpected EOF decoding stream.").is_some());
+        assert!(undecodable(tonic::Code::Internal, "an engine fault").is_none());
+        assert!(undecodable(tonic::Code::Unknown, DECODE_ERROR).is_none());
     }
 }

@@ -10,9 +10,10 @@
 //!   `--auth-exempt-metrics`.
 //! - TLS: `--tls-cert` and `--tls-key` (PEM) serve both ports over TLS 1.2/1.3 (rustls),
 //!   offering `h2` and `http/1.1` by ALPN.
-//! - CORS: off unless `--cors-origin` names allowed origins; POST bodies must be
-//!   `application/json` (415 otherwise), so a page cannot make a browser post a "simple"
-//!   cross-origin `text/plain` request.
+//! - CORS: off unless `--cors-origin` names allowed origins, which may use every method the
+//!   API serves (GET, POST, PUT, DELETE); POST and PUT bodies must be `application/json` (415
+//!   otherwise), so a page cannot make a browser send a "simple" cross-origin `text/plain`
+//!   request.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -152,7 +153,9 @@ impl SecurityConfig {
         Some(
             CorsLayer::new()
                 .allow_origin(AllowOrigin::list(origins))
-                .allow_methods([Method::GET, Method::POST])
+                // Exactly the methods the API serves (a session's state is PUT, a session
+                // DELETEd).
+                .allow_methods([Method::GET, Method::POST, Method::PUT, Method::DELETE])
                 .allow_headers([
                     header::CONTENT_TYPE,
                     header::AUTHORIZATION,
@@ -313,8 +316,8 @@ impl Auth {
 }
 
 /// The HTTP router with its policy around it, outermost first: CORS (when origins are allowed),
-/// authentication (when tokens are configured), JSON-only POST bodies, and the body read
-/// timeout.
+/// authentication (when tokens are configured), JSON-only POST and PUT bodies, and the body
+/// read timeout.
 pub fn http_policy(
     router: axum::Router,
     config: &crate::ServeConfig,
@@ -337,12 +340,12 @@ pub fn http_policy(
     router
 }
 
-/// Middleware of the HTTP API: POST bodies must be JSON (`application/json` or `+json`),
-/// otherwise 415 naming the content type received. A POST without a body (no content type,
-/// and `Content-Length: 0` or neither a length nor a chunked encoding, as `curl -X POST`
-/// sends it) passes: there is nothing to be JSON.
+/// Middleware of the HTTP API: POST and PUT bodies must be JSON (`application/json` or
+/// `+json`), otherwise 415 naming the content type received. A request without a body (no
+/// content type, and `Content-Length: 0` or neither a length nor a chunked encoding, as
+/// `curl -X POST` sends it) passes: there is nothing to be JSON.
 pub async fn require_json(req: Request, next: Next) -> Response {
-    if req.method() == Method::POST {
+    if req.method() == Method::POST || req.method() == Method::PUT {
         let h = req.headers();
         let ct = h
             .get(header::CONTENT_TYPE)

@@ -176,10 +176,12 @@ impl SessionsApi for SessionsService {
             Ok(m) => engine
                 .check_payload(m.encoded_len())
                 .and_then(|()| InteractStep::from_v1(&m).map_err(ApiError::from)),
-            Err(s) => Err(ApiError::cancelled(format!(
-                "client stream failed: {}",
-                s.message()
-            ))),
+            // A later message that does not decode is the client's fault, like the first.
+            Err(s) => Err(
+                super::undecodable(s.code(), s.message()).unwrap_or_else(|| {
+                    ApiError::cancelled(format!("client stream failed: {}", s.message()))
+                }),
+            ),
         });
         let r = self
             .engine
