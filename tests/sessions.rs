@@ -653,3 +653,73 @@ async fn a_led_session_step_reads_the_pushers_coming_pose() {
         "the lead changed nothing: {starting:?}"
     );
 }
+
+/// A session deleted while an Interact stream drives it (over HTTP, or over gRPC from another
+/// client) is not stepped again as a detached copy: the stream's next action ends it with
+/// NOT_FOUND naming the session, and no further frame comes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn interact_on_a_session_deleted_mid_stream_ends_with_not_found() {
+    let m = test_model();
+    let server = start(&m.dir, |_| {}).await;
+    let scene = scene(43, 2, 32);
+    for over_http in [true, false] {
+        let mut c = sessions(&server).await;
+        let id = c
+            .create_session(create(&m.name, &scene, vec![]))
+            .await
+            .unwrap()
+            .into_inner()
+            .session_id;
+        let (mut tx, rx) = futures::channel::mpsc::channel(8);
+        tx.send(v1::InteractRequest {
+            session_id: id.clone(),
+            ..Default::default()
+        })
+        .await
+        .unwrap();
+        let mut frames_in = c.interact(rx).await.unwrap().into_inner();
+        tx.send(v1::InteractRequest::default()).await.unwrap();
+        let first = frames_in.next().await.unwrap().unwrap();
+        assert_eq!(first.step, 1);
+
+        if over_http {
+            let resp = http(
+                server.http_addr,
+                "DELETE",
+                &format!("/v1/sessions/{id}"),
+                &[],
+                None,
+            )
+            .await;
+            assert_eq!(resp.status, 204, "{}", resp.text());
+        } else {
+            // Another client, on its own connection.
+            let mut other = sessions(&server).await;
+            other
+                .delete_session(v1::DeleteSessionRequest {
+                    session_id: id.clone(),
+                })
+                .await
+                .unwrap();
+        }
+
+        tx.send(v1::InteractRequest::default()).await.unwrap();
+        let end = frames_in.next().await.unwrap();
+        let status = end.expect_err("a deleted session must not be stepped");
+        assert_eq!(status.code(), Code::NotFound, "{}", status.message());
+        assert!(status.message().contains(&id), "{}", status.message());
+        assert!(
+            frames_in.next().await.is_none(),
+            "no frame follows the error"
+        );
+        let gone = c
+            .get_state(v1::GetStateRequest {
+                session_id: id.clone(),
+            })
+            .await
+            .unwrap_err();
+        assert_eq!(gone.code(), Code::NotFound);
+    }
+    server.shutdown();
+    server.wait().await.unwrap();
+}

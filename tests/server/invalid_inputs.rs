@@ -399,3 +399,52 @@ async fn requests_above_the_cost_ceiling_are_refused_naming_steps_and_the_flag()
     server.shutdown();
     server.wait().await.unwrap();
 }
+
+/// A Predict whose second variant is invalid (non-finite, out of range, malformed) is refused
+/// with 422 naming that variant by index, not as a whole.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn predict_with_one_invalid_variant_is_refused_naming_its_index() {
+    let m = test_model();
+    let server = start(&m.dir, |_| {}).await;
+    let good = json::PredictRequest {
+        model: m.name.clone(),
+        variants: vec![scene(1, 2, 16), scene(2, 2, 16)],
+        steps: 2,
+        dt_steps: 1,
+        every: 0,
+        timeout_ms: 0,
+    };
+    let resp = post_json(server.http_addr, "/v1/predict", &good).await;
+    assert_eq!(resp.status, 200, "{}", resp.text());
+    type Edit = fn(&mut serde_json::Value);
+    let cases: Vec<(&str, Edit)> = vec![
+        // 1e39 overflows f32: the position arrives as infinity.
+        ("non-finite position", |o| {
+            o["pose"]["translation"][0] = serde_json::json!(1e39)
+        }),
+        ("non-finite mass", |o| o["mass"] = serde_json::json!(1e39)),
+        ("negative mass", |o| o["mass"] = serde_json::json!(-1.0)),
+        ("friction above range", |o| {
+            o["friction"] = serde_json::json!(1e6)
+        }),
+        ("mass of the wrong type", |o| {
+            o["mass"] = serde_json::json!("heavy")
+        }),
+        ("no points", |o| o["points"] = serde_json::json!([])),
+    ];
+    for (what, edit) in cases {
+        let mut body = serde_json::to_value(&good).unwrap();
+        edit(&mut body["variants"][1]["objects"][1]);
+        let resp = post_json(server.http_addr, "/v1/predict", &body).await;
+        assert_eq!(resp.status, 422, "{what}: {}", resp.text());
+        let e: json::ErrorResponse = resp.json();
+        let field = e.error.field.clone().unwrap_or_default();
+        assert!(
+            field.starts_with("variants[1].objects[1]"),
+            "{what}: field {field:?}, message {:?}",
+            e.error.message
+        );
+    }
+    server.shutdown();
+    server.wait().await.unwrap();
+}

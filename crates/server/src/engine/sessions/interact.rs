@@ -13,8 +13,8 @@ use tracing::Instrument;
 
 use super::super::Engine;
 use super::super::request::{RequestCtx, RequestRecord, sleep_until};
-use super::Session;
 use super::driven::Driven;
+use super::{Session, not_found};
 use crate::error::ApiError;
 use crate::scheduler::Priority;
 
@@ -136,6 +136,11 @@ impl Engine {
             let Some(msg) = msg else {
                 return Ok(());
             };
+            // Deleted (or reaped) while the stream held it: it must not be stepped on as a
+            // detached copy.
+            if session.is_removed() {
+                return Err(not_found(&session.id));
+            }
             let step: InteractStep = msg?;
             session.touch();
             if !step.correct.is_empty() {

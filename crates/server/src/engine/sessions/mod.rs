@@ -18,7 +18,7 @@ mod predict;
 
 use std::collections::HashMap;
 use std::hash::{BuildHasher, Hasher};
-use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, Weak};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
@@ -91,6 +91,9 @@ pub(crate) struct Session {
     pub dt_steps: u32,
     /// The state, held by one call at a time.
     pub progress: Arc<tokio::sync::Mutex<Progress>>,
+    /// Set once the session leaves the store (deleted or reaped): a stream still holding it
+    /// (Interact) must stop stepping it at its next message.
+    removed: AtomicBool,
     last_used: Mutex<Instant>,
     own_bytes: usize,
     total: Arc<AtomicUsize>,
@@ -118,6 +121,11 @@ impl Session {
         self.last_used
             .lock()
             .map_or_else(|_| Instant::now(), |t| *t)
+    }
+
+    /// True once the session has been deleted or reaped.
+    pub(crate) fn is_removed(&self) -> bool {
+        self.removed.load(Ordering::Acquire)
     }
 
     fn kinematic_indices(&self) -> Vec<u32> {
@@ -275,6 +283,7 @@ impl SessionStore {
             kinematic,
             dt_steps,
             progress: Arc::new(tokio::sync::Mutex::new(progress)),
+            removed: AtomicBool::new(false),
             last_used: Mutex::new(Instant::now()),
             own_bytes,
             total: self.bytes.clone(),
@@ -284,9 +293,14 @@ impl SessionStore {
         s
     }
 
-    /// Removes a session; false if it was not there.
+    /// Removes a session, marking it removed for any stream still holding it; false if it
+    /// was not there.
     pub(crate) fn remove(&self, id: &str) -> bool {
-        self.lock().remove(id).is_some()
+        let removed = self.lock().remove(id);
+        if let Some(s) = &removed {
+            s.removed.store(true, Ordering::Release);
+        }
+        removed.is_some()
     }
 
     /// Starts the reaper once (on the current runtime); it stops when the store is dropped.
@@ -326,6 +340,7 @@ impl SessionStore {
             });
         }
         for s in reaped {
+            s.removed.store(true, Ordering::Release);
             tracing::info!(session = %s.id, model = %s.entry.name, "session expired");
             self.metrics
                 .sessions_reaped
@@ -482,7 +497,8 @@ impl Engine {
         .await
     }
 
-    /// Deletes a session (a call running on it finishes first, on its own copy).
+    /// Deletes a session. A call running on it finishes first; an Interact stream on it ends
+    /// at its next message with NOT_FOUND instead of stepping it further.
     pub async fn delete_session(&self, id: &str, ctx: RequestCtx) -> Result<(), ApiError> {
         self.session_call(&ctx, "delete_session", async {
             if self.sessions.remove(id) {
