@@ -148,7 +148,7 @@ mod tests {
     use super::*;
 
     /// A version-1 `.npy` of `descr` and `shape` holding `data`.
-    pub(crate) fn npy(descr: &str, shape: &str, data: &[u8]) -> Vec<u8> {
+    fn npy(descr: &str, shape: &str, data: &[u8]) -> Vec<u8> {
         let mut h = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape}, }}");
         while !(10 + h.len() + 1).is_multiple_of(64) {
             h.push(' ');

@@ -38,13 +38,14 @@ pub fn is_official_examples(dir: &Path) -> bool {
     !sources(dir).is_empty()
 }
 
-/// Where one official example comes from.
+/// Where official examples come from.
 #[derive(Clone, Debug, PartialEq)]
 enum Source {
-    /// An example scene folder.
-    Folder(PathBuf),
-    /// A material variant `npz` of the scene folder `scene`.
-    Variant { scene: PathBuf, npz: PathBuf },
+    /// An example scene folder and the `vertices.npz` of its material variants.
+    Folder {
+        dir: PathBuf,
+        variants: Vec<PathBuf>,
+    },
     /// A precomputed evaluation sample.
     Precomputed(PathBuf),
 }
@@ -52,8 +53,8 @@ enum Source {
 impl Source {
     fn path(&self) -> &Path {
         match self {
-            Source::Folder(p) | Source::Precomputed(p) => p,
-            Source::Variant { npz, .. } => npz,
+            Source::Folder { dir, .. } => dir,
+            Source::Precomputed(p) => p,
         }
     }
 }
@@ -72,16 +73,12 @@ fn sources(dir: &Path) -> Vec<Source> {
         let mut entries: Vec<PathBuf> = rd.flatten().map(|e| e.path()).collect();
         entries.sort();
         if is_scene_folder(&d) {
-            out.push(Source::Folder(d.clone()));
-            for sub in entries.iter().filter(|p| p.is_dir()) {
-                let npz = sub.join("vertices.npz");
-                if npz.is_file() {
-                    out.push(Source::Variant {
-                        scene: d.clone(),
-                        npz,
-                    });
-                }
-            }
+            let variants = entries
+                .iter()
+                .map(|sub| sub.join("vertices.npz"))
+                .filter(|npz| npz.is_file())
+                .collect();
+            out.push(Source::Folder { dir: d, variants });
             continue;
         }
         for e in entries {
@@ -169,7 +166,8 @@ fn volume(v: &[[f32; 3]], faces: &[[u32; 3]]) -> f64 {
     s.abs()
 }
 
-fn load_one(root: &Path, dir: &Path) -> anyhow::Result<OfficialExample> {
+/// A scene folder as an example, with the names of its objects (`""` where unnamed).
+fn load_one(root: &Path, dir: &Path) -> anyhow::Result<(OfficialExample, Vec<String>)> {
     let meta: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("metadata.json"))?)
             .with_context(|| format!("{}: bad metadata.json", dir.display()))?;
@@ -189,6 +187,7 @@ fn load_one(root: &Path, dir: &Path) -> anyhow::Result<OfficialExample> {
     let mut offsets = vec![0usize];
     let mut materials = Vec::new();
     let mut masses = Vec::new();
+    let mut names = Vec::new();
     let scene_density = meta["density"].as_f64().unwrap_or(1000.0);
     for (i, o) in objects.iter().enumerate() {
         let n = o["vertex_count"]
@@ -203,18 +202,12 @@ fn load_one(root: &Path, dir: &Path) -> anyhow::Result<OfficialExample> {
         // Without a material (the out-of-distribution scenes), the official demo's default
         // by object name.
         let name = o["name"].as_str().unwrap_or("");
-        let kind = o["material"]["kind"].as_str().unwrap_or(
-            if DEFAULT_ELASTIC.iter().any(|e| name.contains(e)) {
-                "elastic"
-            } else {
-                "rigid"
-            },
-        );
-        materials.push(if kind == "rigid" {
-            Material::Rigid
-        } else {
-            Material::Elastic
+        materials.push(match o["material"]["kind"].as_str() {
+            Some("rigid") => Material::Rigid,
+            Some(_) => Material::Elastic,
+            None => default_material(name),
         });
+        names.push(name.to_string());
         let density = o["material"]["rho"]
             .as_f64()
             .or(o["rho"].as_f64())
@@ -250,7 +243,7 @@ fn load_one(root: &Path, dir: &Path) -> anyhow::Result<OfficialExample> {
         );
         trajectory.extend(p.iter().flatten());
     }
-    Ok(OfficialExample {
+    let example = OfficialExample {
         name: relative(root, dir),
         scene: TrainScene {
             scene: MeshScene {
@@ -263,18 +256,27 @@ fn load_one(root: &Path, dir: &Path) -> anyhow::Result<OfficialExample> {
             frames,
         },
         masses,
-    })
+    };
+    Ok((example, names))
 }
 
 /// The official demo's default materials of the out-of-distribution objects, by name:
 /// these are elastic, the others rigid.
 const DEFAULT_ELASTIC: [&str; 3] = ["horse", "fish", "bunny"];
 
+/// The official demo's default material of an object named `name`.
+fn default_material(name: &str) -> Material {
+    if DEFAULT_ELASTIC.iter().any(|e| name.contains(e)) {
+        Material::Elastic
+    } else {
+        Material::Rigid
+    }
+}
+
 /// Materials of a variant folder's name for objects named `names`: `all_rigid`,
 /// `all_elastic`, or `K_elastic_M_rigid` when the official demo's default assignment has K
-/// elastic objects. An error names the variant: the name does not say which objects are
-/// elastic otherwise.
-fn variant_materials(variant: &str, names: &[String]) -> anyhow::Result<Vec<Material>> {
+/// elastic objects. Otherwise why the name does not give them.
+fn variant_materials(variant: &str, names: &[String]) -> Result<Vec<Material>, String> {
     let n = names.len();
     match variant {
         "all_rigid" => return Ok(vec![Material::Rigid; n]),
@@ -282,78 +284,61 @@ fn variant_materials(variant: &str, names: &[String]) -> anyhow::Result<Vec<Mate
         _ => {}
     }
     let parts: Vec<&str> = variant.split('_').collect();
-    if let [k, "elastic", m, "rigid"] = parts[..]
-        && let (Ok(k), Ok(m)) = (k.parse::<usize>(), m.parse::<usize>())
-    {
-        if k + m != n {
-            return Err(UnknownMaterials(format!(
-                "variant {variant}: {} objects named, the scene has {n}",
-                k + m
-            ))
-            .into());
-        }
-        let mats: Vec<Material> = names
-            .iter()
-            .map(|s| {
-                if DEFAULT_ELASTIC.iter().any(|e| s.contains(e)) {
-                    Material::Elastic
-                } else {
-                    Material::Rigid
-                }
-            })
-            .collect();
-        let elastic = mats.iter().filter(|m| **m == Material::Elastic).count();
-        if elastic != k {
-            return Err(UnknownMaterials(format!(
-                "variant {variant}: the name does not say which {k} of {names:?} are elastic \
-                 (the default assignment has {elastic})"
-            ))
-            .into());
-        }
-        return Ok(mats);
+    let [k, "elastic", m, "rigid"] = parts[..] else {
+        return Err(format!(
+            "variant {variant}: expected all_rigid, all_elastic or K_elastic_M_rigid"
+        ));
+    };
+    let (Ok(k), Ok(m)) = (k.parse::<usize>(), m.parse::<usize>()) else {
+        return Err(format!("variant {variant}: counts are not numbers"));
+    };
+    if k + m != n {
+        return Err(format!(
+            "variant {variant}: {} objects named, the scene has {n}",
+            k + m
+        ));
     }
-    Err(UnknownMaterials(format!(
-        "variant {variant}: expected all_rigid, all_elastic or K_elastic_M_rigid"
-    ))
-    .into())
+    let mats: Vec<Material> = names.iter().map(|s| default_material(s)).collect();
+    let elastic = mats.iter().filter(|m| **m == Material::Elastic).count();
+    if elastic != k {
+        return Err(format!(
+            "variant {variant}: the name does not say which {k} of {names:?} are elastic (the \
+             default assignment has {elastic})"
+        ));
+    }
+    Ok(mats)
 }
 
-/// A material variant: the scene folder's condition with the variant's materials and true
-/// trajectory.
-fn load_variant(root: &Path, scene: &Path, npz: &Path) -> anyhow::Result<OfficialExample> {
-    let mut ex = load_one(root, scene)?;
-    let variant = npz
-        .parent()
-        .and_then(Path::file_name)
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let meta: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(scene.join("metadata.json"))?)?;
-    let names: Vec<String> = meta["objects"]
-        .as_array()
-        .map(|a| {
-            a.iter()
-                .map(|o| o["name"].as_str().unwrap_or("").to_string())
-                .collect()
-        })
-        .unwrap_or_default();
-    ex.scene.scene.materials = variant_materials(&variant, &names)
-        .map_err(|e| UnknownMaterials(format!("{}: {e}", npz.display())))?;
+/// A material variant of the scene folder example `base`: its condition with `materials` and
+/// the true trajectory of `npz`.
+fn load_variant(
+    root: &Path,
+    base: &OfficialExample,
+    materials: Vec<Material>,
+    npz: &Path,
+) -> anyhow::Result<OfficialExample> {
     let arrays = read_npz(npz, &["vertices"])?;
     let verts = arrays
         .get("vertices")
         .with_context(|| format!("{}: no vertices", npz.display()))?;
-    let v = ex.scene.scene.vertices();
+    let v = base.scene.scene.vertices();
     ensure!(
         verts.shape.len() == 3 && verts.shape[1] == v && verts.shape[2] == 3,
         "{}: vertices of shape {:?}, the scene has {v} vertices",
         npz.display(),
         verts.shape
     );
-    ex.scene.trajectory = verts.f32s();
-    ex.scene.frames = verts.shape[0];
-    ex.name = relative(root, npz.parent().unwrap_or(npz));
-    Ok(ex)
+    let mut scene = base.scene.scene.clone();
+    scene.materials = materials;
+    Ok(OfficialExample {
+        name: relative(root, npz.parent().unwrap_or(npz)),
+        scene: TrainScene {
+            scene,
+            trajectory: verts.f32s(),
+            frames: verts.shape[0],
+        },
+        masses: base.masses.clone(),
+    })
 }
 
 /// The materials of a precomputed sample: its `metadata.json` beside it (`material.kind` of
@@ -526,33 +511,31 @@ pub fn load_examples(root: &Path) -> anyhow::Result<OfficialData> {
         examples: Vec::new(),
         skipped: Vec::new(),
     };
-    for s in &found {
+    for s in found {
         match s {
-            Source::Folder(d) => out.examples.push(load_one(root, d)?),
-            Source::Variant { scene, npz } => match load_variant(root, scene, npz) {
-                Ok(e) => out.examples.push(e),
-                Err(e) if e.downcast_ref::<UnknownMaterials>().is_some() => {
-                    out.skipped.push(format!("{e:#}"))
+            Source::Folder { dir, variants } => {
+                // The scene is read once; its variants share its condition.
+                let (base, names) = load_one(root, &dir)?;
+                let mut loaded = Vec::with_capacity(variants.len());
+                for npz in variants {
+                    let variant = npz
+                        .parent()
+                        .and_then(Path::file_name)
+                        .map(|n| n.to_string_lossy().into_owned())
+                        .unwrap_or_default();
+                    match variant_materials(&variant, &names) {
+                        Ok(m) => loaded.push(load_variant(root, &base, m, &npz)?),
+                        Err(why) => out.skipped.push(format!("{}: {why}", npz.display())),
+                    }
                 }
-                Err(e) => return Err(e),
-            },
-            Source::Precomputed(p) => out.examples.push(load_precomputed(root, p)?),
+                out.examples.push(base);
+                out.examples.extend(loaded);
+            }
+            Source::Precomputed(p) => out.examples.push(load_precomputed(root, &p)?),
         }
     }
     Ok(out)
 }
-
-/// A variant's name does not give its materials.
-#[derive(Debug)]
-struct UnknownMaterials(String);
-
-impl std::fmt::Display for UnknownMaterials {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(&self.0)
-    }
-}
-
-impl std::error::Error for UnknownMaterials {}
 
 #[cfg(test)]
 mod tests {
