@@ -41,6 +41,15 @@ async fn grpc(server: &RunningServer) -> WorldModelClient<Channel> {
         .unwrap()
 }
 
+/// The models ListModels reports over gRPC.
+async fn list_models(c: &mut WorldModelClient<Channel>) -> Vec<v1::ModelInfo> {
+    c.list_models(v1::ListModelsRequest {})
+        .await
+        .unwrap()
+        .into_inner()
+        .models
+}
+
 fn cube(c: [f32; 3], h: f32) -> Vec<[f32; 3]> {
     let mut v = Vec::new();
     for x in [-h, h] {
@@ -138,12 +147,7 @@ async fn generate_over_grpc_and_http_with_both_models_resident() {
     let mut c = grpc(&server).await;
 
     // ListModels shows both families with their limits.
-    let models = c
-        .list_models(v1::ListModelsRequest {})
-        .await
-        .unwrap()
-        .into_inner()
-        .models;
+    let models = list_models(&mut c).await;
     let physi = models.iter().find(|m| m.name == PHYSI).unwrap();
     let rigid = models.iter().find(|m| m.name == RIGID).unwrap();
     assert_eq!(physi.architecture, "physiformer");
@@ -533,12 +537,7 @@ async fn generate_above_the_cost_ceiling_is_refused_naming_denoise_steps_and_the
     })
     .await;
     let mut c = grpc(&server).await;
-    let models = c
-        .list_models(v1::ListModelsRequest {})
-        .await
-        .unwrap()
-        .into_inner()
-        .models;
+    let models = list_models(&mut c).await;
     let physi = models.iter().find(|m| m.name == PHYSI).unwrap();
     let rigid = models.iter().find(|m| m.name == RIGID).unwrap();
     assert_eq!(physi.max_request_cost, 192);

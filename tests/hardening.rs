@@ -536,22 +536,8 @@ async fn cors_allow_list_and_json_only_bodies() {
     }
     // So is a session state PUT in either type: the state stays as it was. As JSON it is
     // applied.
-    let created = post_json(
-        server.http_addr,
-        "/v1/sessions",
-        &json::CreateSessionRequest {
-            model: m.name.clone(),
-            scene: scene(72, 1, 16),
-            dt_steps: 1,
-            kinematic: vec![],
-        },
-    )
-    .await;
-    assert_eq!(created.status, 201, "{}", created.text());
-    let path = format!(
-        "/v1/sessions/{}",
-        created.json::<json::SessionInfo>().session_id
-    );
+    let info = create_session_http(server.http_addr, &m.name, scene(72, 1, 16), vec![]).await;
+    let path = format!("/v1/sessions/{}", info.session_id);
     let state_of = || async {
         let r = http(server.http_addr, "GET", &path, &[], None).await;
         assert_eq!(r.status, 200, "{}", r.text());

@@ -305,19 +305,7 @@ async fn kinematic_objects_follow_given_poses_over_http() {
     let m = test_model();
     let server = start(&m.dir, |_| {}).await;
     let scene = push_scene();
-    let created = post_json(
-        server.http_addr,
-        "/v1/sessions",
-        &json::CreateSessionRequest {
-            model: m.name.clone(),
-            scene: scene.clone(),
-            dt_steps: 1,
-            kinematic: vec![1],
-        },
-    )
-    .await;
-    assert_eq!(created.status, 201, "{}", created.text());
-    let info: json::SessionInfo = created.json();
+    let info = create_session_http(server.http_addr, &m.name, scene.clone(), vec![1]).await;
     assert_eq!(info.kinematic, vec![1]);
     let path = format!("/v1/sessions/{}", info.session_id);
     // A bodiless POST (as `curl -X POST` sends it: no content type, no body) needs no
@@ -584,19 +572,7 @@ async fn box_after_one_push(
         rotation: [0.0, 0.0, 0.0, 1.0],
     };
     scene.objects[1].previous_pose = Some(at(pusher_before));
-    let created = post_json(
-        server.http_addr,
-        "/v1/sessions",
-        &json::CreateSessionRequest {
-            model: model.to_string(),
-            scene,
-            dt_steps: 1,
-            kinematic: vec![1],
-        },
-    )
-    .await;
-    assert_eq!(created.status, 201, "{}", created.text());
-    let info: json::SessionInfo = created.json();
+    let info = create_session_http(server.http_addr, model, scene, vec![1]).await;
     let r = post_json(
         server.http_addr,
         &format!("/v1/sessions/{}/step", info.session_id),

@@ -239,6 +239,24 @@ pub async fn post_json<T: serde::Serialize>(
     http(addr, "POST", path, &[], Some(&b)).await
 }
 
+/// Creates a session over HTTP (asserting 201) and returns its info.
+pub async fn create_session_http(
+    addr: std::net::SocketAddr,
+    model: &str,
+    scene: json::Scene,
+    kinematic: Vec<u32>,
+) -> json::SessionInfo {
+    let req = json::CreateSessionRequest {
+        model: model.to_string(),
+        scene,
+        dt_steps: 1,
+        kinematic,
+    };
+    let created = post_json(addr, "/v1/sessions", &req).await;
+    assert_eq!(created.status, 201, "{}", created.text());
+    created.json()
+}
+
 /// Server-Sent Events as (event, data) pairs.
 pub fn parse_sse(text: &str) -> Vec<(String, String)> {
     SseParser::parse_all(text)

@@ -64,6 +64,46 @@ async fn a_disconnected_stream_frees_its_slot_before_the_next_step() {
     server.wait().await.unwrap();
 }
 
+/// Eight 10000-step rollouts of 3-object scenes (seeds from `first_seed`, each with
+/// `timeout_ms`, 0 for none) read to their end in the background, given 300 ms to fill a
+/// queue of scene cap 1.
+async fn fill_queue(
+    c: &dynaserve_client::Client,
+    model: &str,
+    first_seed: u64,
+    timeout_ms: u32,
+) -> Vec<tokio::task::JoinHandle<()>> {
+    let busy = (0..8)
+        .map(|i| {
+            let mut c = c.clone();
+            let mut req = rollout_request(model, scene(first_seed + i, 3, 48), 10_000);
+            req.timeout_ms = timeout_ms;
+            tokio::spawn(async move {
+                let mut r = c.rollout(&req).await.unwrap();
+                while let Some(f) = r.frames.next().await {
+                    if f.is_err() {
+                        break;
+                    }
+                }
+            })
+        })
+        .collect();
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    busy
+}
+
+/// A 5-step Predict of one 2-object scene naming no deadline.
+fn small_predict(model: &str) -> json::PredictRequest {
+    json::PredictRequest {
+        model: model.to_string(),
+        variants: vec![scene(5, 2, 32)],
+        steps: 5,
+        dt_steps: 1,
+        every: 0,
+        timeout_ms: 0,
+    }
+}
+
 /// A request that names no deadline gets the server's `--default-timeout-s`; one that names
 /// its own keeps it.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -76,33 +116,8 @@ async fn a_request_without_a_deadline_gets_the_server_default() {
     .await;
     let c = client(&server).await;
     // Interactive streams with their own long deadline keep the queue full.
-    let busy: Vec<_> = (0..8)
-        .map(|i| {
-            let mut c = c.clone();
-            let mut req = rollout_request(&m.name, scene(60 + i, 3, 48), 10_000);
-            req.timeout_ms = 60_000;
-            tokio::spawn(async move {
-                let mut r = c.rollout(&req).await.unwrap();
-                let mut frames = 0;
-                while let Some(f) = r.frames.next().await {
-                    if f.is_err() {
-                        break;
-                    }
-                    frames += 1;
-                }
-                frames
-            })
-        })
-        .collect();
-    tokio::time::sleep(Duration::from_millis(300)).await;
-    let predict = json::PredictRequest {
-        model: m.name.clone(),
-        variants: vec![scene(5, 2, 32)],
-        steps: 5,
-        dt_steps: 1,
-        every: 0,
-        timeout_ms: 0,
-    };
+    let busy = fill_queue(&c, &m.name, 60, 60_000).await;
+    let predict = small_predict(&m.name);
     let t = Instant::now();
     let resp = post_json(server.http_addr, "/v1/predict", &predict).await;
     assert_eq!(resp.status, 504, "{}", resp.text());
@@ -129,29 +144,8 @@ async fn a_deadline_in_the_queue_yields_deadline_exceeded_on_time() {
     // waits in the queue behind them until its deadline.
     let server = start(&m.dir, |c| c.max_batch_scenes = 1).await;
     let c = client(&server).await;
-    let busy: Vec<_> = (0..8)
-        .map(|i| {
-            let mut c = c.clone();
-            let req = rollout_request(&m.name, scene(40 + i, 3, 48), 10_000);
-            tokio::spawn(async move {
-                let mut r = c.rollout(&req).await.unwrap();
-                while let Some(f) = r.frames.next().await {
-                    if f.is_err() {
-                        break;
-                    }
-                }
-            })
-        })
-        .collect();
-    tokio::time::sleep(Duration::from_millis(300)).await;
-    let predict = json::PredictRequest {
-        model: m.name.clone(),
-        variants: vec![scene(5, 2, 32)],
-        steps: 5,
-        dt_steps: 1,
-        every: 0,
-        timeout_ms: 0,
-    };
+    let busy = fill_queue(&c, &m.name, 40, 0).await;
+    let predict = small_predict(&m.name);
     // "On time" is asserted by cause, not by a wall-clock bound: the answer is the server's
     // DEADLINE_EXCEEDED (had the server waited for the queue, the client's own timer,
     // `DEADLINE_BACKSTOP` later, would have ended the call as CANCELLED), it never comes before

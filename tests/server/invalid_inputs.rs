@@ -339,22 +339,8 @@ async fn requests_above_the_cost_ceiling_are_refused_naming_steps_and_the_flag()
          (--max-request-cost); lower steps or objects"
     );
     // A session of 2 objects: Step and Predict.
-    let created = post_json(
-        server.http_addr,
-        "/v1/sessions",
-        &json::CreateSessionRequest {
-            model: m.name.clone(),
-            scene: scene(51, 2, 16),
-            dt_steps: 1,
-            kinematic: vec![],
-        },
-    )
-    .await;
-    assert_eq!(created.status, 201, "{}", created.text());
-    let path = format!(
-        "/v1/sessions/{}",
-        created.json::<json::SessionInfo>().session_id
-    );
+    let info = create_session_http(server.http_addr, &m.name, scene(51, 2, 16), vec![]).await;
+    let path = format!("/v1/sessions/{}", info.session_id);
     let step = json::StepRequest {
         steps: 51,
         actions: vec![],
