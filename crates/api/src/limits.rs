@@ -116,7 +116,8 @@ impl GenerateCaps {
     pub const DEFAULT: GenerateCaps = GenerateCaps {
         max_denoise_steps: 200,
         max_samples: 16,
-        // About 5 minutes at ~53,000 vertex-frame evaluations/s (the bundled small model).
+        // About 4.4 minutes of the bundled small model at ~61,000 vertex-frame evaluations/s
+        // (2.5 samples/s of the 16-vertex, 49-frame, 31-evaluation example, BENCHMARKS.md).
         max_cost: 16_000_000,
     };
 }

@@ -87,7 +87,7 @@ pub struct ServeConfig {
     /// Largest cost of one Generate call in vertex-frame evaluations: vertices x frames x
     /// network evaluations (2 x denoise steps - 1 with Heun, denoise steps with Euler) x
     /// samples. A call above it is refused with INVALID_ARGUMENT / 422 naming `denoise_steps`.
-    /// The default is about 5 minutes of the bundled small model on a 2-core machine.
+    /// The default is about 4.4 minutes of the bundled small model on a 2-core machine.
     #[arg(long, env = "DYNASERVE_MAX_GENERATE_COST", default_value_t = GenerateCaps::DEFAULT.max_cost)]
     pub max_generate_cost: u64,
     /// Retry hint sent with RESOURCE_EXHAUSTED / 429, milliseconds.
