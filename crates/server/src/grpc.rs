@@ -23,6 +23,7 @@ use tonic_health::server::HealthReporter;
 
 use crate::engine::{Engine, Protocol, RequestCtx};
 use crate::error::ApiError;
+use crate::listener::{BodyLimit, with_body_deadline};
 
 mod sessions;
 
@@ -221,6 +222,7 @@ pub async fn router(engine: Arc<Engine>) -> anyhow::Result<(axum::Router, Health
     // Messages up to 4x the configured limit are decoded so that the limit itself is reported
     // as INVALID_ARGUMENT naming `request`; beyond that tonic refuses to decode.
     let hard_cap = engine.config().max_request_bytes.saturating_mul(4);
+    let body_deadline = engine.config().connections.body_deadline();
     let sessions = sessions::server(engine.clone(), hard_cap);
     let service = WorldModelServer::new(GrpcService { engine })
         .max_decoding_message_size(hard_cap)
@@ -235,8 +237,24 @@ pub async fn router(engine: Arc<Engine>) -> anyhow::Result<(axum::Router, Health
         .into_axum_router()
         .layer(axum::middleware::map_response(move |r| {
             client_faults_are_invalid(r, hard_cap)
-        }));
+        }))
+        .layer(axum::middleware::map_request(
+            move |req: axum::extract::Request| async move {
+                let limit = if is_client_stream(req.uri().path()) {
+                    BodyLimit::EachMessage
+                } else {
+                    BodyLimit::Whole
+                };
+                with_body_deadline(req, body_deadline, limit, true)
+            },
+        ));
     Ok((router, reporter))
+}
+
+/// True for the methods whose client sends a stream of messages (Interact, server
+/// reflection): `--body-deadline-s` bounds each of their messages, not the whole stream.
+fn is_client_stream(path: &str) -> bool {
+    path == "/dynaserve.v1.Sessions/Interact" || path.ends_with("/ServerReflectionInfo")
 }
 
 /// The start of tonic's text (prost's `DecodeError`) for a message whose bytes do not decode.

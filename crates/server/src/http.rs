@@ -92,6 +92,18 @@ pub fn router(engine: Arc<Engine>) -> Router {
         .with_state(AppState { engine })
 }
 
+/// The router of the probe listener (`--health-addr`): `/health`, `/ready` and `/metrics`
+/// only, each as on the API listener.
+pub fn probes_router(engine: Arc<Engine>) -> Router {
+    Router::new()
+        .route("/health", get(health))
+        .route("/ready", get(ready))
+        .route("/metrics", get(metrics))
+        .fallback(not_found)
+        .method_not_allowed_fallback(method_not_allowed)
+        .with_state(AppState { engine })
+}
+
 fn ctx_of(headers: &HeaderMap) -> RequestCtx {
     let rid = headers.get("x-request-id").and_then(|v| v.to_str().ok());
     RequestCtx::new(Protocol::Http, rid, None)
@@ -224,6 +236,9 @@ fn timing_headers(headers: &mut HeaderMap, t: &json::RequestTiming) {
 async fn read_json<T: DeserializeOwned>(engine: &Engine, body: Body) -> Result<T, ApiError> {
     let limit = engine.config().max_request_bytes;
     let bytes = axum::body::to_bytes(body, limit).await.map_err(|e| {
+        if let Some(m) = crate::listener::body_deadline_message(&e) {
+            return ApiError::body_timeout(m);
+        }
         if crate::security::is_body_timeout(&e) {
             return ApiError::body_timeout(
                 "the request body stopped arriving before it was complete",

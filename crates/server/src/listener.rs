@@ -1,14 +1,18 @@
 //! The accept loop of both listeners: a cap on open connections, an optional TLS handshake,
 //! and the connection timeouts `axum::serve` does not offer.
 //!
-//! - At most `--max-connections` per listener; a connection over the cap is closed at once.
+//! - At most `--max-connections` per listener, and at most `--max-connections-per-peer` from
+//!   one IP address; a connection over either cap is closed at once.
 //! - A connection must deliver a request's headers within `--header-read-timeout-s` of being
 //!   accepted (TLS handshake, HTTP/2 preface and settings included); HTTP/1 connections must
 //!   also start every further request within that time (idle keep-alive connections close).
 //! - HTTP/2 connections are pinged every `--http2-keepalive-interval-s` and closed when a ping
 //!   is not answered within `--http2-keepalive-timeout-s`.
 //! - Request bodies that stop arriving are cut by the HTTP router's body timeout
-//!   (`--body-read-timeout-s`, see [`crate::http`]).
+//!   (`--body-read-timeout-s`, see [`crate::http`]); bodies that trickle are cut by
+//!   `--body-deadline-s` ([`DeadlineBody`]: the whole body over HTTP, each message of a gRPC
+//!   request).
+//! - Every request carries its connection's [`Peer`] address as an extension.
 //! - Accept errors (e.g. out of file descriptors) are logged and retried after a pause, so a
 //!   full process recovers as soon as connections close.
 //!
@@ -16,12 +20,18 @@
 //! gracefully (HTTP/1 after the response in flight, HTTP/2 with GOAWAY) and the returned future
 //! finishes when all have closed.
 
-use std::sync::Arc;
+use std::collections::HashMap;
+use std::net::{IpAddr, SocketAddr};
+use std::pin::Pin;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::task::{Context, Poll};
 use std::time::Duration;
 
 use axum::Router;
+use axum::body::{Body, Bytes};
 use axum::http::Request;
+use hyper::body::{Frame, SizeHint};
 use hyper_util::rt::{TokioExecutor, TokioIo, TokioTimer};
 use hyper_util::server::conn::auto::Builder;
 use hyper_util::server::graceful::GracefulShutdown;
@@ -69,6 +79,7 @@ pub async fn serve(
 ) {
     let builder = Arc::new(builder(&config));
     let slots = Arc::new(Semaphore::new(config.max_connections));
+    let peers = PeerSlots::new(config.max_connections_per_peer);
     let first_request = secs(config.header_read_timeout_s);
     let graceful = GracefulShutdown::new();
     let open = metrics.open_connections.with_label_values(&[name]);
@@ -92,6 +103,12 @@ pub async fn serve(
             drop(stream);
             continue;
         };
+        let Some(peer_slot) = peers.acquire(peer.ip()) else {
+            closed.with_label_values(&[name, "limit"]).inc();
+            tracing::debug!(listener = name, %peer, "per-peer connection limit reached; closing");
+            drop(stream);
+            continue;
+        };
         let _ = stream.set_nodelay(true);
         // One clock from accept: the TLS handshake and the first request's headers share it.
         let first_request = first_request.map(|t| tokio::time::Instant::now() + t);
@@ -102,11 +119,12 @@ pub async fn serve(
             first_request,
             closed: closed.clone(),
             open: open.clone(),
+            peer,
         };
         let tls = tls.clone();
         let watcher = graceful.watcher();
         tokio::spawn(async move {
-            let _permit = permit;
+            let _permit = (permit, peer_slot);
             match tls {
                 None => conn.run(stream, watcher).await,
                 Some(acceptor) => {
@@ -146,6 +164,7 @@ struct Conn {
     first_request: Option<tokio::time::Instant>,
     closed: IntCounterVec,
     open: IntGauge,
+    peer: SocketAddr,
 }
 
 impl Conn {
@@ -157,10 +176,12 @@ impl Conn {
         // Flips at the first request's headers; until then the connection runs on a clock.
         let started = Arc::new(AtomicBool::new(false));
         let flag = started.clone();
+        let peer = Peer(self.peer);
         let service = self
             .router
-            .map_request(move |r: Request<hyper::body::Incoming>| {
+            .map_request(move |mut r: Request<hyper::body::Incoming>| {
                 flag.store(true, Ordering::Relaxed);
+                r.extensions_mut().insert(peer);
                 r
             });
         let service = TowerToHyperService::new(service);
@@ -186,4 +207,250 @@ impl Conn {
         }
         self.open.dec();
     }
+}
+
+/// The address of the peer a request came from (a request extension set by the listener).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Peer(pub SocketAddr);
+
+/// Open connections per peer IP address of one listener, under a cap.
+#[derive(Clone)]
+struct PeerSlots {
+    cap: usize,
+    open: Arc<Mutex<HashMap<IpAddr, usize>>>,
+}
+
+/// One connection's place in [`PeerSlots`], given back when dropped.
+struct PeerSlot {
+    ip: IpAddr,
+    open: Arc<Mutex<HashMap<IpAddr, usize>>>,
+}
+
+impl PeerSlots {
+    /// `cap` connections per address; 0: no cap.
+    fn new(cap: usize) -> PeerSlots {
+        PeerSlots {
+            cap,
+            open: Arc::default(),
+        }
+    }
+
+    /// A slot for one more connection from `ip`, or `None` when it has `cap` open (or the cap
+    /// is off: then `Some` without counting).
+    fn acquire(&self, ip: IpAddr) -> Option<Option<PeerSlot>> {
+        if self.cap == 0 {
+            return Some(None);
+        }
+        let mut open = self.open.lock().unwrap_or_else(|p| p.into_inner());
+        let n = open.entry(ip).or_insert(0);
+        if *n >= self.cap {
+            return None;
+        }
+        *n += 1;
+        Some(Some(PeerSlot {
+            ip,
+            open: self.open.clone(),
+        }))
+    }
+}
+
+impl Drop for PeerSlot {
+    fn drop(&mut self) {
+        let mut open = self.open.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(n) = open.get_mut(&self.ip) {
+            *n -= 1;
+            if *n == 0 {
+                open.remove(&self.ip);
+            }
+        }
+    }
+}
+
+/// How a [`DeadlineBody`] bounds its body.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BodyLimit {
+    /// The whole body must have arrived within the deadline of the request's start (HTTP, and
+    /// gRPC calls whose client sends one message).
+    Whole,
+    /// gRPC client stream: the first message must have arrived within the deadline of the
+    /// request's start, every later one within the deadline of its first byte; the wait
+    /// between messages is not bounded.
+    EachMessage,
+}
+
+/// The error a [`DeadlineBody`] ends with when its deadline passes.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct BodyDeadlineExceeded(pub String);
+
+/// A request body cut off at `--body-deadline-s` ([`BodyLimit`]); a body that keeps
+/// trickling a byte at a time cannot hold its connection longer. Past the deadline it ends
+/// with an error: a [`BodyDeadlineExceeded`] (HTTP: 408) or, for gRPC, a `tonic::Status`
+/// INVALID_ARGUMENT naming `request` that tonic answers with.
+pub struct DeadlineBody {
+    inner: Body,
+    limit: BodyLimit,
+    deadline: Duration,
+    grpc: bool,
+    /// Armed while a message (or the whole body) is due.
+    timer: Option<Pin<Box<tokio::time::Sleep>>>,
+    /// gRPC framing: bytes of the current message's 5-byte prefix seen, its prefix, and the
+    /// payload bytes still to come once the prefix is complete.
+    prefix_seen: usize,
+    prefix: [u8; 5],
+    payload_left: usize,
+    done: bool,
+}
+
+impl DeadlineBody {
+    /// `inner` due within `deadline` of now, as `limit` says; `grpc` picks the form of the
+    /// error.
+    pub fn new(inner: Body, limit: BodyLimit, deadline: Duration, grpc: bool) -> DeadlineBody {
+        DeadlineBody {
+            inner,
+            limit,
+            deadline,
+            grpc,
+            timer: Some(Box::pin(tokio::time::sleep(deadline))),
+            prefix_seen: 0,
+            prefix: [0; 5],
+            payload_left: 0,
+            done: false,
+        }
+    }
+
+    /// Follows the gRPC message framing through `data`: a message that completes disarms the
+    /// timer, one that starts arms it.
+    fn track(&mut self, mut data: &[u8]) {
+        while !data.is_empty() {
+            if self.prefix_seen == 0 && self.payload_left == 0 && self.timer.is_none() {
+                // A new message starts: it is due within the deadline of its first byte.
+                self.timer = Some(Box::pin(tokio::time::sleep(self.deadline)));
+            }
+            if self.prefix_seen < 5 {
+                let k = (5 - self.prefix_seen).min(data.len());
+                self.prefix[self.prefix_seen..self.prefix_seen + k].copy_from_slice(&data[..k]);
+                self.prefix_seen += k;
+                data = &data[k..];
+                if self.prefix_seen == 5 {
+                    let len = u32::from_be_bytes([
+                        self.prefix[1],
+                        self.prefix[2],
+                        self.prefix[3],
+                        self.prefix[4],
+                    ]);
+                    self.payload_left = len as usize;
+                    if self.payload_left == 0 {
+                        self.message_done();
+                    }
+                }
+            } else {
+                let k = self.payload_left.min(data.len());
+                self.payload_left -= k;
+                data = &data[k..];
+                if self.payload_left == 0 {
+                    self.message_done();
+                }
+            }
+        }
+    }
+
+    fn message_done(&mut self) {
+        self.prefix_seen = 0;
+        self.payload_left = 0;
+        self.timer = None;
+    }
+
+    fn error(&self) -> axum::BoxError {
+        let secs = self.deadline.as_secs_f64();
+        let what = match self.limit {
+            BodyLimit::Whole if !self.grpc => "the request body",
+            _ => "the request message",
+        };
+        let message = format!(
+            "{what} did not arrive within {secs} s of its start (--body-deadline-s); send it \
+             faster or in smaller requests"
+        );
+        if self.grpc {
+            Box::new(crate::error::ApiError::invalid("request", message).to_status())
+        } else {
+            Box::new(BodyDeadlineExceeded(message))
+        }
+    }
+}
+
+impl hyper::body::Body for DeadlineBody {
+    type Data = Bytes;
+    type Error = axum::BoxError;
+
+    fn poll_frame(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+    ) -> Poll<Option<Result<Frame<Bytes>, Self::Error>>> {
+        let this = &mut *self;
+        if this.done {
+            return Poll::Ready(None);
+        }
+        // What has arrived counts before the clock: a server busy elsewhere does not fail a
+        // client whose bytes are already here.
+        match Pin::new(&mut this.inner).poll_frame(cx) {
+            Poll::Ready(Some(Ok(frame))) => {
+                if this.limit == BodyLimit::EachMessage
+                    && let Some(data) = frame.data_ref()
+                {
+                    let data = data.clone();
+                    this.track(&data);
+                }
+                return Poll::Ready(Some(Ok(frame)));
+            }
+            Poll::Ready(Some(Err(e))) => return Poll::Ready(Some(Err(Box::new(e)))),
+            Poll::Ready(None) => {
+                this.done = true;
+                this.timer = None;
+                return Poll::Ready(None);
+            }
+            Poll::Pending => {}
+        }
+        if let Some(t) = this.timer.as_mut()
+            && t.as_mut().poll(cx).is_ready()
+        {
+            this.done = true;
+            this.timer = None;
+            return Poll::Ready(Some(Err(this.error())));
+        }
+        Poll::Pending
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.done || self.inner.is_end_stream()
+    }
+
+    fn size_hint(&self) -> SizeHint {
+        self.inner.size_hint()
+    }
+}
+
+/// `req` with its body under `--body-deadline-s` (`deadline`; `None`: unchanged).
+pub fn with_body_deadline(
+    req: Request<Body>,
+    deadline: Option<Duration>,
+    limit: BodyLimit,
+    grpc: bool,
+) -> Request<Body> {
+    match deadline {
+        Some(d) => req.map(|b| Body::new(DeadlineBody::new(b, limit, d, grpc))),
+        None => req,
+    }
+}
+
+/// The message of a [`BodyDeadlineExceeded`] in `e`'s source chain, if there is one.
+pub fn body_deadline_message(e: &(dyn std::error::Error + 'static)) -> Option<String> {
+    let mut cur = Some(e);
+    while let Some(err) = cur {
+        if let Some(d) = err.downcast_ref::<BodyDeadlineExceeded>() {
+            return Some(d.0.clone());
+        }
+        cur = err.source();
+    }
+    None
 }

@@ -316,8 +316,8 @@ impl Auth {
 }
 
 /// The HTTP router with its policy around it, outermost first: CORS (when origins are allowed),
-/// authentication (when tokens are configured), JSON-only POST and PUT bodies, and the body
-/// read timeout.
+/// authentication (when tokens are configured), JSON-only POST and PUT bodies, the body read
+/// timeout (between chunks) and the body deadline (the whole body).
 pub fn http_policy(
     router: axum::Router,
     config: &crate::ServeConfig,
@@ -328,6 +328,18 @@ pub fn http_policy(
         router = router.layer(axum::middleware::map_request(
             move |req: Request| async move {
                 req.map(|b| Body::new(tower_http::timeout::TimeoutBody::new(t, b)))
+            },
+        ));
+    }
+    if let Some(d) = config.connections.body_deadline() {
+        router = router.layer(axum::middleware::map_request(
+            move |req: Request| async move {
+                crate::listener::with_body_deadline(
+                    req,
+                    Some(d),
+                    crate::listener::BodyLimit::Whole,
+                    false,
+                )
             },
         ));
     }

@@ -29,6 +29,9 @@ use crate::listener;
 use crate::security::{Auth, Wire};
 use crate::viewer::{self, Viewer};
 
+/// Most open connections of the probe listener (`--health-addr`); half of them per peer at most.
+const HEALTH_MAX_CONNECTIONS: usize = 64;
+
 /// Extra time after the drain deadline for connections to close before serving stops anyway.
 const CLOSE_GRACE: Duration = Duration::from_secs(5);
 
@@ -38,6 +41,8 @@ pub struct RunningServer {
     pub grpc_addr: SocketAddr,
     /// Bound HTTP address.
     pub http_addr: SocketAddr,
+    /// Bound address of the probe listener (`--health-addr`), if one was asked for.
+    pub health_addr: Option<SocketAddr>,
     engine: Arc<Engine>,
     stop_tx: watch::Sender<bool>,
     ready_rx: watch::Receiver<Option<Result<(), String>>>,
@@ -194,8 +199,20 @@ pub async fn start_with_viewer(
     let http_listener = TcpListener::bind(config.http_addr)
         .await
         .with_context(|| format!("binding HTTP address {}", config.http_addr))?;
+    let health_listener = match config.connections.health_addr {
+        Some(a) => Some(
+            TcpListener::bind(a)
+                .await
+                .with_context(|| format!("binding the probe address {a} (--health-addr)"))?,
+        ),
+        None => None,
+    };
     let grpc_addr = grpc_listener.local_addr()?;
     let http_addr = http_listener.local_addr()?;
+    let health_addr = match &health_listener {
+        Some(l) => Some(l.local_addr()?),
+        None => None,
+    };
     let tls = config.security.tls_acceptor()?;
     let auth = Auth::from_config(&config.security).map_err(anyhow::Error::msg)?;
     let (grpc_router, health) = grpc::router(engine.clone()).await?;
@@ -221,6 +238,29 @@ pub async fn start_with_viewer(
         engine.metrics().clone(),
         accept_rx.clone(),
     ));
+    // The probe listener: the probes and `/metrics` (under the same authentication), its own
+    // connection cap, so a full API listener does not lock the probes out.
+    let health_task = health_listener.map(|l| {
+        let router = http::probes_router(engine.clone());
+        let router = match &auth {
+            Some(a) => a.protect(router, Wire::Http),
+            None => router,
+        };
+        let mut connections = config.connections.clone();
+        connections.max_connections = HEALTH_MAX_CONNECTIONS;
+        connections.max_connections_per_peer = connections
+            .max_connections_per_peer
+            .min(HEALTH_MAX_CONNECTIONS / 2);
+        tokio::spawn(listener::serve(
+            "health",
+            l,
+            router,
+            tls.clone(),
+            connections,
+            engine.metrics().clone(),
+            accept_rx.clone(),
+        ))
+    });
     let http_task = tokio::spawn(listener::serve(
         "http",
         http_listener,
@@ -287,6 +327,9 @@ pub async fn start_with_viewer(
         let servers = async {
             let g = grpc_task.await;
             let h = http_task.await;
+            if let Some(t) = health_task {
+                let _ = t.await;
+            }
             (g, h)
         };
         match tokio::time::timeout(CLOSE_GRACE, servers).await {
@@ -307,6 +350,7 @@ pub async fn start_with_viewer(
     Ok(RunningServer {
         grpc_addr,
         http_addr,
+        health_addr,
         engine,
         stop_tx,
         ready_rx,
@@ -380,7 +424,7 @@ pub fn run_with_viewer(config: ServeConfig, viewer: Viewer) -> anyhow::Result<()
             "{}",
             dynaserve_api::listening::listening_line(server.grpc_addr, server.http_addr, &names)
         );
-        tracing::info!(grpc = %server.grpc_addr, http = %server.http_addr, models = ?names, "listening");
+        tracing::info!(grpc = %server.grpc_addr, http = %server.http_addr, health = ?server.health_addr, models = ?names, "listening");
         termination().await;
         server.shutdown();
         server.wait().await

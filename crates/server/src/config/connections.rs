@@ -1,6 +1,7 @@
-//! Flags of the listeners: the cap on open connections and the connection timeouts (enforced
-//! by `crate::listener`).
+//! Flags of the listeners: the caps on open connections (in all and per peer address), the
+//! connection and body timeouts (enforced by `crate::listener`) and the probe listener.
 
+use std::net::SocketAddr;
 use std::time::Duration;
 
 use super::seconds::{check_secs, secs};
@@ -11,6 +12,11 @@ pub struct ConnectionConfig {
     /// Most open connections per listener; more are closed on accept.
     #[arg(long, env = "DYNASERVE_MAX_CONNECTIONS", default_value_t = 1024)]
     pub max_connections: usize,
+    /// Most open connections per listener from one peer IP address; more from that address
+    /// are closed on accept, so one host cannot fill a listener. 0 disables. Behind a proxy
+    /// every client has the proxy's address: raise or disable it there.
+    #[arg(long, env = "DYNASERVE_MAX_CONNECTIONS_PER_PEER", default_value_t = 64)]
+    pub max_connections_per_peer: usize,
     /// Seconds a connection may take to send a request's headers (from accept, and for HTTP/1
     /// between requests: idle keep-alive connections close after it); 0 disables.
     #[arg(long, env = "DYNASERVE_HEADER_READ_TIMEOUT_S", default_value_t = 10.0)]
@@ -19,6 +25,18 @@ pub struct ConnectionConfig {
     /// (HTTP) and the connection closes; 0 disables.
     #[arg(long, env = "DYNASERVE_BODY_READ_TIMEOUT_S", default_value_t = 30.0)]
     pub body_read_timeout_s: f64,
+    /// Seconds a request body may take in all, however steadily it trickles: an HTTP body from
+    /// the request's headers to its end (else 408), a gRPC request's message from the request's
+    /// start (for a client stream such as Interact: each later message from its first byte;
+    /// the wait between messages is not bounded) (else INVALID_ARGUMENT naming `request`).
+    /// 0 disables.
+    #[arg(long, env = "DYNASERVE_BODY_DEADLINE_S", default_value_t = 60.0)]
+    pub body_deadline_s: f64,
+    /// Address of a listener of its own for the probes (`/health`, `/ready`) and `/metrics`
+    /// over HTTP, with its own connection cap, so that a full API listener cannot lock them
+    /// out. None (the default): the probes are served on the HTTP listener only.
+    #[arg(long, env = "DYNASERVE_HEALTH_ADDR")]
+    pub health_addr: Option<SocketAddr>,
     /// Seconds between HTTP/2 keep-alive pings; 0 disables.
     #[arg(
         long,
@@ -43,6 +61,7 @@ impl ConnectionConfig {
         }
         check_secs("--header-read-timeout-s", self.header_read_timeout_s)?;
         check_secs("--body-read-timeout-s", self.body_read_timeout_s)?;
+        check_secs("--body-deadline-s", self.body_deadline_s)?;
         check_secs(
             "--http2-keepalive-interval-s",
             self.http2_keepalive_interval_s,
@@ -56,5 +75,10 @@ impl ConnectionConfig {
     /// `body_read_timeout_s` as a duration; `None` when disabled.
     pub fn body_read_timeout(&self) -> Option<Duration> {
         secs(self.body_read_timeout_s)
+    }
+
+    /// `body_deadline_s` as a duration; `None` when disabled.
+    pub fn body_deadline(&self) -> Option<Duration> {
+        secs(self.body_deadline_s)
     }
 }

@@ -58,6 +58,20 @@ impl SessionsService {
     }
 }
 
+/// The error of a client stream that failed: a later message that does not decode, or that
+/// did not arrive within `--body-deadline-s`, is the client's fault like a bad first message
+/// (INVALID_ARGUMENT naming `request`); anything else means the client went away.
+fn client_stream_error(s: &Status) -> ApiError {
+    if let Some(e) = super::undecodable(s.code(), s.message()) {
+        return e;
+    }
+    if s.code() == tonic::Code::InvalidArgument {
+        let m = s.message();
+        return ApiError::invalid("request", m.strip_prefix("request: ").unwrap_or(m));
+    }
+    ApiError::cancelled(format!("client stream failed: {}", s.message()))
+}
+
 fn frames(rx: tokio::sync::mpsc::Receiver<Result<Frame, ApiError>>) -> FrameStream {
     Box::pin(
         ReceiverStream::new(rx).map(|r| r.map(|f: Frame| f.to_v1()).map_err(|e| e.to_status())),
@@ -176,12 +190,7 @@ impl SessionsApi for SessionsService {
             Ok(m) => engine
                 .check_payload(m.encoded_len())
                 .and_then(|()| InteractStep::from_v1(&m).map_err(ApiError::from)),
-            // A later message that does not decode is the client's fault, like the first.
-            Err(s) => Err(
-                super::undecodable(s.code(), s.message()).unwrap_or_else(|| {
-                    ApiError::cancelled(format!("client stream failed: {}", s.message()))
-                }),
-            ),
+            Err(s) => Err(client_stream_error(&s)),
         });
         let r = self
             .engine
