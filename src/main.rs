@@ -40,6 +40,9 @@ enum Command {
     /// Convert a checkpoint of another implementation into a model directory: `dynaserve
     /// import physiformer --checkpoint FILE --out DIR` for the official PhysiFormer code's.
     Import(import::ImportArgs),
+    /// Check that a device (CUDA) computes what the CPU computes: one RigidFormer step and one
+    /// PhysiFormer denoiser call on both, as relative errors.
+    Parity(dynaserve_train::parity::ParityArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -67,6 +70,7 @@ fn main() -> anyhow::Result<()> {
         Command::Eval(args) => dynaserve_train::cli::run_eval(args),
         Command::Sim(args) => dynaserve_sim::cli::run(args),
         Command::Import(args) => import::run(args),
+        Command::Parity(args) => dynaserve_train::parity::run(args),
     }
 }
 

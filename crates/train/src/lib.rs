@@ -3,5 +3,6 @@
 pub mod cli;
 pub mod eval;
 pub mod ledger;
+pub mod parity;
 pub mod physi;
 pub mod train;

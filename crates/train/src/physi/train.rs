@@ -110,11 +110,27 @@ pub fn run(
     device: Option<&str>,
     stop: Arc<AtomicBool>,
 ) -> anyhow::Result<()> {
+    run_with_checkpoint_minutes(path, resume, stop_after, device, None, stop)
+}
+
+/// [`run`], with `checkpoint_minutes` (when given) replacing the configuration's minutes
+/// between checkpoints.
+pub fn run_with_checkpoint_minutes(
+    path: &Path,
+    resume: bool,
+    stop_after: Option<u64>,
+    device: Option<&str>,
+    checkpoint_minutes: Option<f64>,
+    stop: Arc<AtomicBool>,
+) -> anyhow::Result<()> {
     let text = std::fs::read_to_string(path).with_context(|| format!("{}", path.display()))?;
     let mut cfg: PhysiTrainConfig = toml::from_str(&text)
         .with_context(|| format!("{} is not a valid config", path.display()))?;
     if let Some(d) = device {
         cfg.device = d.to_string();
+    }
+    if let Some(m) = checkpoint_minutes {
+        cfg.checkpoint_minutes = m;
     }
     anyhow::ensure!(
         cfg.optim.batch_size > 0,

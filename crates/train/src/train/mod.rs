@@ -101,6 +101,13 @@ pub struct TrainArgs {
     /// needs a build with `--features cuda`).
     #[arg(long)]
     pub device: Option<String>,
+    /// Wall-clock budget of this invocation, minutes: the run stops with a checkpoint after
+    /// the iteration that passes it (as on Ctrl-C).
+    #[arg(long)]
+    pub minutes: Option<f64>,
+    /// Minutes between checkpoints, replacing the configuration's `checkpoint_minutes`.
+    #[arg(long)]
+    pub checkpoint_minutes: Option<f64>,
 }
 
 impl TrainArgs {
@@ -194,6 +201,18 @@ pub enum TrainAction {
         #[arg(long, default_value_t = 160)]
         width: usize,
     },
+}
+
+/// Sets `flag` (a training run's stop request) once `minutes` of wall-clock time have passed.
+fn stop_after_minutes(flag: Arc<AtomicBool>, minutes: f64) -> std::io::Result<()> {
+    let budget = std::time::Duration::from_secs_f64(60.0 * minutes);
+    std::thread::Builder::new()
+        .name("train-budget".into())
+        .spawn(move || {
+            std::thread::sleep(budget);
+            flag.store(true, Ordering::SeqCst);
+        })
+        .map(drop)
 }
 
 /// `dynaserve train compare`: reads the scorecards and prints one table per candidate.
@@ -390,14 +409,26 @@ pub fn run_cli(args: TrainArgs) -> anyhow::Result<()> {
              subcommand)"
         );
     };
+    for (name, v) in [
+        ("--minutes", args.minutes),
+        ("--checkpoint-minutes", args.checkpoint_minutes),
+    ] {
+        if let Some(v) = v {
+            anyhow::ensure!(v.is_finite() && v > 0.0, "{name} must be a positive number");
+        }
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    stop_on_signals(stop.clone())?;
+    if let Some(minutes) = args.minutes {
+        stop_after_minutes(stop.clone(), minutes)?;
+    }
     if crate::physi::train::is_physi_config(&path) {
-        let stop = Arc::new(AtomicBool::new(false));
-        stop_on_signals(stop.clone())?;
-        return crate::physi::train::run(
+        return crate::physi::train::run_with_checkpoint_minutes(
             &path,
             args.resume,
             args.stop_after,
             args.device.as_deref(),
+            args.checkpoint_minutes,
             stop,
         );
     }
@@ -405,8 +436,9 @@ pub fn run_cli(args: TrainArgs) -> anyhow::Result<()> {
     if let Some(device) = args.device {
         cfg.run.device = device;
     }
-    let stop = Arc::new(AtomicBool::new(false));
-    stop_on_signals(stop.clone())?;
+    if let Some(m) = args.checkpoint_minutes {
+        cfg.run.checkpoint_minutes = m;
+    }
     let summary = train(
         &cfg,
         &TrainOptions {
