@@ -43,6 +43,9 @@ enum Command {
     /// Check that a device (CUDA) computes what the CPU computes: one RigidFormer step and one
     /// PhysiFormer denoiser call on both, as relative errors.
     Parity(dynaserve_train::parity::ParityArgs),
+    /// Time RigidFormer's step at several batch sizes on one device (scene-steps per second),
+    /// without a server.
+    Throughput(dynaserve_train::throughput::ThroughputArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -71,6 +74,7 @@ fn main() -> anyhow::Result<()> {
         Command::Sim(args) => dynaserve_sim::cli::run(args),
         Command::Import(args) => import::run(args),
         Command::Parity(args) => dynaserve_train::parity::run(args),
+        Command::Throughput(args) => dynaserve_train::throughput::run(args),
     }
 }
 

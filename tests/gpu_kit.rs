@@ -1,6 +1,6 @@
 //! The GPU kit (deploy/gpu-kit) end to end on the CPU, as it runs on a GPU machine: packed
-//! around this build's binary, then every stage (parity, data, training for a wall-clock
-//! budget, export, evaluation) with the `kit-tiny` configuration, and a second run that
+//! around this build's binary, then every stage (parity, data, throughput, training for a
+//! wall-clock budget, export, evaluation) with the `kit-tiny` configuration, and a second run that
 //! resumes from the first one's output alone.
 
 use std::path::{Path, PathBuf};
@@ -42,6 +42,8 @@ fn kit(kit: &Path, out: &Path, work: &Path, extra: &[&str]) -> String {
             "--suite-scenes",
             "1",
         ])
+        .args(["--serve-batches", "1,2", "--train-batches", "2"])
+        .args(["--train-presets", "tiny"])
         .arg("--out")
         .arg(out)
         .arg("--work")
@@ -84,6 +86,11 @@ fn the_kit_runs_every_stage_on_the_cpu_and_resumes_from_its_own_output() {
     assert!(summary.contains("parity: PASSED"), "{summary}");
     assert!(summary.contains("data: 1 training splits"), "{summary}");
     assert!(summary.contains("train: stopped at iteration"), "{summary}");
+    // Throughput: the step at both batch sizes and a training rate for the tiny preset.
+    for row in ["| 1 | ", "| 2 | ", "| tiny | 2 | "] {
+        assert!(summary.contains(row), "no row {row:?} in:\n{summary}");
+    }
+    assert!(!summary.contains("failed (kit.log)"), "{summary}");
     assert!(summary.contains("Translation RMSE"), "{summary}");
     // Fewer test scenes than the release's scorecard: the comparison says why it was skipped.
     assert!(summary.contains("not compared"), "{summary}");

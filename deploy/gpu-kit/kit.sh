@@ -7,15 +7,17 @@
 #
 #   ./kit.sh --out OUT [--device cuda|cpu] [--config NAME] [--minutes M] [--resume DIR]
 #            [--data-scale F] [--eval-scenes N] [--fresh-scenes N] [--suite-scenes N]
-#            [--stages parity,data,train,eval] [--work DIR]
+#            [--serve-batches LIST] [--train-batches LIST] [--train-presets LIST]
+#            [--stages parity,data,throughput,train,eval] [--work DIR]
 set -euo pipefail
 
 KIT=$(cd "$(dirname "$0")" && pwd)
 device=cuda config=rigidformer-small-r88 minutes=10 resume="" data_scale=1
-eval_scenes=200 fresh_scenes=100 suite_scenes="" stages=parity,data,train,eval
+eval_scenes=200 fresh_scenes=100 suite_scenes="" stages=parity,data,throughput,train,eval
+serve_batches=1,8,32,128,256 train_batches=24,64,128,256 train_presets=small,paper
 out="" work=""
 
-usage() { sed -n '2,10p' "$0" | sed 's/^# \{0,1\}//'; exit "${1:-0}"; }
+usage() { sed -n '2,11p' "$0" | sed 's/^# \{0,1\}//'; exit "${1:-0}"; }
 while [ $# -gt 0 ]; do
   case "$1" in
     --out) out=$2; shift 2 ;;
@@ -28,6 +30,9 @@ while [ $# -gt 0 ]; do
     --fresh-scenes) fresh_scenes=$2; shift 2 ;;
     --suite-scenes) suite_scenes=$2; shift 2 ;;
     --stages) stages=$2; shift 2 ;;
+    --serve-batches) serve_batches=$2; shift 2 ;;
+    --train-batches) train_batches=$2; shift 2 ;;
+    --train-presets) train_presets=$2; shift 2 ;;
     --work) work=$2; shift 2 ;;
     -h | --help) usage 0 ;;
     *) echo "kit: unknown argument $1" >&2; usage 2 >&2 ;;
@@ -162,6 +167,37 @@ if has data; then
     splits=" and the MOVi-B test ($eval_scenes scenes) and fresh ($fresh_scenes) splits"
   fi
   say "data: $n training splits (scale $data_scale)$splits, $(du -sh data | cut -f1), $(took) s"
+fi
+
+# --- throughput ------------------------------------------------------------------------------
+if has throughput; then
+  begin throughput
+  say "serving throughput, RigidFormer step (scene-steps/s):"
+  for d in "$device" $([ "$device" = cpu ] || echo cpu); do
+    ds throughput --device "$d" --batches "$serve_batches" --json "$work/results/throughput-$d.json" |
+      grep -v '^| ---' | tee -a "$summary"
+  done
+  if [ "$device" != cpu ]; then
+    ds throughput --device "$device" --batches "$serve_batches" --max-pass-objects 100000 \
+      --json "$work/results/throughput-$device-one-pass.json" | grep -v '^| ---' | tee -a "$summary"
+  fi
+  # Training throughput: fresh models of each preset on the recipe's first split, 30 iterations.
+  train_data=$(sed -n 's/.*--out \([^ ]*\).*/\1/p' "$KIT/recipes/$config.txt" | head -1)
+  say "training throughput on $device ($train_data, 256-512 points per object):"
+  say "| preset | batch | it/s | waiting for data |"
+  for p in ${train_presets//,/ }; do
+    for b in ${train_batches//,/ }; do
+      t="throughput/$p-$b"
+      rm -rf "runs/$t" && mkdir -p throughput
+      printf '[data]\ntrain = "%s"\npoints_min = 256\npoints_max = 512\n[model]\npreset = "%s"\nfit_normalization = false\n[optim]\nbatch_size = %s\niterations = 1000000\n[run]\nout_dir = "runs/%s"\nloader_threads = %s\nprogress = false\nlog_every = 1000\n' \
+        "$train_data" "$p" "$b" "$t" "$(( cores > 2 ? cores / 2 : 1 ))" >"$t.toml"
+      line=$(ds train --config "$t.toml" --device "$device" --stop-after 30 | grep '^stopped at' || true)
+      rate=$(echo "$line" | sed -n 's/.*(\([0-9.]*\) it\/s this session, \([0-9]*\)% of it waiting.*/\1 | \2%/p')
+      say "| $p | $b | ${rate:-failed (kit.log)} |"
+      rm -rf "runs/$t"
+    done
+  done
+  say "throughput: $(took) s"
 fi
 
 # --- train -----------------------------------------------------------------------------------

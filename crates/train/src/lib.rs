@@ -5,4 +5,5 @@ pub mod eval;
 pub mod ledger;
 pub mod parity;
 pub mod physi;
+pub mod throughput;
 pub mod train;
