@@ -224,6 +224,32 @@ async fn grpc_outcome(
     (None, String::new(), data)
 }
 
+/// The grpc-status and grpc-message of the trailers ending `body`.
+async fn grpc_outcome_of_body(mut body: hyper::body::Incoming) -> (Option<String>, String, usize) {
+    let mut data = 0;
+    while let Some(f) = tokio::time::timeout(HANG, body.frame())
+        .await
+        .expect("the call never ended")
+    {
+        let f = f.unwrap();
+        if let Some(d) = f.data_ref() {
+            data += d.len();
+        }
+        if let Some(t) = f.trailers_ref() {
+            let get = |k: &str| {
+                t.get(k)
+                    .map(|v| String::from_utf8_lossy(v.as_bytes()).into_owned())
+            };
+            return (
+                get("grpc-status"),
+                get("grpc-message").unwrap_or_default(),
+                data,
+            );
+        }
+    }
+    (None, String::new(), data)
+}
+
 fn percent_decoded(s: &str) -> String {
     s.replace("%20", " ")
         .replace("%2D", "-")
@@ -282,6 +308,7 @@ async fn grpc_messages_that_trickle_are_cut_off_but_interact_may_wait_between_me
             scene: Some(scene.to_proto()),
             dt_steps: 1,
             kinematic: vec![],
+            shared: false,
         }),
         ..Default::default()
     };
@@ -351,6 +378,683 @@ async fn grpc_messages_that_trickle_are_cut_off_but_interact_may_wait_between_me
     assert!(msg.contains("--body-deadline-s"), "{msg}");
     assert!(started.elapsed() >= Duration::from_millis(900));
     drop(tx);
+    server.shutdown();
+    server.wait().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn thousands_of_pipelined_interact_actions_all_get_their_frame() {
+    // A tiny random model: the point is the transport, not the physics.
+    let m = random_model("rigidformer-pipeline", 3);
+    let server = start(&m.dir, |_| {}).await;
+    const N: usize = 5000;
+    let open = dynaserve_api::v1::InteractRequest {
+        create: Some(dynaserve_api::v1::CreateSessionRequest {
+            model: m.name.clone(),
+            scene: Some(scene(71, 1, 16).to_proto()),
+            dt_steps: 1,
+            // Held still (the random model would let a free object drift out of its domain
+            // over thousands of steps); every step still runs through the model.
+            kinematic: vec![0],
+            shared: false,
+        }),
+        ..Default::default()
+    };
+    let (mut tx, call) = raw_grpc_call(server.grpc_addr, "/dynaserve.v1.Sessions/Interact").await;
+    tx.send(Ok(Frame::data(Bytes::from(grpc_frame(
+        &open.encode_to_vec(),
+    )))))
+    .await
+    .unwrap();
+    // Every action in a DATA frame of its own, all sent before the first frame is read: the
+    // server must hold them back (flow control), not drop the connection.
+    let step = Bytes::from(grpc_frame(
+        &dynaserve_api::v1::InteractRequest::default().encode_to_vec(),
+    ));
+    let sender = tokio::spawn(async move {
+        for _ in 0..N {
+            tx.send(Ok(Frame::data(step.clone()))).await.unwrap();
+        }
+        tx
+    });
+    let resp = tokio::time::timeout(HANG, call)
+        .await
+        .expect("no answer")
+        .unwrap()
+        .unwrap();
+    assert!(resp.headers().get("grpc-status").is_none());
+    let mut body = resp.into_body();
+    let mut bytes = Vec::new();
+    let mut frames = 0;
+    while frames < N {
+        let f = tokio::time::timeout(HANG, body.frame())
+            .await
+            .expect("a frame never came")
+            .unwrap_or_else(|| panic!("the stream ended after {frames} frames"))
+            .unwrap_or_else(|e| panic!("after {frames} frames: {e:?}"));
+        if let Some(t) = f.trailers_ref() {
+            panic!("the stream ended after {frames} frames: {t:?}");
+        }
+        bytes.extend_from_slice(f.data_ref().unwrap());
+        // Count whole gRPC messages.
+        while bytes.len() >= 5 {
+            let len = u32::from_be_bytes([bytes[1], bytes[2], bytes[3], bytes[4]]) as usize;
+            if bytes.len() < 5 + len {
+                break;
+            }
+            let msg = dynaserve_api::v1::StepFrame::decode(&bytes[5..5 + len]).unwrap();
+            frames += 1;
+            assert_eq!(msg.step as usize, frames);
+            bytes.drain(..5 + len);
+        }
+    }
+    drop(sender.await.unwrap());
+    let (code, msg, _) = grpc_outcome_of_body(body).await;
+    assert_eq!(code.as_deref(), Some("0"), "{msg}");
+    server.shutdown();
+    server.wait().await.unwrap();
+}
+
+const TOKEN_A: &str = "caller-a-token-0123456789";
+const TOKEN_B: &str = "caller-b-token-0123456789";
+
+fn bearer(token: &str) -> String {
+    format!("Bearer {token}")
+}
+
+/// `method path` as the caller of `token` (JSON body when given).
+async fn as_caller(
+    addr: SocketAddr,
+    token: &str,
+    method: &str,
+    path: &str,
+    body: Option<serde_json::Value>,
+) -> HttpResponse {
+    let auth = bearer(token);
+    let b = body.map(|v| serde_json::to_vec(&v).unwrap());
+    http(
+        addr,
+        method,
+        path,
+        &[("authorization", &auth)],
+        b.as_deref(),
+    )
+    .await
+}
+
+fn create_body(model: &str, seed: u64, shared: bool) -> serde_json::Value {
+    serde_json::json!({
+        "model": model,
+        "scene": scene(seed, 2, 32),
+        "shared": shared,
+    })
+}
+
+fn grpc_as<T>(token: &str, msg: T) -> tonic::Request<T> {
+    let mut r = tonic::Request::new(msg);
+    r.metadata_mut()
+        .insert("authorization", bearer(token).parse().unwrap());
+    r
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sessions_belong_to_their_caller_and_others_get_not_found() {
+    let m = test_model();
+    let server = start(&m.dir, |c| {
+        c.security.auth_tokens = vec![TOKEN_A.into(), TOKEN_B.into()];
+    })
+    .await;
+    let addr = server.http_addr;
+    let created = as_caller(
+        addr,
+        TOKEN_A,
+        "POST",
+        "/v1/sessions",
+        Some(create_body(&m.name, 81, false)),
+    )
+    .await;
+    assert_eq!(created.status, 201, "{}", created.text());
+    let info: dynaserve_api::json::SessionInfo = created.json();
+    assert!(!info.shared);
+    let id = info.session_id;
+    let base = format!("/v1/sessions/{id}");
+
+    // Its owner uses it.
+    let own = as_caller(addr, TOKEN_A, "GET", &base, None).await;
+    assert_eq!(own.status, 200, "{}", own.text());
+    // For the other caller it does not exist, whatever the call.
+    let other_calls: Vec<(&str, String, Option<serde_json::Value>)> = vec![
+        ("GET", base.clone(), None),
+        (
+            "PUT",
+            format!("{base}/state"),
+            Some(serde_json::json!({"objects": []})),
+        ),
+        (
+            "POST",
+            format!("{base}/step"),
+            Some(serde_json::json!({"steps": 1})),
+        ),
+        ("POST", format!("{base}/fork"), None),
+        (
+            "POST",
+            format!("{base}/predict"),
+            Some(serde_json::json!({"variants": [{}], "steps": 1})),
+        ),
+        ("DELETE", base.clone(), None),
+    ];
+    for (method, path, body) in other_calls {
+        let r = as_caller(addr, TOKEN_B, method, &path, body).await;
+        assert_eq!(r.status, 404, "{method} {path}: {}", r.text());
+        let e: dynaserve_api::json::ErrorResponse = r.json();
+        assert_eq!(
+            e.error.field.as_deref(),
+            Some("session_id"),
+            "{method} {path}"
+        );
+    }
+    // The same over gRPC, Interact included.
+    let mut c = dynaserve_api::v1::sessions_client::SessionsClient::connect(format!(
+        "http://{}",
+        server.grpc_addr
+    ))
+    .await
+    .unwrap();
+    let e = c
+        .get_state(grpc_as(
+            TOKEN_B,
+            dynaserve_api::v1::GetStateRequest {
+                session_id: id.clone(),
+            },
+        ))
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), tonic::Code::NotFound, "{}", e.message());
+    let (mut tx, rx) = futures::channel::mpsc::channel(4);
+    tx.send(dynaserve_api::v1::InteractRequest {
+        session_id: id.clone(),
+        ..Default::default()
+    })
+    .await
+    .unwrap();
+    let e = c.interact(grpc_as(TOKEN_B, rx)).await.unwrap_err();
+    assert_eq!(e.code(), tonic::Code::NotFound, "{}", e.message());
+    // Still there for its owner after all that.
+    assert_eq!(
+        as_caller(addr, TOKEN_A, "GET", &base, None).await.status,
+        200
+    );
+
+    // A shared session: every caller uses it, only its owner deletes it.
+    let created = as_caller(
+        addr,
+        TOKEN_A,
+        "POST",
+        "/v1/sessions",
+        Some(create_body(&m.name, 82, true)),
+    )
+    .await;
+    assert_eq!(created.status, 201, "{}", created.text());
+    let shared: dynaserve_api::json::SessionInfo = created.json();
+    assert!(shared.shared);
+    let sbase = format!("/v1/sessions/{}", shared.session_id);
+    assert_eq!(
+        as_caller(addr, TOKEN_B, "GET", &sbase, None).await.status,
+        200
+    );
+    let stepped = as_caller(
+        addr,
+        TOKEN_B,
+        "POST",
+        &format!("{sbase}/step"),
+        Some(serde_json::json!({"steps": 1})),
+    )
+    .await;
+    assert_eq!(stepped.status, 200, "{}", stepped.text());
+    let fork = as_caller(addr, TOKEN_B, "POST", &format!("{sbase}/fork"), None).await;
+    assert_eq!(fork.status, 201, "{}", fork.text());
+    let fork: dynaserve_api::json::SessionInfo = fork.json();
+    assert!(!fork.shared, "a fork is its forker's own");
+    let fork_path = format!("/v1/sessions/{}", fork.session_id);
+    assert_eq!(
+        as_caller(addr, TOKEN_A, "GET", &fork_path, None)
+            .await
+            .status,
+        404
+    );
+    let denied = as_caller(addr, TOKEN_B, "DELETE", &sbase, None).await;
+    assert_eq!(denied.status, 403, "{}", denied.text());
+    assert_eq!(
+        as_caller(addr, TOKEN_A, "DELETE", &sbase, None)
+            .await
+            .status,
+        204
+    );
+    assert_eq!(
+        as_caller(addr, TOKEN_B, "DELETE", &fork_path, None)
+            .await
+            .status,
+        204
+    );
+    server.shutdown();
+    server.wait().await.unwrap();
+
+    // Without authentication a session belongs to its creator's IP address.
+    let server = start(&m.dir, |_| {}).await;
+    let info = create_session_http(server.http_addr, &m.name, scene(83, 2, 32), vec![]).await;
+    let path = format!("/v1/sessions/{}", info.session_id);
+    let other = get_from([127, 0, 0, 2], server.http_addr, &path).await;
+    assert!(other.starts_with("HTTP/1.1 404"), "{other}");
+    let same = get_from([127, 0, 0, 1], server.http_addr, &path).await;
+    assert!(same.starts_with("HTTP/1.1 200"), "{same}");
+    server.shutdown();
+    server.wait().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn session_and_stream_quotas_are_per_caller() {
+    let m = test_model();
+    let server = start(&m.dir, |c| {
+        c.security.auth_tokens = vec![TOKEN_A.into(), TOKEN_B.into()];
+        c.sessions.max_sessions_per_caller = 2;
+        c.sessions.max_streams_per_caller = 1;
+        c.stream_buffer = 1;
+    })
+    .await;
+    let addr = server.http_addr;
+    for seed in [91, 92] {
+        let r = as_caller(
+            addr,
+            TOKEN_A,
+            "POST",
+            "/v1/sessions",
+            Some(create_body(&m.name, seed, false)),
+        )
+        .await;
+        assert_eq!(r.status, 201, "{}", r.text());
+    }
+    let full = as_caller(
+        addr,
+        TOKEN_A,
+        "POST",
+        "/v1/sessions",
+        Some(create_body(&m.name, 93, false)),
+    )
+    .await;
+    assert_eq!(full.status, 429, "{}", full.text());
+    assert!(
+        full.text().contains("--max-sessions-per-caller"),
+        "{}",
+        full.text()
+    );
+    // The other caller has a quota of its own.
+    let r = as_caller(
+        addr,
+        TOKEN_B,
+        "POST",
+        "/v1/sessions",
+        Some(create_body(&m.name, 94, false)),
+    )
+    .await;
+    assert_eq!(r.status, 201, "{}", r.text());
+
+    // Streams: the first of A's holds its one slot while nobody reads it.
+    let mut c = dynaserve_api::v1::world_model_client::WorldModelClient::connect(format!(
+        "http://{}",
+        server.grpc_addr
+    ))
+    .await
+    .unwrap();
+    let long = rollout_request(&m.name, scene(95, 1, 16), 5000).to_proto();
+    let held = c.rollout(grpc_as(TOKEN_A, long.clone())).await.unwrap();
+    let e = c.rollout(grpc_as(TOKEN_A, long.clone())).await.unwrap_err();
+    assert_eq!(e.code(), tonic::Code::ResourceExhausted, "{}", e.message());
+    assert!(
+        e.message().contains("--max-streams-per-caller"),
+        "{}",
+        e.message()
+    );
+    let short = rollout_request(&m.name, scene(96, 1, 16), 2).to_proto();
+    let mut b = c
+        .rollout(grpc_as(TOKEN_B, short.clone()))
+        .await
+        .unwrap()
+        .into_inner();
+    let mut n = 0;
+    while let Some(f) = b.message().await.unwrap() {
+        n += 1;
+        assert_eq!(f.step, n);
+    }
+    assert_eq!(n, 2);
+    // A's slot comes back when its stream goes.
+    drop(held);
+    let t = Instant::now();
+    loop {
+        match c.rollout(grpc_as(TOKEN_A, short.clone())).await {
+            Ok(_) => break,
+            Err(e) => {
+                assert_eq!(e.code(), tonic::Code::ResourceExhausted, "{}", e.message());
+                assert!(t.elapsed() < HANG, "the stream's quota never came back");
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+        }
+    }
+    server.shutdown();
+    server.wait().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_session_that_could_never_fit_is_invalid_not_a_retry() {
+    let m = test_model();
+    let server = start(&m.dir, |c| {
+        c.sessions.max_session_mib = 1;
+    })
+    .await;
+    // Far more than a MiB of prepared points and anchors.
+    let big = serde_json::json!({"model": m.name, "scene": scene(97, 64, 512)});
+    let r = post_json(server.http_addr, "/v1/sessions", &big).await;
+    assert_eq!(r.status, 422, "{}", r.text());
+    let e: dynaserve_api::json::ErrorResponse = r.json();
+    assert_eq!(e.error.field.as_deref(), Some("scene"));
+    assert!(
+        e.error.message.contains("--max-session-mib"),
+        "{}",
+        e.error.message
+    );
+    let mut c = dynaserve_api::v1::sessions_client::SessionsClient::connect(format!(
+        "http://{}",
+        server.grpc_addr
+    ))
+    .await
+    .unwrap();
+    let e = c
+        .create_session(dynaserve_api::v1::CreateSessionRequest {
+            model: m.name.clone(),
+            scene: Some(scene(97, 64, 512).to_proto()),
+            dt_steps: 1,
+            kinematic: vec![],
+            shared: false,
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), tonic::Code::InvalidArgument, "{}", e.message());
+    // A small one fits.
+    create_session_http(server.http_addr, &m.name, scene(98, 2, 32), vec![]).await;
+    server.shutdown();
+    server.wait().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn poses_implying_more_than_1000_m_per_s_are_refused_naming_the_object() {
+    let m = test_model();
+    let server = start(&m.dir, |_| {}).await;
+    let addr = server.http_addr;
+    // A previous pose 100 m from the pose: at the model's step of a few hundredths of a second
+    // that is thousands of m/s.
+    let mut s = scene(101, 2, 32);
+    let at = s.objects[1].pose.translation;
+    s.objects[1].velocity = None;
+    s.objects[1].previous_pose = Some(dynaserve_api::json::Pose {
+        translation: [at[0] - 100.0, at[1], at[2]],
+        rotation: [0.0, 0.0, 0.0, 1.0],
+    });
+    let r = post_json(addr, "/v1/rollout", &rollout_request(&m.name, s.clone(), 2)).await;
+    assert_eq!(r.status, 422, "{}", r.text());
+    let e: dynaserve_api::json::ErrorResponse = r.json();
+    assert_eq!(
+        e.error.field.as_deref(),
+        Some("scene.objects[1].previous_pose")
+    );
+    assert!(e.error.message.contains("1000 m/s"), "{}", e.error.message);
+    let mut c = dynaserve_api::v1::world_model_client::WorldModelClient::connect(format!(
+        "http://{}",
+        server.grpc_addr
+    ))
+    .await
+    .unwrap();
+    let e = c
+        .rollout(rollout_request(&m.name, s, 2).to_proto())
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), tonic::Code::InvalidArgument, "{}", e.message());
+    assert!(
+        e.message().starts_with("scene.objects[1].previous_pose"),
+        "{}",
+        e.message()
+    );
+
+    // A kinematic object's action 100 m from where it is.
+    let info = create_session_http(addr, &m.name, scene(102, 2, 32), vec![0]).await;
+    let path = format!("/v1/sessions/{}", info.session_id);
+    let state: dynaserve_api::json::SessionState = http(addr, "GET", &path, &[], None).await.json();
+    let p = state.poses[0].translation;
+    let near = serde_json::json!({"translation": [p[0] + 0.01, p[1], p[2]]});
+    let far = serde_json::json!({"translation": [p[0] + 100.0, p[1], p[2]]});
+    let step = |poses: Vec<serde_json::Value>| {
+        serde_json::json!({
+            "steps": poses.len(),
+            "actions": poses
+                .into_iter()
+                .map(|pose| serde_json::json!({"kinematic": [{"object": 0, "pose": pose}]}))
+                .collect::<Vec<_>>(),
+        })
+    };
+    let r = post_json(
+        addr,
+        &format!("{path}/step"),
+        &step(vec![near.clone(), far.clone()]),
+    )
+    .await;
+    assert_eq!(r.status, 422, "{}", r.text());
+    let e: dynaserve_api::json::ErrorResponse = r.json();
+    assert_eq!(
+        e.error.field.as_deref(),
+        Some("actions[1].kinematic[0].pose")
+    );
+    assert!(e.error.message.contains("object 0"), "{}", e.error.message);
+    // Nothing was stepped; a slow action runs.
+    let r = post_json(addr, &format!("{path}/step"), &step(vec![near])).await;
+    assert_eq!(r.status, 200, "{}", r.text());
+    let r: dynaserve_api::json::StepResponse = r.json();
+    assert_eq!(r.frames[0].step, 1);
+    // A session Predict variant's action, too.
+    let body = serde_json::json!({"variants": [{}, {"actions": [{"kinematic": [{"object": 0, "pose": far}]}]}], "steps": 1});
+    let r = post_json(addr, &format!("{path}/predict"), &body).await;
+    assert_eq!(r.status, 422, "{}", r.text());
+    let e: dynaserve_api::json::ErrorResponse = r.json();
+    assert_eq!(
+        e.error.field.as_deref(),
+        Some("variants[1].actions[0].kinematic[0].pose")
+    );
+    server.shutdown();
+    server.wait().await.unwrap();
+}
+
+/// One object at `x` metres moving at `vx` m/s along x.
+fn fast_object(x: f32, vx: f32) -> dynaserve_api::json::Scene {
+    let mut s = scene(5, 1, 32);
+    s.objects[0].pose.translation = [x, 0.0, 0.5];
+    s.objects[0].velocity = Some(dynaserve_api::json::Velocity {
+        linear: [vx, 0.0, 0.0],
+        angular: [0.0; 3],
+    });
+    s
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_predict_variant_leaving_the_domain_is_named() {
+    let m = test_model();
+    let server = start(&m.dir, |_| {}).await;
+    let req = dynaserve_api::json::PredictRequest {
+        model: m.name.clone(),
+        variants: vec![scene(111, 2, 32), fast_object(99_999.9, 1000.0)],
+        steps: 5,
+        dt_steps: 1,
+        every: 0,
+        timeout_ms: 0,
+    };
+    let r = post_json(server.http_addr, "/v1/predict", &req).await;
+    assert_eq!(r.status, 422, "{}", r.text());
+    let e: dynaserve_api::json::ErrorResponse = r.json();
+    assert_eq!(e.error.code, "OUT_OF_RANGE");
+    assert_eq!(e.error.field.as_deref(), Some("variants[1].objects[0]"));
+    assert!(
+        e.error
+            .message
+            .starts_with("variants[1].objects[0]: left the model's domain"),
+        "{}",
+        e.error.message
+    );
+    let mut c = dynaserve_api::v1::world_model_client::WorldModelClient::connect(format!(
+        "http://{}",
+        server.grpc_addr
+    ))
+    .await
+    .unwrap();
+    let e = c.predict(req.to_proto()).await.unwrap_err();
+    assert_eq!(e.code(), tonic::Code::OutOfRange);
+    assert!(
+        e.message().starts_with("variants[1].objects[0]"),
+        "{}",
+        e.message()
+    );
+    server.shutdown();
+    server.wait().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_grpc_client_that_never_reads_loses_its_slot_and_finds_the_status_after_its_frames() {
+    let m = test_model();
+    let server = start(&m.dir, |c| {
+        c.max_active_rollouts = 1;
+        c.stream_buffer = 2;
+        c.stream_stall_timeout_s = 1.0;
+    })
+    .await;
+    // A client window of 1 KiB: the server can send next to nothing it does not read.
+    let channel = tonic::transport::Endpoint::from_shared(format!("http://{}", server.grpc_addr))
+        .unwrap()
+        .initial_stream_window_size(1024)
+        .connect()
+        .await
+        .unwrap();
+    let mut slow = dynaserve_api::v1::world_model_client::WorldModelClient::new(channel);
+    let long = rollout_request(&m.name, scene(121, 8, 16), 10_000).to_proto();
+    let mut unread = slow.rollout(long).await.unwrap().into_inner();
+    let t = Instant::now();
+    loop {
+        let stalled = sample(
+            &metrics(&server).await,
+            &format!("dynaserve_stalled_streams_total{{model=\"{}\"}}", m.name),
+        );
+        if stalled == Some(1.0) {
+            break;
+        }
+        assert!(t.elapsed() < HANG, "the stream was never ended");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    // Its slot is free: another client's rollout runs.
+    let mut c = dynaserve_api::v1::world_model_client::WorldModelClient::connect(format!(
+        "http://{}",
+        server.grpc_addr
+    ))
+    .await
+    .unwrap();
+    let mut other = c
+        .rollout(rollout_request(&m.name, scene(122, 1, 16), 2).to_proto())
+        .await
+        .unwrap()
+        .into_inner();
+    while other.message().await.unwrap().is_some() {}
+    // Reading at last: the frames the server had sent, then the status that ended the stream.
+    let mut frames = 0;
+    let status = loop {
+        match tokio::time::timeout(HANG, unread.message()).await.unwrap() {
+            Ok(Some(_)) => frames += 1,
+            Ok(None) => panic!("ended without a status after {frames} frames"),
+            Err(s) => break s,
+        }
+    };
+    assert!(frames < 10_000);
+    assert_eq!(
+        status.code(),
+        tonic::Code::Cancelled,
+        "{}",
+        status.message()
+    );
+    assert!(
+        status.message().contains("read no frame for 1 s"),
+        "{}",
+        status.message()
+    );
+    server.shutdown();
+    server.wait().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn request_ids_are_echoed_only_when_short_and_visible() {
+    let m = test_model();
+    let server = start(&m.dir, |_| {}).await;
+    let ok = "a".repeat(128);
+    let long = "b".repeat(129);
+    let is_generated = |id: &str| id.len() == 16 && id.bytes().all(|b| b.is_ascii_hexdigit());
+    for path in ["/v1/models", "/v1/sessions/no-such-session"] {
+        let r = http(
+            server.http_addr,
+            "GET",
+            path,
+            &[("x-request-id", &ok)],
+            None,
+        )
+        .await;
+        assert_eq!(r.header("x-request-id"), Some(ok.as_str()), "{path}");
+        for bad in [long.as_str(), "has space", "tab\there", "\u{e9}t\u{e9}"] {
+            let r = http(
+                server.http_addr,
+                "GET",
+                path,
+                &[("x-request-id", bad)],
+                None,
+            )
+            .await;
+            let got = r.header("x-request-id").unwrap_or_default().to_string();
+            assert!(is_generated(&got), "{path} {bad:?}: {got:?}");
+        }
+    }
+    let mut c = dynaserve_api::v1::world_model_client::WorldModelClient::connect(format!(
+        "http://{}",
+        server.grpc_addr
+    ))
+    .await
+    .unwrap();
+    let mut s = dynaserve_api::v1::sessions_client::SessionsClient::connect(format!(
+        "http://{}",
+        server.grpc_addr
+    ))
+    .await
+    .unwrap();
+    for (id, echoed) in [(ok.as_str(), true), (long.as_str(), false)] {
+        let mut r = tonic::Request::new(dynaserve_api::v1::ListModelsRequest {});
+        r.metadata_mut().insert("x-request-id", id.parse().unwrap());
+        let resp = c.list_models(r).await.unwrap();
+        let got = resp
+            .metadata()
+            .get("x-request-id")
+            .unwrap()
+            .to_str()
+            .unwrap();
+        assert_eq!(got == id, echoed, "{got}");
+        assert!(echoed || is_generated(got), "{got}");
+        // The error path carries it too.
+        let mut r = tonic::Request::new(dynaserve_api::v1::GetStateRequest {
+            session_id: "no-such-session".into(),
+        });
+        r.metadata_mut().insert("x-request-id", id.parse().unwrap());
+        let e = s.get_state(r).await.unwrap_err();
+        let got = e.metadata().get("x-request-id").unwrap().to_str().unwrap();
+        assert_eq!(got == id, echoed, "{got}");
+        assert!(echoed || is_generated(got), "{got}");
+    }
     server.shutdown();
     server.wait().await.unwrap();
 }

@@ -780,6 +780,7 @@ async fn undecodable_grpc_messages_are_invalid_argument_naming_request() {
             scene: Some(scene(73, 1, 16).to_proto()),
             dt_steps: 1,
             kinematic: vec![],
+            shared: false,
         })
         .await
         .unwrap()

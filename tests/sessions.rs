@@ -35,6 +35,7 @@ fn create(model: &str, scene: &json::Scene, kinematic: Vec<u32>) -> v1::CreateSe
         scene: Some(scene.to_proto()),
         dt_steps: 1,
         kinematic,
+        shared: false,
     }
 }
 

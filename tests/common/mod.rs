@@ -251,6 +251,7 @@ pub async fn create_session_http(
         scene,
         dt_steps: 1,
         kinematic,
+        shared: false,
     };
     let created = post_json(addr, "/v1/sessions", &req).await;
     assert_eq!(created.status, 201, "{}", created.text());

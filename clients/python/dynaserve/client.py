@@ -366,6 +366,7 @@ class Client:
         kinematic: Sequence[int] = (),
         dt_steps: int = 1,
         model: str = "",
+        shared: bool = False,
     ) -> "Session":
         """Sends a scene once and keeps it on the server with its state.
 
@@ -375,17 +376,20 @@ class Client:
                 none.
             dt_steps: frames per step. Default 1.
             model: as in :meth:`rollout`. Default ``""``.
+            shared: let every caller use the session (step, read, set, fork); only its
+                creator may delete it. Default ``False``: the session belongs to its creator
+                (its bearer token, or without authentication its IP address) and is not
+                found for anyone else.
         """
-        info = self.request(
-            "POST",
-            "/v1/sessions",
-            {
-                "model": model,
-                "scene": _scene(scene),
-                "dt_steps": dt_steps,
-                "kinematic": list(kinematic),
-            },
-        )
+        body: Dict[str, Any] = {
+            "model": model,
+            "scene": _scene(scene),
+            "dt_steps": dt_steps,
+            "kinematic": list(kinematic),
+        }
+        if shared:
+            body["shared"] = True
+        info = self.request("POST", "/v1/sessions", body)
         return Session(self, info)
 
     def session(self, session_id: str) -> "Session":

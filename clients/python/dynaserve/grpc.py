@@ -620,13 +620,18 @@ class GrpcClient(_Base):
         dt_steps: int = 1,
         model: str = "",
         timeout: Optional[float] = None,
+        shared: bool = False,
     ) -> "GrpcSession":
         """Sends a scene once and keeps it on the server with its state; ``kinematic`` lists
         the objects whose poses the caller gives every step. Arguments and defaults as for
         :meth:`dynaserve.Client.create_session`; ``timeout``: the call's deadline, seconds
         (default ``None``: the client's ``timeout``)."""
         req = spb.CreateSessionRequest(
-            model=model, scene=scene_pb(scene), dt_steps=dt_steps, kinematic=list(kinematic)
+            model=model,
+            scene=scene_pb(scene),
+            dt_steps=dt_steps,
+            kinematic=list(kinematic),
+            shared=shared,
         )
         return GrpcSession(self, self._unary(self.sessions.CreateSession, req, timeout))
 
@@ -1039,10 +1044,15 @@ class AsyncGrpcClient(_Base):
         dt_steps: int = 1,
         model: str = "",
         timeout: Optional[float] = None,
+        shared: bool = False,
     ) -> "AsyncGrpcSession":
         """See :meth:`GrpcClient.create_session`."""
         req = spb.CreateSessionRequest(
-            model=model, scene=scene_pb(scene), dt_steps=dt_steps, kinematic=list(kinematic)
+            model=model,
+            scene=scene_pb(scene),
+            dt_steps=dt_steps,
+            kinematic=list(kinematic),
+            shared=shared,
         )
         return AsyncGrpcSession(self, await self._unary(self.sessions.CreateSession, req, timeout))
 

@@ -100,7 +100,12 @@ pub fn previous_pose(
     field: &str,
 ) -> Result<Pose, FieldError> {
     match motion {
-        Motion::PreviousPose(p) => check_pose(p, &format!("{field}.previous_pose")),
+        Motion::PreviousPose(p) => {
+            let f = format!("{field}.previous_pose");
+            let before = check_pose(p, &f)?;
+            check_implied_speed(&before, &now, dt_seconds, &f, "pose one step later")?;
+            Ok(before)
+        }
         Motion::Velocity { linear, angular } => {
             within(
                 linear,
@@ -122,6 +127,37 @@ pub fn previous_pose(
         }
         Motion::Rest => Ok(now),
     }
+}
+
+/// Checks that going from `from` to `to` in `dt_seconds` stays within [`MAX_SPEED`] m/s per
+/// component, the bound on velocities: a pose pair may not imply a speed a velocity could not
+/// have. The error names `field` (the pose checked, `against` naming the other one).
+pub fn check_implied_speed(
+    from: &Pose,
+    to: &Pose,
+    dt_seconds: f32,
+    field: &str,
+    against: &str,
+) -> Result<(), FieldError> {
+    // A step of no length (or not a number) implies no speed; the step size is checked
+    // elsewhere.
+    if dt_seconds.is_nan() || dt_seconds <= 0.0 {
+        return Ok(());
+    }
+    let fastest = (0..3)
+        .map(|k| (f64::from(to.translation[k]) - f64::from(from.translation[k])).abs())
+        .fold(0.0f64, f64::max)
+        / f64::from(dt_seconds);
+    if fastest > f64::from(MAX_SPEED) {
+        return Err(FieldError::new(
+            field,
+            format!(
+                "implies a speed of {fastest:.4e} m/s from the {against} over one step of \
+                 {dt_seconds} s; velocities are at most {MAX_SPEED} m/s per component"
+            ),
+        ));
+    }
+    Ok(())
 }
 
 fn shape(shape: &Shape, field: &str, limits: &Limits) -> Result<Vec<[f32; 3]>, FieldError> {

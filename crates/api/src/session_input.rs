@@ -9,7 +9,7 @@
 
 use dynaserve_model::{Pose, SceneState};
 
-use crate::build::{check_pose, previous_pose};
+use crate::build::{check_implied_speed, check_pose, previous_pose};
 use crate::error::FieldError;
 use crate::spec::session::{Action, ObjectState};
 
@@ -126,6 +126,50 @@ pub fn check_actions(
         .collect()
 }
 
+/// Checks that the kinematic poses of one step (`targets`, of an action at path `field`)
+/// imply no speed above the velocity bound from the objects' poses one step before
+/// (`before`, one per object).
+pub fn check_target_speeds(
+    targets: &Targets,
+    before: &[Pose],
+    dt_seconds: f32,
+    field: &str,
+) -> Result<(), FieldError> {
+    for (k, (j, pose)) in targets.iter().enumerate() {
+        if let Some(b) = before.get(*j) {
+            check_implied_speed(
+                b,
+                pose,
+                dt_seconds,
+                &format!("{field}.kinematic[{k}].pose"),
+                &format!("pose of object {j} one step before"),
+            )?;
+        }
+    }
+    Ok(())
+}
+
+/// [`check_target_speeds`] over a sequence of actions (`field`, e.g. `actions`), one entry
+/// per step, from the objects' poses `start`: a kinematic object is where its last given pose
+/// put it (or at its start when none was given yet).
+pub fn check_action_speeds(
+    targets: &[Targets],
+    start: &[Pose],
+    dt_seconds: f32,
+    field: &str,
+) -> Result<(), FieldError> {
+    let mut at = start.to_vec();
+    for (i, t) in targets.iter().enumerate() {
+        check_target_speeds(t, &at, dt_seconds, &format!("{field}[{i}]"))?;
+        for (j, pose) in t {
+            if let Some(a) = at.get_mut(*j) {
+                *a = *pose;
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Replaces the model's output for kinematic objects: the given pose of `targets`, or the
 /// object's current pose in `state` (before the step) when none is given.
 /// `output`, `state` and `kinematic` have one entry per object.
@@ -233,6 +277,34 @@ mod tests {
             "objects[1].object"
         );
         assert_eq!(s, before);
+    }
+
+    #[test]
+    fn poses_implying_more_than_the_speed_bound_are_refused_naming_the_object() {
+        let start = [at(0.0), at(5.0)];
+        // 0.5 m in 1 ms is 500 m/s: accepted; 10 m in 1 ms is 1e4 m/s: refused.
+        let ok = vec![vec![(0, at(0.5))], vec![], vec![(0, at(1.0))]];
+        check_action_speeds(&ok, &start, 1e-3, "actions").unwrap();
+        let fast = vec![vec![(0, at(0.5))], vec![(0, at(10.5))]];
+        let e = check_action_speeds(&fast, &start, 1e-3, "actions").unwrap_err();
+        assert_eq!(e.field, "actions[1].kinematic[0].pose");
+        assert!(
+            e.message.contains("object 0") && e.message.contains("1000 m/s"),
+            "{e:?}"
+        );
+        // A previous pose is held to the same bound.
+        let mut s = SceneState {
+            previous: start.to_vec(),
+            current: start.to_vec(),
+            earlier: None,
+        };
+        let jump = ObjectState {
+            object: 1,
+            pose: at(2400.0),
+            motion: Motion::PreviousPose(at(0.0)),
+        };
+        let e = apply_states(&mut s, &[jump], 1e-3, "objects").unwrap_err();
+        assert_eq!(e.field, "objects[0].previous_pose");
     }
 
     #[test]

@@ -74,6 +74,11 @@ impl ApiError {
         ApiError::new(Code::Cancelled, message)
     }
 
+    /// PERMISSION_DENIED (HTTP 403): the caller may not do this to the resource.
+    pub fn permission_denied(message: impl Into<String>) -> ApiError {
+        ApiError::new(Code::PermissionDenied, message)
+    }
+
     /// UNAUTHENTICATED (HTTP 401): missing or rejected credentials.
     pub fn unauthenticated(message: impl Into<String>) -> ApiError {
         ApiError::new(Code::Unauthenticated, message)
@@ -104,7 +109,9 @@ impl ApiError {
     /// The `reason` label of `dynaserve_request_failures_total`.
     pub fn reason(&self) -> &'static str {
         match self.code {
-            Code::InvalidArgument | Code::NotFound | Code::OutOfRange => "invalid_argument",
+            Code::InvalidArgument | Code::NotFound | Code::OutOfRange | Code::PermissionDenied => {
+                "invalid_argument"
+            }
             Code::ResourceExhausted => "resource_exhausted",
             Code::DeadlineExceeded => "deadline_exceeded",
             Code::Cancelled => "cancelled",
@@ -119,7 +126,7 @@ impl ApiError {
     }
 
     /// The HTTP status of this error (422 invalid input, 415 non-JSON body, 408 body not
-    /// received in time, 401 unauthenticated, 429 overload, 504 deadline, 503 unavailable, 499
+    /// received in time, 401 unauthenticated, 403 forbidden, 429 overload, 504 deadline, 503 unavailable, 499
     /// cancelled, 500 otherwise).
     pub fn http_status(&self) -> StatusCode {
         if let Some(s) = self.http_override {
@@ -129,6 +136,7 @@ impl ApiError {
             Code::Unauthenticated => StatusCode::UNAUTHORIZED,
             Code::InvalidArgument | Code::OutOfRange => StatusCode::UNPROCESSABLE_ENTITY,
             Code::NotFound => StatusCode::NOT_FOUND,
+            Code::PermissionDenied => StatusCode::FORBIDDEN,
             Code::ResourceExhausted => StatusCode::TOO_MANY_REQUESTS,
             Code::DeadlineExceeded => StatusCode::GATEWAY_TIMEOUT,
             Code::Unavailable => StatusCode::SERVICE_UNAVAILABLE,

@@ -24,7 +24,9 @@ use tonic_health::server::HealthReporter;
 use crate::engine::{Engine, Protocol, RequestCtx};
 use crate::error::ApiError;
 use crate::listener::{BodyLimit, with_body_deadline};
+use crate::security::Caller;
 
+mod prefetch;
 mod sessions;
 
 /// Parses a `grpc-timeout` header value (`<digits><unit>`, unit one of H M S m u n).
@@ -45,13 +47,15 @@ pub fn parse_grpc_timeout(value: &str) -> Option<Duration> {
     })
 }
 
-fn ctx_of(meta: &MetadataMap) -> RequestCtx {
+/// The context of a gRPC request, attributed to its [`Caller`] (token or peer).
+fn ctx_of<T>(request: &Request<T>) -> RequestCtx {
+    let meta = request.metadata();
     let rid = meta.get("x-request-id").and_then(|v| v.to_str().ok());
     let timeout = meta
         .get("grpc-timeout")
         .and_then(|v| v.to_str().ok())
         .and_then(parse_grpc_timeout);
-    RequestCtx::new(Protocol::Grpc, rid, timeout)
+    RequestCtx::new(Protocol::Grpc, rid, timeout).with_identity(Caller::of(request.extensions()).0)
 }
 
 /// Appends one `x-dynaserve-warning` entry per warning (object parameters outside the model's
@@ -86,20 +90,24 @@ impl WorldModelApi for GrpcService {
         &self,
         request: Request<v1::RolloutRequest>,
     ) -> Result<Response<Self::RolloutStream>, Status> {
-        let ctx = ctx_of(request.metadata());
+        let ctx = ctx_of(&request);
         let req = request.into_inner();
         let parsed = self
             .engine
             .check_payload(req.encoded_len())
             .and_then(|()| RolloutSpec::from_v1(&req).map_err(ApiError::from));
         let rid = ctx.request_id.clone();
-        let handle = match parsed {
-            Ok(r) => self.engine.start_rollout(r, ctx).await,
+        let parsed = parsed.and_then(|r| Ok((r, self.engine.stream_quota(&ctx)?)));
+        let (handle, quota) = match parsed {
+            Ok((r, quota)) => self.engine.start_rollout(r, ctx).await.map(|h| (h, quota)),
             Err(e) => Err(self.engine.reject(&ctx, "rollout", e)),
         }
         .map_err(|e| with_request_id(e.to_status(), &rid))?;
-        let stream = ReceiverStream::new(handle.frames)
-            .map(|r| r.map(|f: Frame| f.to_v1()).map_err(|e| e.to_status()));
+        // The caller's stream quota is held as long as the response stream.
+        let stream = ReceiverStream::new(handle.frames).map(move |r| {
+            let _ = &quota;
+            r.map(|f: Frame| f.to_v1()).map_err(|e| e.to_status())
+        });
         let mut resp = Response::new(Box::pin(stream) as FrameStream);
         insert(resp.metadata_mut(), "x-request-id", &handle.request_id);
         insert(resp.metadata_mut(), "x-dynaserve-model", &handle.model);
@@ -111,7 +119,7 @@ impl WorldModelApi for GrpcService {
         &self,
         request: Request<v1::PredictRequest>,
     ) -> Result<Response<v1::PredictResponse>, Status> {
-        let ctx = ctx_of(request.metadata());
+        let ctx = ctx_of(&request);
         let req = request.into_inner();
         let rid = ctx.request_id.clone();
         let parsed = self
@@ -152,20 +160,23 @@ impl WorldModelApi for GrpcService {
         &self,
         request: Request<v1::GenerateRequest>,
     ) -> Result<Response<Self::GenerateStream>, Status> {
-        let ctx = ctx_of(request.metadata());
+        let ctx = ctx_of(&request);
         let req = request.into_inner();
         let parsed = self
             .engine
             .check_payload(req.encoded_len())
             .and_then(|()| GenerateSpec::from_v1(&req).map_err(ApiError::from));
         let rid = ctx.request_id.clone();
-        let handle = match parsed {
-            Ok(r) => self.engine.start_generate(r, ctx).await,
+        let parsed = parsed.and_then(|r| Ok((r, self.engine.stream_quota(&ctx)?)));
+        let (handle, quota) = match parsed {
+            Ok((r, quota)) => self.engine.start_generate(r, ctx).await.map(|h| (h, quota)),
             Err(e) => Err(self.engine.reject(&ctx, "generate", e)),
         }
         .map_err(|e| with_request_id(e.to_status(), &rid))?;
-        let stream = ReceiverStream::new(handle.events)
-            .map(|r| r.map(|e| e.to_v1()).map_err(|e| e.to_status()));
+        let stream = ReceiverStream::new(handle.events).map(move |r| {
+            let _ = &quota;
+            r.map(|e| e.to_v1()).map_err(|e| e.to_status())
+        });
         let mut resp = Response::new(Box::pin(stream) as GenerateEventStream);
         insert(resp.metadata_mut(), "x-request-id", &handle.request_id);
         insert(resp.metadata_mut(), "x-dynaserve-model", &handle.model);
@@ -176,7 +187,7 @@ impl WorldModelApi for GrpcService {
         &self,
         request: Request<v1::ListModelsRequest>,
     ) -> Result<Response<v1::ListModelsResponse>, Status> {
-        let ctx = ctx_of(request.metadata());
+        let ctx = ctx_of(&request);
         let list = self.engine.list_models(&ctx);
         let mut resp = Response::new(v1::ListModelsResponse {
             models: list.iter().map(|m| m.to_v1()).collect(),
@@ -240,12 +251,12 @@ pub async fn router(engine: Arc<Engine>) -> anyhow::Result<(axum::Router, Health
         }))
         .layer(axum::middleware::map_request(
             move |req: axum::extract::Request| async move {
-                let limit = if is_client_stream(req.uri().path()) {
-                    BodyLimit::EachMessage
+                if is_client_stream(req.uri().path()) {
+                    let req = req.map(|b| axum::body::Body::new(prefetch::ReadAhead::new(b)));
+                    with_body_deadline(req, body_deadline, BodyLimit::EachMessage, true)
                 } else {
-                    BodyLimit::Whole
-                };
-                with_body_deadline(req, body_deadline, limit, true)
+                    with_body_deadline(req, body_deadline, BodyLimit::Whole, true)
+                }
             },
         ));
     Ok((router, reporter))

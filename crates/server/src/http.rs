@@ -38,6 +38,7 @@ use utoipa::OpenApi;
 
 use crate::engine::{Engine, Protocol, RequestCtx};
 use crate::error::ApiError;
+use crate::security::Caller;
 
 pub mod generate;
 pub mod sessions;
@@ -104,9 +105,10 @@ pub fn probes_router(engine: Arc<Engine>) -> Router {
         .with_state(AppState { engine })
 }
 
-fn ctx_of(headers: &HeaderMap) -> RequestCtx {
+/// The context of an HTTP request; `caller` is whom it is attributed to (see [`Caller`]).
+fn ctx_of(headers: &HeaderMap, caller: Caller) -> RequestCtx {
     let rid = headers.get("x-request-id").and_then(|v| v.to_str().ok());
-    RequestCtx::new(Protocol::Http, rid, None)
+    RequestCtx::new(Protocol::Http, rid, None).with_identity(caller.0)
 }
 
 fn set_header(headers: &mut HeaderMap, key: &'static str, value: &str) {
@@ -277,8 +279,13 @@ fn wants_sse(headers: &HeaderMap) -> bool {
         (status = 504, description = "Deadline (`timeout_ms`) exceeded", body = json::ErrorResponse),
     )
 )]
-async fn rollout(State(s): State<AppState>, headers: HeaderMap, body: Body) -> Response {
-    let ctx = ctx_of(&headers);
+async fn rollout(
+    State(s): State<AppState>,
+    caller: Caller,
+    headers: HeaderMap,
+    body: Body,
+) -> Response {
+    let ctx = ctx_of(&headers, caller);
     let rid = ctx.request_id.clone();
     let arrival = ctx.arrival;
     let parsed = parse(
@@ -294,6 +301,11 @@ async fn rollout(State(s): State<AppState>, headers: HeaderMap, body: Body) -> R
         Ok(p) => p,
         Err(r) => return r,
     };
+    // The caller's stream quota, held until the answer is complete.
+    let quota = match s.engine.stream_quota(&ctx) {
+        Ok(q) => q,
+        Err(e) => return error_response(s.engine.reject(&ctx, "rollout", e), &rid),
+    };
     let handle = match s.engine.start_rollout(spec, ctx).await {
         Ok(h) => h,
         Err(e) => return error_response(e, &rid),
@@ -301,14 +313,17 @@ async fn rollout(State(s): State<AppState>, headers: HeaderMap, body: Body) -> R
     let model = handle.model.clone();
     let warnings = handle.warnings;
     if sse {
-        let r = sse_response(
-            sse_events(handle.frames, rid.to_string(), arrival),
-            &rid,
-            &model,
-        );
+        let events = sse_events(handle.frames, rid.to_string(), arrival);
+        let events = futures::StreamExt::map(events, move |e| {
+            let _ = &quota;
+            e
+        });
+        let r = sse_response(events, &rid, &model);
         return with_warnings(r, &warnings);
     }
-    let (frames, timing) = match collect_frames(handle.frames, arrival).await {
+    let collected = collect_frames(handle.frames, arrival).await;
+    drop(quota);
+    let (frames, timing) = match collected {
         Ok(f) => f,
         Err(e) => return error_response(e, &rid),
     };
@@ -393,8 +408,13 @@ fn sse_events(
         (status = 504, description = "Deadline (`timeout_ms`) exceeded", body = json::ErrorResponse),
     )
 )]
-async fn predict(State(s): State<AppState>, headers: HeaderMap, body: Body) -> Response {
-    let ctx = ctx_of(&headers);
+async fn predict(
+    State(s): State<AppState>,
+    caller: Caller,
+    headers: HeaderMap,
+    body: Body,
+) -> Response {
+    let ctx = ctx_of(&headers, caller);
     let rid = ctx.request_id.clone();
     let parsed = parse(
         &s.engine,
@@ -416,8 +436,8 @@ async fn predict(State(s): State<AppState>, headers: HeaderMap, body: Body) -> R
     path = "/v1/models",
     responses((status = 200, description = "Resident models", body = json::ListModelsResponse))
 )]
-async fn list_models(State(s): State<AppState>, headers: HeaderMap) -> Response {
-    let ctx = ctx_of(&headers);
+async fn list_models(State(s): State<AppState>, caller: Caller, headers: HeaderMap) -> Response {
+    let ctx = ctx_of(&headers, caller);
     let list = json::ListModelsResponse {
         models: s
             .engine

@@ -46,6 +46,22 @@ use tower::ServiceExt;
 use crate::config::{ConnectionConfig, secs};
 use crate::metrics::Metrics;
 
+/// HTTP/2 receive window of one stream, bytes: what a client may send ahead of the server.
+///
+/// h2 holds the DATA frames a stream has received until the application takes them and caps
+/// the memory of small frames at half the connection window, closing the connection with
+/// GOAWAY ENHANCE_YOUR_CALM past it. Before a request reaches its handler a client can fill the
+/// stream window with small frames (a pipelined Interact action is one frame of 5 bytes and
+/// more), each charged up to 256 bytes: with 64 KiB a stream's worth of 5-byte frames stays
+/// under the cap, so a client that pipelines meets flow control (it waits), not a GOAWAY.
+/// After that a client stream's body is read ahead (`crate::grpc`), so its frames do not
+/// accumulate.
+const H2_STREAM_WINDOW: u32 = 64 << 10;
+
+/// HTTP/2 receive window of a connection, bytes (half of it is h2's cap on small frames, see
+/// [`H2_STREAM_WINDOW`]).
+const H2_CONNECTION_WINDOW: u32 = 8 << 20;
+
 /// The connection builder of both listeners: HTTP/1 header read timeout, HTTP/2 keep-alive
 /// pings as `config` sets them.
 fn builder(config: &ConnectionConfig) -> Builder<TokioExecutor> {
@@ -54,7 +70,9 @@ fn builder(config: &ConnectionConfig) -> Builder<TokioExecutor> {
         .timer(TokioTimer::new())
         .header_read_timeout(secs(config.header_read_timeout_s));
     let mut h2 = b.http2();
-    h2.timer(TokioTimer::new());
+    h2.timer(TokioTimer::new())
+        .initial_stream_window_size(H2_STREAM_WINDOW)
+        .initial_connection_window_size(H2_CONNECTION_WINDOW);
     if let Some(every) = secs(config.http2_keepalive_interval_s) {
         h2.keep_alive_interval(every).keep_alive_timeout(
             secs(config.http2_keepalive_timeout_s).unwrap_or(Duration::from_secs(10)),

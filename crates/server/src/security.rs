@@ -24,7 +24,7 @@ use axum::extract::Request;
 use axum::http::{HeaderMap, HeaderValue, Method, header};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
-use subtle::ConstantTimeEq;
+use subtle::{ConditionallySelectable, ConstantTimeEq};
 use tokio_rustls::TlsAcceptor;
 use tokio_rustls::rustls;
 use tower_http::cors::{AllowOrigin, CorsLayer};
@@ -211,6 +211,61 @@ pub fn tls_acceptor(cert_pem: &[u8], key_pem: &[u8]) -> anyhow::Result<TlsAccept
     Ok(TlsAcceptor::from(Arc::new(config)))
 }
 
+/// Whom a request is attributed to for session ownership and per-caller quotas (the
+/// `identity` of `crate::engine::RequestCtx`): with authentication on, the token it
+/// authenticated with; otherwise its peer's IP address. The key is an opaque per-process hash,
+/// so it reveals neither.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Caller(pub u64);
+
+impl Caller {
+    /// A request whose origin is unknown (no listener in front of the router).
+    pub const UNKNOWN: Caller = Caller(0);
+
+    fn key(kind: u8, id: &[u8]) -> Caller {
+        use std::hash::BuildHasher;
+        static KEYS: std::sync::OnceLock<std::collections::hash_map::RandomState> =
+            std::sync::OnceLock::new();
+        // 0 stays reserved for UNKNOWN.
+        Caller(KEYS.get_or_init(Default::default).hash_one((kind, id)) | 1)
+    }
+
+    /// The caller of the `index`-th configured token.
+    fn of_token(index: usize) -> Caller {
+        Caller::key(0, &index.to_le_bytes())
+    }
+
+    /// The caller of an unauthenticated request from `ip`.
+    pub fn of_peer(ip: std::net::IpAddr) -> Caller {
+        match ip {
+            std::net::IpAddr::V4(a) => Caller::key(4, &a.octets()),
+            std::net::IpAddr::V6(a) => Caller::key(6, &a.octets()),
+        }
+    }
+
+    /// The caller of a request from its extensions: the token's (set by [`Auth`]), else the
+    /// peer's (set by the listener), else [`Caller::UNKNOWN`].
+    pub fn of(extensions: &axum::http::Extensions) -> Caller {
+        if let Some(c) = extensions.get::<Caller>() {
+            return *c;
+        }
+        extensions
+            .get::<crate::listener::Peer>()
+            .map_or(Caller::UNKNOWN, |p| Caller::of_peer(p.0.ip()))
+    }
+}
+
+impl<S: Send + Sync> axum::extract::FromRequestParts<S> for Caller {
+    type Rejection = std::convert::Infallible;
+
+    async fn from_request_parts(
+        parts: &mut axum::http::request::Parts,
+        _state: &S,
+    ) -> Result<Self, Self::Rejection> {
+        Ok(Caller::of(&parts.extensions))
+    }
+}
+
 /// The accepted tokens and which paths are open; shared by both listeners' middleware.
 #[derive(Clone, Debug)]
 pub struct Auth {
@@ -256,10 +311,15 @@ impl Auth {
         }
     }
 
-    /// True when `headers` carry one of the tokens. Every token is compared, each in constant
-    /// time, so timing does not tell which one (or how much of one) matched.
+    /// True when `headers` carry one of the tokens (see [`Auth::token_of`]).
     pub fn accepts(&self, headers: &HeaderMap) -> bool {
-        let Some(given) = headers
+        self.token_of(headers).is_some()
+    }
+
+    /// The index of the token `headers` carry, if they carry one. Every token is compared,
+    /// each in constant time, so timing does not tell which one (or how much of one) matched.
+    fn token_of(&self, headers: &HeaderMap) -> Option<usize> {
+        let given = headers
             .get(header::AUTHORIZATION)
             .and_then(|v| v.to_str().ok())
             // The scheme name is case-insensitive (RFC 7235).
@@ -268,15 +328,15 @@ impl Auth {
                     .filter(|(scheme, _)| scheme.eq_ignore_ascii_case("bearer"))
                     .map(|(_, token)| token)
             })
-            .map(str::trim)
-        else {
-            return false;
-        };
+            .map(str::trim)?;
         let mut ok = subtle::Choice::from(0u8);
-        for t in self.tokens.iter() {
-            ok |= t.as_slice().ct_eq(given.as_bytes());
+        let mut index = 0u64;
+        for (i, t) in self.tokens.iter().enumerate() {
+            let eq = t.as_slice().ct_eq(given.as_bytes());
+            index = u64::conditional_select(&index, &(i as u64), eq);
+            ok |= eq;
         }
-        ok.into()
+        bool::from(ok).then_some(index as usize)
     }
 
     /// `router` behind this authentication; refusals take the form of `wire`.
@@ -288,11 +348,12 @@ impl Auth {
     }
 
     /// The middleware: passes authorised (or open) requests on, answers the others.
-    async fn check(self, wire: Wire, req: Request, next: Next) -> Response {
-        if self.is_open(req.uri().path())
-            || req.method() == Method::OPTIONS
-            || self.accepts(req.headers())
-        {
+    async fn check(self, wire: Wire, mut req: Request, next: Next) -> Response {
+        if let Some(i) = self.token_of(req.headers()) {
+            req.extensions_mut().insert(Caller::of_token(i));
+            return next.run(req).await;
+        }
+        if self.is_open(req.uri().path()) || req.method() == Method::OPTIONS {
             return next.run(req).await;
         }
         let missing = !req.headers().contains_key(header::AUTHORIZATION);

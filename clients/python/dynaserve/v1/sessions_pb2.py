@@ -25,7 +25,7 @@ _sym_db = _symbol_database.Default()
 from dynaserve.v1 import world_model_pb2 as dynaserve_dot_v1_dot_world__model__pb2
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x1b\x64ynaserve/v1/sessions.proto\x12\x0c\x64ynaserve.v1\x1a\x1e\x64ynaserve/v1/world_model.proto\">\n\nObjectPose\x12\x0e\n\x06object\x18\x01 \x01(\r\x12 \n\x04pose\x18\x02 \x01(\x0b\x32\x12.dynaserve.v1.Pose\"5\n\x06\x41\x63tion\x12+\n\tkinematic\x18\x01 \x03(\x0b\x32\x18.dynaserve.v1.ObjectPose\"\xa2\x01\n\x0bObjectState\x12\x0e\n\x06object\x18\x01 \x01(\r\x12 \n\x04pose\x18\x02 \x01(\x0b\x32\x12.dynaserve.v1.Pose\x12+\n\rprevious_pose\x18\x03 \x01(\x0b\x32\x12.dynaserve.v1.PoseH\x00\x12*\n\x08velocity\x18\x04 \x01(\x0b\x32\x16.dynaserve.v1.VelocityH\x00\x42\x08\n\x06motion\"n\n\x14\x43reateSessionRequest\x12\r\n\x05model\x18\x01 \x01(\t\x12\"\n\x05scene\x18\x02 \x01(\x0b\x32\x13.dynaserve.v1.Scene\x12\x10\n\x08\x64t_steps\x18\x03 \x01(\r\x12\x11\n\tkinematic\x18\x04 \x03(\r\"\x82\x01\n\x0bSessionInfo\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\r\n\x05model\x18\x02 \x01(\t\x12\x1a\n\x12\x65xpires_at_unix_ms\x18\x03 \x01(\x04\x12\x0f\n\x07objects\x18\x04 \x01(\r\x12\x10\n\x08\x64t_steps\x18\x05 \x01(\r\x12\x11\n\tkinematic\x18\x06 \x03(\r\"k\n\x0bStepRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\r\n\x05steps\x18\x02 \x01(\r\x12%\n\x07\x61\x63tions\x18\x03 \x03(\x0b\x32\x14.dynaserve.v1.Action\x12\x12\n\ntimeout_ms\x18\x04 \x01(\r\"Q\n\x0fSetStateRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12*\n\x07objects\x18\x02 \x03(\x0b\x32\x19.dynaserve.v1.ObjectState\"%\n\x0fGetStateRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\"\xa9\x01\n\x0cSessionState\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x0c\n\x04step\x18\x02 \x01(\r\x12\x0c\n\x04time\x18\x03 \x01(\x01\x12!\n\x05poses\x18\x04 \x03(\x0b\x32\x12.dynaserve.v1.Pose\x12*\n\x0eprevious_poses\x18\x05 \x03(\x0b\x32\x12.dynaserve.v1.Pose\x12\x1a\n\x12\x65xpires_at_unix_ms\x18\x06 \x01(\x04\"!\n\x0b\x46orkRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\"*\n\x14\x44\x65leteSessionRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\"\x17\n\x15\x44\x65leteSessionResponse\"a\n\x0eSessionVariant\x12(\n\x05state\x18\x01 \x03(\x0b\x32\x19.dynaserve.v1.ObjectState\x12%\n\x07\x61\x63tions\x18\x02 \x03(\x0b\x32\x14.dynaserve.v1.Action\"\x8d\x01\n\x15SessionPredictRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12.\n\x08variants\x18\x02 \x03(\x0b\x32\x1c.dynaserve.v1.SessionVariant\x12\r\n\x05steps\x18\x03 \x01(\r\x12\r\n\x05\x65very\x18\x04 \x01(\r\x12\x12\n\ntimeout_ms\x18\x05 \x01(\r\"\xab\x01\n\x0fInteractRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x32\n\x06\x63reate\x18\x02 \x01(\x0b\x32\".dynaserve.v1.CreateSessionRequest\x12$\n\x06\x61\x63tion\x18\x03 \x01(\x0b\x32\x14.dynaserve.v1.Action\x12*\n\x07\x63orrect\x18\x04 \x03(\x0b\x32\x19.dynaserve.v1.ObjectState2\xd5\x04\n\x08Sessions\x12N\n\rCreateSession\x12\".dynaserve.v1.CreateSessionRequest\x1a\x19.dynaserve.v1.SessionInfo\x12<\n\x04Step\x12\x19.dynaserve.v1.StepRequest\x1a\x17.dynaserve.v1.StepFrame0\x01\x12\x45\n\x08SetState\x12\x1d.dynaserve.v1.SetStateRequest\x1a\x1a.dynaserve.v1.SessionState\x12\x45\n\x08GetState\x12\x1d.dynaserve.v1.GetStateRequest\x1a\x1a.dynaserve.v1.SessionState\x12<\n\x04\x46ork\x12\x19.dynaserve.v1.ForkRequest\x1a\x19.dynaserve.v1.SessionInfo\x12X\n\rDeleteSession\x12\".dynaserve.v1.DeleteSessionRequest\x1a#.dynaserve.v1.DeleteSessionResponse\x12M\n\x07Predict\x12#.dynaserve.v1.SessionPredictRequest\x1a\x1d.dynaserve.v1.PredictResponse\x12\x46\n\x08Interact\x12\x1d.dynaserve.v1.InteractRequest\x1a\x17.dynaserve.v1.StepFrame(\x01\x30\x01\x62\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x1b\x64ynaserve/v1/sessions.proto\x12\x0c\x64ynaserve.v1\x1a\x1e\x64ynaserve/v1/world_model.proto\">\n\nObjectPose\x12\x0e\n\x06object\x18\x01 \x01(\r\x12 \n\x04pose\x18\x02 \x01(\x0b\x32\x12.dynaserve.v1.Pose\"5\n\x06\x41\x63tion\x12+\n\tkinematic\x18\x01 \x03(\x0b\x32\x18.dynaserve.v1.ObjectPose\"\xa2\x01\n\x0bObjectState\x12\x0e\n\x06object\x18\x01 \x01(\r\x12 \n\x04pose\x18\x02 \x01(\x0b\x32\x12.dynaserve.v1.Pose\x12+\n\rprevious_pose\x18\x03 \x01(\x0b\x32\x12.dynaserve.v1.PoseH\x00\x12*\n\x08velocity\x18\x04 \x01(\x0b\x32\x16.dynaserve.v1.VelocityH\x00\x42\x08\n\x06motion\"~\n\x14\x43reateSessionRequest\x12\r\n\x05model\x18\x01 \x01(\t\x12\"\n\x05scene\x18\x02 \x01(\x0b\x32\x13.dynaserve.v1.Scene\x12\x10\n\x08\x64t_steps\x18\x03 \x01(\r\x12\x11\n\tkinematic\x18\x04 \x03(\r\x12\x0e\n\x06shared\x18\x05 \x01(\x08\"\x92\x01\n\x0bSessionInfo\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\r\n\x05model\x18\x02 \x01(\t\x12\x1a\n\x12\x65xpires_at_unix_ms\x18\x03 \x01(\x04\x12\x0f\n\x07objects\x18\x04 \x01(\r\x12\x10\n\x08\x64t_steps\x18\x05 \x01(\r\x12\x11\n\tkinematic\x18\x06 \x03(\r\x12\x0e\n\x06shared\x18\x07 \x01(\x08\"k\n\x0bStepRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\r\n\x05steps\x18\x02 \x01(\r\x12%\n\x07\x61\x63tions\x18\x03 \x03(\x0b\x32\x14.dynaserve.v1.Action\x12\x12\n\ntimeout_ms\x18\x04 \x01(\r\"Q\n\x0fSetStateRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12*\n\x07objects\x18\x02 \x03(\x0b\x32\x19.dynaserve.v1.ObjectState\"%\n\x0fGetStateRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\"\xa9\x01\n\x0cSessionState\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x0c\n\x04step\x18\x02 \x01(\r\x12\x0c\n\x04time\x18\x03 \x01(\x01\x12!\n\x05poses\x18\x04 \x03(\x0b\x32\x12.dynaserve.v1.Pose\x12*\n\x0eprevious_poses\x18\x05 \x03(\x0b\x32\x12.dynaserve.v1.Pose\x12\x1a\n\x12\x65xpires_at_unix_ms\x18\x06 \x01(\x04\"!\n\x0b\x46orkRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\"*\n\x14\x44\x65leteSessionRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\"\x17\n\x15\x44\x65leteSessionResponse\"a\n\x0eSessionVariant\x12(\n\x05state\x18\x01 \x03(\x0b\x32\x19.dynaserve.v1.ObjectState\x12%\n\x07\x61\x63tions\x18\x02 \x03(\x0b\x32\x14.dynaserve.v1.Action\"\x8d\x01\n\x15SessionPredictRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12.\n\x08variants\x18\x02 \x03(\x0b\x32\x1c.dynaserve.v1.SessionVariant\x12\r\n\x05steps\x18\x03 \x01(\r\x12\r\n\x05\x65very\x18\x04 \x01(\r\x12\x12\n\ntimeout_ms\x18\x05 \x01(\r\"\xab\x01\n\x0fInteractRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x32\n\x06\x63reate\x18\x02 \x01(\x0b\x32\".dynaserve.v1.CreateSessionRequest\x12$\n\x06\x61\x63tion\x18\x03 \x01(\x0b\x32\x14.dynaserve.v1.Action\x12*\n\x07\x63orrect\x18\x04 \x03(\x0b\x32\x19.dynaserve.v1.ObjectState2\xd5\x04\n\x08Sessions\x12N\n\rCreateSession\x12\".dynaserve.v1.CreateSessionRequest\x1a\x19.dynaserve.v1.SessionInfo\x12<\n\x04Step\x12\x19.dynaserve.v1.StepRequest\x1a\x17.dynaserve.v1.StepFrame0\x01\x12\x45\n\x08SetState\x12\x1d.dynaserve.v1.SetStateRequest\x1a\x1a.dynaserve.v1.SessionState\x12\x45\n\x08GetState\x12\x1d.dynaserve.v1.GetStateRequest\x1a\x1a.dynaserve.v1.SessionState\x12<\n\x04\x46ork\x12\x19.dynaserve.v1.ForkRequest\x1a\x19.dynaserve.v1.SessionInfo\x12X\n\rDeleteSession\x12\".dynaserve.v1.DeleteSessionRequest\x1a#.dynaserve.v1.DeleteSessionResponse\x12M\n\x07Predict\x12#.dynaserve.v1.SessionPredictRequest\x1a\x1d.dynaserve.v1.PredictResponse\x12\x46\n\x08Interact\x12\x1d.dynaserve.v1.InteractRequest\x1a\x17.dynaserve.v1.StepFrame(\x01\x30\x01\x62\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
@@ -39,29 +39,29 @@ if not _descriptor._USE_C_DESCRIPTORS:
   _globals['_OBJECTSTATE']._serialized_start=197
   _globals['_OBJECTSTATE']._serialized_end=359
   _globals['_CREATESESSIONREQUEST']._serialized_start=361
-  _globals['_CREATESESSIONREQUEST']._serialized_end=471
-  _globals['_SESSIONINFO']._serialized_start=474
-  _globals['_SESSIONINFO']._serialized_end=604
-  _globals['_STEPREQUEST']._serialized_start=606
-  _globals['_STEPREQUEST']._serialized_end=713
-  _globals['_SETSTATEREQUEST']._serialized_start=715
-  _globals['_SETSTATEREQUEST']._serialized_end=796
-  _globals['_GETSTATEREQUEST']._serialized_start=798
-  _globals['_GETSTATEREQUEST']._serialized_end=835
-  _globals['_SESSIONSTATE']._serialized_start=838
-  _globals['_SESSIONSTATE']._serialized_end=1007
-  _globals['_FORKREQUEST']._serialized_start=1009
-  _globals['_FORKREQUEST']._serialized_end=1042
-  _globals['_DELETESESSIONREQUEST']._serialized_start=1044
-  _globals['_DELETESESSIONREQUEST']._serialized_end=1086
-  _globals['_DELETESESSIONRESPONSE']._serialized_start=1088
-  _globals['_DELETESESSIONRESPONSE']._serialized_end=1111
-  _globals['_SESSIONVARIANT']._serialized_start=1113
-  _globals['_SESSIONVARIANT']._serialized_end=1210
-  _globals['_SESSIONPREDICTREQUEST']._serialized_start=1213
-  _globals['_SESSIONPREDICTREQUEST']._serialized_end=1354
-  _globals['_INTERACTREQUEST']._serialized_start=1357
-  _globals['_INTERACTREQUEST']._serialized_end=1528
-  _globals['_SESSIONS']._serialized_start=1531
-  _globals['_SESSIONS']._serialized_end=2128
+  _globals['_CREATESESSIONREQUEST']._serialized_end=487
+  _globals['_SESSIONINFO']._serialized_start=490
+  _globals['_SESSIONINFO']._serialized_end=636
+  _globals['_STEPREQUEST']._serialized_start=638
+  _globals['_STEPREQUEST']._serialized_end=745
+  _globals['_SETSTATEREQUEST']._serialized_start=747
+  _globals['_SETSTATEREQUEST']._serialized_end=828
+  _globals['_GETSTATEREQUEST']._serialized_start=830
+  _globals['_GETSTATEREQUEST']._serialized_end=867
+  _globals['_SESSIONSTATE']._serialized_start=870
+  _globals['_SESSIONSTATE']._serialized_end=1039
+  _globals['_FORKREQUEST']._serialized_start=1041
+  _globals['_FORKREQUEST']._serialized_end=1074
+  _globals['_DELETESESSIONREQUEST']._serialized_start=1076
+  _globals['_DELETESESSIONREQUEST']._serialized_end=1118
+  _globals['_DELETESESSIONRESPONSE']._serialized_start=1120
+  _globals['_DELETESESSIONRESPONSE']._serialized_end=1143
+  _globals['_SESSIONVARIANT']._serialized_start=1145
+  _globals['_SESSIONVARIANT']._serialized_end=1242
+  _globals['_SESSIONPREDICTREQUEST']._serialized_start=1245
+  _globals['_SESSIONPREDICTREQUEST']._serialized_end=1386
+  _globals['_INTERACTREQUEST']._serialized_start=1389
+  _globals['_INTERACTREQUEST']._serialized_end=1560
+  _globals['_SESSIONS']._serialized_start=1563
+  _globals['_SESSIONS']._serialized_end=2160
 # @@protoc_insertion_point(module_scope)

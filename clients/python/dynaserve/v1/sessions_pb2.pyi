@@ -34,32 +34,36 @@ class ObjectState(_message.Message):
     def __init__(self, object: _Optional[int] = ..., pose: _Optional[_Union[_world_model_pb2.Pose, _Mapping]] = ..., previous_pose: _Optional[_Union[_world_model_pb2.Pose, _Mapping]] = ..., velocity: _Optional[_Union[_world_model_pb2.Velocity, _Mapping]] = ...) -> None: ...
 
 class CreateSessionRequest(_message.Message):
-    __slots__ = ("model", "scene", "dt_steps", "kinematic")
+    __slots__ = ("model", "scene", "dt_steps", "kinematic", "shared")
     MODEL_FIELD_NUMBER: _ClassVar[int]
     SCENE_FIELD_NUMBER: _ClassVar[int]
     DT_STEPS_FIELD_NUMBER: _ClassVar[int]
     KINEMATIC_FIELD_NUMBER: _ClassVar[int]
+    SHARED_FIELD_NUMBER: _ClassVar[int]
     model: str
     scene: _world_model_pb2.Scene
     dt_steps: int
     kinematic: _containers.RepeatedScalarFieldContainer[int]
-    def __init__(self, model: _Optional[str] = ..., scene: _Optional[_Union[_world_model_pb2.Scene, _Mapping]] = ..., dt_steps: _Optional[int] = ..., kinematic: _Optional[_Iterable[int]] = ...) -> None: ...
+    shared: bool
+    def __init__(self, model: _Optional[str] = ..., scene: _Optional[_Union[_world_model_pb2.Scene, _Mapping]] = ..., dt_steps: _Optional[int] = ..., kinematic: _Optional[_Iterable[int]] = ..., shared: _Optional[bool] = ...) -> None: ...
 
 class SessionInfo(_message.Message):
-    __slots__ = ("session_id", "model", "expires_at_unix_ms", "objects", "dt_steps", "kinematic")
+    __slots__ = ("session_id", "model", "expires_at_unix_ms", "objects", "dt_steps", "kinematic", "shared")
     SESSION_ID_FIELD_NUMBER: _ClassVar[int]
     MODEL_FIELD_NUMBER: _ClassVar[int]
     EXPIRES_AT_UNIX_MS_FIELD_NUMBER: _ClassVar[int]
     OBJECTS_FIELD_NUMBER: _ClassVar[int]
     DT_STEPS_FIELD_NUMBER: _ClassVar[int]
     KINEMATIC_FIELD_NUMBER: _ClassVar[int]
+    SHARED_FIELD_NUMBER: _ClassVar[int]
     session_id: str
     model: str
     expires_at_unix_ms: int
     objects: int
     dt_steps: int
     kinematic: _containers.RepeatedScalarFieldContainer[int]
-    def __init__(self, session_id: _Optional[str] = ..., model: _Optional[str] = ..., expires_at_unix_ms: _Optional[int] = ..., objects: _Optional[int] = ..., dt_steps: _Optional[int] = ..., kinematic: _Optional[_Iterable[int]] = ...) -> None: ...
+    shared: bool
+    def __init__(self, session_id: _Optional[str] = ..., model: _Optional[str] = ..., expires_at_unix_ms: _Optional[int] = ..., objects: _Optional[int] = ..., dt_steps: _Optional[int] = ..., kinematic: _Optional[_Iterable[int]] = ..., shared: _Optional[bool] = ...) -> None: ...
 
 class StepRequest(_message.Message):
     __slots__ = ("session_id", "steps", "actions", "timeout_ms")

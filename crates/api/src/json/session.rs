@@ -61,6 +61,11 @@ pub struct CreateSessionRequest {
     /// Indices of the kinematic objects.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub kinematic: Vec<u32>,
+    /// False (the default): the session belongs to its creator (its bearer token, or without
+    /// authentication its IP address) and answers 404 to anyone else. True: every caller may
+    /// use it; only its creator may delete it.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub shared: bool,
 }
 
 /// A session's description (answer of create and fork).
@@ -80,6 +85,9 @@ pub struct SessionInfo {
     /// Indices of its kinematic objects.
     #[serde(default)]
     pub kinematic: Vec<u32>,
+    /// Usable by every caller (created with `shared`).
+    #[serde(default)]
+    pub shared: bool,
 }
 
 /// Advances a session (`POST /v1/sessions/{id}/step`).

@@ -42,6 +42,8 @@ pub struct CreateSessionSpec {
     pub dt_steps: u32,
     /// Indices of the kinematic objects.
     pub kinematic: Vec<u32>,
+    /// Usable by every caller, not only its creator.
+    pub shared: bool,
 }
 
 /// `Step`: advance a session.
@@ -123,6 +125,8 @@ pub struct SessionInfo {
     pub dt_steps: u32,
     /// Kinematic object indices, ascending.
     pub kinematic: Vec<u32>,
+    /// Usable by every caller, not only its creator.
+    pub shared: bool,
 }
 
 /// A session's state.
@@ -231,6 +235,7 @@ impl CreateSessionSpec {
             scene: Scene::from_v1(r.scene.as_ref(), &format!("{field}scene"))?,
             dt_steps: r.dt_steps,
             kinematic: r.kinematic.clone(),
+            shared: r.shared,
         })
     }
 
@@ -241,6 +246,7 @@ impl CreateSessionSpec {
             scene: Scene::from_json(&r.scene, "scene")?,
             dt_steps: r.dt_steps,
             kinematic: r.kinematic.clone(),
+            shared: r.shared,
         })
     }
 }
@@ -395,6 +401,7 @@ impl SessionInfo {
             objects: self.objects,
             dt_steps: self.dt_steps,
             kinematic: self.kinematic.clone(),
+            shared: self.shared,
         }
     }
 
@@ -407,6 +414,7 @@ impl SessionInfo {
             objects: self.objects,
             dt_steps: self.dt_steps,
             kinematic: self.kinematic.clone(),
+            shared: self.shared,
         }
     }
 }

@@ -1,4 +1,5 @@
-//! Flags of the session store: how many sessions, how much memory, how long they live idle.
+//! Flags of the session store (how many sessions, how much memory, how long they live idle)
+//! and the per-caller quotas beside its global caps.
 
 use std::time::Duration;
 
@@ -16,6 +17,25 @@ pub struct SessionConfig {
     /// A session not used for this long, seconds, is deleted.
     #[arg(long, env = "DYNASERVE_SESSION_TTL_S", default_value_t = 300.0)]
     pub session_ttl_s: f64,
+    /// Most sessions one caller (a bearer token, or a peer IP address without authentication)
+    /// holds at once; past it its creating or forking answers RESOURCE_EXHAUSTED / HTTP 429.
+    #[arg(
+        long,
+        env = "DYNASERVE_MAX_SESSIONS_PER_CALLER",
+        default_value_t = 1024
+    )]
+    pub max_sessions_per_caller: usize,
+    /// Most session memory one caller holds, MiB (its prepared scenes and states).
+    #[arg(
+        long,
+        env = "DYNASERVE_MAX_SESSION_MIB_PER_CALLER",
+        default_value_t = 256
+    )]
+    pub max_session_mib_per_caller: usize,
+    /// Most streams one caller has open at once (Rollout, Generate, a session's Step,
+    /// Interact); past it a new one answers RESOURCE_EXHAUSTED / HTTP 429.
+    #[arg(long, env = "DYNASERVE_MAX_STREAMS_PER_CALLER", default_value_t = 64)]
+    pub max_streams_per_caller: usize,
 }
 
 impl SessionConfig {
@@ -34,6 +54,16 @@ impl SessionConfig {
         if self.max_sessions == 0 || self.max_session_mib == 0 {
             return Err("--max-sessions and --max-session-mib must be at least 1".into());
         }
+        if self.max_sessions_per_caller == 0
+            || self.max_session_mib_per_caller == 0
+            || self.max_streams_per_caller == 0
+        {
+            return Err(
+                "--max-sessions-per-caller, --max-session-mib-per-caller and \
+                 --max-streams-per-caller must be at least 1"
+                    .into(),
+            );
+        }
         if !self.session_ttl_s.is_finite() || self.session_ttl_s <= 0.0 {
             return Err("--session-ttl-s must be a finite number > 0".into());
         }
@@ -47,6 +77,9 @@ impl Default for SessionConfig {
             max_sessions: 4096,
             max_session_mib: 1024,
             session_ttl_s: 300.0,
+            max_sessions_per_caller: 1024,
+            max_session_mib_per_caller: 256,
+            max_streams_per_caller: 64,
         }
     }
 }

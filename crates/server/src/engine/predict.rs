@@ -13,7 +13,7 @@ use tracing::Instrument;
 
 use super::Engine;
 use super::registry::{ModelEntry, prepare_scenes};
-use super::request::{GaugeGuard, RequestCtx, RequestRecord, with_deadline};
+use super::request::{GaugeGuard, RequestCtx, RequestRecord, for_variant, with_deadline};
 use super::stepper::{Stepper, StepperSpec};
 use crate::error::ApiError;
 use crate::scheduler::Priority;
@@ -136,20 +136,26 @@ impl Engine {
         deadline: Option<Instant>,
         ctx: &RequestCtx,
     ) -> Result<Prediction, ApiError> {
-        let runs = variants.into_iter().map(|mut v| async move {
-            let mut frames = Vec::new();
-            let mut timing = Timing::default();
-            for step in 1..=steps {
-                let mut frame = v.step(step as usize - 1, step < steps).await?;
-                if let Some(t) = frame.timing.take() {
-                    timing.add_step(&t);
+        let runs = variants
+            .into_iter()
+            .enumerate()
+            .map(|(i, mut v)| async move {
+                let mut frames = Vec::new();
+                let mut timing = Timing::default();
+                for step in 1..=steps {
+                    let mut frame = v
+                        .step(step as usize - 1, step < steps)
+                        .await
+                        .map_err(|e| for_variant(e, i))?;
+                    if let Some(t) = frame.timing.take() {
+                        timing.add_step(&t);
+                    }
+                    if step == steps || (every > 0 && step.is_multiple_of(every)) {
+                        frames.push(frame);
+                    }
                 }
-                if step == steps || (every > 0 && step.is_multiple_of(every)) {
-                    frames.push(frame);
-                }
-            }
-            Ok::<_, ApiError>((frames, timing))
-        });
+                Ok::<_, ApiError>((frames, timing))
+            });
         let mut close = self.close_tx.subscribe();
         let all = tokio::select! {
             r = with_deadline(deadline, try_join_all(runs)) => r?,

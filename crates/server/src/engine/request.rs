@@ -39,6 +39,10 @@ pub struct RequestCtx {
     pub arrival: Instant,
     /// Deadline from the transport (`grpc-timeout`), if any.
     pub deadline: Option<Instant>,
+    /// Whom the request is attributed to for session ownership and per-caller quotas: an
+    /// opaque key of the bearer token it authenticated with when authentication is on, else
+    /// of its peer IP address; 0 when neither is known (see `crate::security::Caller`).
+    pub identity: u64,
 }
 
 impl RequestCtx {
@@ -53,7 +57,14 @@ impl RequestCtx {
                 .into(),
             arrival,
             deadline: timeout.map(|t| arrival + t),
+            identity: 0,
         }
+    }
+
+    /// The same context attributed to `identity` (see [`RequestCtx::identity`]).
+    pub fn with_identity(mut self, identity: u64) -> Self {
+        self.identity = identity;
+        self
     }
 
     /// The earlier of the transport deadline and `timeout_ms` after arrival (0: none); when
@@ -73,6 +84,8 @@ impl RequestCtx {
     }
 }
 
+/// True when a client's `x-request-id` may be echoed: 1 to 128 visible ASCII characters (no
+/// space, no control or non-ASCII byte); any other is replaced by a generated id.
 fn valid_request_id(s: &str) -> bool {
     !s.is_empty() && s.len() <= 128 && s.bytes().all(|b| b.is_ascii_graphic())
 }
@@ -161,6 +174,21 @@ impl Drop for GaugeGuard {
     fn drop(&mut self) {
         self.0.sub(self.1);
     }
+}
+
+/// A variant's step error naming variant `i`: a field of its scene (`scene.objects[j]...`,
+/// e.g. an object that left the model's domain) becomes `variants[i].objects[j]...`, in the
+/// field and at the head of the message.
+pub(crate) fn for_variant(mut e: ApiError, i: usize) -> ApiError {
+    if let Some(rest) = e.field.as_deref().and_then(|f| f.strip_prefix("scene.")) {
+        let old = format!("scene.{rest}");
+        let new = format!("variants[{i}].{rest}");
+        if let Some(m) = e.message.strip_prefix(&old) {
+            e.message = format!("{new}{m}");
+        }
+        e.field = Some(new);
+    }
+    e
 }
 
 /// Runs `fut` until `deadline`, answering DEADLINE_EXCEEDED past it.

@@ -87,7 +87,7 @@ impl SessionsApi for SessionsService {
         &self,
         request: Request<v1::CreateSessionRequest>,
     ) -> Result<Response<v1::SessionInfo>, Status> {
-        let ctx = ctx_of(request.metadata());
+        let ctx = ctx_of(&request);
         let req = request.into_inner();
         let spec = self.parse(&ctx, "create_session", &req, |r| {
             CreateSessionSpec::from_v1(r, "")
@@ -106,7 +106,7 @@ impl SessionsApi for SessionsService {
         &self,
         request: Request<v1::StepRequest>,
     ) -> Result<Response<Self::StepStream>, Status> {
-        let ctx = ctx_of(request.metadata());
+        let ctx = ctx_of(&request);
         let req = request.into_inner();
         let spec = self.parse(&ctx, "session_step", &req, StepSpec::from_v1)?;
         let r = self.engine.session_step(spec, ctx.clone()).await;
@@ -121,7 +121,7 @@ impl SessionsApi for SessionsService {
         &self,
         request: Request<v1::SetStateRequest>,
     ) -> Result<Response<v1::SessionState>, Status> {
-        let ctx = ctx_of(request.metadata());
+        let ctx = ctx_of(&request);
         let req = request.into_inner();
         let spec = self.parse(&ctx, "set_state", &req, SetStateSpec::from_v1)?;
         let r = self.engine.set_session_state(spec, ctx.clone()).await;
@@ -132,7 +132,7 @@ impl SessionsApi for SessionsService {
         &self,
         request: Request<v1::GetStateRequest>,
     ) -> Result<Response<v1::SessionState>, Status> {
-        let ctx = ctx_of(request.metadata());
+        let ctx = ctx_of(&request);
         let id = request.into_inner().session_id;
         let r = self.engine.session_state(&id, ctx.clone()).await;
         self.reply(&ctx, r.map(|s| s.to_v1()))
@@ -142,7 +142,7 @@ impl SessionsApi for SessionsService {
         &self,
         request: Request<v1::ForkRequest>,
     ) -> Result<Response<v1::SessionInfo>, Status> {
-        let ctx = ctx_of(request.metadata());
+        let ctx = ctx_of(&request);
         let id = request.into_inner().session_id;
         let r = self.engine.fork_session(&id, ctx.clone()).await;
         self.reply(&ctx, r.map(|i| i.to_v1()))
@@ -152,7 +152,7 @@ impl SessionsApi for SessionsService {
         &self,
         request: Request<v1::DeleteSessionRequest>,
     ) -> Result<Response<v1::DeleteSessionResponse>, Status> {
-        let ctx = ctx_of(request.metadata());
+        let ctx = ctx_of(&request);
         let id = request.into_inner().session_id;
         let r = self.engine.delete_session(&id, ctx.clone()).await;
         self.reply(&ctx, r.map(|()| v1::DeleteSessionResponse {}))
@@ -162,7 +162,7 @@ impl SessionsApi for SessionsService {
         &self,
         request: Request<v1::SessionPredictRequest>,
     ) -> Result<Response<v1::PredictResponse>, Status> {
-        let ctx = ctx_of(request.metadata());
+        let ctx = ctx_of(&request);
         let req = request.into_inner();
         let spec = self.parse(&ctx, "session_predict", &req, SessionPredictSpec::from_v1)?;
         let r = self.engine.session_predict(spec, ctx.clone()).await;
@@ -173,7 +173,7 @@ impl SessionsApi for SessionsService {
         &self,
         request: Request<Streaming<v1::InteractRequest>>,
     ) -> Result<Response<Self::InteractStream>, Status> {
-        let ctx = ctx_of(request.metadata());
+        let ctx = ctx_of(&request);
         let mut input = request.into_inner();
         let first = match input.message().await {
             Ok(Some(m)) => m,

@@ -21,6 +21,8 @@ use futures::Stream;
 use tokio::sync::mpsc;
 use utoipa::OpenApi;
 
+use crate::security::Caller;
+
 use super::{
     AppState, ctx_of, error_response, json_response, parse, sse_response, timed, wants_sse,
 };
@@ -72,8 +74,13 @@ type Events = mpsc::Receiver<Result<GenerateEvent, ApiError>>;
         (status = 504, description = "Deadline (`timeout_ms`) exceeded", body = json::ErrorResponse),
     )
 )]
-async fn generate(State(s): State<AppState>, headers: HeaderMap, body: Body) -> Response {
-    let ctx = ctx_of(&headers);
+async fn generate(
+    State(s): State<AppState>,
+    caller: Caller,
+    headers: HeaderMap,
+    body: Body,
+) -> Response {
+    let ctx = ctx_of(&headers, caller);
     let rid = ctx.request_id.clone();
     let arrival = ctx.arrival;
     let parsed = parse(
@@ -89,19 +96,27 @@ async fn generate(State(s): State<AppState>, headers: HeaderMap, body: Body) -> 
         Ok(p) => p,
         Err(r) => return r,
     };
+    // The caller's stream quota, held until the answer is complete.
+    let quota = match s.engine.stream_quota(&ctx) {
+        Ok(q) => q,
+        Err(e) => return error_response(s.engine.reject(&ctx, "generate", e), &rid),
+    };
     let handle = match s.engine.start_generate(spec, ctx).await {
         Ok(h) => h,
         Err(e) => return error_response(e, &rid),
     };
     let model = handle.model.clone();
     if sse {
-        return sse_response(
-            sse_events(handle.events, rid.to_string(), arrival),
-            &rid,
-            &model,
-        );
+        let events = sse_events(handle.events, rid.to_string(), arrival);
+        let events = futures::StreamExt::map(events, move |e| {
+            let _ = &quota;
+            e
+        });
+        return sse_response(events, &rid, &model);
     }
-    let (samples, timing) = match collect(handle.events, arrival).await {
+    let collected = collect(handle.events, arrival).await;
+    drop(quota);
+    let (samples, timing) = match collected {
         Ok(c) => c,
         Err(e) => return error_response(e, &rid),
     };

@@ -23,6 +23,8 @@ use dynaserve_api::json;
 use dynaserve_api::spec::session::{CreateSessionSpec, SessionPredictSpec, SetStateSpec, StepSpec};
 use utoipa::OpenApi;
 
+use crate::security::Caller;
+
 use super::{
     AppState, collect_frames, ctx_of, error_response, json_response as ok, parse,
     prediction_response, set_header, timed, with_warnings,
@@ -70,8 +72,13 @@ pub(super) fn routes() -> Router<AppState> {
         (status = 429, description = "Session count or memory limit reached", body = json::ErrorResponse),
     )
 )]
-async fn create(State(s): State<AppState>, headers: HeaderMap, body: Body) -> Response {
-    let ctx = ctx_of(&headers);
+async fn create(
+    State(s): State<AppState>,
+    caller: Caller,
+    headers: HeaderMap,
+    body: Body,
+) -> Response {
+    let ctx = ctx_of(&headers, caller);
     let rid = ctx.request_id.clone();
     let parsed = parse(
         &s.engine,
@@ -105,9 +112,10 @@ async fn create(State(s): State<AppState>, headers: HeaderMap, body: Body) -> Re
 async fn get_state(
     State(s): State<AppState>,
     Path(id): Path<String>,
+    caller: Caller,
     headers: HeaderMap,
 ) -> Response {
-    let ctx = ctx_of(&headers);
+    let ctx = ctx_of(&headers, caller);
     let rid = ctx.request_id.clone();
     match s.engine.session_state(&id, ctx).await {
         Ok(v) => ok(StatusCode::OK, v.to_json(), &rid),
@@ -130,10 +138,11 @@ async fn get_state(
 async fn set_state(
     State(s): State<AppState>,
     Path(id): Path<String>,
+    caller: Caller,
     headers: HeaderMap,
     body: Body,
 ) -> Response {
-    let ctx = ctx_of(&headers);
+    let ctx = ctx_of(&headers, caller);
     let rid = ctx.request_id.clone();
     let parsed = parse(
         &s.engine,
@@ -168,10 +177,11 @@ async fn set_state(
 async fn step(
     State(s): State<AppState>,
     Path(id): Path<String>,
+    caller: Caller,
     headers: HeaderMap,
     body: Body,
 ) -> Response {
-    let ctx = ctx_of(&headers);
+    let ctx = ctx_of(&headers, caller);
     let rid = ctx.request_id.clone();
     let arrival = ctx.arrival;
     let parsed = parse(
@@ -212,8 +222,13 @@ async fn step(
         (status = 429, description = "Session count or memory limit reached", body = json::ErrorResponse),
     )
 )]
-async fn fork(State(s): State<AppState>, Path(id): Path<String>, headers: HeaderMap) -> Response {
-    let ctx = ctx_of(&headers);
+async fn fork(
+    State(s): State<AppState>,
+    Path(id): Path<String>,
+    caller: Caller,
+    headers: HeaderMap,
+) -> Response {
+    let ctx = ctx_of(&headers, caller);
     let rid = ctx.request_id.clone();
     match s.engine.fork_session(&id, ctx).await {
         Ok(info) => ok(StatusCode::CREATED, info.to_json(), &rid),
@@ -238,10 +253,11 @@ async fn fork(State(s): State<AppState>, Path(id): Path<String>, headers: Header
 async fn predict(
     State(s): State<AppState>,
     Path(id): Path<String>,
+    caller: Caller,
     headers: HeaderMap,
     body: Body,
 ) -> Response {
-    let ctx = ctx_of(&headers);
+    let ctx = ctx_of(&headers, caller);
     let rid = ctx.request_id.clone();
     let parsed = parse(
         &s.engine,
@@ -267,8 +283,13 @@ async fn predict(
         (status = 404, description = "Unknown or expired session", body = json::ErrorResponse),
     )
 )]
-async fn delete(State(s): State<AppState>, Path(id): Path<String>, headers: HeaderMap) -> Response {
-    let ctx = ctx_of(&headers);
+async fn delete(
+    State(s): State<AppState>,
+    Path(id): Path<String>,
+    caller: Caller,
+    headers: HeaderMap,
+) -> Response {
+    let ctx = ctx_of(&headers, caller);
     let rid = ctx.request_id.clone();
     match s.engine.delete_session(&id, ctx).await {
         Ok(()) => {

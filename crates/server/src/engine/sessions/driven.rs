@@ -5,7 +5,7 @@ use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use dynaserve_api::build::{check_request_cost, check_steps};
-use dynaserve_api::session_input::{Targets, check_actions, drive};
+use dynaserve_api::session_input::{Targets, check_action_speeds, check_actions, drive};
 use dynaserve_api::spec::Frame;
 use dynaserve_api::spec::session::StepSpec;
 use dynaserve_model::SceneState;
@@ -143,7 +143,7 @@ impl Engine {
         );
         let prepared = async {
             self.admit_check()?;
-            let session = self.sessions.get(&req.session_id)?;
+            let session = self.sessions.get(&req.session_id, ctx.identity)?;
             check_steps(req.steps, session.dt_steps, &session.entry.limits)?;
             check_request_cost(
                 &[session.scene().len()],
@@ -152,11 +152,12 @@ impl Engine {
                 &session.entry.limits,
             )?;
             let targets = check_actions(&req.actions, req.steps, &session.kinematic, "actions")?;
-            Ok::<_, ApiError>((session, targets))
+            let quota = self.stream_quota(&ctx)?;
+            Ok::<_, ApiError>((session, targets, quota))
         }
         .instrument(span.clone())
         .await;
-        let (session, targets) = match prepared {
+        let (session, targets, quota) = match prepared {
             Ok(p) => p,
             Err(e) => return Err(span.in_scope(|| rec.fail(e))),
         };
@@ -168,6 +169,8 @@ impl Engine {
         let model = session.entry.name.clone();
         tokio::spawn(
             async move {
+                // The caller's stream quota is held until the steps end.
+                let _quota = quota;
                 match engine.run_steps(session, targets, deadline, ctx, &tx).await {
                     Ok(()) => rec.finish(None),
                     Err(e) => {
@@ -195,6 +198,14 @@ impl Engine {
             _ = sleep_until(deadline) => return Err(ApiError::deadline("deadline exceeded while another call held the session")),
             _ = tx.closed() => return Err(ApiError::cancelled("client went away")),
         };
+        // Kinematic poses may not imply more than the velocity bound, from the session's
+        // state as this call found it.
+        check_action_speeds(
+            &targets,
+            &progress.state.current,
+            session.dt_seconds(),
+            "actions",
+        )?;
         let mut driven = Driven::new(
             self,
             &session,

@@ -4,7 +4,7 @@
 
 use std::sync::Arc;
 
-use dynaserve_api::session_input::{apply_states, check_action};
+use dynaserve_api::session_input::{apply_states, check_action, check_target_speeds};
 use dynaserve_api::spec::Frame;
 use dynaserve_api::spec::session::{InteractOpen, InteractStep};
 use futures::{Stream, StreamExt};
@@ -51,16 +51,19 @@ impl Engine {
         let opened = async {
             self.admit_check()?;
             match open {
-                InteractOpen::Session(id) => Ok((self.sessions.get(&id)?, false, Vec::new())),
+                InteractOpen::Session(id) => {
+                    Ok((self.sessions.get(&id, ctx.identity)?, false, Vec::new()))
+                }
                 InteractOpen::Create(spec) => {
-                    let (s, warnings) = self.create_session_inner(spec).await?;
+                    let (s, warnings) = self.create_session_inner(spec, ctx.identity).await?;
                     Ok((s, true, warnings))
                 }
             }
+            .and_then(|opened| Ok((opened, self.stream_quota(&ctx)?)))
         }
         .instrument(span.clone())
         .await;
-        let (session, owned, warnings) = match opened {
+        let ((session, owned, warnings), quota) = match opened {
             Ok(o) => o,
             Err(e) => return Err(span.in_scope(|| rec.fail(e))),
         };
@@ -74,6 +77,8 @@ impl Engine {
         };
         tokio::spawn(
             async move {
+                // The caller's stream quota is held until the stream ends.
+                let _quota = quota;
                 // The slot of the final error, reserved first so that it always fits.
                 let last = tx.clone().reserve_owned().await;
                 let r = engine.run_interact(&session, input, &ctx, &tx).await;
@@ -149,6 +154,12 @@ impl Engine {
                 driven = driven_from(state, driven.step());
             }
             let targets = check_action(&step.action, &session.kinematic, "action")?;
+            check_target_speeds(
+                &targets,
+                &driven.state().current,
+                session.dt_seconds(),
+                "action",
+            )?;
             let permit = tokio::select! {
                 p = tx.reserve() => p.map_err(|_| ApiError::cancelled(GONE))?,
                 _ = close.wait_for(|c| *c) => return Err(ApiError::unavailable(CLOSE_MSG)),

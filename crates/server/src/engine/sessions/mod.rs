@@ -1,7 +1,8 @@
 //! Sessions: scenes prepared once and kept with their state between calls, for planners.
 //!
-//! - this module: the store (ids, caps on count and memory, idle TTL and reaping, metrics) and
-//!   the calls that do not step (create, fork, get, set, delete);
+//! - this module: the store (ids, caps on count and memory, idle TTL and reaping, metrics,
+//!   ownership) and the calls that do not step (create, fork, get, set, delete);
+//! - `ledger`: per-caller quotas (sessions, session memory, open streams);
 //! - `driven`: a `super::stepper::Stepper` whose kinematic objects follow given poses, and
 //!   the `Step` call;
 //! - `predict`: Predict from a session (variants of its state with their own actions);
@@ -11,9 +12,18 @@
 //! priority; Predict variants bulk), so they share its batches. One call at a time holds a
 //! session's state (an async mutex); a reaper removes sessions idle for longer than the TTL
 //! unless a call holds them.
+//!
+//! Ownership: a session belongs to the caller that created it (its bearer token, or without
+//! authentication its peer IP address; see `crate::security::Caller`). For any other caller it
+//! does not exist: every call naming it answers NOT_FOUND, exactly as for an unknown id, so ids
+//! cannot be probed. A session created with `shared` may be used (stepped, read, set, forked,
+//! driven by Interact) by every caller; only its owner may delete it (others: PERMISSION_DENIED).
+//! Its session count and memory are charged to its owner; a fork belongs to (and is charged
+//! to) the caller that forked it.
 
 mod driven;
 mod interact;
+mod ledger;
 mod predict;
 
 use std::collections::HashMap;
@@ -38,6 +48,7 @@ use super::request::{RequestCtx, RequestRecord};
 use crate::config::SessionConfig;
 use crate::error::ApiError;
 use crate::metrics::Metrics;
+use ledger::{Charge, Ledger, Usage};
 
 /// A prepared scene held by sessions, counted once in the store's memory however many forks
 /// share it; its bytes are released when the last holder goes.
@@ -45,6 +56,8 @@ struct HeldScene {
     scene: Arc<PreparedScene>,
     bytes: usize,
     total: Arc<AtomicUsize>,
+    /// Its bytes in its creator's quota.
+    _charge: Charge,
 }
 
 impl Drop for HeldScene {
@@ -94,6 +107,12 @@ pub(crate) struct Session {
     /// Set once the session leaves the store (deleted or reaped): a stream still holding it
     /// (Interact) must stop stepping it at its next message.
     removed: AtomicBool,
+    /// The caller it belongs to (`RequestCtx::identity`).
+    owner: u64,
+    /// Usable by every caller (not only its owner).
+    shared: bool,
+    /// The session and its state in its owner's quota.
+    _charge: Charge,
     last_used: Mutex<Instant>,
     own_bytes: usize,
     total: Arc<AtomicUsize>,
@@ -128,6 +147,11 @@ impl Session {
         self.removed.load(Ordering::Acquire)
     }
 
+    /// True when `caller` may use the session: its owner, or anyone when it is shared.
+    fn visible_to(&self, caller: u64) -> bool {
+        self.shared || self.owner == caller
+    }
+
     fn kinematic_indices(&self) -> Vec<u32> {
         self.kinematic
             .iter()
@@ -150,6 +174,8 @@ pub(crate) struct SessionStore {
     config: SessionConfig,
     map: Mutex<HashMap<String, Arc<Session>>>,
     bytes: Arc<AtomicUsize>,
+    /// Per-caller quotas (sessions, memory, streams).
+    ledger: Arc<Ledger>,
     reaper_started: std::sync::Once,
     metrics: Metrics,
 }
@@ -198,6 +224,7 @@ pub(crate) fn not_found(id: &str) -> ApiError {
 impl SessionStore {
     pub(crate) fn new(config: SessionConfig, metrics: Metrics) -> SessionStore {
         SessionStore {
+            ledger: Arc::new(Ledger::new(&config)),
             config,
             map: Mutex::new(HashMap::new()),
             bytes: Arc::new(AtomicUsize::new(0)),
@@ -215,9 +242,15 @@ impl SessionStore {
         self.lock().len()
     }
 
-    /// Looks a session up and renews its TTL.
-    pub(crate) fn get(&self, id: &str) -> Result<Arc<Session>, ApiError> {
-        let s = self.lock().get(id).cloned().ok_or_else(|| not_found(id))?;
+    /// Looks up a session `caller` may use (NOT_FOUND for another caller's, as for an unknown
+    /// id) and renews its TTL.
+    pub(crate) fn get(&self, id: &str, caller: u64) -> Result<Arc<Session>, ApiError> {
+        let s = self
+            .lock()
+            .get(id)
+            .filter(|s| s.visible_to(caller))
+            .cloned()
+            .ok_or_else(|| not_found(id))?;
         s.touch();
         Ok(s)
     }
@@ -234,7 +267,42 @@ impl SessionStore {
             objects: s.scene().len() as u32,
             dt_steps: s.dt_steps,
             kinematic: s.kinematic_indices(),
+            shared: s.shared,
         }
+    }
+
+    /// Refuses, with INVALID_ARGUMENT naming `scene`, a session of `bytes` that could never
+    /// be held (more than the server's or one caller's session memory with nothing else held),
+    /// rather than a RESOURCE_EXHAUSTED that retrying cannot cure.
+    fn check_fits(&self, bytes: usize) -> Result<(), ApiError> {
+        let server = self.config.max_session_mib << 20;
+        let caller = self.ledger.max_bytes();
+        let (cap, flag) = if server <= caller {
+            (server, "--max-session-mib")
+        } else {
+            (caller, "--max-session-mib-per-caller")
+        };
+        if bytes > cap {
+            return Err(ApiError::invalid(
+                "scene",
+                format!(
+                    "the session needs {bytes} bytes, more than the {} MiB the server ever \
+                     holds for {} ({flag}); use fewer objects or points",
+                    cap >> 20,
+                    if flag == "--max-session-mib" {
+                        "all sessions"
+                    } else {
+                        "one caller's sessions"
+                    }
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Charges `add` to `caller`'s quota (RESOURCE_EXHAUSTED past a per-caller cap).
+    fn charge(&self, caller: u64, add: Usage, retry: Duration) -> Result<Charge, ApiError> {
+        self.ledger.charge(caller, add, retry)
     }
 
     /// Checks the caps for `extra` more bytes and one more session.
@@ -261,6 +329,8 @@ impl SessionStore {
         Ok(())
     }
 
+    /// Keeps a new session owned by `owner`, its count and state charged to `charge`.
+    #[allow(clippy::too_many_arguments)]
     fn insert(
         &self,
         entry: Arc<ModelEntry>,
@@ -268,6 +338,9 @@ impl SessionStore {
         kinematic: Arc<[bool]>,
         dt_steps: u32,
         progress: Progress,
+        owner: u64,
+        shared: bool,
+        charge: Charge,
     ) -> Arc<Session> {
         let own_bytes = state_bytes(progress.state.len());
         self.bytes.fetch_add(own_bytes, Ordering::Relaxed);
@@ -284,6 +357,9 @@ impl SessionStore {
             dt_steps,
             progress: Arc::new(tokio::sync::Mutex::new(progress)),
             removed: AtomicBool::new(false),
+            owner,
+            shared,
+            _charge: charge,
             last_used: Mutex::new(Instant::now()),
             own_bytes,
             total: self.bytes.clone(),
@@ -291,6 +367,26 @@ impl SessionStore {
         });
         self.lock().insert(s.id.clone(), s.clone());
         s
+    }
+
+    /// Removes a session for `caller`: NOT_FOUND when it does not exist for that caller,
+    /// PERMISSION_DENIED when it is another caller's shared session.
+    fn remove_for(&self, id: &str, caller: u64) -> Result<(), ApiError> {
+        let mut map = self.lock();
+        match map.get(id) {
+            Some(s) if s.owner == caller => {}
+            Some(s) if s.shared => {
+                return Err(ApiError::permission_denied(format!(
+                    "session_id: session {id:?} is shared by another caller; only its owner \
+                     may delete it"
+                )));
+            }
+            _ => return Err(not_found(id)),
+        }
+        if let Some(s) = map.remove(id) {
+            s.removed.store(true, Ordering::Release);
+        }
+        Ok(())
     }
 
     /// Removes a session, marking it removed for any stream still holding it; false if it
@@ -389,18 +485,20 @@ impl Engine {
         ctx: RequestCtx,
     ) -> Result<(SessionInfo, Vec<String>), ApiError> {
         self.session_call(&ctx, "create_session", async {
-            let (s, warnings) = self.create_session_inner(req).await?;
+            let (s, warnings) = self.create_session_inner(req, ctx.identity).await?;
             Ok((self.sessions.info(&s), warnings))
         })
         .await
     }
 
-    /// Creates a session (the caller has checked admission and records the call); with it,
-    /// the warnings of its scene (see [`Engine::range_warnings`]).
+    /// Creates a session owned by `owner` (the caller has checked admission and records the
+    /// call); with it, the warnings of its scene (see [`Engine::range_warnings`]).
     pub(crate) async fn create_session_inner(
         self: &Arc<Self>,
         req: CreateSessionSpec,
+        owner: u64,
     ) -> Result<(Arc<Session>, Vec<String>), ApiError> {
+        let shared = req.shared;
         let entry = self.resolve(&req.model)?;
         let dt_steps = dynaserve_api::build::check_steps(1, req.dt_steps, &entry.limits)?;
         let kinematic: Arc<[bool]> =
@@ -411,13 +509,33 @@ impl Engine {
             .prepare_one(&entry, req.scene, dt_steps, kinematic.clone())
             .await?;
         let bytes = scene_bytes(&scene);
-        self.sessions
-            .admit(bytes + state_bytes(state.len()), self.retry_after())?;
+        let own = state_bytes(state.len());
+        self.sessions.check_fits(bytes + own)?;
+        self.sessions.admit(bytes + own, self.retry_after())?;
+        let retry = self.retry_after();
+        let scene_charge = self.sessions.charge(
+            owner,
+            Usage {
+                bytes,
+                ..Usage::default()
+            },
+            retry,
+        )?;
+        let session_charge = self.sessions.charge(
+            owner,
+            Usage {
+                sessions: 1,
+                bytes: own,
+                streams: 0,
+            },
+            retry,
+        )?;
         self.sessions.bytes.fetch_add(bytes, Ordering::Relaxed);
         let held = Arc::new(HeldScene {
             scene,
             bytes,
             total: self.sessions.bytes.clone(),
+            _charge: scene_charge,
         });
         let s = self.sessions.insert(
             entry,
@@ -425,6 +543,9 @@ impl Engine {
             kinematic,
             dt_steps,
             Progress { state, step: 0 },
+            owner,
+            shared,
+            session_charge,
         );
         self.sessions.start_reaper();
         self.metrics
@@ -438,16 +559,29 @@ impl Engine {
     /// Copies a session's state under a new id (the prepared scene is shared).
     pub async fn fork_session(&self, id: &str, ctx: RequestCtx) -> Result<SessionInfo, ApiError> {
         self.session_call(&ctx, "fork_session", async {
-            let s = self.sessions.get(id)?;
+            let s = self.sessions.get(id, ctx.identity)?;
             let progress = s.progress.lock().await.clone();
-            self.sessions
-                .admit(state_bytes(progress.state.len()), self.retry_after())?;
+            let own = state_bytes(progress.state.len());
+            self.sessions.admit(own, self.retry_after())?;
+            let charge = self.sessions.charge(
+                ctx.identity,
+                Usage {
+                    sessions: 1,
+                    bytes: own,
+                    streams: 0,
+                },
+                self.retry_after(),
+            )?;
+            // The fork is its forker's own, not shared.
             let f = self.sessions.insert(
                 s.entry.clone(),
                 s.held.clone(),
                 s.kinematic.clone(),
                 s.dt_steps,
                 progress,
+                ctx.identity,
+                false,
+                charge,
             );
             self.metrics
                 .session_forks
@@ -475,7 +609,7 @@ impl Engine {
         ctx: RequestCtx,
     ) -> Result<SessionStateView, ApiError> {
         self.session_call(&ctx, "get_state", async {
-            let s = self.sessions.get(id)?;
+            let s = self.sessions.get(id, ctx.identity)?;
             let p = s.progress.lock().await;
             Ok(self.view(&s, &p))
         })
@@ -489,7 +623,7 @@ impl Engine {
         ctx: RequestCtx,
     ) -> Result<SessionStateView, ApiError> {
         self.session_call(&ctx, "set_state", async {
-            let s = self.sessions.get(&req.session_id)?;
+            let s = self.sessions.get(&req.session_id, ctx.identity)?;
             let mut p = s.progress.lock().await;
             apply_states(&mut p.state, &req.objects, s.dt_seconds(), "objects")?;
             Ok(self.view(&s, &p))
@@ -497,18 +631,37 @@ impl Engine {
         .await
     }
 
-    /// Deletes a session. A call running on it finishes first; an Interact stream on it ends
-    /// at its next message with NOT_FOUND instead of stepping it further.
+    /// Deletes a session of the caller's. A call running on it finishes first; an Interact
+    /// stream on it ends at its next message with NOT_FOUND instead of stepping it further.
     pub async fn delete_session(&self, id: &str, ctx: RequestCtx) -> Result<(), ApiError> {
         self.session_call(&ctx, "delete_session", async {
-            if self.sessions.remove(id) {
-                Ok(())
-            } else {
-                Err(not_found(id))
-            }
+            self.sessions.remove_for(id, ctx.identity)
         })
         .await
     }
+
+    /// One stream of `ctx`'s caller (Rollout, Generate, a session's Step, Interact) in its
+    /// quota, given back when dropped; RESOURCE_EXHAUSTED when the caller has
+    /// `--max-streams-per-caller` open.
+    pub fn stream_quota(&self, ctx: &RequestCtx) -> Result<StreamQuota, ApiError> {
+        self.sessions
+            .charge(
+                ctx.identity,
+                Usage {
+                    streams: 1,
+                    ..Usage::default()
+                },
+                self.retry_after(),
+            )
+            .map(|c| StreamQuota { _charge: c })
+    }
+}
+
+/// One open stream in its caller's quota (see [`Engine::stream_quota`]); dropping it ends
+/// the stream's share.
+#[derive(Debug)]
+pub struct StreamQuota {
+    _charge: Charge,
 }
 
 #[cfg(test)]

@@ -6,7 +6,7 @@
 use std::sync::Arc;
 
 use dynaserve_api::build::{check_request_cost, check_steps};
-use dynaserve_api::session_input::{Targets, apply_states, check_actions};
+use dynaserve_api::session_input::{Targets, apply_states, check_action_speeds, check_actions};
 use dynaserve_api::spec::session::SessionPredictSpec;
 use dynaserve_api::spec::{Frame, Prediction};
 use tracing::Instrument;
@@ -51,7 +51,7 @@ impl Engine {
         ctx: &RequestCtx,
     ) -> Result<Prediction, ApiError> {
         self.admit_check()?;
-        let session = self.sessions.get(&req.session_id)?;
+        let session = self.sessions.get(&req.session_id, ctx.identity)?;
         let entry = session.entry.clone();
         check_steps(req.steps, session.dt_steps, &entry.limits)?;
         let n = req.variants.len();
@@ -82,6 +82,12 @@ impl Engine {
                 &v.actions,
                 req.steps,
                 &session.kinematic,
+                &format!("variants[{i}].actions"),
+            )?;
+            check_action_speeds(
+                &targets,
+                &state.current,
+                session.dt_seconds(),
                 &format!("variants[{i}].actions"),
             )?;
             starts.push((state, targets));
