@@ -78,7 +78,8 @@ libs=""
 if [ "${device%%:*}" = cuda ]; then
   # cuBLAS, cuRAND and the CUDA runtime (13.x) are not in the kit (cuBLAS alone is 600 MB):
   # found where the machine has them, a CUDA install or the NVIDIA wheels of a Python.
-  roots="${LD_LIBRARY_PATH//:/ } /usr/local/cuda/lib64 /usr/local/cuda/targets/x86_64-linux/lib /usr/lib/x86_64-linux-gnu"
+  ld=${LD_LIBRARY_PATH:-}
+  roots="${ld//:/ } /usr/local/cuda/lib64 /usr/local/cuda/targets/x86_64-linux/lib /usr/lib/x86_64-linux-gnu"
   for py in python3 /opt/*/.venv/bin/python3; do
     command -v "$py" >/dev/null 2>&1 || continue
     roots="$roots $("$py" -c 'import site; print(" ".join(site.getsitepackages()))' 2>/dev/null || true)"
@@ -125,6 +126,10 @@ if has parity; then
     say "parity: $(grep -E '^(PASSED|FAILED)' "$log" | tail -1) ($(took) s)"
     grep -E '^  models/' "$log" | tail -2 | tee -a "$summary"
   else
+    if grep -q 'cannot open it' "$log"; then
+      say "parity: the device cannot be used: $(grep -m1 'cannot open it' "$log")"
+      exit 3
+    fi
     say "parity: FAILED ($(took) s; kit.log has the figures)"
     failed=1
   fi
