@@ -1058,3 +1058,77 @@ async fn request_ids_are_echoed_only_when_short_and_visible() {
     server.shutdown();
     server.wait().await.unwrap();
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_grpc_message_that_pauses_is_cut_off_but_not_the_wait_between_messages() {
+    let m = test_model();
+    let server = start(&m.dir, |c| {
+        c.connections.body_read_timeout_s = 0.5;
+        c.connections.body_deadline_s = 30.0;
+    })
+    .await;
+    // A unary call whose message stops after a few bytes.
+    let (mut tx, call) = raw_grpc_call(server.grpc_addr, "/dynaserve.v1.WorldModel/Predict").await;
+    let mut start_of_message = vec![0u8];
+    start_of_message.extend_from_slice(&1000u32.to_be_bytes());
+    start_of_message.extend_from_slice(b"\x0a\x01");
+    tx.send(Ok(Frame::data(Bytes::from(start_of_message))))
+        .await
+        .unwrap();
+    let resp = tokio::time::timeout(HANG, call)
+        .await
+        .expect("no answer")
+        .unwrap()
+        .unwrap();
+    let (code, msg, _) = grpc_outcome(resp).await;
+    let msg = percent_decoded(&msg);
+    assert_eq!(code.as_deref(), Some("3"), "INVALID_ARGUMENT: {msg}");
+    assert!(msg.contains("--body-read-timeout-s"), "{msg}");
+    drop(tx);
+
+    // Interact: three times the pause between whole messages is fine.
+    let open = dynaserve_api::v1::InteractRequest {
+        create: Some(dynaserve_api::v1::CreateSessionRequest {
+            model: m.name.clone(),
+            scene: Some(scene(131, 1, 16).to_proto()),
+            dt_steps: 1,
+            kinematic: vec![],
+            shared: false,
+        }),
+        ..Default::default()
+    };
+    let step = grpc_frame(&dynaserve_api::v1::InteractRequest::default().encode_to_vec());
+    let (mut tx, call) = raw_grpc_call(server.grpc_addr, "/dynaserve.v1.Sessions/Interact").await;
+    tx.send(Ok(Frame::data(Bytes::from(grpc_frame(
+        &open.encode_to_vec(),
+    )))))
+    .await
+    .unwrap();
+    let resp = tokio::time::timeout(HANG, call)
+        .await
+        .expect("no answer")
+        .unwrap()
+        .unwrap();
+    let mut body = resp.into_body();
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    tx.send(Ok(Frame::data(Bytes::from(step.clone()))))
+        .await
+        .unwrap();
+    let f = tokio::time::timeout(HANG, body.frame())
+        .await
+        .unwrap()
+        .unwrap()
+        .unwrap();
+    assert!(f.data_ref().is_some_and(|d| d.len() >= 5), "{f:?}");
+    // A message that stops half way is cut after the pause allowed.
+    tx.send(Ok(Frame::data(Bytes::from(step[..3].to_vec()))))
+        .await
+        .unwrap();
+    let (code, msg, _) = grpc_outcome_of_body(body).await;
+    let msg = percent_decoded(&msg);
+    assert_eq!(code.as_deref(), Some("3"), "INVALID_ARGUMENT: {msg}");
+    assert!(msg.contains("--body-read-timeout-s"), "{msg}");
+    drop(tx);
+    server.shutdown();
+    server.wait().await.unwrap();
+}

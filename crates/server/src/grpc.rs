@@ -234,6 +234,8 @@ pub async fn router(engine: Arc<Engine>) -> anyhow::Result<(axum::Router, Health
     // as INVALID_ARGUMENT naming `request`; beyond that tonic refuses to decode.
     let hard_cap = engine.config().max_request_bytes.saturating_mul(4);
     let body_deadline = engine.config().connections.body_deadline();
+    // A pause inside a message: the HTTP listener's timeout between body chunks.
+    let idle = engine.config().connections.body_read_timeout();
     let sessions = sessions::server(engine.clone(), hard_cap);
     let service = WorldModelServer::new(GrpcService { engine })
         .max_decoding_message_size(hard_cap)
@@ -253,9 +255,9 @@ pub async fn router(engine: Arc<Engine>) -> anyhow::Result<(axum::Router, Health
             move |req: axum::extract::Request| async move {
                 if is_client_stream(req.uri().path()) {
                     let req = req.map(|b| axum::body::Body::new(prefetch::ReadAhead::new(b)));
-                    with_body_deadline(req, body_deadline, BodyLimit::EachMessage, true)
+                    with_body_deadline(req, body_deadline, idle, BodyLimit::EachMessage, true)
                 } else {
-                    with_body_deadline(req, body_deadline, BodyLimit::Whole, true)
+                    with_body_deadline(req, body_deadline, idle, BodyLimit::Whole, true)
                 }
             },
         ));

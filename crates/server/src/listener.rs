@@ -302,16 +302,23 @@ pub enum BodyLimit {
 pub struct BodyDeadlineExceeded(pub String);
 
 /// A request body cut off at `--body-deadline-s` ([`BodyLimit`]); a body that keeps
-/// trickling a byte at a time cannot hold its connection longer. Past the deadline it ends
-/// with an error: a [`BodyDeadlineExceeded`] (HTTP: 408) or, for gRPC, a `tonic::Status`
-/// INVALID_ARGUMENT naming `request` that tonic answers with.
+/// trickling a byte at a time cannot hold its connection longer. For gRPC it also enforces
+/// `--body-read-timeout-s` while a message is under way (a pause inside a message; HTTP has
+/// its own timer for that, `crate::security::http_policy`). Past either it ends with an error:
+/// a [`BodyDeadlineExceeded`] (HTTP: 408) or, for gRPC, a `tonic::Status` INVALID_ARGUMENT
+/// naming `request` that tonic answers with.
 pub struct DeadlineBody {
     inner: Body,
     limit: BodyLimit,
-    deadline: Duration,
+    deadline: Option<Duration>,
+    idle: Option<Duration>,
     grpc: bool,
-    /// Armed while a message (or the whole body) is due.
-    timer: Option<Pin<Box<tokio::time::Sleep>>>,
+    /// A message (or the whole body) is under way: the timers run.
+    due: bool,
+    /// When the message (or body) under way must be complete.
+    deadline_timer: Option<Pin<Box<tokio::time::Sleep>>>,
+    /// When the message under way must have sent its next bytes.
+    idle_timer: Option<Pin<Box<tokio::time::Sleep>>>,
     /// gRPC framing: bytes of the current message's 5-byte prefix seen, its prefix, and the
     /// payload bytes still to come once the prefix is complete.
     prefix_seen: usize,
@@ -320,16 +327,29 @@ pub struct DeadlineBody {
     done: bool,
 }
 
+fn sleep(d: Option<Duration>) -> Option<Pin<Box<tokio::time::Sleep>>> {
+    d.map(|d| Box::pin(tokio::time::sleep(d)))
+}
+
 impl DeadlineBody {
-    /// `inner` due within `deadline` of now, as `limit` says; `grpc` picks the form of the
-    /// error.
-    pub fn new(inner: Body, limit: BodyLimit, deadline: Duration, grpc: bool) -> DeadlineBody {
+    /// `inner` due within `deadline` of now, as `limit` says, and pausing at most `idle`
+    /// inside a message (`None`: no such limit); `grpc` picks the form of the error.
+    pub fn new(
+        inner: Body,
+        limit: BodyLimit,
+        deadline: Option<Duration>,
+        idle: Option<Duration>,
+        grpc: bool,
+    ) -> DeadlineBody {
         DeadlineBody {
             inner,
             limit,
             deadline,
+            idle,
             grpc,
-            timer: Some(Box::pin(tokio::time::sleep(deadline))),
+            due: true,
+            deadline_timer: sleep(deadline),
+            idle_timer: sleep(idle),
             prefix_seen: 0,
             prefix: [0; 5],
             payload_left: 0,
@@ -337,13 +357,14 @@ impl DeadlineBody {
         }
     }
 
-    /// Follows the gRPC message framing through `data`: a message that completes disarms the
-    /// timer, one that starts arms it.
+    /// Follows the gRPC message framing through `data`: a message that completes stops the
+    /// timers, one that starts starts them.
     fn track(&mut self, mut data: &[u8]) {
         while !data.is_empty() {
-            if self.prefix_seen == 0 && self.payload_left == 0 && self.timer.is_none() {
+            if !self.due {
                 // A new message starts: it is due within the deadline of its first byte.
-                self.timer = Some(Box::pin(tokio::time::sleep(self.deadline)));
+                self.due = true;
+                self.deadline_timer = sleep(self.deadline);
             }
             if self.prefix_seen < 5 {
                 let k = (5 - self.prefix_seen).min(data.len());
@@ -376,19 +397,28 @@ impl DeadlineBody {
     fn message_done(&mut self) {
         self.prefix_seen = 0;
         self.payload_left = 0;
-        self.timer = None;
+        self.due = false;
+        self.deadline_timer = None;
+        self.idle_timer = None;
     }
 
-    fn error(&self) -> axum::BoxError {
-        let secs = self.deadline.as_secs_f64();
+    fn error(&self, idle: bool) -> axum::BoxError {
         let what = match self.limit {
             BodyLimit::Whole if !self.grpc => "the request body",
             _ => "the request message",
         };
-        let message = format!(
-            "{what} did not arrive within {secs} s of its start (--body-deadline-s); send it \
-             faster or in smaller requests"
-        );
+        let message = match (idle, self.idle, self.deadline) {
+            (true, Some(t), _) => format!(
+                "{what} stopped arriving: nothing came for {} s (--body-read-timeout-s)",
+                t.as_secs_f64()
+            ),
+            (_, _, Some(t)) => format!(
+                "{what} did not arrive within {} s of its start (--body-deadline-s); send it \
+                 faster or in smaller requests",
+                t.as_secs_f64()
+            ),
+            _ => format!("{what} did not arrive in time"),
+        };
         if self.grpc {
             Box::new(crate::error::ApiError::invalid("request", message).to_status())
         } else {
@@ -413,28 +443,35 @@ impl hyper::body::Body for DeadlineBody {
         // client whose bytes are already here.
         match Pin::new(&mut this.inner).poll_frame(cx) {
             Poll::Ready(Some(Ok(frame))) => {
-                if this.limit == BodyLimit::EachMessage
-                    && let Some(data) = frame.data_ref()
-                {
-                    let data = data.clone();
-                    this.track(&data);
+                if let Some(data) = frame.data_ref() {
+                    if this.limit == BodyLimit::EachMessage {
+                        let data = data.clone();
+                        this.track(&data);
+                    }
+                    if this.due && !data.is_empty() {
+                        this.idle_timer = sleep(this.idle);
+                    }
                 }
                 return Poll::Ready(Some(Ok(frame)));
             }
             Poll::Ready(Some(Err(e))) => return Poll::Ready(Some(Err(Box::new(e)))),
             Poll::Ready(None) => {
                 this.done = true;
-                this.timer = None;
+                this.message_done();
                 return Poll::Ready(None);
             }
             Poll::Pending => {}
         }
-        if let Some(t) = this.timer.as_mut()
-            && t.as_mut().poll(cx).is_ready()
-        {
+        let late = |t: &mut Option<Pin<Box<tokio::time::Sleep>>>, cx: &mut Context<'_>| {
+            t.as_mut().is_some_and(|t| t.as_mut().poll(cx).is_ready())
+        };
+        let over = late(&mut this.deadline_timer, cx);
+        let stalled = !over && late(&mut this.idle_timer, cx);
+        if over || stalled {
             this.done = true;
-            this.timer = None;
-            return Poll::Ready(Some(Err(this.error())));
+            let e = this.error(stalled);
+            this.message_done();
+            return Poll::Ready(Some(Err(e)));
         }
         Poll::Pending
     }
@@ -448,17 +485,19 @@ impl hyper::body::Body for DeadlineBody {
     }
 }
 
-/// `req` with its body under `--body-deadline-s` (`deadline`; `None`: unchanged).
+/// `req` with its body under `--body-deadline-s` (`deadline`) and, inside a message, under
+/// `idle` (see [`DeadlineBody`]); unchanged when both are `None`.
 pub fn with_body_deadline(
     req: Request<Body>,
     deadline: Option<Duration>,
+    idle: Option<Duration>,
     limit: BodyLimit,
     grpc: bool,
 ) -> Request<Body> {
-    match deadline {
-        Some(d) => req.map(|b| Body::new(DeadlineBody::new(b, limit, d, grpc))),
-        None => req,
+    if deadline.is_none() && idle.is_none() {
+        return req;
     }
+    req.map(|b| Body::new(DeadlineBody::new(b, limit, deadline, idle, grpc)))
 }
 
 /// The message of a [`BodyDeadlineExceeded`] in `e`'s source chain, if there is one.

@@ -398,6 +398,7 @@ pub fn http_policy(
                 crate::listener::with_body_deadline(
                     req,
                     Some(d),
+                    None,
                     crate::listener::BodyLimit::Whole,
                     false,
                 )

@@ -22,7 +22,9 @@ pub struct ConnectionConfig {
     #[arg(long, env = "DYNASERVE_HEADER_READ_TIMEOUT_S", default_value_t = 10.0)]
     pub header_read_timeout_s: f64,
     /// Seconds a request body may pause between two chunks before the request fails with 408
-    /// (HTTP) and the connection closes; 0 disables.
+    /// (HTTP) and the connection closes, or, inside a gRPC message, with INVALID_ARGUMENT
+    /// naming `request` (an Interact client may wait as long as it likes between messages);
+    /// 0 disables.
     #[arg(long, env = "DYNASERVE_BODY_READ_TIMEOUT_S", default_value_t = 30.0)]
     pub body_read_timeout_s: f64,
     /// Seconds a request body may take in all, however steadily it trickles: an HTTP body from
