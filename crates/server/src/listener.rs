@@ -8,10 +8,10 @@
 //!   also start every further request within that time (idle keep-alive connections close).
 //! - HTTP/2 connections are pinged every `--http2-keepalive-interval-s` and closed when a ping
 //!   is not answered within `--http2-keepalive-timeout-s`.
-//! - Request bodies that stop arriving are cut by the HTTP router's body timeout
-//!   (`--body-read-timeout-s`, see [`crate::http`]); bodies that trickle are cut by
-//!   `--body-deadline-s` ([`DeadlineBody`]: the whole body over HTTP, each message of a gRPC
-//!   request).
+//! - Request bodies that stop arriving are cut by `--body-read-timeout-s` (the HTTP router's
+//!   body timeout, see [`crate::http`]; for gRPC a pause inside a message, [`DeadlineBody`]);
+//!   bodies that trickle are cut by `--body-deadline-s` ([`DeadlineBody`]: the whole body over
+//!   HTTP, each message of a gRPC request).
 //! - Every request carries its connection's [`Peer`] address as an extension.
 //! - Accept errors (e.g. out of file descriptors) are logged and retried after a pause, so a
 //!   full process recovers as soon as connections close.
