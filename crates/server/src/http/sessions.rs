@@ -11,7 +11,9 @@
 //! | `POST /v1/sessions/{id}/predict` | many variants from its state (`SessionPredictRequest` -> `PredictResponse`) |
 //! | `DELETE /v1/sessions/{id}` | delete it (204) |
 //!
-//! Unknown or expired ids answer 404 with an `ErrorResponse` naming `session_id`.
+//! Unknown or expired ids, and sessions of another caller that are not `shared`, answer 404
+//! with an `ErrorResponse` naming `session_id`: a session belongs to the caller that created
+//! it (its bearer token, or without authentication its IP address).
 
 use axum::Router;
 use axum::body::Body;
@@ -68,8 +70,8 @@ pub(super) fn routes() -> Router<AppState> {
     request_body = json::CreateSessionRequest,
     responses(
         (status = 201, description = "Created", body = json::SessionInfo),
-        (status = 422, description = "Invalid input; `error.field` names the field", body = json::ErrorResponse),
-        (status = 429, description = "Session count or memory limit reached", body = json::ErrorResponse),
+        (status = 422, description = "Invalid input, or a session larger than the session memory could ever hold; `error.field` names the field", body = json::ErrorResponse),
+        (status = 429, description = "Session count or memory limit reached (the server's or the caller's)", body = json::ErrorResponse),
     )
 )]
 async fn create(
@@ -106,7 +108,7 @@ async fn create(
     params(("id" = String, Path, description = "Session id")),
     responses(
         (status = 200, description = "State", body = json::SessionState),
-        (status = 404, description = "Unknown or expired session", body = json::ErrorResponse),
+        (status = 404, description = "Unknown or expired session, or another caller's", body = json::ErrorResponse),
     )
 )]
 async fn get_state(
@@ -131,7 +133,7 @@ async fn get_state(
     request_body = json::SetStateRequest,
     responses(
         (status = 200, description = "The new state", body = json::SessionState),
-        (status = 404, description = "Unknown or expired session", body = json::ErrorResponse),
+        (status = 404, description = "Unknown or expired session, or another caller's", body = json::ErrorResponse),
         (status = 422, description = "Invalid input; `error.field` names the field", body = json::ErrorResponse),
     )
 )]
@@ -169,7 +171,7 @@ async fn set_state(
     request_body = json::StepRequest,
     responses(
         (status = 200, description = "One frame per step", body = json::StepResponse),
-        (status = 404, description = "Unknown or expired session", body = json::ErrorResponse),
+        (status = 404, description = "Unknown or expired session, or another caller's", body = json::ErrorResponse),
         (status = 422, description = "Invalid input; `error.field` names the field", body = json::ErrorResponse),
         (status = 504, description = "Deadline (`timeout_ms`) exceeded", body = json::ErrorResponse),
     )
@@ -218,7 +220,7 @@ async fn step(
     params(("id" = String, Path, description = "Session id")),
     responses(
         (status = 201, description = "The copy", body = json::SessionInfo),
-        (status = 404, description = "Unknown or expired session", body = json::ErrorResponse),
+        (status = 404, description = "Unknown or expired session, or another caller's", body = json::ErrorResponse),
         (status = 429, description = "Session count or memory limit reached", body = json::ErrorResponse),
     )
 )]
@@ -245,7 +247,7 @@ async fn fork(
     request_body = json::SessionPredictRequest,
     responses(
         (status = 200, description = "One trajectory per variant", body = json::PredictResponse),
-        (status = 404, description = "Unknown or expired session", body = json::ErrorResponse),
+        (status = 404, description = "Unknown or expired session, or another caller's", body = json::ErrorResponse),
         (status = 422, description = "Invalid input; `error.field` names the field", body = json::ErrorResponse),
         (status = 429, description = "Server full; retry after the Retry-After header", body = json::ErrorResponse),
     )
@@ -280,7 +282,8 @@ async fn predict(
     params(("id" = String, Path, description = "Session id")),
     responses(
         (status = 204, description = "Deleted"),
-        (status = 404, description = "Unknown or expired session", body = json::ErrorResponse),
+        (status = 403, description = "Another caller's shared session: only its owner deletes it", body = json::ErrorResponse),
+        (status = 404, description = "Unknown or expired session, or another caller's", body = json::ErrorResponse),
     )
 )]
 async fn delete(
