@@ -511,3 +511,66 @@ pub fn body_deadline_message(e: &(dyn std::error::Error + 'static)) -> Option<St
     }
     None
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(len: u32) -> Vec<u8> {
+        let mut b = vec![0u8];
+        b.extend_from_slice(&len.to_be_bytes());
+        b.extend(std::iter::repeat_n(7u8, len as usize));
+        b
+    }
+
+    #[tokio::test]
+    async fn the_clock_runs_only_while_a_grpc_message_is_under_way() {
+        let mut b = DeadlineBody::new(
+            Body::empty(),
+            BodyLimit::EachMessage,
+            Some(Duration::from_secs(1)),
+            Some(Duration::from_secs(1)),
+            true,
+        );
+        // The first message is due from the start.
+        assert!(b.due && b.deadline_timer.is_some());
+        let mut bytes = frame(3);
+        bytes.extend(frame(0));
+        b.track(&bytes);
+        assert!(!b.due && b.deadline_timer.is_none() && b.idle_timer.is_none());
+        // A message split anywhere, its prefix included, keeps the clock running until its
+        // last byte.
+        let next = frame(10);
+        b.track(&next[..2]);
+        assert!(b.due && b.deadline_timer.is_some());
+        b.track(&next[2..9]);
+        assert!(b.due);
+        b.track(&next[9..]);
+        assert!(!b.due);
+        // Two messages and the start of a third in one chunk.
+        let mut chunk = frame(1);
+        chunk.extend(frame(2));
+        chunk.extend(&frame(4)[..6]);
+        b.track(&chunk);
+        assert!(b.due && b.payload_left == 3);
+    }
+
+    #[test]
+    fn per_peer_slots_are_counted_and_given_back() {
+        let slots = PeerSlots::new(2);
+        let a: IpAddr = [10, 0, 0, 1].into();
+        let b: IpAddr = [10, 0, 0, 2].into();
+        let first = slots.acquire(a).unwrap();
+        let second = slots.acquire(a).unwrap();
+        assert!(slots.acquire(a).is_none());
+        assert!(slots.acquire(b).unwrap().is_some());
+        drop(first);
+        assert!(slots.acquire(a).is_some());
+        drop(second);
+        assert!(slots.open.lock().unwrap().is_empty());
+        assert!(
+            PeerSlots::new(0).acquire(a).unwrap().is_none(),
+            "no cap, nothing counted"
+        );
+    }
+}
