@@ -6,7 +6,6 @@
 
 use std::collections::HashMap;
 use std::path::Path;
-use std::sync::Arc;
 
 use candle_core::{DType, Device, Tensor};
 use candle_nn::VarMap;
@@ -96,21 +95,6 @@ pub fn load_rigidformer(
     let weights = read_weights(dir, device)?;
     let store = ParamStore::loaded(weights, device, trainable);
     RigidFormer::from_store(dir_name(dir, RIGIDFORMER), config, store, device)
-}
-
-/// Loads the checkpoint in `dir` for inference on `device`: a RigidFormer, or an ensemble of
-/// them (`crate::ensemble`), by `config.json`'s `architecture`.
-///
-/// Errors ([`ModelError::Checkpoint`]) name the missing file, the unparsable config, the
-/// corrupted weights file, or the first tensor whose name, shape, dtype or values do not match.
-pub fn load_model(dir: &Path, device: &Device) -> Result<Arc<dyn WorldModel>, ModelError> {
-    match read_architecture(dir)?.as_str() {
-        RIGIDFORMER => Ok(Arc::new(load_rigidformer(dir, device, false)?)),
-        crate::ensemble::ENSEMBLE => Ok(Arc::new(crate::ensemble::Ensemble::load(dir, device)?)),
-        other => Err(ModelError::Checkpoint(format!(
-            "unknown architecture {other:?}"
-        ))),
-    }
 }
 
 /// Writes the checkpoint files every model family shares into `dir` (created if needed):

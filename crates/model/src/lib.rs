@@ -15,6 +15,7 @@ pub mod ensemble;
 pub mod error;
 pub mod kernels;
 pub mod layers;
+mod load_model;
 pub mod physiformer;
 mod prepare;
 pub mod rigidformer;
@@ -25,7 +26,7 @@ pub mod trained_ranges;
 
 pub use api::{ObjectInput, Pose, SceneState, StepItem, WorldModel, rollout};
 pub use batching::PassBudget;
-pub use checkpoint::{load_model, load_rigidformer, read_architecture, read_config, save_tensors};
+pub use checkpoint::{load_rigidformer, read_architecture, read_config, save_tensors};
 pub use config::{
     APPROACH_FEATURES, BASE_POINT_FEATURES, CONTACT_PARTNER_FEATURES, CONTACT_PARTNER_MAX_LN_RATIO,
     CONTACT_SUMMARY_FEATURES, CONTACT_VELOCITY_FEATURES, DynamicsConfig, FeatureNormalization,
@@ -37,6 +38,7 @@ pub use ensemble::Ensemble;
 pub use error::ModelError;
 pub use kernels::kabsch::{self as kabsch_op, KabschOp};
 pub use layers::Mode;
+pub use load_model::load_model;
 pub use physiformer::PhysiFormer;
 pub use prepare::{
     MAX_BODY_EXTENT, MAX_DT_STEPS, MAX_WORLD_EXTENT, PreparedScene, model_masses, normalise_pose,
