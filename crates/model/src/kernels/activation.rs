@@ -7,22 +7,7 @@ use candle_core::{CpuStorage, CustomOp1, CustomOp2, D, Layout, Shape, Tensor};
 
 use super::activation_grad::{bias_silu_grad, swiglu_grad};
 use super::simd::{exp_slice, par_map, sigmoid_slice, silu_slice};
-
-/// The contiguous f32 data of a CPU tensor argument.
-pub(crate) fn f32_slice<'a>(
-    op: &str,
-    storage: &'a CpuStorage,
-    layout: &Layout,
-) -> candle_core::Result<&'a [f32]> {
-    let data = match storage {
-        CpuStorage::F32(v) => v.as_slice(),
-        _ => candle_core::bail!("{op}: expects f32 input"),
-    };
-    match layout.contiguous_offsets() {
-        Some((a, b)) => Ok(&data[a..b]),
-        None => candle_core::bail!("{op}: input must be contiguous"),
-    }
-}
+use super::storage::f32_slice;
 
 /// `silu(x) = x sigmoid(x)` derivative: `s (1 + x (1 - s))`.
 fn silu_grad(x: &Tensor) -> candle_core::Result<Tensor> {

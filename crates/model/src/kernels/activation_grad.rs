@@ -5,8 +5,8 @@
 
 use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Shape, Tensor};
 
-use super::activation::f32_slice;
 use super::simd::{axpy, row_blocks, sigmoid_slice};
+use super::storage::f32_slice;
 
 /// `s (1 + z (1 - s))` with `s = sigmoid(z)`: the derivative of `silu(z)`.
 #[inline(always)]

@@ -16,10 +16,10 @@ use std::sync::Arc;
 use candle_core::{CpuStorage, CustomOp2, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
-use super::activation::f32_slice;
 use super::attention_grad::{cross_attention_grad, self_attention_grad};
 use super::product::{Destination, Operand, product};
 use super::simd::{axpy, exp_slice};
+use super::storage::f32_slice;
 use crate::team;
 
 /// Rows of rotary cosines and sines, each `[rows, P]`.

@@ -8,9 +8,9 @@
 use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
-use super::activation::f32_slice;
 use super::attention::{CrossAttention, RotaryRows, SelfAttention, exp_shifted, rotate};
 use super::simd::axpy;
+use super::storage::f32_slice;
 
 /// Undoes [`rotate`] (the rotation's transpose) on a gradient.
 fn unrotate(x: &mut [f32], cos: &[f32], sin: &[f32]) {

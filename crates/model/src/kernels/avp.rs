@@ -10,8 +10,9 @@
 
 use candle_core::{CpuStorage, CustomOp1, Layout, Shape, Tensor};
 
-use super::activation::{exp_inference, f32_slice};
+use super::activation::exp_inference;
 use super::simd::{axpy, exp_slice, row_blocks};
+use super::storage::f32_slice;
 use crate::layers::gather_padded;
 use crate::team;
 

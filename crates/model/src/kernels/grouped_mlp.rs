@@ -13,10 +13,10 @@
 
 use candle_core::{CpuStorage, CustomOp1, Layout, Shape};
 
-use super::activation::f32_slice;
 use super::pool::group_max_value;
 use super::product::{Operand, product};
 use super::simd::silu_slice;
+use super::storage::f32_slice;
 use crate::team;
 
 /// Input rows per block: the block's input, hidden and output buffers (about 128 KiB at the

@@ -11,8 +11,8 @@ use std::ops::Range;
 
 use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Shape, Tensor};
 
-use super::activation::f32_slice;
 use super::product::{Destination, Operand, product};
+use super::storage::f32_slice;
 use crate::team::{self, part_range};
 
 /// Multiply-adds from which a product is split by `gemm` over rayon's pool. Below, splitting

@@ -14,5 +14,6 @@ pub mod norm;
 pub mod pool;
 pub(crate) mod product;
 pub mod simd;
+mod storage;
 #[cfg(test)]
 mod test_data;

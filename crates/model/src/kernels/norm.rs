@@ -4,8 +4,8 @@
 
 use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Shape, Tensor};
 
-use super::activation::f32_slice;
 use super::simd::row_blocks;
+use super::storage::f32_slice;
 
 /// `1 / sqrt(mean(x^2) + eps)` of one row.
 #[inline(always)]

@@ -8,8 +8,8 @@
 
 use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Shape, Tensor};
 
-use super::activation::f32_slice;
 use super::simd::row_blocks;
+use super::storage::f32_slice;
 
 /// Checks `y [rows, n]` against `b [n]` and the group size; returns `(rows, n)`.
 fn check(op: &str, y: &Layout, b: &[f32], g: usize) -> candle_core::Result<(usize, usize)> {
