@@ -8,141 +8,23 @@
 //! Rotary codes rotate channel pairs `(2i, 2i + 1)`, `i < P`, of every head by the row's
 //! `(cos_i, sin_i)`, as `crate::layers::rotate_pairs` does.
 //!
-//! Longer than the other modules on purpose: the self- and cross-attention kernels share their
-//! inner loops and scratch layout, and splitting them would expose those internals between files.
-
-use std::sync::Arc;
+//! The ops' definitions are in [`super::attention_ops`], the key layout both forward paths
+//! read in [`super::attention_keys`], and the blocked path for long key lists in
+//! [`super::attention_long`]; this file holds the row kernel and the ops' forward and
+//! backward entry points.
 
 use candle_core::{CpuStorage, CustomOp2, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
 use super::attention_grad::{cross_attention_grad, self_attention_grad};
-use super::product::{Destination, Operand, product};
-use super::simd::{axpy, exp_slice};
+pub use super::attention_keys::LONG_KEYS;
+use super::attention_keys::{KeySource, SceneKeys, scene_keys};
+use super::attention_long::{LongQueries, attend_long, scene_ranges};
+pub use super::attention_ops::{CrossAttention, RotaryRows, SelfAttention};
+use super::attention_ops::{exp_shifted, rotate};
+use super::simd::axpy;
 use super::storage::f32_slice;
 use crate::team;
-
-/// Rows of rotary cosines and sines, each `[rows, P]`.
-#[derive(Clone, Debug, Default)]
-pub struct RotaryRows {
-    /// Cosines `[rows, P]`.
-    pub cos: Vec<f32>,
-    /// Sines `[rows, P]`.
-    pub sin: Vec<f32>,
-    /// Rotated channel pairs per head (`P`).
-    pub pairs: usize,
-}
-
-impl RotaryRows {
-    /// Cosines and sines of row `r`, `[P]` each.
-    pub(crate) fn row(&self, r: usize) -> (&[f32], &[f32]) {
-        let p = self.pairs;
-        (&self.cos[r * p..(r + 1) * p], &self.sin[r * p..(r + 1) * p])
-    }
-}
-
-/// Self-attention of a padded pass: `qkv [B, T, 3D]` (queries, keys, values) and gate logits
-/// `[B, T, H]` -> `sigmoid(gate) * attention` `[B, T, D]`, heads side by side.
-#[derive(Clone, Debug)]
-pub struct SelfAttention {
-    /// Heads (`D / H` channels each).
-    pub heads: usize,
-    /// Additive bias per key `[B, T]` (0, or a large negative value for a padded slot).
-    pub key_bias: Arc<Vec<f32>>,
-    /// Rotary code of every token `[B * T, P]` (applied to queries and keys).
-    pub rope: Arc<RotaryRows>,
-}
-
-/// Cross-attention of ragged query rows: `q [Nq, D]`, row `r` belonging to scene
-/// `query_scene[r]`, over `kv [B, Tk, 2D]` (keys then values) -> `[Nq, D]`.
-#[derive(Clone, Debug)]
-pub struct CrossAttention {
-    /// Heads (`D / H` channels each).
-    pub heads: usize,
-    /// Scene of each query row `[Nq]`.
-    pub query_scene: Arc<Vec<u32>>,
-    /// Additive bias per key `[B, Tk]`.
-    pub key_bias: Arc<Vec<f32>>,
-    /// Rotary code of every query row `[Nq, P]`.
-    pub q_rope: Arc<RotaryRows>,
-    /// Rotary code of every key `[B * Tk, P]`.
-    pub k_rope: Arc<RotaryRows>,
-}
-
-/// One scene's keys, rotated and transposed `[H, dh, stride]` (key `j` of channel `d` at
-/// `(h * dh + d) * stride + j`, zeros past `Tk`), and values `[H, Tk, dh]`.
-struct SceneKeys {
-    kt: Vec<f32>,
-    v: Vec<f32>,
-    stride: usize,
-}
-
-/// Row stride of the transposed keys of `tk` keys: short lists are padded to a multiple of 16
-/// so that a query row's scores fit a fixed number of vector registers.
-fn key_stride(tk: usize) -> usize {
-    if tk < LONG_KEYS {
-        tk.next_multiple_of(16)
-    } else {
-        tk
-    }
-}
-
-/// Where the keys and values of scene `s` are: row `j` of its keys starts at
-/// `data[(s * tk + j) * stride + k_off]`, values at `.. + v_off`.
-#[derive(Clone, Copy)]
-struct KeySource<'a> {
-    data: &'a [f32],
-    stride: usize,
-    k_off: usize,
-    v_off: usize,
-    tk: usize,
-}
-
-/// Rotates the channel pairs `(2i, 2i + 1)`, `i < P`, of `x` by `(cos_i, sin_i)`.
-pub(crate) fn rotate(x: &mut [f32], cos: &[f32], sin: &[f32]) {
-    for (i, (c, s)) in cos.iter().zip(sin).enumerate() {
-        let (e, o) = (x[2 * i], x[2 * i + 1]);
-        x[2 * i] = e * c - o * s;
-        x[2 * i + 1] = e * s + o * c;
-    }
-}
-
-fn scene_keys(
-    src: KeySource<'_>,
-    s: usize,
-    heads: usize,
-    dh: usize,
-    rope: &RotaryRows,
-) -> SceneKeys {
-    let tk = src.tk;
-    let stride = key_stride(tk);
-    let mut kt = vec![0f32; heads * dh * stride];
-    let mut v = vec![0f32; heads * tk * dh];
-    let mut buf = vec![0f32; dh];
-    for j in 0..tk {
-        let row = (s * tk + j) * src.stride;
-        let (cos, sin) = rope.row(s * tk + j);
-        for h in 0..heads {
-            buf.copy_from_slice(&src.data[row + src.k_off + h * dh..][..dh]);
-            rotate(&mut buf, cos, sin);
-            for (d, x) in buf.iter().enumerate() {
-                kt[(h * dh + d) * stride + j] = *x;
-            }
-            v[(h * tk + j) * dh..][..dh]
-                .copy_from_slice(&src.data[row + src.v_off + h * dh..][..dh]);
-        }
-    }
-    SceneKeys { kt, v, stride }
-}
-
-/// `x <- exp(x - max(x))` in place (a softmax before its division); returns the sum.
-#[inline(always)]
-pub(crate) fn exp_shifted(x: &mut [f32]) -> f32 {
-    let max = x.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
-    x.iter_mut().for_each(|v| *v -= max);
-    exp_slice(x);
-    x.iter().sum()
-}
 
 /// The factor on head `h`'s weighted values: the softmax's `1 / sum`, times the sigmoid of the
 /// head's gate logit when the row has gates.
@@ -507,166 +389,6 @@ impl CustomOp2 for CrossAttention {
     }
 }
 
-/// Key count from which [`CrossAttention`] and [`SelfAttention`] run as blocked products
-/// (`gemm`) instead of one query row at a time: the row kernel re-reads its scores for every
-/// channel, which costs more than packing once the key list is long (the wrecking ball's
-/// anchor queries see 675 keys, its decoder tokens 225). Lowered to 48 (so that a MOVi-sized
-/// scene's 54 anchor keys take the blocked path) a batch-8 step measured 1.02-1.07x in one
-/// window and 0.99-1.14x in a noisier one: not clearly better, so kept.
-pub const LONG_KEYS: usize = 128;
-
-/// Query rows per block of the blocked path: the block's scores (`rows x Tk`) stay in L2.
-const LONG_KEYS_BLOCK_ROWS: usize = 64;
-
-/// Consecutive query rows of every scene, `[B]`, if the rows are grouped by scene in order.
-fn scene_ranges(query_scene: &[u32], b: usize) -> Option<Vec<std::ops::Range<usize>>> {
-    let mut ranges = vec![0..0; b];
-    let mut r = 0;
-    while r < query_scene.len() {
-        let (s, start) = (query_scene[r] as usize, r);
-        while r < query_scene.len() && query_scene[r] as usize == s {
-            r += 1;
-        }
-        if s >= b || !ranges[s].is_empty() {
-            return None;
-        }
-        ranges[s] = start..r;
-    }
-    Some(ranges)
-}
-
-/// Query rows of the blocked path ([`attend_long`]).
-struct LongQueries<'a> {
-    /// Query row `r` starts at `q[r * stride]` (`D` values, heads side by side).
-    q: &'a [f32],
-    stride: usize,
-    /// Rotary code of every query row.
-    rope: &'a RotaryRows,
-    /// Query rows of every scene, `[B]`.
-    ranges: &'a [std::ops::Range<usize>],
-    /// Additive bias per key `[B, Tk]`.
-    key_bias: &'a [f32],
-    /// Per-head gate logits `[Nq, H]` (self-attention), output scaled by their sigmoid.
-    gate: Option<&'a [f32]>,
-}
-
-/// The blocked path: per scene, head and block of query rows, rotated queries, scores
-/// `Q K^T / sqrt(dh) + bias` by one product, a row softmax, and `P V` by a second product
-/// written straight into the head's output columns (then gated). Returns `[Nq, D]`.
-fn attend_long(
-    queries: &LongQueries<'_>,
-    heads: usize,
-    d: usize,
-    keys: &[SceneKeys],
-    tk: usize,
-) -> Vec<f32> {
-    let dh = d / heads;
-    let scale = 1.0 / (dh as f32).sqrt();
-    let nq = queries.ranges.iter().map(|r| r.end).max().unwrap_or(0);
-    let mut out = vec![0f32; nq * d];
-    // Tasks: (scene, head, first row, rows); each writes its own rows x dh block.
-    let mut tasks = Vec::new();
-    for (s, r) in queries.ranges.iter().enumerate() {
-        for h in 0..heads {
-            let mut first = r.start;
-            while first < r.end {
-                let rows = LONG_KEYS_BLOCK_ROWS.min(r.end - first);
-                tasks.push((s, h, first, rows));
-                first += rows;
-            }
-        }
-    }
-    let out_ptr = Destination(out.as_mut_ptr());
-    let task = |&(s, h, first, rows): &(usize, usize, usize, usize)| {
-        let keys = &keys[s];
-        let mut qb = vec![0f32; rows * dh];
-        for (i, qr) in qb.chunks_exact_mut(dh).enumerate() {
-            let at = (first + i) * queries.stride + h * dh;
-            qr.copy_from_slice(&queries.q[at..at + dh]);
-            let (cos, sin) = queries.rope.row(first + i);
-            rotate(qr, cos, sin);
-        }
-        let bias = &queries.key_bias[s * tk..(s + 1) * tk];
-        let mut sc = Vec::with_capacity(rows * tk);
-        for _ in 0..rows {
-            sc.extend_from_slice(bias);
-        }
-        let ks = keys.stride;
-        let kt = &keys.kt[h * dh * ks..(h + 1) * dh * ks];
-        // SAFETY: qb is [rows, dh], kt [dh, ks >= tk] (tk columns read) and sc [rows, tk], all
-        // row-major and of exactly those lengths; sc is read (the bias) and overwritten.
-        unsafe {
-            product(
-                (rows, tk, dh),
-                sc.as_mut_ptr(),
-                tk,
-                true,
-                Operand {
-                    ptr: qb.as_ptr(),
-                    rs: dh,
-                    cs: 1,
-                },
-                Operand {
-                    ptr: kt.as_ptr(),
-                    rs: ks,
-                    cs: 1,
-                },
-                scale,
-                gemm::Parallelism::None,
-            )
-        };
-        for row in sc.chunks_exact_mut(tk) {
-            let inv = 1.0 / exp_shifted(row);
-            row.iter_mut().for_each(|x| *x *= inv);
-        }
-        let v = &keys.v[h * tk * dh..(h + 1) * tk * dh];
-        // SAFETY: sc is [rows, tk], v [tk, dh]; the destination is rows x dh values of `out`
-        // at rows first.. (row stride d) and columns h * dh.., a block no other task touches
-        // (tasks differ in rows or head columns), inside `out` (nq * d values).
-        unsafe {
-            let dst = out_ptr.at(first * d + h * dh);
-            product(
-                (rows, dh, tk),
-                dst,
-                d,
-                false,
-                Operand {
-                    ptr: sc.as_ptr(),
-                    rs: tk,
-                    cs: 1,
-                },
-                Operand {
-                    ptr: v.as_ptr(),
-                    rs: dh,
-                    cs: 1,
-                },
-                1.0,
-                gemm::Parallelism::None,
-            );
-            if let Some(gate) = queries.gate {
-                for i in 0..rows {
-                    let r = first + i;
-                    let w = 1.0 / (1.0 + (-gate[r * heads + h]).exp());
-                    let o = std::slice::from_raw_parts_mut(dst.add(i * d), dh);
-                    o.iter_mut().for_each(|x| *x *= w);
-                }
-            }
-        };
-    };
-    if tasks.len() > 1 && team::parts() > 1 {
-        team::run(|part, parts| {
-            tasks[team::part_range(tasks.len(), part, parts, 1)]
-                .iter()
-                .for_each(task)
-        });
-    } else if tasks.len() > 1 && rayon::current_num_threads() > 1 {
-        tasks.par_iter().for_each(task);
-    } else {
-        tasks.iter().for_each(task);
-    }
-    out
-}
-
 /// Applies [`SelfAttention`] (CPU tensors only): `qkv [B, T, 3D]`, `gate [B, T, H]` ->
 /// `[B, T, D]`. No gradient: for inference.
 pub fn self_attention(
@@ -706,6 +428,8 @@ pub fn cross_attention(op: CrossAttention, q: &Tensor, kv: &Tensor) -> candle_co
 
 #[cfg(test)]
 mod tests {
+    use std::sync::Arc;
+
     use candle_core::{Device, Tensor};
 
     use super::*;

@@ -8,7 +8,7 @@
 use candle_core::{CpuStorage, CustomOp3, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
-use super::attention::{CrossAttention, RotaryRows, SelfAttention, exp_shifted, rotate};
+use super::attention_ops::{CrossAttention, RotaryRows, SelfAttention, exp_shifted, rotate};
 use super::simd::axpy;
 use super::storage::f32_slice;
 
