@@ -10,8 +10,9 @@
 //! of the same network that correct a trajectory prior ([`config::TrajectoryPrior`]).
 //!
 //! Modules: [`config`] (sizes, options and presets), [`scene`] (a scene's condition),
-//! [`inputs`] (evaluation items, scenes prepared once per sample, the prior), [`flow`]
-//! (training loss and the Heun sampler), [`rigid`] (rigid fits of sampled vertices).
+//! [`inputs`] (evaluation items, scenes prepared once per sample), [`prior`] (the trajectory
+//! prior), [`flow`] (training loss and the Heun sampler), [`rigid`] (rigid fits of sampled
+//! vertices).
 //!
 //! Shapes: `F` frames and `V` vertices of a scene.
 
@@ -19,6 +20,7 @@ pub mod config;
 pub mod flow;
 pub mod inputs;
 pub mod official;
+pub mod prior;
 pub mod rigid;
 pub mod scene;
 

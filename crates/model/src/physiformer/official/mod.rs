@@ -28,7 +28,7 @@ use candle_core::{D, DType, Device, IndexOp, Tensor};
 
 use self::config::{Axis, NORM_EPS, OfficialConfig, TIME_FEATURES};
 use super::config::PhysiConfig;
-use super::inputs::prior_trajectory;
+use super::prior::prior_trajectory;
 use super::scene::{Material, MeshScene};
 use crate::ModelError;
 use crate::kernels::activation::swiglu_product;
