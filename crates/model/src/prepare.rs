@@ -37,7 +37,7 @@ pub(crate) struct PreparedObject {
     /// Centroid of the reference cloud, metres.
     pub centroid: [f32; 3],
     /// Inverse of the reference cloud's floored inertia per unit mass about its centroid,
-    /// body frame, 1/m^2 ([`crate::rigidformer::wrench::floored_inertia_inverse`]; the contact
+    /// body frame, 1/m^2 ([`crate::rigidformer::inertia::floored_inertia_inverse`]; the contact
     /// wrench rotates it into the world each step).
     pub inertia_inv: nalgebra::Matrix3<f32>,
     /// Body-frame outward unit normals `[n, 3]` when the model reads surface normals
@@ -396,7 +396,7 @@ fn prepare_object(cfg: &ModelConfig, o: ObjectInput) -> Result<PreparedObject, S
     } else {
         Vec::new()
     };
-    let inertia_inv = crate::rigidformer::wrench::floored_inertia_inverse(&o.reference, centroid);
+    let inertia_inv = crate::rigidformer::inertia::floored_inertia_inverse(&o.reference, centroid);
     Ok(PreparedObject {
         params: crate::rigidformer::features::object_params(o.mass, o.friction, o.restitution),
         normals,

@@ -8,8 +8,8 @@ use std::sync::{Arc, OnceLock};
 use candle_core::{Device, Tensor};
 
 use super::attention::multi_head;
+use super::batch::BatchInputs;
 use super::decoder::Decoded;
-use super::inputs::BatchInputs;
 use super::wrench::ContactWrench;
 use super::{host_index, host_tensor};
 use crate::kernels::attention::{

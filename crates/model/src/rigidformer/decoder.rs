@@ -9,8 +9,8 @@ use std::sync::{Arc, Mutex};
 use candle_core::{Device, Tensor};
 
 use super::attention::multi_head;
+use super::batch::BatchInputs;
 use super::host_tensor;
-use super::inputs::BatchInputs;
 use crate::kernels::attention::{RotaryRows, SelfAttention, self_attention, self_attention_train};
 use crate::layers::{Exec, Init, Linear, Mode, ParamStore, RmsNorm, SwiGlu, gather_padded};
 use crate::{ModelConfig, ModelError};

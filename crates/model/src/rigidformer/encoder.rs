@@ -4,7 +4,7 @@
 
 use candle_core::{Device, Tensor};
 
-use super::inputs::BatchInputs;
+use super::batch::BatchInputs;
 use super::messages::ContactMessages;
 use super::{host_index, host_tensor};
 use crate::kernels::activation::silu_inference;

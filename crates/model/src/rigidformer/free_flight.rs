@@ -17,7 +17,7 @@
 
 use nalgebra::Vector3;
 
-use super::inputs::SceneRequest;
+use super::batch::SceneRequest;
 use super::projection::free_fall;
 use super::projection::lowest_offset;
 use crate::ModelConfig;

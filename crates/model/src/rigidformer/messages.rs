@@ -15,7 +15,7 @@
 
 use candle_core::{Device, Tensor};
 
-use super::inputs::BatchInputs;
+use super::batch::BatchInputs;
 use super::{host_index, host_tensor};
 use crate::layers::{Linear, ParamStore};
 use crate::{ModelConfig, ModelError};

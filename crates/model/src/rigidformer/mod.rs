@@ -14,10 +14,12 @@
 
 pub(crate) mod anchor_head;
 pub(crate) mod attention;
+pub(crate) mod batch;
 pub(crate) mod decoder;
 pub(crate) mod encoder;
 pub mod features;
 pub(crate) mod free_flight;
+pub(crate) mod inertia;
 pub(crate) mod inputs;
 pub(crate) mod messages;
 pub(crate) mod projection;
@@ -32,9 +34,10 @@ use candle_core::{Device, Tensor};
 use candle_nn::VarMap;
 
 use self::anchor_head::AnchorHead;
+use self::batch::{BatchInputs, SceneRequest};
 use self::decoder::Decoder;
 use self::encoder::Encoder;
-use self::inputs::{BatchInputs, SceneRequest, build_inputs};
+use self::inputs::build_inputs;
 use self::messages::ContactMessages;
 use self::summary::SummaryMlp;
 use crate::api::{Pose, StepItem, WorldModel};

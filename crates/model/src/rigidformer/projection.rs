@@ -5,7 +5,7 @@
 
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
 
-use super::inputs::BatchInputs;
+use super::batch::BatchInputs;
 use crate::api::Pose;
 use crate::{ModelConfig, ModelError, team};
 

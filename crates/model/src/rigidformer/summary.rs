@@ -6,8 +6,8 @@
 
 use candle_core::{Device, Tensor};
 
+use super::batch::BatchInputs;
 use super::host_tensor;
-use super::inputs::BatchInputs;
 use crate::config::{CONTACT_SUMMARY_FEATURES, ModelUnit, OBJECT_SUMMARY_FEATURES};
 use crate::layers::{Exec, Linear, ParamStore};
 use crate::{ModelConfig, ModelError};

@@ -4,8 +4,9 @@
 use candle_core::Tensor;
 
 use super::RigidFormer;
+use super::batch::SceneRequest;
 use super::host_tensor;
-use super::inputs::{SceneRequest, build_inputs};
+use super::inputs::build_inputs;
 use super::projection::{base_shift, pose_f64};
 use crate::ModelError;
 use crate::api::{Pose, SceneState};

@@ -13,7 +13,7 @@
 use candle_core::{Device, Tensor};
 use nalgebra::{Matrix3, Vector3};
 
-use super::inputs::BatchInputs;
+use super::batch::BatchInputs;
 use super::{host_index, host_tensor};
 use crate::layers::{Linear, ParamStore};
 use crate::{ModelConfig, ModelError};
@@ -21,33 +21,9 @@ use crate::{ModelConfig, ModelError};
 /// Hidden width of the force MLP.
 pub(crate) const WRENCH_HIDDEN: usize = 64;
 
-/// Share of the mean principal moment added to every principal moment of a cloud's inertia
-/// before inverting it, so that a cloud with a vanishing moment (a thin rod about its axis)
-/// does not turn an arbitrary torque into an unbounded angular acceleration.
-pub(crate) const INERTIA_FLOOR: f32 = 0.05;
-
 /// `[r]_x` flattened row-major: the matrix with `[r]_x f = r x f`.
 fn skew(r: Vector3<f32>) -> [f32; 9] {
     [0.0, -r.z, r.y, r.z, 0.0, -r.x, -r.y, r.x, 0.0]
-}
-
-/// The inverse of a cloud's inertia per unit mass about `centroid` (`points` `[n, 3]` and
-/// `centroid` in metres, any one frame; 1/m^2 out): `J = mean_i(|r_i|^2 E - r_i r_i^T)` plus
-/// [`INERTIA_FLOOR`] of its mean principal moment. Zero for a cloud whose inertia is zero (one
-/// point). Rigid-invariant: a rotated cloud's is `R J^-1 R^T`, so a scene computes it once.
-pub(crate) fn floored_inertia_inverse(points: &[[f32; 3]], centroid: [f32; 3]) -> Matrix3<f32> {
-    let c = Vector3::from(centroid);
-    let mut inertia = Matrix3::zeros();
-    for p in points {
-        let r = Vector3::from(*p) - c;
-        inertia += Matrix3::identity() * r.norm_squared() - r * r.transpose();
-    }
-    inertia /= points.len().max(1) as f32;
-    let floor = INERTIA_FLOOR * inertia.trace() / 3.0;
-    (inertia + Matrix3::identity() * floor)
-        .try_inverse()
-        .filter(|_| floor > 0.0)
-        .unwrap_or_else(Matrix3::zeros)
 }
 
 /// One object's wrench geometry at t, offsets scaled by `inv_scale` (1 / the model's position
@@ -55,8 +31,8 @@ pub(crate) fn floored_inertia_inverse(points: &[[f32; 3]], centroid: [f32; 3]) -
 /// less the cloud's world `centroid`, so that `L_i f` is point `i`'s moment about it) and the
 /// anchor matrices `[K, 9]` (`-[r_k]_x J^-1` for each scaled anchor offset of `anchor_rel`
 /// (`[K, 3]`), so that `A_k tau` is `alpha x r_k` for `alpha = J^-1 tau`), with
-/// `J^-1 = R inertia_inv R^T` the body-frame [`floored_inertia_inverse`] turned by the object's
-/// rotation `rotation`. Both row-major 3 x 3.
+/// `J^-1 = R inertia_inv R^T` the body-frame [`super::inertia::floored_inertia_inverse`]
+/// turned by the object's rotation `rotation`. Both row-major 3 x 3.
 pub(crate) fn wrench_geometry(
     world: &[[f32; 3]],
     centroid: Vector3<f32>,
@@ -154,6 +130,7 @@ impl ContactWrench {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::rigidformer::inertia::{INERTIA_FLOOR, floored_inertia_inverse};
 
     fn apply(m: &[f32], v: Vector3<f32>) -> Vector3<f32> {
         Matrix3::from_row_slice(m) * v
