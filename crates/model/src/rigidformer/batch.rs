@@ -90,7 +90,7 @@ pub(crate) struct BatchInputs<'a> {
     pub partner_levers: Vec<f32>,
     /// The Verlet base of every anchor before free fall, per object `[K]`, world frame,
     /// metres (f64): where the anchor goes at constant velocity
-    /// ([`super::inputs::verlet_base`]).
+    /// ([`super::base_prediction::verlet_base`]).
     pub anchors_base: Vec<Vec<[f64; 3]>>,
     /// Anchors in the reference (body) frame, per object `[K]`, metres (f64).
     pub anchors_ref: Vec<Vec<[f64; 3]>>,

@@ -14,6 +14,7 @@
 
 pub(crate) mod anchor_head;
 pub(crate) mod attention;
+mod base_prediction;
 pub(crate) mod batch;
 pub(crate) mod decoder;
 pub(crate) mod encoder;
