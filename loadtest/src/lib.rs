@@ -15,9 +15,11 @@
 //! - [`transport`]: gRPC and HTTP callers; [`inprocess`]: the no-server baseline;
 //! - [`recorder`]: per-level counters; [`stats`]: percentiles (the `/metrics` histograms are
 //!   read with `dynaserve_client::prom`);
+//! - [`fairness`]: interactive step latency alone and beside bulk calls;
 //! - [`spawn`]: launching a server as a child process; [`cli`]: the command line.
 
 pub mod cli;
+pub mod fairness;
 pub mod generate;
 pub mod inprocess;
 pub mod recorder;

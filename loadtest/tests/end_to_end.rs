@@ -158,7 +158,8 @@ async fn streams_and_predict_over_grpc_and_http_with_server_metrics() {
         let s = r.server.as_ref().unwrap();
         assert_eq!(s.scene_steps, 120.0);
         assert!(s.batches > 0.0 && s.batches <= 30.0, "{}", s.batches);
-        assert!(s.queue_wait_ms.contains_key("bulk"));
+        // 120 object-steps per call, below --bulk-cost: interactive work.
+        assert!(s.queue_wait_ms.contains_key("interactive"));
     }
     server.shutdown();
     server.wait().await.unwrap();

@@ -140,9 +140,15 @@ async fn a_request_without_a_deadline_gets_the_server_default() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_deadline_in_the_queue_yields_deadline_exceeded_on_time() {
     let m = test_model();
-    // Scene cap 1 and eight interactive streams keep the queue full, so bulk (Predict) work
-    // waits in the queue behind them until its deadline.
-    let server = start(&m.dir, |c| c.max_batch_scenes = 1).await;
+    // Scene cap 1 and eight interactive streams keep the queue full, so the Predict, made
+    // bulk work (--bulk-cost 0) with the smallest share of the passes, waits in the queue
+    // behind them until its deadline.
+    let server = start(&m.dir, |c| {
+        c.max_batch_scenes = 1;
+        c.scheduling.bulk_cost = 0;
+        c.scheduling.bulk_share = 0.01;
+    })
+    .await;
     let c = client(&server).await;
     let busy = fill_queue(&c, &m.name, 40, 0).await;
     let predict = small_predict(&m.name);

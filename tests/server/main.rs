@@ -11,6 +11,7 @@ mod common;
 
 mod admission;
 mod examples;
+mod fairness;
 mod invalid_inputs;
 mod metrics;
 mod rollouts;

@@ -116,6 +116,13 @@ pub const METRICS: &[MetricSpec] = &[
         "Step requests waiting in the scheduler queue.",
     ),
     spec(
+        "dynaserve_class_work_total",
+        Counter,
+        &["model", "priority"],
+        "Work run in forward passes by scheduling class: objects (rigid models) or vertices \
+         (PhysiFormer) of every step, summed.",
+    ),
+    spec(
         "dynaserve_batch_scenes",
         H,
         &["model"],
@@ -347,6 +354,8 @@ pub struct Metrics {
     pub queue_wait: HistogramVec,
     /// `dynaserve_queue_depth`.
     pub queue_depth: IntGaugeVec,
+    /// `dynaserve_class_work_total`.
+    pub class_work: IntCounterVec,
     /// `dynaserve_batch_scenes`.
     pub batch_scenes: HistogramVec,
     /// `dynaserve_batch_objects`.
@@ -416,6 +425,7 @@ impl Metrics {
             ),
             queue_wait: histogram(&registry, "dynaserve_queue_wait_seconds", QUEUE_BUCKETS),
             queue_depth: gauge(&registry, "dynaserve_queue_depth"),
+            class_work: counter(&registry, "dynaserve_class_work_total"),
             batch_scenes: histogram(&registry, "dynaserve_batch_scenes", COUNT_BUCKETS),
             batch_objects: histogram(&registry, "dynaserve_batch_objects", COUNT_BUCKETS),
             forward_duration: histogram(
@@ -473,6 +483,7 @@ impl Metrics {
             for pr in PRIORITIES {
                 m.queue_wait.with_label_values(&[model, pr]);
                 m.queue_depth.with_label_values(&[model, pr]);
+                m.class_work.with_label_values(&[model, pr]);
             }
             m.batch_scenes.with_label_values(&[model]);
             m.batch_objects.with_label_values(&[model]);

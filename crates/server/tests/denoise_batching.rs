@@ -48,6 +48,7 @@ fn job(scene: &Arc<MeshScene>, stream_id: u64, seed: u64) -> GenerateJob {
         priority: Priority::Interactive,
         deadline: None,
         stream_id,
+        caller: stream_id,
         request_id: Arc::from(format!("test-{stream_id}")),
     }
 }
@@ -64,6 +65,8 @@ async fn requests_at_different_denoising_steps_share_passes_and_keep_their_resul
                 max_batch_scenes: 8,
                 max_batch_objects: 4096,
                 max_queue_delay: Duration::from_millis(50),
+                bulk_share: 0.25,
+                gate: None,
             },
             Metrics::new(&[name]),
         )

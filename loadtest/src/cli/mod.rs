@@ -21,6 +21,9 @@ pub fn main() -> anyhow::Result<i32> {
     if let ModeCmd::Generate(a) = &cli.mode {
         return crate::generate::run(a);
     }
+    if let ModeCmd::Fairness(a) = &cli.mode {
+        return crate::fairness::run(a);
+    }
     let (load, common) = build_load(&cli)?;
     let mut sides = plan_sides(&common)?;
     if let ModeCmd::Soak(a) = &cli.mode {

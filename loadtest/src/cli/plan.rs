@@ -144,6 +144,7 @@ pub fn plan_sides(c: &Common) -> anyhow::Result<Vec<SidePlan>> {
 pub fn build_load(cli: &Cli) -> anyhow::Result<(Load, Common)> {
     let (mode, common) = match &cli.mode {
         ModeCmd::Generate(_) => anyhow::bail!("generate runs on its own (generate::run)"),
+        ModeCmd::Fairness(_) => anyhow::bail!("fairness runs on its own (fairness::run)"),
         ModeCmd::Streams(a) => {
             anyhow::ensure!(
                 !a.streams.is_empty() && a.streams.iter().all(|&s| s >= 1),

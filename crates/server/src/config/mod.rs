@@ -16,10 +16,12 @@ use std::time::Duration;
 use dynaserve_api::limits::{Caps, GenerateCaps};
 
 mod connections;
+mod scheduling;
 mod seconds;
 mod sessions;
 
 pub use connections::ConnectionConfig;
+pub use scheduling::SchedulingConfig;
 pub(crate) use seconds::secs;
 pub use sessions::SessionConfig;
 
@@ -146,6 +148,9 @@ pub struct ServeConfig {
     /// Sessions: how many, how much memory, how long they live idle.
     #[command(flatten)]
     pub sessions: SessionConfig,
+    /// Scheduling classes: which requests are bulk work and its share of the passes.
+    #[command(flatten)]
+    pub scheduling: SchedulingConfig,
 
     /// On SIGTERM or Ctrl-C: how long running rollouts may continue, seconds, before they are
     /// closed with UNAVAILABLE.
@@ -299,6 +304,7 @@ impl ServeConfig {
         dynaserve_model::check_device_name(&self.device).map_err(|e| format!("--device: {e}"))?;
         self.connections.validate()?;
         self.sessions.validate()?;
+        self.scheduling.validate()?;
         self.security.validate(&[self.grpc_addr, self.http_addr])
     }
 }

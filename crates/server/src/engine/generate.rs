@@ -187,7 +187,7 @@ impl Engine {
             model = tracing::field::Empty
         );
         let admitted = span.in_scope(|| self.admit_generate(&req, &ctx));
-        let (entry, params, scene, permit) = match admitted {
+        let (entry, params, scene, permit, priority) = match admitted {
             Ok(a) => a,
             Err(e) => return Err(span.in_scope(|| rec.fail(e))),
         };
@@ -203,6 +203,8 @@ impl Engine {
             noise: req.noise.iter().map(|n| Arc::new(n.clone())).collect(),
             deadline,
             request_id: ctx.request_id.clone(),
+            priority,
+            caller: ctx.caller(),
         };
         let gauge = self
             .metrics
@@ -241,8 +243,8 @@ impl Engine {
         })
     }
 
-    /// Admission: readiness, the model, the request's numbers and scene, its cost, then the
-    /// sample slots.
+    /// Admission: readiness, the model, the request's numbers and scene, its cost (which
+    /// also sets its class: bulk above `--bulk-generate-cost`), then the sample slots.
     #[allow(clippy::type_complexity)]
     fn admit_generate(
         &self,
@@ -254,6 +256,7 @@ impl Engine {
             GenerateParams,
             Arc<MeshScene>,
             OwnedSemaphorePermit,
+            Priority,
         ),
         ApiError,
     > {
@@ -267,7 +270,12 @@ impl Engine {
             .validate(config)
             .map_err(|e| ApiError::invalid("scene", e))?;
         // The call's cost, now that the scene's vertices are counted; before any slot is taken.
-        check_generate_cost(&params, req.sampler, scene.vertices(), &entry.limits)?;
+        let cost = check_generate_cost(&params, req.sampler, scene.vertices(), &entry.limits)?;
+        let priority = if self.config.scheduling.generate_is_bulk(cost) {
+            Priority::Bulk
+        } else {
+            Priority::Interactive
+        };
         let permit = self
             .generate_slots
             .clone()
@@ -282,7 +290,7 @@ impl Engine {
                 )
             })?;
         tracing::debug!(request_id = %ctx.request_id, samples = params.samples, "admitted");
-        Ok((entry, params, Arc::new(scene), permit))
+        Ok((entry, params, Arc::new(scene), permit, priority))
     }
 }
 
@@ -298,6 +306,10 @@ struct GenerateRun {
     noise: Vec<Arc<Vec<f32>>>,
     deadline: Option<Instant>,
     request_id: Arc<str>,
+    /// Class of every evaluation of the call.
+    priority: Priority,
+    /// Who asked.
+    caller: u64,
 }
 
 impl GenerateRun {
@@ -328,9 +340,10 @@ impl GenerateRun {
                 sampler: self.sampler,
                 seed: self.seed.wrapping_add(u64::from(i)),
                 noise: self.noise.get(i as usize).cloned(),
-                priority: Priority::Interactive,
+                priority: self.priority,
                 deadline: self.deadline,
                 stream_id: self.engine.next_stream.fetch_add(1, Ordering::Relaxed),
+                caller: self.caller,
                 request_id: self.request_id.clone(),
             };
             let (progress, steps_metric, sample_seconds) =

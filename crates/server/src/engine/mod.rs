@@ -40,7 +40,7 @@ pub use sessions::{InteractHandle, StepHandle};
 use crate::config::ServeConfig;
 use crate::error::ApiError;
 use crate::metrics::Metrics;
-use crate::scheduler::SchedulerConfig;
+use crate::scheduler::{PassGate, SchedulerConfig};
 use request::RequestRecord;
 
 /// The models an engine serves, by family.
@@ -99,11 +99,17 @@ impl Engine {
             max_batch_scenes: config.max_batch_scenes,
             max_batch_objects: config.max_batch_objects,
             max_queue_delay: config.max_queue_delay(),
+            bulk_share: config.scheduling.bulk_share,
+            // One device for every model: passes of all schedulers take turns by class.
+            gate: Some(Arc::new(PassGate::new(
+                config.scheduling.bulk_share,
+                config.max_queue_delay() + Duration::from_millis(1),
+            ))),
         };
         let caps = config.caps();
         let mut entries = BTreeMap::new();
         for model in models.rigid {
-            let entry = ModelEntry::start(model, &caps, scheduling, &metrics)?;
+            let entry = ModelEntry::start(model, &caps, scheduling.clone(), &metrics)?;
             let name = entry.name.clone();
             if entries.insert(name.clone(), Arc::new(entry)).is_some() {
                 anyhow::bail!("two models are named {name:?}; model names must be unique");
@@ -115,7 +121,7 @@ impl Engine {
                 model,
                 &config.generate_caps(),
                 caps.max_objects,
-                scheduling,
+                scheduling.clone(),
                 &metrics,
             )?;
             let name = entry.name.clone();

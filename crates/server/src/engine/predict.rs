@@ -1,5 +1,6 @@
-//! Planner calls: every variant of a Predict call steps as its own bulk-priority stream, all
-//! joining the same passes; the call answers with the kept frames of every variant.
+//! Planner calls: every variant of a Predict call steps as its own stream, all joining the
+//! same passes, in the bulk class when the call costs more than `--bulk-cost`; the call
+//! answers with the kept frames of every variant.
 
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
@@ -60,7 +61,8 @@ impl Engine {
             check_object_count(v, &format!("variants[{i}]"), &entry.limits)?;
         }
         let objects: Vec<usize> = req.variants.iter().map(|v| v.objects.len()).collect();
-        check_request_cost(&objects, req.steps, true, &entry.limits)?;
+        let cost = check_request_cost(&objects, req.steps, true, &entry.limits)?;
+        let priority = self.predict_priority(cost);
         let deadline = ctx.deadline_with(req.timeout_ms, self.config.default_timeout());
         let _slots = self.variant_slots(&entry, n)?;
         let prepared = with_deadline(
@@ -79,9 +81,10 @@ impl Engine {
                         scene,
                         state,
                         dt_steps,
-                        priority: Priority::Bulk,
+                        priority,
                         deadline,
                         stream_id: self.next_stream.fetch_add(1, Ordering::Relaxed),
+                        caller: ctx.caller(),
                         request_id: ctx.request_id.clone(),
                     },
                 )
@@ -92,6 +95,16 @@ impl Engine {
             .await?;
         prediction.warnings = warnings;
         Ok(prediction)
+    }
+
+    /// The class of a Predict call (plain or on a session) of `object_steps`: bulk above
+    /// `--bulk-cost`.
+    pub(super) fn predict_priority(&self, object_steps: u64) -> Priority {
+        if self.config.scheduling.predict_is_bulk(object_steps) {
+            Priority::Bulk
+        } else {
+            Priority::Interactive
+        }
     }
 
     /// Takes `n` of the server's in-flight variant slots (RESOURCE_EXHAUSTED when they are
@@ -124,9 +137,9 @@ impl Engine {
         })
     }
 
-    /// Steps every variant `steps` steps concurrently (bulk priority, mostly in the same
-    /// passes) and answers with the kept frames of each: every `every`-th step (0: none) and
-    /// the last. Ends with UNAVAILABLE when the drain deadline passes first.
+    /// Steps every variant `steps` steps concurrently (mostly in the same passes) and answers
+    /// with the kept frames of each: every `every`-th step (0: none) and the last. Ends with
+    /// UNAVAILABLE when the drain deadline passes first.
     pub(super) async fn run_variants<V: Variant>(
         &self,
         entry: &ModelEntry,

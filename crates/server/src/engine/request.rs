@@ -67,6 +67,20 @@ impl RequestCtx {
         self
     }
 
+    /// The key the scheduler shares each class fairly between: the request's
+    /// [`identity`](RequestCtx::identity) (its bearer token, else its peer IP address), else,
+    /// when neither is known, the request itself.
+    pub fn caller(&self) -> u64 {
+        if self.identity != 0 {
+            return self.identity;
+        }
+        use std::hash::BuildHasher;
+        static KEYS: std::sync::OnceLock<std::collections::hash_map::RandomState> =
+            std::sync::OnceLock::new();
+        KEYS.get_or_init(Default::default)
+            .hash_one(&*self.request_id)
+    }
+
     /// The earlier of the transport deadline and `timeout_ms` after arrival (0: none); when
     /// the request names neither, `default` after arrival (the server's `--default-timeout-s`).
     pub(crate) fn deadline_with(

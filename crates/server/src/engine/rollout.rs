@@ -87,6 +87,7 @@ impl Engine {
                     priority: Priority::Interactive,
                     deadline,
                     stream_id: self.next_stream.fetch_add(1, Ordering::Relaxed),
+                    caller: ctx.caller(),
                     request_id: ctx.request_id.clone(),
                 },
             );

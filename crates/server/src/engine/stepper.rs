@@ -26,6 +26,7 @@ pub(crate) struct Stepper {
     priority: Priority,
     deadline: Option<Instant>,
     stream_id: u64,
+    caller: u64,
     request_id: Arc<str>,
     /// Steps completed.
     step: u32,
@@ -45,6 +46,8 @@ pub(crate) struct StepperSpec {
     pub deadline: Option<Instant>,
     /// Stream id, unique per engine.
     pub stream_id: u64,
+    /// Who asked ([`super::RequestCtx::caller`]).
+    pub caller: u64,
     /// Request id for logs.
     pub request_id: Arc<str>,
 }
@@ -69,6 +72,7 @@ impl Stepper {
             priority: spec.priority,
             deadline: spec.deadline,
             stream_id: spec.stream_id,
+            caller: spec.caller,
             request_id: spec.request_id,
             step: 0,
         }
@@ -98,6 +102,7 @@ impl Stepper {
             priority: self.priority,
             deadline: self.deadline,
             stream_id: self.stream_id,
+            caller: self.caller,
             more_steps,
             request_id: self.request_id.clone(),
             reply,

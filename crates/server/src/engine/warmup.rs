@@ -65,6 +65,7 @@ impl Engine {
                     priority: Priority::Interactive,
                     deadline: None,
                     stream_id: self.next_stream.fetch_add(1, Ordering::Relaxed),
+                    caller: 0,
                     request_id: crate::scheduler::WARMUP_REQUEST_ID.into(),
                 },
             );
@@ -104,6 +105,7 @@ impl Engine {
                 priority: Priority::Interactive,
                 deadline: None,
                 stream_id: self.next_stream.fetch_add(1, Ordering::Relaxed),
+                caller: 0,
                 request_id: crate::scheduler::WARMUP_REQUEST_ID.into(),
             };
             generate(&entry.scheduler, job, |_| {})

@@ -63,6 +63,10 @@ impl Family for DenoiseSteps {
         item.scene.vertices()
     }
 
+    fn separate_forwards(&self) -> bool {
+        true
+    }
+
     fn run(&self, items: &[&DenoiseStep]) -> Result<Vec<Result<Vec<f32>, String>>, String> {
         Ok(items
             .iter()
@@ -103,6 +107,8 @@ pub struct GenerateJob {
     pub deadline: Option<Instant>,
     /// Identifies this request's evaluations across passes.
     pub stream_id: u64,
+    /// Who asked (fair share within the class).
+    pub caller: u64,
     /// Request id for logs.
     pub request_id: Arc<str>,
 }
@@ -199,6 +205,7 @@ pub async fn generate(
                 priority: job.priority,
                 deadline: job.deadline,
                 stream_id: job.stream_id,
+                caller: job.caller,
                 more_steps: true,
                 request_id: job.request_id.clone(),
                 reply: tx,

@@ -20,6 +20,11 @@ pub trait Family: Send + Sync + 'static {
     /// One forward pass over `items`: packs them, runs the model once and unpacks one result
     /// per item, in order. `Err` fails the whole pass; an item's own `Err` fails only it.
     fn run(&self, items: &[&Self::Item]) -> Result<Vec<Result<Self::Output, String>>, String>;
+    /// True when [`Family::run`] computes every item as its own forward, so a larger pass
+    /// gains nothing: bulk passes then hold one item, and hold the device for one forward.
+    fn separate_forwards(&self) -> bool {
+        false
+    }
 }
 
 /// One rigid scene to advance by one step.

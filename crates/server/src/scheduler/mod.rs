@@ -11,19 +11,25 @@
 //! 2. waits, at most `max_queue_delay` after the oldest queued job arrived, for the streams of
 //!    the previous pass that said they would come back (`more_steps`), unless the queue already
 //!    fills a pass; a stream that pauses (slow reader) or ends sends [`Scheduler::idle`];
-//! 3. takes jobs in priority then FIFO order under the scene cap and the object budget (the one
-//!    batching rule, `dynaserve_model::PassBudget`), runs one pass of the family over them on
-//!    the scheduler thread, never on the async runtime, and sends each job its output with its
-//!    queue wait, forward time and pass size.
+//! 3. takes the next pass by class ([`Priority`]): interactive jobs first, bulk jobs joining
+//!    with their share of the work, callers within a class in fair order, under the scene cap
+//!    and the object budget (the one batching rule, `dynaserve_model::PassBudget`; see
+//!    [`queue`]);
+//! 4. waits for the device at the [`PassGate`] every scheduler of the engine shares ([`gate`]:
+//!    a bulk pass never runs beside an interactive one, and gets its share of device time
+//!    while both wait), runs one pass of the family over the jobs on the scheduler thread,
+//!    never on the async runtime, and sends each job its output with its queue wait, forward
+//!    time and pass size.
 //!
 //! A scene's result does not depend on its pass-mates: the model computes every scene of a
 //! pass independently (tested end to end).
 //!
 //! [`denoise`] is the PhysiFormer family (one denoising evaluation per job) with the loop that
-//! drives a sample through it; no server route uses it yet.
+//! drives a sample through it.
 
 pub mod denoise;
 mod family;
+pub mod gate;
 pub mod queue;
 mod worker;
 
@@ -35,6 +41,7 @@ use std::time::{Duration, Instant};
 use tokio::sync::oneshot;
 
 pub use family::{Family, RigidSteps, SceneStep, pose_in_domain};
+pub use gate::PassGate;
 pub use queue::{Dropped, Queue, Queued, Ticket};
 
 use crate::metrics::Metrics;
@@ -42,12 +49,14 @@ use crate::metrics::Metrics;
 /// Request id of warm-up jobs; their passes are not counted in the serving metrics.
 pub const WARMUP_REQUEST_ID: &str = "warm-up";
 
-/// Scheduling class of a job.
+/// Scheduling class of a job, set by the engine from the request's cost
+/// ([`crate::config::SchedulingConfig`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Priority {
-    /// Streamed rollouts: always batched ahead of bulk work.
+    /// Streams (Rollout, a session's Step and Interact), Predict and Generate calls below the
+    /// bulk cost, warm-up: batched ahead of bulk work.
     Interactive,
-    /// Planner (Predict) variants.
+    /// Predict and Generate calls above the bulk cost: their share of the passes.
     Bulk,
 }
 
@@ -61,8 +70,8 @@ impl Priority {
     }
 }
 
-/// Batching limits of one scheduler.
-#[derive(Clone, Copy, Debug)]
+/// Batching limits and classes of one scheduler.
+#[derive(Clone, Debug)]
 pub struct SchedulerConfig {
     /// Most jobs (scenes) per forward pass (1 disables batching).
     pub max_batch_scenes: usize,
@@ -70,6 +79,11 @@ pub struct SchedulerConfig {
     pub max_batch_objects: usize,
     /// Longest wait for expected pass-mates, measured from the oldest queued job's arrival.
     pub max_queue_delay: Duration,
+    /// Share of a pass's work bulk jobs get while interactive jobs wait too, in (0, 1).
+    pub bulk_share: f64,
+    /// The device gate shared with the engine's other schedulers; `None`: passes start
+    /// without asking anyone.
+    pub gate: Option<Arc<PassGate>>,
 }
 
 /// One unit of work with what the scheduler needs to place it.
@@ -82,6 +96,8 @@ pub struct Job<F: Family> {
     pub deadline: Option<Instant>,
     /// Identifies the stream (rollout, Predict variant) across its jobs.
     pub stream_id: u64,
+    /// Who asked ([`crate::engine::RequestCtx::caller`]): callers share their class fairly.
+    pub caller: u64,
     /// True when the stream will submit another job right after this one.
     pub more_steps: bool,
     /// Request id for logs.
@@ -167,6 +183,7 @@ impl<F: Family> Scheduler<F> {
             priority: job.priority,
             deadline: job.deadline,
             stream_id: job.stream_id,
+            caller: job.caller,
             more_steps: job.more_steps,
             cost: self.family.cost(&job.item),
             enqueued: Instant::now(),

@@ -1,6 +1,7 @@
 //! The scheduler thread: moves commands from its channel into the [`Queue`], waits as the
 //! queue says, runs one pass of the [`Family`] at a time and records queue, pass and throughput
-//! metrics (not for warm-up passes). A pass that fails as a whole (an error or a panic) is run
+//! metrics (not for warm-up passes). Every pass waits for the device at the engine's
+//! [`super::PassGate`] first. A pass that fails as a whole (an error or a panic) is run
 //! again one job at a time, so a job that cannot be computed fails alone, with its own error,
 //! and its pass-mates still get their results; the thread never dies with a pass.
 
@@ -11,7 +12,9 @@ use std::time::{Duration, Instant};
 
 use dynaserve_model::PassBudget;
 
-use super::{Command, Done, Family, Job, Priority, Queue, Queued, SchedulerConfig, StepError};
+use super::{
+    Command, Done, Family, Job, PassGate, Priority, Queue, Queued, SchedulerConfig, StepError,
+};
 use crate::metrics::Metrics;
 
 /// How long an idle worker sleeps before refreshing the FPS gauge.
@@ -21,6 +24,10 @@ pub(super) struct Worker<F: Family> {
     family: Arc<F>,
     rx: mpsc::Receiver<Command<F>>,
     queue: Queue<Job<F>>,
+    /// The engine's device gate and this scheduler's id at it.
+    gate: Option<(Arc<PassGate>, usize)>,
+    /// A stop command arrived.
+    stopping: bool,
     metrics: Metrics,
     name: String,
     batches: u64,
@@ -44,11 +51,22 @@ impl<F: Family> Worker<F> {
             max_scenes: config.max_batch_scenes.max(1),
             max_objects: config.max_batch_objects.max(1),
         };
+        let queue = Queue::new(budget, config.max_queue_delay, config.bulk_share);
+        let queue = if family.separate_forwards() {
+            queue.one_bulk_item_per_pass()
+        } else {
+            queue
+        };
         Worker {
             name: family.name().to_string(),
             family,
             rx,
-            queue: Queue::new(budget, config.max_queue_delay),
+            queue,
+            gate: config.gate.map(|g| {
+                let id = g.register();
+                (g, id)
+            }),
+            stopping: false,
             metrics,
             batches: 0,
             recent: std::collections::VecDeque::new(),
@@ -105,6 +123,9 @@ impl<F: Family> Worker<F> {
                 }
             }
             self.run_pass();
+            if self.stopping {
+                break 'main;
+            }
         }
         for item in self.queue.drain() {
             let _ = item.payload.reply.send(Err(StepError::Stopped));
@@ -124,6 +145,21 @@ impl<F: Family> Worker<F> {
                 Flow::Continue
             }
             Command::Stop => Flow::Stop,
+        }
+    }
+
+    /// Moves what arrived meanwhile into the queue (a stop is kept for the main loop).
+    fn take_in(&mut self) {
+        while !self.stopping {
+            match self.rx.try_recv() {
+                Ok(cmd) => {
+                    if let Flow::Stop = self.handle(cmd) {
+                        self.stopping = true;
+                    }
+                }
+                Err(TryRecvError::Empty) => break,
+                Err(TryRecvError::Disconnected) => self.stopping = true,
+            }
         }
     }
 
@@ -160,7 +196,22 @@ impl<F: Family> Worker<F> {
     }
 
     fn run_pass(&mut self) {
-        let batch: Vec<Queued<Job<F>>> = self.queue.next_batch();
+        // The device first: a pass holding interactive jobs is interactive.
+        let class = if self.queue.len_at(Priority::Interactive) > 0 {
+            Priority::Interactive
+        } else {
+            Priority::Bulk
+        };
+        let gate = self.gate.clone();
+        let has_bulk = self.queue.len_at(Priority::Bulk) > 0;
+        let permit = gate.as_ref().map(|(g, id)| g.acquire(*id, class, has_bulk));
+        if permit.is_some() {
+            // Jobs that arrived while the pass waited for the device join it.
+            self.take_in();
+            self.prune(Instant::now());
+        }
+        let bulk_allowed = permit.as_ref().is_none_or(|p| p.bulk_allowed());
+        let batch: Vec<Queued<Job<F>>> = self.queue.next_batch_with(bulk_allowed);
         self.update_depth();
         if batch.is_empty() {
             return;
@@ -169,12 +220,27 @@ impl<F: Family> Worker<F> {
         let batch_id = self.batches;
         let scenes = batch.len();
         let objects: usize = batch.iter().map(|q| q.ticket.cost).sum();
+        let bulk_cost: usize = batch
+            .iter()
+            .filter(|q| q.ticket.priority == Priority::Bulk)
+            .map(|q| q.ticket.cost)
+            .sum();
         let start = Instant::now();
         let items: Vec<&F::Item> = batch.iter().map(|q| &q.payload.item).collect();
         let results = self.run_isolated(&items, batch_id);
         drop(items);
         let forward = start.elapsed();
         let finished = Instant::now();
+        if let Some(p) = permit {
+            let streams_back = batch
+                .iter()
+                .any(|q| q.ticket.more_steps && q.ticket.priority == Priority::Interactive);
+            p.finish(
+                forward,
+                bulk_cost as f64 / objects.max(1) as f64,
+                streams_back,
+            );
+        }
         let name = self.name.as_str();
         // Warm-up passes are not serving work: they stay out of the metrics.
         let metered = batch
@@ -205,6 +271,15 @@ impl<F: Family> Worker<F> {
                 .forward_duration
                 .with_label_values(&[name])
                 .observe(forward.as_secs_f64());
+            for (p, work) in [
+                (Priority::Interactive, objects - bulk_cost),
+                (Priority::Bulk, bulk_cost),
+            ] {
+                self.metrics
+                    .class_work
+                    .with_label_values(&[name, p.as_str()])
+                    .inc_by(work as u64);
+            }
         }
         let failed = results.iter().filter(|r| r.is_err()).count();
         if metered {
@@ -255,10 +330,10 @@ impl<F: Family> Worker<F> {
                 .map_err(StepError::Model);
             let delivered = item.payload.reply.send(reply).is_ok();
             if delivered && item.ticket.more_steps {
-                expected.push(item.ticket.stream_id);
+                expected.push((item.ticket.stream_id, item.ticket.priority));
             }
         }
-        self.queue.expect(expected);
+        self.queue.expect(expected, Instant::now());
         if metered {
             self.recent.push_back((finished, scenes as u64));
         }
@@ -391,6 +466,7 @@ mod tests {
             priority: Priority::Interactive,
             deadline: None,
             stream_id: u64::from(tag),
+            caller: 0,
             more_steps: false,
             request_id: "t".into(),
             reply,
@@ -421,6 +497,8 @@ mod tests {
             max_batch_scenes: 64,
             max_batch_objects: 1000,
             max_queue_delay: Duration::from_millis(2),
+            bulk_share: 0.25,
+            gate: None,
         };
         let s = Scheduler::start(family.clone(), config, metrics.clone()).unwrap();
         let first = submit(&s, 100);

@@ -39,7 +39,7 @@ impl Driven {
         base_step: u32,
         priority: Priority,
         deadline: Option<Instant>,
-        request_id: Arc<str>,
+        ctx: &RequestCtx,
     ) -> Driven {
         let stepper = Stepper::new(
             session.entry.clone(),
@@ -50,7 +50,8 @@ impl Driven {
                 priority,
                 deadline,
                 stream_id: engine.next_stream.fetch_add(1, Ordering::Relaxed),
-                request_id,
+                caller: ctx.caller(),
+                request_id: ctx.request_id.clone(),
             },
         );
         Driven {
@@ -213,7 +214,7 @@ impl Engine {
             progress.step,
             Priority::Interactive,
             deadline,
-            ctx.request_id.clone(),
+            &ctx,
         );
         let n = targets.len();
         for (i, t) in targets.iter().enumerate() {

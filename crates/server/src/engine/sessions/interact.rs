@@ -125,7 +125,7 @@ impl Engine {
                 step,
                 Priority::Interactive,
                 deadline,
-                ctx.request_id.clone(),
+                ctx,
             )
         };
         let mut driven = driven_from(progress.state.clone(), progress.step);

@@ -16,7 +16,6 @@ use super::super::predict::{Variant, check_variant_count};
 use super::super::request::{RequestCtx, RequestRecord, with_deadline};
 use super::driven::Driven;
 use crate::error::ApiError;
-use crate::scheduler::Priority;
 
 impl Engine {
     /// Validates, admits and runs a Predict call from a session.
@@ -57,7 +56,7 @@ impl Engine {
         let n = req.variants.len();
         check_variant_count(&entry, n)?;
         // Every variant steps the session's scene.
-        check_request_cost(
+        let cost = check_request_cost(
             &vec![session.scene().len(); n],
             req.steps,
             true,
@@ -101,9 +100,9 @@ impl Engine {
                     &session,
                     state,
                     base_step,
-                    Priority::Bulk,
+                    self.predict_priority(cost),
                     deadline,
-                    ctx.request_id.clone(),
+                    ctx,
                 ),
                 targets,
             })
