@@ -225,3 +225,20 @@ pub(crate) async fn sleep_until(deadline: Option<Instant>) {
         None => std::future::pending().await,
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_scheduling_caller_is_the_identity_else_the_request() {
+        let a = RequestCtx::new(Protocol::Grpc, Some("req-a"), None);
+        let b = RequestCtx::new(Protocol::Http, Some("req-b"), None);
+        // Without an identity each request is its own caller, the same on every call.
+        assert_ne!(a.caller(), b.caller());
+        assert_eq!(a.caller(), a.caller());
+        // With one, every request of that identity is one caller.
+        let (a, b) = (a.with_identity(42), b.with_identity(42));
+        assert_eq!((a.caller(), b.caller()), (42, 42));
+    }
+}
