@@ -7,7 +7,7 @@
 //!
 //! The flag groups that [`ServeConfig`] gathers live beside it: [`ConnectionConfig`] (the
 //! listeners' limits and timeouts) and [`SessionConfig`] (the session store's caps); the
-//! authentication and TLS flags are `crate::security::SecurityConfig`.
+//! authentication and TLS flags are `security::SecurityConfig`.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -18,6 +18,7 @@ use dynaserve_api::limits::{Caps, GenerateCaps};
 mod connections;
 mod scheduling;
 mod seconds;
+pub mod security;
 mod sessions;
 
 pub use connections::ConnectionConfig;
@@ -143,7 +144,7 @@ pub struct ServeConfig {
     pub connections: ConnectionConfig,
     /// Authentication, TLS and the browser (CORS) policy.
     #[command(flatten)]
-    pub security: crate::security::SecurityConfig,
+    pub security: security::SecurityConfig,
 
     /// Sessions: how many, how much memory, how long they live idle.
     #[command(flatten)]
