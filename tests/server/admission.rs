@@ -109,9 +109,13 @@ fn small_predict(model: &str) -> json::PredictRequest {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_request_without_a_deadline_gets_the_server_default() {
     let m = test_model();
+    // As in the test below, the Predict is made bulk work (--bulk-cost 0) with the smallest
+    // share of the passes, so it waits behind the streams until a deadline ends it.
     let server = start(&m.dir, |c| {
         c.max_batch_scenes = 1;
         c.default_timeout_s = 0.15;
+        c.scheduling.bulk_cost = 0;
+        c.scheduling.bulk_share = 0.01;
     })
     .await;
     let c = client(&server).await;
