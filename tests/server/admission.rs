@@ -104,13 +104,23 @@ fn small_predict(model: &str) -> json::PredictRequest {
     }
 }
 
+/// [`small_predict`] of one 48-object scene. Made bulk work (`--bulk-cost 0`) at the smallest
+/// share (1%), a step of it needs the credit of about 1600 passes of the 3-object streams of
+/// [`fill_queue`], so it stays queued for seconds behind them.
+fn queued_bulk_predict(model: &str) -> json::PredictRequest {
+    json::PredictRequest {
+        variants: vec![scene(5, 48, 32)],
+        ..small_predict(model)
+    }
+}
+
 /// A request that names no deadline gets the server's `--default-timeout-s`; one that names
 /// its own keeps it.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_request_without_a_deadline_gets_the_server_default() {
     let m = test_model();
-    // As in the test below, the Predict is made bulk work (--bulk-cost 0) with the smallest
-    // share of the passes, so it waits behind the streams until a deadline ends it.
+    // As in the test below, the Predict is bulk work that waits behind the streams until a
+    // deadline ends it (`queued_bulk_predict`).
     let server = start(&m.dir, |c| {
         c.max_batch_scenes = 1;
         c.default_timeout_s = 0.15;
@@ -121,7 +131,7 @@ async fn a_request_without_a_deadline_gets_the_server_default() {
     let c = client(&server).await;
     // Interactive streams with their own long deadline keep the queue full.
     let busy = fill_queue(&c, &m.name, 60, 60_000).await;
-    let predict = small_predict(&m.name);
+    let predict = queued_bulk_predict(&m.name);
     let t = Instant::now();
     let resp = post_json(server.http_addr, "/v1/predict", &predict).await;
     assert_eq!(resp.status, 504, "{}", resp.text());
@@ -155,7 +165,7 @@ async fn a_deadline_in_the_queue_yields_deadline_exceeded_on_time() {
     .await;
     let c = client(&server).await;
     let busy = fill_queue(&c, &m.name, 40, 0).await;
-    let predict = small_predict(&m.name);
+    let predict = queued_bulk_predict(&m.name);
     // "On time" is asserted by cause, not by a wall-clock bound: the answer is the server's
     // DEADLINE_EXCEEDED (had the server waited for the queue, the client's own timer,
     // `DEADLINE_BACKSTOP` later, would have ended the call as CANCELLED), it never comes before
