@@ -25,22 +25,9 @@ use crate::eval::physics_suite::{FigureRow, PhysicsSuiteReport};
 use crate::eval::regimes::Regime;
 use crate::train::planner_record::{self, PlannerClause, PlannerRecord};
 
-/// MOVi-B horizons of the key figures, seconds.
-pub const HORIZONS_S: [f64; 4] = [0.5, 1.0, 2.0, 4.0];
-
-/// The fresh-scene guard: the fresh split's translation RMSE may exceed the reference's by at
-/// most this fraction at each horizon.
-pub const FRESH_GUARD: f64 = 0.01;
-
-/// Per horizon, the candidate's figure over the reference's minus 1.
-pub fn change_by_horizon(reference: &[f64; 4], candidate: &[f64; 4]) -> [f64; 4] {
-    std::array::from_fn(|i| candidate[i] / reference[i] - 1.0)
-}
-
-/// Whether a change stays within `bound` (a fraction) at every horizon.
-pub fn within_at_every_horizon(changes: &[f64; 4], bound: f64) -> bool {
-    changes.iter().all(|&c| c <= bound)
-}
+pub use super::horizon_guard::{
+    FRESH_GUARD, HORIZONS_S, change_by_horizon, within_at_every_horizon,
+};
 
 /// Changes by horizon as text: `0.5 s +0.4%, 1 s -0.2%, ...`.
 fn format_changes(changes: &[f64; 4]) -> String {

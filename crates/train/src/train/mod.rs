@@ -15,6 +15,8 @@
 //! - [`restarts`]: training scenes that start where a model's own rollout leads, continued by
 //!   rapier;
 //! - [`compare`]: candidates against a release on the model card's key figures;
+//! - [`horizon_guard`]: the key figures' horizons and the per-horizon guard on a candidate's
+//!   translation RMSE, shared by the comparison and the planner clause;
 //! - [`planner_record`]: a push planner's per-seed record and the ship rule's planner clause;
 //! - [`plot`]: PNG line charts.
 
@@ -25,6 +27,7 @@ pub mod data;
 pub mod events;
 pub mod export;
 pub mod heldout;
+pub mod horizon_guard;
 pub mod optim;
 pub mod planner_record;
 pub mod plot;

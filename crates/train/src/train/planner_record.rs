@@ -15,7 +15,7 @@ use std::path::Path;
 use anyhow::Context;
 use serde::Deserialize;
 
-use super::compare::{FRESH_GUARD, change_by_horizon, within_at_every_horizon};
+use super::horizon_guard::{FRESH_GUARD, change_by_horizon, within_at_every_horizon};
 
 /// The planner clause asks the paired difference to exceed this many standard errors.
 pub const PLANNER_SE: f64 = 2.0;
