@@ -10,8 +10,7 @@ use dynaserve_model::{ModelConfig, TrainedRanges, load_model, load_rigidformer, 
 use dynaserve_sim::dataset::DatasetReader;
 
 use super::TrainError;
-use super::run_dir::{OPTIMIZER_FILE, STATE_FILE, io, resumable};
-use super::trainer::read_state;
+use super::run_dir::{OPTIMIZER_FILE, STATE_FILE, io, read_state, resumable};
 
 /// What [`export`] writes.
 #[derive(Clone, Debug)]

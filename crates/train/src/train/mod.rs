@@ -9,7 +9,7 @@
 //! - [`optim`]: learning-rate schedule, gradient clipping, AdamW with per-parameter decay;
 //! - [`trainer`]: the loop, its checkpoints, resume, CSV log and loss curve;
 //! - [`run_dir`]: a run directory's checkpoint swap, resume point and log truncation, shared
-//!   with PhysiFormer runs;
+//!   with PhysiFormer runs, and a checkpoint's training position;
 //! - [`mod@export`]: a checkpoint written as a model directory;
 //! - [`mod@average`]: model directories of one architecture averaged into one;
 //! - [`restarts`]: training scenes that start where a model's own rollout leads, continued by

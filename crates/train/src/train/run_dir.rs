@@ -1,17 +1,39 @@
 //! A run directory's shared files, for RigidFormer and PhysiFormer runs alike: the checkpoint
 //! directory replaced atomically (with the optimizer and state files inside it), finding the
-//! checkpoint to resume from, and the CSV log cut back to a resumed step.
+//! checkpoint to resume from, and the CSV log cut back to a resumed step; a RigidFormer
+//! checkpoint's training position ([`RunState`]).
 
 use std::path::{Path, PathBuf};
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::TrainError;
+use super::config::TrainConfig;
 
 /// File holding the optimizer state inside a checkpoint directory.
 pub const OPTIMIZER_FILE: &str = "optimizer.safetensors";
 /// File holding the training position inside a checkpoint directory.
 pub const STATE_FILE: &str = "state.json";
+
+/// Training position stored with every checkpoint.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct RunState {
+    /// Iterations completed.
+    pub step: u64,
+    /// Training wall time over all sessions, seconds.
+    pub elapsed_seconds: f64,
+    /// Compute threads used.
+    pub threads: usize,
+    /// The configuration of the run.
+    pub config: TrainConfig,
+}
+
+/// Reads `state.json` of a checkpoint directory.
+pub fn read_state(ckpt: &Path) -> Result<RunState, TrainError> {
+    let p = ckpt.join(STATE_FILE);
+    let text = std::fs::read_to_string(&p).map_err(io(&p))?;
+    serde_json::from_str(&text).map_err(|e| TrainError::Config(format!("{}: {e}", p.display())))
+}
 
 /// Maps an I/O error to [`TrainError::Io`] naming `path`.
 pub(crate) fn io(path: &Path) -> impl FnOnce(std::io::Error) -> TrainError + '_ {

@@ -25,7 +25,6 @@ use dynaserve_model::{
     load_rigidformer,
 };
 use indicatif::{ProgressBar, ProgressStyle};
-use serde::{Deserialize, Serialize};
 
 use super::TrainError;
 use super::config::TrainConfig;
@@ -37,6 +36,7 @@ use super::run_dir::{
     OPTIMIZER_FILE, STATE_FILE, checkpoint_dir, io, replace_checkpoint, replace_dir, resumable,
     truncate_log, write_state,
 };
+pub use super::run_dir::{RunState, read_state};
 
 /// Header of `log.csv`. `rotation` is the unweighted rotation term, empty when it is off (and
 /// in rows written before the column existed).
@@ -85,26 +85,6 @@ pub struct TrainSummary {
     pub checkpoint: PathBuf,
     /// Wall time of all sessions of the run, seconds.
     pub elapsed_seconds: f64,
-}
-
-/// Training position stored with every checkpoint.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct RunState {
-    /// Iterations completed.
-    pub step: u64,
-    /// Training wall time over all sessions, seconds.
-    pub elapsed_seconds: f64,
-    /// Compute threads used.
-    pub threads: usize,
-    /// The configuration of the run.
-    pub config: TrainConfig,
-}
-
-/// Reads `state.json` of a checkpoint directory.
-pub fn read_state(ckpt: &Path) -> Result<RunState, TrainError> {
-    let p = ckpt.join(STATE_FILE);
-    let text = std::fs::read_to_string(&p).map_err(io(&p))?;
-    serde_json::from_str(&text).map_err(|e| TrainError::Config(format!("{}: {e}", p.display())))
 }
 
 /// Writes a checkpoint atomically: into `checkpoint.tmp`, then swapped in by renames.
