@@ -28,9 +28,9 @@ use std::time::Instant;
 use candle_core::Tensor;
 use dynaserve_model::config::RIGIDFORMER;
 use dynaserve_model::{Device, ModelConfig, load_rigidformer};
-use serde::{Deserialize, Serialize};
 
 use super::TrainError;
+pub use super::config::HeldoutConfig;
 use super::export::write_model;
 use super::plot::{Series, line_chart};
 use super::run_dir::{io, truncate_log};
@@ -43,61 +43,6 @@ use crate::eval::{Ballistic, ModelPredictor, Predictor, physics_suite::run_suite
 /// the second over the first; for a figure row they are the model's and rapier's means (in
 /// `unit`) and `met` the samples meeting the figure's target.
 pub const HELDOUT_HEADER: &str = "step,weights,table,name,unit,k,model,reference,ratio,met,samples";
-
-/// What the held-out watch scores and how often ([`TrainConfig::heldout`](super::TrainConfig)).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct HeldoutConfig {
-    /// Iterations between scores; 0 (the default) turns the watch off.
-    pub every: u64,
-    /// Seed of the generated suite (split `test`).
-    pub seed: u64,
-    /// Scenes per suite group.
-    pub scenes: usize,
-    /// Reference points per object of the generated scenes (the model samples its own count
-    /// from them, as in `dynaserve eval`).
-    pub points: usize,
-    /// Step sizes of the regime rows, frames.
-    pub step_sizes: Vec<u32>,
-    /// Every `n`-th window of a scene enters the regime rows (1: all).
-    pub window_stride: usize,
-}
-
-impl Default for HeldoutConfig {
-    fn default() -> Self {
-        HeldoutConfig {
-            every: 0,
-            seed: 8,
-            scenes: 2,
-            points: 1024,
-            step_sizes: vec![1, 4],
-            window_stride: 1,
-        }
-    }
-}
-
-impl HeldoutConfig {
-    /// Checks ranges; every violation is named.
-    pub fn validate(&self) -> Result<(), TrainError> {
-        let bad = |m: &str| Err(TrainError::Config(format!("heldout.{m}")));
-        if self.every == 0 {
-            return Ok(());
-        }
-        if !(1..=64).contains(&self.scenes) {
-            return bad("scenes must be in 1..=64");
-        }
-        if self.points < 16 {
-            return bad("points must be at least 16");
-        }
-        if !super::config::valid_step_sizes(&self.step_sizes) {
-            return bad("step_sizes must be non-empty, each in 1..=16");
-        }
-        if self.window_stride == 0 {
-            return bad("window_stride must be at least 1");
-        }
-        Ok(())
-    }
-}
 
 /// The watch of one run: its scenes, generated once, and where the scores go.
 pub struct HeldoutWatch {
