@@ -554,12 +554,7 @@ async fn sessions_belong_to_their_caller_and_others_get_not_found() {
         );
     }
     // The same over gRPC, Interact included.
-    let mut c = dynaserve_api::v1::sessions_client::SessionsClient::connect(format!(
-        "http://{}",
-        server.grpc_addr
-    ))
-    .await
-    .unwrap();
+    let mut c = grpc_sessions(&server).await;
     let e = c
         .get_state(grpc_as(
             TOKEN_B,
@@ -699,12 +694,7 @@ async fn session_and_stream_quotas_are_per_caller() {
     assert_eq!(r.status, 201, "{}", r.text());
 
     // Streams: the first of A's holds its one slot while nobody reads it.
-    let mut c = dynaserve_api::v1::world_model_client::WorldModelClient::connect(format!(
-        "http://{}",
-        server.grpc_addr
-    ))
-    .await
-    .unwrap();
+    let mut c = grpc_world_model(&server).await;
     let long = rollout_request(&m.name, scene(95, 1, 16), 5000).to_proto();
     let held = c.rollout(grpc_as(TOKEN_A, long.clone())).await.unwrap();
     let e = c.rollout(grpc_as(TOKEN_A, long.clone())).await.unwrap_err();
@@ -761,12 +751,7 @@ async fn a_session_that_could_never_fit_is_invalid_not_a_retry() {
         "{}",
         e.error.message
     );
-    let mut c = dynaserve_api::v1::sessions_client::SessionsClient::connect(format!(
-        "http://{}",
-        server.grpc_addr
-    ))
-    .await
-    .unwrap();
+    let mut c = grpc_sessions(&server).await;
     let e = c
         .create_session(dynaserve_api::v1::CreateSessionRequest {
             model: m.name.clone(),
@@ -806,12 +791,7 @@ async fn poses_implying_more_than_1000_m_per_s_are_refused_naming_the_object() {
         Some("scene.objects[1].previous_pose")
     );
     assert!(e.error.message.contains("1000 m/s"), "{}", e.error.message);
-    let mut c = dynaserve_api::v1::world_model_client::WorldModelClient::connect(format!(
-        "http://{}",
-        server.grpc_addr
-    ))
-    .await
-    .unwrap();
+    let mut c = grpc_world_model(&server).await;
     let e = c
         .rollout(rollout_request(&m.name, s, 2).to_proto())
         .await
@@ -905,12 +885,7 @@ async fn a_predict_variant_leaving_the_domain_is_named() {
         "{}",
         e.error.message
     );
-    let mut c = dynaserve_api::v1::world_model_client::WorldModelClient::connect(format!(
-        "http://{}",
-        server.grpc_addr
-    ))
-    .await
-    .unwrap();
+    let mut c = grpc_world_model(&server).await;
     let e = c.predict(req.to_proto()).await.unwrap_err();
     assert_eq!(e.code(), tonic::Code::OutOfRange);
     assert!(
@@ -954,12 +929,7 @@ async fn a_grpc_client_that_never_reads_loses_its_slot_and_finds_the_status_afte
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
     // Its slot is free: another client's rollout runs.
-    let mut c = dynaserve_api::v1::world_model_client::WorldModelClient::connect(format!(
-        "http://{}",
-        server.grpc_addr
-    ))
-    .await
-    .unwrap();
+    let mut c = grpc_world_model(&server).await;
     let mut other = c
         .rollout(rollout_request(&m.name, scene(122, 1, 16), 2).to_proto())
         .await
@@ -1021,18 +991,8 @@ async fn request_ids_are_echoed_only_when_short_and_visible() {
             assert!(is_generated(&got), "{path} {bad:?}: {got:?}");
         }
     }
-    let mut c = dynaserve_api::v1::world_model_client::WorldModelClient::connect(format!(
-        "http://{}",
-        server.grpc_addr
-    ))
-    .await
-    .unwrap();
-    let mut s = dynaserve_api::v1::sessions_client::SessionsClient::connect(format!(
-        "http://{}",
-        server.grpc_addr
-    ))
-    .await
-    .unwrap();
+    let mut c = grpc_world_model(&server).await;
+    let mut s = grpc_sessions(&server).await;
     for (id, echoed) in [(ok.as_str(), true), (long.as_str(), false)] {
         let mut r = tonic::Request::new(dynaserve_api::v1::ListModelsRequest {});
         r.metadata_mut().insert("x-request-id", id.parse().unwrap());

@@ -9,7 +9,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use common::{http, metrics, parse_sse, post_json, sample};
+use common::{grpc_world_model, http, metrics, parse_sse, post_json, sample};
 use dynaserve_api::json;
 use dynaserve_api::v1;
 use dynaserve_api::v1::world_model_client::WorldModelClient;
@@ -33,12 +33,6 @@ async fn start(tweak: impl FnOnce(&mut ServeConfig)) -> RunningServer {
     let server = dynaserve_server::start(config, models).await.unwrap();
     server.wait_ready(Duration::from_secs(60)).await.unwrap();
     server
-}
-
-async fn grpc(server: &RunningServer) -> WorldModelClient<Channel> {
-    WorldModelClient::connect(format!("http://{}", server.grpc_addr))
-        .await
-        .unwrap()
 }
 
 /// The models ListModels reports over gRPC.
@@ -144,7 +138,7 @@ fn max_vertex_diff(a: &[json::GeneratedSample], b: &[json::GeneratedSample]) -> 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn generate_over_grpc_and_http_with_both_models_resident() {
     let server = start(|_| {}).await;
-    let mut c = grpc(&server).await;
+    let mut c = grpc_world_model(&server).await;
 
     // ListModels shows both families with their limits.
     let models = list_models(&mut c).await;
@@ -337,7 +331,7 @@ async fn calls_started_at_different_steps_share_passes_and_return_what_they_retu
     // A longer wait for expected pass-mates than the default, so that the two calls meet on a
     // busy machine too; it changes when passes start, never what they compute.
     let server = start(|c| c.max_queue_delay_ms = 20.0).await;
-    let mut c = grpc(&server).await;
+    let mut c = grpc_world_model(&server).await;
     let a = request(6, 8, 1, 11);
     let mut b = request(6, 8, 1, 22);
     b.scene.objects.remove(0);
@@ -368,7 +362,7 @@ async fn calls_started_at_different_steps_share_passes_and_return_what_they_retu
         }
         (progress, samples)
     });
-    let mut cb = grpc(&server).await;
+    let mut cb = grpc_world_model(&server).await;
     let (progress_b, together_b) = generate_grpc(&mut cb, &b).await.unwrap();
     let (later_a, together_a) = rest_a.await.unwrap();
     progress_a.extend(later_a);
@@ -413,7 +407,7 @@ async fn calls_started_at_different_steps_share_passes_and_return_what_they_retu
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bad_generate_input_gets_a_clear_error_and_slots_are_freed() {
     let server = start(|c| c.max_generate_samples = 2).await;
-    let mut c = grpc(&server).await;
+    let mut c = grpc_world_model(&server).await;
     let good = request(4, 2, 1, 0);
 
     // gRPC: INVALID_ARGUMENT whose message starts with the field path.
@@ -536,7 +530,7 @@ async fn generate_above_the_cost_ceiling_is_refused_naming_denoise_steps_and_the
         c.max_request_cost = 5000;
     })
     .await;
-    let mut c = grpc(&server).await;
+    let mut c = grpc_world_model(&server).await;
     let models = list_models(&mut c).await;
     let physi = models.iter().find(|m| m.name == PHYSI).unwrap();
     let rigid = models.iter().find(|m| m.name == RIGID).unwrap();

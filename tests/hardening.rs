@@ -364,9 +364,7 @@ async fn bearer_tokens_guard_both_protocols() {
         401
     );
 
-    let mut g = WorldModelClient::connect(format!("http://{}", server.grpc_addr))
-        .await
-        .unwrap();
+    let mut g = grpc_world_model(&server).await;
     let e = g.list_models(v1::ListModelsRequest {}).await.unwrap_err();
     assert_eq!(e.code(), Code::Unauthenticated, "{e:?}");
     let e = g
@@ -637,9 +635,7 @@ async fn odd_requests_get_the_right_status() {
     );
     // Oversized gRPC messages (beyond the decoding cap of 4x the limit) are INVALID_ARGUMENT
     // naming `request`, with a google.rpc.BadRequest detail.
-    let mut g = WorldModelClient::connect(format!("http://{}", server.grpc_addr))
-        .await
-        .unwrap();
+    let mut g = grpc_world_model(&server).await;
     let big = rollout_request(&m.name, scene(90, 64, 64), 2).to_proto();
     let e = match g.rollout(big).await {
         Ok(_) => panic!("oversized message accepted"),

@@ -12,18 +12,11 @@ use common::*;
 use dynaserve_api::json;
 use dynaserve_api::v1;
 use dynaserve_api::v1::sessions_client::SessionsClient;
-use dynaserve_api::v1::world_model_client::WorldModelClient;
 use dynaserve_model::Pose;
 use futures::{SinkExt, StreamExt};
 use prost::Message;
 use tonic::Code;
 use tonic::transport::Channel;
-
-async fn sessions(server: &dynaserve_server::RunningServer) -> SessionsClient<Channel> {
-    SessionsClient::connect(format!("http://{}", server.grpc_addr))
-        .await
-        .unwrap()
-}
 
 fn poses_of(frames: &[v1::StepFrame]) -> Vec<json::StepFrame> {
     frames.iter().map(json::StepFrame::from_proto).collect()
@@ -72,7 +65,7 @@ async fn session_steps_fork_and_set_state_equal_the_rollout() {
     let model = load(&m.dir);
     let scene = scene(11, 3, 48);
     let expected = in_process(&*model, &rollout_request(&m.name, scene.clone(), 10));
-    let mut c = sessions(&server).await;
+    let mut c = grpc_sessions(&server).await;
     let info = c
         .create_session(create(&m.name, &scene, vec![]))
         .await
@@ -211,7 +204,7 @@ async fn predict_from_a_session_sends_20x_fewer_bytes_and_answers_identically() 
         timeout_ms: 0,
     }
     .to_proto();
-    let mut c = sessions(&server).await;
+    let mut c = grpc_sessions(&server).await;
     let id = c
         .create_session(create(&m.name, &scene, vec![]))
         .await
@@ -254,9 +247,7 @@ async fn predict_from_a_session_sends_20x_fewer_bytes_and_answers_identically() 
         from_session.encoded_len()
     );
     assert!(ratio >= 20.0, "only {ratio:.1}x fewer bytes");
-    let mut wm = WorldModelClient::connect(format!("http://{}", server.grpc_addr))
-        .await
-        .unwrap();
+    let mut wm = grpc_world_model(&server).await;
     let a = wm.predict(full).await.unwrap().into_inner();
     let b = c.predict(from_session).await.unwrap().into_inner();
     assert_eq!(a.trajectories.len(), n);
@@ -429,7 +420,7 @@ async fn caps_ttl_reaping_and_interact() {
     .await;
     let model = load(&m.dir);
     let scene = scene(41, 2, 48);
-    let mut c = sessions(&server).await;
+    let mut c = grpc_sessions(&server).await;
     let a = c
         .create_session(create(&m.name, &scene, vec![]))
         .await
@@ -538,7 +529,7 @@ async fn box_after(
 async fn a_kinematic_objects_mass_changes_nothing_under_relative_mass() {
     let m = random_model_with("relative", 41, |c| c.dynamics.relative_mass = true);
     let server = start(&m.dir, |_| {}).await;
-    let mut c = sessions(&server).await;
+    let mut c = grpc_sessions(&server).await;
     let diff = |a: &Pose, b: &Pose| {
         (0..3)
             .map(|d| (a.translation[d] - b.translation[d]).abs())
@@ -640,7 +631,7 @@ async fn interact_on_a_session_deleted_mid_stream_ends_with_not_found() {
     let server = start(&m.dir, |_| {}).await;
     let scene = scene(43, 2, 32);
     for over_http in [true, false] {
-        let mut c = sessions(&server).await;
+        let mut c = grpc_sessions(&server).await;
         let id = c
             .create_session(create(&m.name, &scene, vec![]))
             .await
@@ -671,7 +662,7 @@ async fn interact_on_a_session_deleted_mid_stream_ends_with_not_found() {
             assert_eq!(resp.status, 204, "{}", resp.text());
         } else {
             // Another client, on its own connection.
-            let mut other = sessions(&server).await;
+            let mut other = grpc_sessions(&server).await;
             other
                 .delete_session(v1::DeleteSessionRequest {
                     session_id: id.clone(),

@@ -120,6 +120,31 @@ pub async fn client(server: &RunningServer) -> dynaserve_client::Client {
         .unwrap()
 }
 
+/// The generated WorldModel gRPC stub on `server` (for what the client crate does not wrap:
+/// raw requests, metadata, status details).
+pub async fn grpc_world_model(
+    server: &RunningServer,
+) -> dynaserve_api::v1::world_model_client::WorldModelClient<tonic::transport::Channel> {
+    dynaserve_api::v1::world_model_client::WorldModelClient::connect(format!(
+        "http://{}",
+        server.grpc_addr
+    ))
+    .await
+    .unwrap()
+}
+
+/// The generated Sessions gRPC stub on `server`.
+pub async fn grpc_sessions(
+    server: &RunningServer,
+) -> dynaserve_api::v1::sessions_client::SessionsClient<tonic::transport::Channel> {
+    dynaserve_api::v1::sessions_client::SessionsClient::connect(format!(
+        "http://{}",
+        server.grpc_addr
+    ))
+    .await
+    .unwrap()
+}
+
 /// A scene of `objects` boxes given as point clouds (`points` surface samples each), all in
 /// the air and moving; scene `seed` decides everything.
 pub fn scene(seed: u64, objects: usize, points: usize) -> json::Scene {

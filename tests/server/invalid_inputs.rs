@@ -178,16 +178,12 @@ async fn invalid_inputs_are_refused_naming_the_field_while_others_are_served() {
     // NaN can only be sent over gRPC.
     let mut nan = base.clone().to_proto();
     nan.scene.as_mut().unwrap().objects[0].mass = f32::NAN;
-    let s = dynaserve_api::v1::world_model_client::WorldModelClient::connect(format!(
-        "http://{}",
-        server.grpc_addr
-    ))
-    .await
-    .unwrap()
-    .rollout(nan)
-    .await
-    .err()
-    .unwrap();
+    let s = grpc_world_model(&server)
+        .await
+        .rollout(nan)
+        .await
+        .err()
+        .unwrap();
     assert_eq!(s.code(), Code::InvalidArgument);
     assert!(
         s.message().starts_with("scene.objects[0].mass:"),
@@ -201,16 +197,12 @@ async fn invalid_inputs_are_refused_naming_the_field_while_others_are_served() {
     {
         p.xyz.pop();
     }
-    let s = dynaserve_api::v1::world_model_client::WorldModelClient::connect(format!(
-        "http://{}",
-        server.grpc_addr
-    ))
-    .await
-    .unwrap()
-    .rollout(flat)
-    .await
-    .err()
-    .unwrap();
+    let s = grpc_world_model(&server)
+        .await
+        .rollout(flat)
+        .await
+        .err()
+        .unwrap();
     assert!(
         s.message().starts_with("scene.objects[1].points.xyz:"),
         "{}",
