@@ -114,18 +114,23 @@ fn queued_bulk_predict(model: &str) -> json::PredictRequest {
     }
 }
 
+/// Scene cap 1 and every Predict bulk work (`--bulk-cost 0`) at the smallest share: while
+/// [`fill_queue`]'s streams keep the queue full, a [`queued_bulk_predict`] waits in it until a
+/// deadline ends it.
+fn bulk_waits_behind_streams(c: &mut dynaserve_server::ServeConfig) {
+    c.max_batch_scenes = 1;
+    c.scheduling.bulk_cost = 0;
+    c.scheduling.bulk_share = 0.01;
+}
+
 /// A request that names no deadline gets the server's `--default-timeout-s`; one that names
 /// its own keeps it.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_request_without_a_deadline_gets_the_server_default() {
     let m = test_model();
-    // As in the test below, the Predict is bulk work that waits behind the streams until a
-    // deadline ends it (`queued_bulk_predict`).
     let server = start(&m.dir, |c| {
-        c.max_batch_scenes = 1;
+        bulk_waits_behind_streams(c);
         c.default_timeout_s = 0.15;
-        c.scheduling.bulk_cost = 0;
-        c.scheduling.bulk_share = 0.01;
     })
     .await;
     let c = client(&server).await;
@@ -154,15 +159,7 @@ async fn a_request_without_a_deadline_gets_the_server_default() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_deadline_in_the_queue_yields_deadline_exceeded_on_time() {
     let m = test_model();
-    // Scene cap 1 and eight interactive streams keep the queue full, so the Predict, made
-    // bulk work (--bulk-cost 0) with the smallest share of the passes, waits in the queue
-    // behind them until its deadline.
-    let server = start(&m.dir, |c| {
-        c.max_batch_scenes = 1;
-        c.scheduling.bulk_cost = 0;
-        c.scheduling.bulk_share = 0.01;
-    })
-    .await;
+    let server = start(&m.dir, bulk_waits_behind_streams).await;
     let c = client(&server).await;
     let busy = fill_queue(&c, &m.name, 40, 0).await;
     let predict = queued_bulk_predict(&m.name);
