@@ -16,15 +16,14 @@ use std::path::PathBuf;
 use anyhow::Context;
 use dynaserve_model::physiformer::inputs::DenoiseItem;
 use dynaserve_model::{Device, PhysiFormer, Pose, StepItem, device_from_name};
-use dynaserve_sim::generators::generate_scene;
 use dynaserve_sim::mesh_scenes::{MeshGenerateOptions, MeshSet, generate_mesh_scene};
-use dynaserve_sim::{GenerateOptions, Generator};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::Serialize;
 
-use crate::eval::{ModelPredictor, observed_state};
+use crate::eval::ModelPredictor;
+use crate::throughput::movi_b_step_inputs;
 
 /// Arguments of `dynaserve parity`.
 #[derive(clap::Args, Debug)]
@@ -143,20 +142,18 @@ fn rigid(args: &ParityArgs, device: &Device) -> anyhow::Result<ParityFigure> {
         .with_context(|| format!("loading {}", args.rigid.display()))?;
     let dev = ModelPredictor::load_on(&args.rigid, device)
         .with_context(|| format!("loading {} on {}", args.rigid.display(), args.device))?;
-    let mut opts = GenerateOptions::new(Generator::movi_b(), 17, "test", args.scenes);
-    opts.points = cpu.model().config().points_per_object.max(1);
-    let mut prepared = Vec::new();
-    let mut states = Vec::new();
-    let mut objects = 0;
-    for i in 0..args.scenes {
-        let scene = generate_scene(&opts, i as u64)?.record;
-        objects += scene.objects.len();
-        states.push(observed_state(&scene, 24, 1)?);
-        prepared.push((
-            cpu.model().prepare(cpu.inputs(&scene))?,
-            dev.model().prepare(dev.inputs(&scene))?,
-        ));
-    }
+    let points = cpu.model().config().points_per_object.max(1);
+    let (scenes, states) = movi_b_step_inputs(17, args.scenes, points)?;
+    let objects: usize = scenes.iter().map(|s| s.objects.len()).sum();
+    let prepared = scenes
+        .iter()
+        .map(|s| {
+            Ok((
+                cpu.model().prepare(cpu.inputs(s))?,
+                dev.model().prepare(dev.inputs(s))?,
+            ))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
     let items = |on_device: bool| -> Vec<StepItem<'_>> {
         prepared
             .iter()

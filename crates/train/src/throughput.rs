@@ -7,9 +7,9 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
-use dynaserve_model::{StepItem, WorldModel, device_from_name, load_rigidformer};
+use dynaserve_model::{SceneState, StepItem, WorldModel, device_from_name, load_rigidformer};
 use dynaserve_sim::generators::generate_scene;
-use dynaserve_sim::{GenerateOptions, Generator};
+use dynaserve_sim::{GenerateOptions, Generator, SceneRecord};
 use serde::Serialize;
 
 use crate::eval::{ModelPredictor, observed_state};
@@ -54,6 +54,25 @@ pub struct ThroughputRow {
 /// Distinct scenes the batches cycle through.
 const SCENES: usize = 8;
 
+/// `n` MOVi-B scenes of `points` reference points per object, simulated from `seed`, and the
+/// state a step of k = 1 starts from in each (frames 23 and 24).
+pub(crate) fn movi_b_step_inputs(
+    seed: u64,
+    n: usize,
+    points: usize,
+) -> anyhow::Result<(Vec<SceneRecord>, Vec<SceneState>)> {
+    let mut opts = GenerateOptions::new(Generator::movi_b(), seed, "test", n);
+    opts.points = points;
+    let scenes = (0..n)
+        .map(|i| Ok(generate_scene(&opts, i as u64)?.record))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let states = scenes
+        .iter()
+        .map(|s| observed_state(s, 24, 1))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok((scenes, states))
+}
+
 /// Times the step at every batch size and prints the table (and writes `--json`).
 pub fn run(args: ThroughputArgs) -> anyhow::Result<()> {
     anyhow::ensure!(
@@ -68,21 +87,18 @@ pub fn run(args: ThroughputArgs) -> anyhow::Result<()> {
     }
     let predictor = ModelPredictor::from_rigidformer(std::sync::Arc::new(model));
     let model: &dyn WorldModel = predictor.model().as_ref();
-    let mut opts = GenerateOptions::new(Generator::movi_b(), 23, "test", SCENES);
-    opts.points = model.config().points_per_object.max(1);
-    let mut prepared = Vec::new();
-    let mut states = Vec::new();
-    for i in 0..SCENES {
-        let scene = generate_scene(&opts, i as u64)?.record;
-        states.push(observed_state(&scene, 24, 1)?);
-        prepared.push(model.prepare(predictor.inputs(&scene))?);
-    }
+    let points = model.config().points_per_object.max(1);
+    let (scenes, states) = movi_b_step_inputs(23, SCENES, points)?;
+    let prepared = scenes
+        .iter()
+        .map(|s| model.prepare(predictor.inputs(s)))
+        .collect::<Result<Vec<_>, _>>()?;
     let mut rows = Vec::new();
     println!(
         "RigidFormer step on {} ({}, {} points per object{}):",
         args.device,
         args.model.display(),
-        opts.points,
+        points,
         args.max_pass_objects
             .map(|n| format!(", passes of {n} objects"))
             .unwrap_or_default()
