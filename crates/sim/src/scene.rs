@@ -232,7 +232,7 @@ pub struct KinematicPath {
 }
 
 impl KinematicPath {
-    fn check(&self, objects: usize, frames: usize, seen: &mut [bool]) -> Result<()> {
+    pub(crate) fn check(&self, objects: usize, frames: usize, seen: &mut [bool]) -> Result<()> {
         let o = self.object;
         if o >= objects {
             return Err(SimError::Invalid(format!(

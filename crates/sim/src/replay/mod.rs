@@ -11,15 +11,17 @@
 //! ([`SceneSpec::kinematic`]); poses are reported in the scene's body frames.
 
 pub mod cli;
+pub mod world;
 
 use dynaserve_api::json;
 use rapier3d::math::{Rotation, Vector};
 use serde::{Deserialize, Serialize};
 
 use crate::materials::MOVI_FLOOR;
-use crate::scene::{FloorSpec, KinematicPath, ObjectSpec, SceneSpec, SimConfig, simulate};
+use crate::scene::{FloorSpec, KinematicPath, ObjectSpec, SceneSpec, SimConfig};
 use crate::shapes::{Part, Polytope, Shape, ShapeKind};
 use crate::{Result, SimError};
+pub use world::{Pose7, ReplayWorld};
 
 /// How a scene is replayed: frame interval, physics rate, floor and gravity.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -137,18 +139,74 @@ pub fn parse_scene(text: &str) -> Result<SceneFile> {
     })
 }
 
-fn object_spec(o: &json::ObjectSpec, i: usize, dt_step: f32) -> Result<ObjectSpec> {
+/// How an object of a replayed scene starts moving.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Start {
+    /// At rest.
+    Rest,
+    /// Linear `[3]` m/s and angular `[3]` rad/s velocity, world frame.
+    Velocity([f32; 3], [f32; 3]),
+    /// The pose one step earlier (translation metres, quaternion `[x, y, z, w]`): the motion is
+    /// its finite difference over the step.
+    Previous([f32; 3], [f32; 4]),
+}
+
+/// One object as the replay builds it, whatever form the scene came in.
+#[derive(Clone, Copy, Debug)]
+pub struct ReplayObject<'a> {
+    /// Body-frame points whose convex hull is the object (its cloud, or its mesh's vertices),
+    /// metres.
+    pub hull: &'a [[f32; 3]],
+    /// Position, metres.
+    pub translation: [f32; 3],
+    /// Orientation, quaternion `[x, y, z, w]` (normalised here).
+    pub rotation: [f32; 4],
+    /// Initial motion.
+    pub start: Start,
+    /// Kilograms.
+    pub mass: f32,
+    /// Coulomb friction coefficient.
+    pub friction: f32,
+    /// Coefficient of restitution.
+    pub restitution: f32,
+}
+
+impl<'a> ReplayObject<'a> {
+    /// The object of a JSON scene (its points, or its mesh's vertices).
+    pub fn from_json(o: &'a json::ObjectSpec, i: usize) -> Result<ReplayObject<'a>> {
+        let field = |m: &str| SimError::Invalid(format!("scene.objects[{i}]: {m}"));
+        let hull: &[[f32; 3]] = match (&o.points, &o.mesh) {
+            (Some(p), None) => p,
+            (None, Some(m)) => &m.vertices,
+            _ => return Err(field("needs exactly one of points and mesh")),
+        };
+        let start = match (&o.velocity, &o.previous_pose) {
+            (Some(v), None) => Start::Velocity(v.linear, v.angular),
+            (None, Some(p)) => Start::Previous(p.translation, p.rotation),
+            (None, None) => Start::Rest,
+            (Some(_), Some(_)) => return Err(field("has both velocity and previous_pose")),
+        };
+        Ok(ReplayObject {
+            hull,
+            translation: o.pose.translation,
+            rotation: o.pose.rotation,
+            start,
+            mass: o.mass,
+            friction: o.friction,
+            restitution: o.restitution,
+        })
+    }
+}
+
+/// The simulated object of `o` (object `i` of its scene; `dt_step`: seconds per step, over
+/// which a previous pose is differenced).
+pub fn object_spec(o: &ReplayObject<'_>, i: usize, dt_step: f32) -> Result<ObjectSpec> {
     let field = |m: &str| SimError::Invalid(format!("scene.objects[{i}]: {m}"));
-    let points: Vec<[f32; 3]> = match (&o.points, &o.mesh) {
-        (Some(p), None) => p.clone(),
-        (None, Some(m)) => m.vertices.clone(),
-        _ => return Err(field("needs exactly one of points and mesh")),
-    };
-    if points.iter().flatten().any(|c| !c.is_finite()) {
+    if o.hull.iter().flatten().any(|c| !c.is_finite()) {
         return Err(field("points must be finite"));
     }
-    let hull = Polytope::hull(&points)
-        .map_err(|e| field(&format!("no convex hull of its points: {e}")))?;
+    let hull =
+        Polytope::hull(o.hull).map_err(|e| field(&format!("no convex hull of its points: {e}")))?;
     let shape = Shape {
         kind: ShapeKind::Hull,
         parts: vec![Part::Polytope(hull)],
@@ -158,24 +216,29 @@ fn object_spec(o: &json::ObjectSpec, i: usize, dt_step: f32) -> Result<ObjectSpe
             return Err(field(&format!("{name} must be finite and non-negative")));
         }
     }
-    let pose = o.pose;
-    let rotation = unit(pose.rotation).ok_or_else(|| field("pose.rotation is not a rotation"))?;
-    if pose.translation.iter().any(|c| !c.is_finite()) {
+    let rotation = unit(o.rotation).ok_or_else(|| field("pose.rotation is not a rotation"))?;
+    if o.translation.iter().any(|c| !c.is_finite()) {
         return Err(field("pose.translation must be finite"));
     }
-    let (linvel, angvel) = match (&o.velocity, &o.previous_pose) {
-        (Some(v), None) => (v.linear, v.angular),
-        (None, Some(p)) => {
-            let before = unit(p.rotation)
-                .ok_or_else(|| field("previous_pose.rotation is not a rotation"))?;
-            let d = Rotation::from_xyzw(rotation[0], rotation[1], rotation[2], rotation[3])
-                * Rotation::from_xyzw(before[0], before[1], before[2], before[3]).inverse();
-            let w = d.to_scaled_axis() / dt_step;
-            let v = (Vector::from(pose.translation) - Vector::from(p.translation)) / dt_step;
-            (v.to_array(), w.to_array())
+    let (linvel, angvel) = match o.start {
+        Start::Velocity(v, w) => (v, w),
+        Start::Previous(t, q) => {
+            unit(q).ok_or_else(|| field("previous_pose.rotation is not a rotation"))?;
+            let [x, y, z] = o.translation;
+            let [a, b, c] = t;
+            let before = [a, b, c, q[0], q[1], q[2], q[3]];
+            let now = [
+                x,
+                y,
+                z,
+                o.rotation[0],
+                o.rotation[1],
+                o.rotation[2],
+                o.rotation[3],
+            ];
+            finite_difference(&before, &now, dt_step)
         }
-        (None, None) => ([0.0; 3], [0.0; 3]),
-        (Some(_), Some(_)) => return Err(field("has both velocity and previous_pose")),
+        Start::Rest => ([0.0; 3], [0.0; 3]),
     };
     if linvel.iter().chain(&angvel).any(|c| !c.is_finite()) {
         return Err(field("velocity must be finite"));
@@ -186,12 +249,37 @@ fn object_spec(o: &json::ObjectSpec, i: usize, dt_step: f32) -> Result<ObjectSpe
             e => e,
         })?;
     Ok(ObjectSpec {
-        position: pose.translation,
+        position: o.translation,
         rotation,
         linvel,
         angvel,
         ..rigid
     })
+}
+
+/// The scene of `objects` under the floor and gravity of `opts`, without settling or paths.
+pub fn scene_spec(objects: Vec<ObjectSpec>, opts: &ReplayOptions) -> SceneSpec {
+    SceneSpec {
+        objects,
+        floor: opts.floor,
+        gravity: opts.gravity,
+        settle_steps: 0,
+        kinematic: Vec::new(),
+    }
+}
+
+/// The velocity that moves a body from `before` to `now` in `dt` seconds: linear `[3]` m/s and
+/// angular `[3]` rad/s, world frame (quaternions normalised first).
+pub fn finite_difference(before: &Pose7, now: &Pose7, dt: f32) -> ([f32; 3], [f32; 3]) {
+    let rot = |p: &Pose7| {
+        let q = unit([p[3], p[4], p[5], p[6]]).unwrap_or([0.0, 0.0, 0.0, 1.0]);
+        Rotation::from_xyzw(q[0], q[1], q[2], q[3])
+    };
+    let d = rot(now) * rot(before).inverse();
+    let w = d.to_scaled_axis() / dt;
+    let v =
+        (Vector::new(now[0], now[1], now[2]) - Vector::new(before[0], before[1], before[2])) / dt;
+    (v.to_array(), w.to_array())
 }
 
 fn unit(q: [f32; 4]) -> Option<[f32; 4]> {
@@ -213,47 +301,43 @@ pub fn replay(
     if scene.objects.is_empty() {
         return Err(SimError::Invalid("scene.objects is empty".into()));
     }
-    let cfg = opts.sim_config(steps)?;
     let dt_step = opts.dt_frame * opts.dt_steps as f32;
     let objects = scene
         .objects
         .iter()
         .enumerate()
-        .map(|(i, o)| object_spec(o, i, dt_step))
+        .map(|(i, o)| object_spec(&ReplayObject::from_json(o, i)?, i, dt_step))
         .collect::<Result<Vec<_>>>()?;
-    let kinematic: Vec<KinematicPath> = paths
-        .iter()
-        .map(|p| KinematicPath {
-            object: p.object,
-            poses: p
-                .poses
-                .iter()
-                .map(|x| ([x[0], x[1], x[2]], [x[3], x[4], x[5], x[6]]))
-                .collect(),
-        })
-        .collect();
-    let spec = SceneSpec {
-        objects,
-        floor: opts.floor,
-        gravity: opts.gravity,
-        settle_steps: 0,
-        kinematic,
-    };
-    let traj = simulate(&spec, &cfg)?;
-    let poses = (0..cfg.frames)
-        .map(|t| {
-            (0..spec.objects.len())
-                .map(|j| {
-                    let (p, q) = (traj.positions[j][t], traj.rotations[j][t]);
-                    [p[0], p[1], p[2], q[0], q[1], q[2], q[3]]
-                })
-                .collect()
-        })
-        .collect();
+    let n = objects.len();
+    let mut kinematic = vec![false; n];
+    let mut seen = vec![false; n];
+    for p in paths {
+        kinematic_path(p).check(n, steps + 1, &mut seen)?;
+        kinematic[p.object] = true;
+    }
+    let mut world = ReplayWorld::new(&scene_spec(objects, opts), &kinematic, opts)?;
+    let mut poses = Vec::with_capacity(steps + 1);
+    poses.push(world.poses().to_vec());
+    for k in 0..steps {
+        let targets: Vec<(usize, Pose7)> = paths.iter().map(|p| (p.object, p.poses[k])).collect();
+        poses.push(world.step(&targets)?.to_vec());
+    }
     Ok(Replay {
         dt_step,
         steps,
         poses,
-        masses: traj.masses,
+        masses: world.masses().to_vec(),
     })
+}
+
+/// `p` as the simulator's kinematic path.
+fn kinematic_path(p: &PathDoc) -> KinematicPath {
+    KinematicPath {
+        object: p.object,
+        poses: p
+            .poses
+            .iter()
+            .map(|x| ([x[0], x[1], x[2]], [x[3], x[4], x[5], x[6]]))
+            .collect(),
+    }
 }
