@@ -251,6 +251,7 @@ mod tests {
             previous: vec![at(0.0), at(5.0)],
             current: vec![at(0.0), at(5.0)],
             earlier: Some(vec![at(0.0), at(5.0)]),
+            carry: Default::default(),
         };
         apply_states(&mut s, &[], 0.5, "objects").unwrap();
         assert!(s.earlier.is_some(), "an empty list changes nothing");
@@ -297,6 +298,7 @@ mod tests {
             previous: start.to_vec(),
             current: start.to_vec(),
             earlier: None,
+            carry: Default::default(),
         };
         let jump = ObjectState {
             object: 1,
@@ -313,6 +315,7 @@ mod tests {
             previous: vec![at(0.0), at(1.0), at(2.0)],
             current: vec![at(0.1), at(1.1), at(2.1)],
             earlier: None,
+            carry: Default::default(),
         };
         let mut out = vec![at(0.2), at(1.2), at(2.2)];
         drive(&mut out, &state, &[true, false, true], &[(2, at(3.0))]);

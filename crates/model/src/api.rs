@@ -83,6 +83,51 @@ pub struct SceneState {
     /// reads as unknown. [`SceneState::advance`] fills it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub earlier: Option<Vec<Pose>>,
+    /// What a stepping family keeps of a scene beyond its poses (a simulator's contacts and
+    /// velocities), valid for exactly these poses; empty for families that need nothing
+    /// (RigidFormer). Never serialised; [`SceneState::advance`] empties it.
+    #[serde(skip)]
+    pub carry: Carry,
+}
+
+/// A family's opaque continuation of a [`SceneState`] (see [`SceneState::carry`]): shared
+/// read-only between copies of the state, ignored by comparisons. A family that finds it
+/// empty, or of a type it does not know, rebuilds what it needs from the poses.
+#[derive(Clone, Default)]
+pub struct Carry(Option<std::sync::Arc<dyn std::any::Any + Send + Sync>>);
+
+impl Carry {
+    /// A continuation holding `value`.
+    pub fn new<T: std::any::Any + Send + Sync>(value: T) -> Carry {
+        Carry(Some(std::sync::Arc::new(value)))
+    }
+
+    /// The value, when there is one of type `T`.
+    pub fn get<T: std::any::Any + Send + Sync>(&self) -> Option<&T> {
+        self.0.as_deref().and_then(|v| v.downcast_ref::<T>())
+    }
+
+    /// True when nothing is kept.
+    pub fn is_empty(&self) -> bool {
+        self.0.is_none()
+    }
+}
+
+impl std::fmt::Debug for Carry {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(if self.0.is_some() {
+            "Carry(..)"
+        } else {
+            "Carry(empty)"
+        })
+    }
+}
+
+/// Two continuations always compare equal: a state is its poses.
+impl PartialEq for Carry {
+    fn eq(&self, _: &Carry) -> bool {
+        true
+    }
 }
 
 impl SceneState {
@@ -122,6 +167,7 @@ impl SceneState {
             previous,
             current,
             earlier: None,
+            carry: Carry::default(),
         }
     }
 
@@ -130,6 +176,7 @@ impl SceneState {
     pub fn advance(&mut self, next: Vec<Pose>) {
         let previous = std::mem::replace(&mut self.current, next);
         self.earlier = Some(std::mem::replace(&mut self.previous, previous));
+        self.carry = Carry::default();
     }
 
     /// The state as a step reads it when the kinematic objects' poses after the step are
@@ -255,6 +302,7 @@ mod tests {
             previous: vec![pose(0.0, 0.0), pose(1.0, 0.0)],
             current: vec![pose(0.1, 0.0), pose(1.0, 0.0)],
             earlier: Some(vec![pose(-0.1, 0.0), pose(1.0, 0.0)]),
+            carry: Default::default(),
         };
         // The kinematic object (1), at rest so far, is about to move 0.2 m and turn 0.3 rad.
         let next = [pose(0.3, 0.0), pose(1.2, 0.3)];

@@ -395,6 +395,7 @@ impl Yaw {
             previous: turn(&state.previous),
             current: turn(&state.current),
             earlier: state.earlier.as_deref().map(turn),
+            carry: Default::default(),
         }
     }
 }

@@ -24,7 +24,7 @@ pub mod scene_threads;
 pub mod team;
 pub mod trained_ranges;
 
-pub use api::{ObjectInput, Pose, SceneState, StepItem, WorldModel, rollout};
+pub use api::{Carry, ObjectInput, Pose, SceneState, StepItem, WorldModel, rollout};
 pub use batching::PassBudget;
 pub use checkpoint::{load_rigidformer, read_architecture, read_config, save_tensors};
 pub use config::{

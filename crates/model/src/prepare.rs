@@ -455,6 +455,7 @@ pub(crate) fn validate_state(
             Some(e) => Some(norm(e, "earlier")?),
             None => None,
         },
+        carry: Default::default(),
     })
 }
 

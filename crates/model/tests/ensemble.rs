@@ -314,6 +314,7 @@ fn yaw_copies_make_a_step_indifferent_to_turns_by_their_angle() {
         previous: turned(&state.previous, quarter, cx, cy),
         current: turned(&state.current, quarter, cx, cy),
         earlier: None,
+        carry: Default::default(),
     };
     // How far stepping the turned scene is from turning the step.
     let miss = |model: &dyn WorldModel| {

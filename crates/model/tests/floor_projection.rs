@@ -48,6 +48,7 @@ fn step(projection: Option<f32>, pusher: bool, k: u32) -> (Vec<Vec<[f32; 3]>>, V
         previous: vec![pose(0.0, H + 0.9), pose(3.0, 2.0), pose(-3.0, 0.05)],
         current: vec![pose(0.0, H + 0.4), pose(3.0, 2.0), pose(-3.0, 0.0)],
         earlier: None,
+        carry: Default::default(),
     };
     (clouds, common::step_one(&model, &scene, &state, k))
 }

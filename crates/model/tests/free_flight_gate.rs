@@ -76,6 +76,7 @@ fn state() -> SceneState {
             pose(0.05, 4.0, 0.5, 0.1),
         ],
         earlier: None,
+        carry: Default::default(),
     }
 }
 

@@ -58,6 +58,7 @@ fn object_permutation_equivariance() {
         previous: perm.iter().map(|&i| state.previous[i]).collect(),
         current: perm.iter().map(|&i| state.current[i]).collect(),
         earlier: None,
+        carry: Default::default(),
     };
     let out_p = step1(&model, objects_p, &state_p, 1);
     let expected: Vec<Pose> = perm.iter().map(|&i| base[i]).collect();

@@ -262,6 +262,7 @@ fn shipped_checkpoint_takes_the_contact_velocity_the_normals_and_the_approach() 
         previous: vec![at(0.0, 0.3), at(0.5, 0.3)],
         current: vec![at(0.0, 0.29), at(0.5, 0.29)],
         earlier: None,
+        carry: Default::default(),
     };
     let next = shipped
         .step(&[StepItem {

@@ -308,6 +308,7 @@ fn free_fall_is_the_zero_output_with_a_gravity_residual() {
                 previous: starts.iter().map(|&(p, v)| at(-h, p, v)).collect(),
                 current: starts.iter().map(|&(p, v)| at(0.0, p, v)).collect(),
                 earlier: None,
+                carry: Default::default(),
             };
             let target: Vec<Pose> = starts.iter().map(|&(p, v)| at(h, p, v)).collect();
             let out = model
@@ -374,6 +375,7 @@ fn floor_base_holds_a_resting_body_and_stops_a_landing_one_on_the_floor() {
                     previous: vec![at(before)],
                     current: vec![at(now)],
                     earlier: None,
+                    carry: Default::default(),
                 };
                 let target = vec![at(now)];
                 let out = model

@@ -136,6 +136,7 @@ fn restart_scenes_are_the_models_poses_then_rapier() {
             previous: poses_at(&got, 0).unwrap(),
             current: poses_at(&got, 1).unwrap(),
             earlier: None,
+            carry: Default::default(),
         };
         let cont = rapier.rollout(&got, &state, 1, opts.frames).unwrap();
         for (f, want) in cont.iter().enumerate() {
@@ -156,6 +157,7 @@ fn restart_scenes_are_the_models_poses_then_rapier() {
         previous: sunk.clone(),
         current: sunk,
         earlier: None,
+        carry: Default::default(),
     };
     assert_eq!(
         continue_in_rapier(&rapier, &src, &state, 4).unwrap_err(),

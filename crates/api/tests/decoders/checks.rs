@@ -44,6 +44,7 @@ pub(crate) fn session_state() -> SceneState {
         previous: (0..SESSION_OBJECTS).map(|i| at(i as f32)).collect(),
         current: (0..SESSION_OBJECTS).map(|i| at(i as f32)).collect(),
         earlier: None,
+        carry: Default::default(),
     }
 }
 

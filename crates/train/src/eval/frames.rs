@@ -55,5 +55,6 @@ pub fn observed_state(scene: &SceneRecord, start: usize, k: u32) -> Result<Scene
             Some(f) => Some(poses_at(scene, f)?),
             None => None,
         },
+        carry: Default::default(),
     })
 }

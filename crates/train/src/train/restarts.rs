@@ -273,6 +273,7 @@ pub fn write_restarts(
                     previous,
                     current,
                     earlier: None,
+                    carry: Default::default(),
                 })
             })
             .collect::<anyhow::Result<Vec<_>>>()?;

@@ -249,6 +249,7 @@ pub fn sample_window(
             previous,
             current,
             earlier: with_history.then_some(earlier),
+            carry: Default::default(),
         },
         target,
         dt_steps: k,
