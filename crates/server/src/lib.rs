@@ -7,6 +7,8 @@
 //! - [`grpc`], [`http`]: the `dynaserve.v1.WorldModel` service (plus health and reflection) and
 //!   the JSON/SSE API with its OpenAPI document; each maps its wire form to and from the
 //!   neutral vocabulary of `dynaserve_api::spec`, which validates requests too.
+//! - [`families`]: the model families as plug-ins (RigidFormer, PhysiFormer, the rapier
+//!   simulator) and the registry that loads a model directory in its family.
 //! - [`engine`]: admission, rollout sessions (bounded per-stream output), Predict calls,
 //!   warm-up, readiness and drain; protocol-independent.
 //! - [`scheduler`]: one thread per resident model gathers the step jobs of every rollout
@@ -21,6 +23,7 @@
 pub mod config;
 pub mod engine;
 pub mod error;
+pub mod families;
 pub mod grpc;
 pub mod http;
 pub mod listener;
@@ -34,6 +37,5 @@ pub use config::ServeConfig;
 pub use engine::Engine;
 pub use engine::Models;
 pub use error::ApiError;
-pub use server::{
-    RunningServer, load_all, load_all_on, load_models, load_models_on, model_dirs, run, start,
-};
+pub use families::rigidformer::{load_models, load_models_on};
+pub use server::{RunningServer, load_all, load_all_on, model_dirs, run, start};

@@ -11,12 +11,11 @@
 //! the schedulers stop and the process exits.
 
 use std::net::SocketAddr;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use dynaserve_model::WorldModel;
 use tokio::net::TcpListener;
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
@@ -109,67 +108,22 @@ pub fn model_dirs(config: &ServeConfig) -> anyhow::Result<Vec<PathBuf>> {
     Ok(dirs)
 }
 
-/// Loads every model directory on the CPU, each in its family (config.json's
-/// `architecture`: `physiformer` or a RigidFormer).
+/// Loads every model directory on the CPU, each in the family its config.json's
+/// `architecture` names ([`crate::families::registry`]).
 pub fn load_all(dirs: &[PathBuf]) -> anyhow::Result<Models> {
     load_all_on(dirs, &candle_core::Device::Cpu)
 }
 
 /// [`load_all`] on `device`.
 pub fn load_all_on(dirs: &[PathBuf], device: &candle_core::Device) -> anyhow::Result<Models> {
+    let opts = crate::families::LoadOptions {
+        device: device.clone(),
+    };
     let mut models = Models::default();
     for d in dirs {
-        if architecture_of(d)? == dynaserve_model::physiformer::config::PHYSIFORMER {
-            let start = Instant::now();
-            let m = dynaserve_model::PhysiFormer::load(d, device, false)
-                .with_context(|| format!("loading model {}", d.display()))?;
-            tracing::info!(
-                model = m.name(),
-                dir = %d.display(),
-                device = %dynaserve_model::device_name(device),
-                ms = start.elapsed().as_secs_f64() * 1e3,
-                "model loaded"
-            );
-            models.physi.push(Arc::new(m));
-        } else {
-            models
-                .rigid
-                .extend(load_models_on(std::slice::from_ref(d), device)?);
-        }
+        models.push(crate::families::load_dir(d, &opts)?);
     }
     Ok(models)
-}
-
-/// The `architecture` field of a checkpoint directory's config.json.
-fn architecture_of(dir: &Path) -> anyhow::Result<String> {
-    dynaserve_model::read_architecture(dir).with_context(|| format!("reading {}", dir.display()))
-}
-
-/// Loads RigidFormer model directories on the CPU.
-pub fn load_models(dirs: &[PathBuf]) -> anyhow::Result<Vec<Arc<dyn WorldModel>>> {
-    load_models_on(dirs, &candle_core::Device::Cpu)
-}
-
-/// [`load_models`] on `device`.
-pub fn load_models_on(
-    dirs: &[PathBuf],
-    device: &candle_core::Device,
-) -> anyhow::Result<Vec<Arc<dyn WorldModel>>> {
-    dirs.iter()
-        .map(|d: &PathBuf| {
-            let start = Instant::now();
-            let m = dynaserve_model::load_model(Path::new(d), device)
-                .with_context(|| format!("loading model {}", d.display()))?;
-            tracing::info!(
-                model = m.name(),
-                dir = %d.display(),
-                device = %dynaserve_model::device_name(device),
-                ms = start.elapsed().as_secs_f64() * 1e3,
-                "model loaded"
-            );
-            Ok(m)
-        })
-        .collect()
 }
 
 async fn stop_signal(mut rx: watch::Receiver<bool>) {

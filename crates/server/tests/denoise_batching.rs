@@ -9,8 +9,8 @@ use std::time::Duration;
 use dynaserve_model::physiformer::flow::SamplerKind;
 use dynaserve_model::physiformer::scene::{Material, MeshScene};
 use dynaserve_model::{Device, PhysiFormer};
+use dynaserve_server::families::physiformer::denoise::{DenoiseSteps, GenerateJob, generate};
 use dynaserve_server::metrics::Metrics;
-use dynaserve_server::scheduler::denoise::{DenoiseSteps, GenerateJob, generate};
 use dynaserve_server::scheduler::{Priority, Scheduler, SchedulerConfig};
 
 fn cube(c: [f32; 3], h: f32) -> Vec<[f32; 3]> {

@@ -14,9 +14,7 @@ pub mod v1;
 
 use std::time::Duration;
 
-use dynaserve_model::ModelConfig;
 pub use dynaserve_model::Pose;
-use dynaserve_model::physiformer::config::PhysiConfig;
 
 use crate::limits::{GenerateLimits, Limits};
 
@@ -183,24 +181,37 @@ pub struct ModelInfo {
     pub members: Vec<String>,
 }
 
-/// The family of a resident model, with its configuration (architecture, data conventions)
-/// and request limits.
+/// How a resident model is served, with what every family reports about itself
+/// (architecture, frame interval, gravity, its configuration) and its request limits.
 #[derive(Clone, Debug, PartialEq)]
 pub enum ModelKind {
-    /// A RigidFormer: Rollout, Predict and sessions.
-    Rigid {
-        /// Its configuration.
-        config: ModelConfig,
+    /// Advanced step by step: Rollout, Predict and sessions (RigidFormer, the simulator).
+    Stepping {
+        /// What the model is.
+        about: About,
         /// Request limits.
         limits: Limits,
     },
-    /// A PhysiFormer: Generate.
-    Physi {
-        /// Its configuration.
-        config: PhysiConfig,
+    /// Sampled whole: Generate (PhysiFormer).
+    Sampling {
+        /// What the model is.
+        about: About,
         /// Generate limits.
         limits: GenerateLimits,
     },
+}
+
+/// What every family reports about a model.
+#[derive(Clone, Debug, PartialEq)]
+pub struct About {
+    /// Architecture name (config.json's `architecture`).
+    pub architecture: String,
+    /// Interval of one frame, seconds.
+    pub dt_frame: f64,
+    /// Gravity the model assumes, m/s^2 (world frame).
+    pub gravity: [f32; 3],
+    /// The model's configuration as JSON.
+    pub config: serde_json::Value,
 }
 
 /// Milliseconds of a duration, as the wire forms carry them.

@@ -170,10 +170,10 @@ impl ModelInfo {
     /// The checkpoint's configuration as JSON.
     pub fn config_json(&self) -> serde_json::Value {
         match &self.kind {
-            ModelKind::Rigid { config, .. } => serde_json::to_value(config),
-            ModelKind::Physi { config, .. } => serde_json::to_value(config),
+            ModelKind::Stepping { about, .. } | ModelKind::Sampling { about, .. } => {
+                about.config.clone()
+            }
         }
-        .unwrap_or(serde_json::Value::Null)
     }
 
     /// The gRPC `ListModels` entry (`config_json` holds the configuration as JSON text; the
@@ -186,9 +186,9 @@ impl ModelInfo {
             ..v1::ModelInfo::default()
         };
         match &self.kind {
-            ModelKind::Rigid { config, limits: l } => {
-                out.architecture = config.architecture.clone();
-                out.dt_frame = f64::from(config.dt_frame);
+            ModelKind::Stepping { about, limits: l } => {
+                out.architecture = about.architecture.clone();
+                out.dt_frame = about.dt_frame;
                 out.default_points = l.default_points as u32;
                 out.max_objects = l.caps.max_objects as u32;
                 out.max_points_per_object = l.caps.max_points_per_object as u32;
@@ -196,13 +196,13 @@ impl ModelInfo {
                 out.max_dt_steps = l.caps.max_dt_steps;
                 out.max_variants = l.caps.max_variants as u32;
                 out.max_request_cost = l.caps.max_request_cost;
-                out.gravity = Some(vec3_to(config.gravity));
+                out.gravity = Some(vec3_to(about.gravity));
             }
-            ModelKind::Physi { config, limits: l } => {
-                out.architecture = config.architecture.clone();
-                out.dt_frame = f64::from(config.dt_frame);
+            ModelKind::Sampling { about, limits: l } => {
+                out.architecture = about.architecture.clone();
+                out.dt_frame = about.dt_frame;
                 out.max_objects = l.max_objects as u32;
-                out.gravity = Some(vec3_to(config.gravity));
+                out.gravity = Some(vec3_to(about.gravity));
                 [
                     out.max_vertices,
                     out.max_frames,

@@ -8,11 +8,10 @@
 //! - [`request`]: request context, ids and the metrics record of each request;
 //! - `stepper`: one scene stepping through the scheduler (the only code that submits steps);
 //! - `rollout`, `predict`, `warmup`: the three users of steppers;
-//! - [`generate`]: PhysiFormer models and Generate calls, one scheduler stream per sample;
+//! - Generate: resolved here, run by the sampling model's family (`crate::families`);
 //! - [`sessions`]: scenes kept with their state between calls (planners), stepped through
 //!   steppers whose kinematic objects follow given poses.
 
-pub mod generate;
 mod predict;
 pub mod registry;
 pub mod request;
@@ -26,65 +25,69 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
+use dynaserve_api::spec::generate::GenerateSpec;
 use dynaserve_api::spec::{ModelInfo, Scene};
-use dynaserve_model::{PhysiFormer, PreparedScene, SceneState, WorldModel};
+use dynaserve_model::SceneState;
 use tokio::sync::{Semaphore, watch};
 
-pub use generate::{GenerateHandle, GeneratorEntry};
+pub use crate::families::GenerateHandle;
 pub use registry::ModelEntry;
 use registry::{PreparedScenes, prepare_scenes};
 pub use request::{Protocol, RequestCtx, new_request_id};
 pub use rollout::RolloutHandle;
 pub use sessions::{InteractHandle, StepHandle};
+pub(crate) use stepper::step_error;
 
 use crate::config::ServeConfig;
 use crate::error::ApiError;
+use crate::families::{
+    Resident, Sampler, SamplingCaps, SamplingModel, SteppedScene, SteppingModel,
+};
 use crate::metrics::Metrics;
 use crate::scheduler::{PassGate, SchedulerConfig};
 use request::RequestRecord;
 
-/// The models an engine serves, by family.
+/// The models an engine serves, by how they are served.
 #[derive(Clone, Default)]
 pub struct Models {
-    /// RigidFormer models (Rollout, Predict, sessions).
-    pub rigid: Vec<Arc<dyn WorldModel>>,
-    /// PhysiFormer models (Generate).
-    pub physi: Vec<Arc<PhysiFormer>>,
+    /// Models served step by step (Rollout, Predict, sessions).
+    pub stepping: Vec<Arc<dyn SteppingModel>>,
+    /// Models served by sampling (Generate).
+    pub sampling: Vec<Arc<dyn SamplingModel>>,
 }
 
 impl Models {
-    /// Names of every model, rigid first.
+    /// Names of every model, stepping ones first.
     pub fn names(&self) -> Vec<String> {
-        self.rigid
+        self.stepping
             .iter()
             .map(|m| m.name().to_string())
-            .chain(self.physi.iter().map(|m| m.name().to_string()))
+            .chain(self.sampling.iter().map(|m| m.name().to_string()))
             .collect()
     }
-}
 
-impl From<Vec<Arc<dyn WorldModel>>> for Models {
-    fn from(rigid: Vec<Arc<dyn WorldModel>>) -> Models {
-        Models {
-            rigid,
-            physi: Vec::new(),
+    /// Adds a loaded model.
+    pub fn push(&mut self, model: Resident) {
+        match model {
+            Resident::Stepping(m) => self.stepping.push(m),
+            Resident::Sampling(m) => self.sampling.push(m),
         }
     }
 }
 
 /// The server core shared by both front ends.
 pub struct Engine {
-    config: ServeConfig,
+    pub(crate) config: ServeConfig,
     models: BTreeMap<String, Arc<ModelEntry>>,
-    generators: BTreeMap<String, Arc<GeneratorEntry>>,
-    generate_slots: Arc<Semaphore>,
-    metrics: Metrics,
+    samplers: BTreeMap<String, Arc<dyn Sampler>>,
+    pub(crate) generate_slots: Arc<Semaphore>,
+    pub(crate) metrics: Metrics,
     rollout_slots: Arc<Semaphore>,
     predict_slots: Arc<Semaphore>,
     ready: AtomicBool,
     draining: AtomicBool,
-    close_tx: watch::Sender<bool>,
-    next_stream: AtomicU64,
+    pub(crate) close_tx: watch::Sender<bool>,
+    pub(crate) next_stream: AtomicU64,
     sessions: Arc<sessions::SessionStore>,
 }
 
@@ -108,30 +111,26 @@ impl Engine {
         };
         let caps = config.caps();
         let mut entries = BTreeMap::new();
-        for model in models.rigid {
+        for model in models.stepping {
             let entry = ModelEntry::start(model, &caps, scheduling.clone(), &metrics)?;
             let name = entry.name.clone();
             if entries.insert(name.clone(), Arc::new(entry)).is_some() {
                 anyhow::bail!("two models are named {name:?}; model names must be unique");
             }
         }
-        let mut generators = BTreeMap::new();
-        for model in models.physi {
-            let entry = GeneratorEntry::start(
-                model,
-                &config.generate_caps(),
-                caps.max_objects,
-                scheduling.clone(),
-                &metrics,
-            )?;
-            let name = entry.name.clone();
-            if entries.contains_key(&name)
-                || generators.insert(name.clone(), Arc::new(entry)).is_some()
-            {
+        let mut samplers: BTreeMap<String, Arc<dyn Sampler>> = BTreeMap::new();
+        let sampling_caps = SamplingCaps {
+            generate: config.generate_caps(),
+            max_objects: caps.max_objects,
+        };
+        for model in models.sampling {
+            let sampler = model.start(sampling_caps, scheduling.clone(), &metrics)?;
+            let name = sampler.name().to_string();
+            if entries.contains_key(&name) || samplers.insert(name.clone(), sampler).is_some() {
                 anyhow::bail!("two models are named {name:?}; model names must be unique");
             }
         }
-        if entries.is_empty() && generators.is_empty() {
+        if entries.is_empty() && samplers.is_empty() {
             anyhow::bail!("no models to serve");
         }
         let (close_tx, _) = watch::channel(false);
@@ -146,7 +145,7 @@ impl Engine {
             generate_slots: Arc::new(Semaphore::new(config.max_generate_samples)),
             config,
             models: entries,
-            generators,
+            samplers,
             metrics,
             ready: AtomicBool::new(false),
             draining: AtomicBool::new(false),
@@ -170,7 +169,7 @@ impl Engine {
         let mut names: Vec<String> = self
             .models
             .keys()
-            .chain(self.generators.keys())
+            .chain(self.samplers.keys())
             .cloned()
             .collect();
         names.sort();
@@ -220,8 +219,8 @@ impl Engine {
         for e in self.models.values() {
             e.scheduler.shutdown();
         }
-        for e in self.generators.values() {
-            e.scheduler.shutdown();
+        for s in self.samplers.values() {
+            s.shutdown();
         }
     }
 
@@ -255,7 +254,7 @@ impl Engine {
         scene: Scene,
         dt_steps: u32,
         kinematic: Arc<[bool]>,
-    ) -> Result<(Arc<PreparedScene>, SceneState, Vec<String>), ApiError> {
+    ) -> Result<(Arc<dyn SteppedScene>, SceneState, Vec<String>), ApiError> {
         let mut prepared = prepare_scenes(entry, vec![scene], dt_steps, "scene", kinematic).await?;
         let warnings = self.range_warnings(entry, &prepared);
         let (scene, state) = prepared
@@ -281,14 +280,14 @@ impl Engine {
             .models
             .values()
             .map(|e| e.info.clone())
-            .chain(self.generators.values().map(|e| e.info.clone()))
+            .chain(self.samplers.values().map(|s| s.info().clone()))
             .collect();
         out.sort_by(|a, b| a.name.cmp(&b.name));
         out
     }
 
     fn resolve(&self, name: &str) -> Result<Arc<ModelEntry>, ApiError> {
-        let rigid = || self.models.keys().cloned().collect::<Vec<_>>().join(", ");
+        let stepping = || self.models.keys().cloned().collect::<Vec<_>>().join(", ");
         if name.is_empty() {
             if self.models.len() == 1
                 && let Some(e) = self.models.values().next()
@@ -298,31 +297,88 @@ impl Engine {
             if self.models.is_empty() {
                 return Err(ApiError::invalid(
                     "model",
-                    "no RigidFormer model is resident; this call needs one",
+                    "no model served step by step is resident; this call needs one",
                 ));
             }
             return Err(ApiError::invalid(
                 "model",
                 format!(
                     "required when several models are resident (one of: {})",
-                    rigid()
+                    stepping()
                 ),
             ));
         }
         self.models.get(name).cloned().ok_or_else(|| {
-            let why = if self.generators.contains_key(name) {
-                "is a PhysiFormer model, which serves Generate only"
+            let why = if self.samplers.contains_key(name) {
+                "samples whole trajectories and serves Generate only"
             } else {
                 "is not resident"
             };
             ApiError::invalid(
                 "model",
-                format!("{name:?} {why} (RigidFormer models: {})", rigid()),
+                format!(
+                    "{name:?} {why} (models served step by step: {})",
+                    stepping()
+                ),
             )
         })
     }
 
-    fn admit_check(&self) -> Result<(), ApiError> {
+    /// The sampling model a Generate call names (or the only one).
+    fn resolve_sampler(&self, name: &str) -> Result<Arc<dyn Sampler>, ApiError> {
+        let names = || {
+            let n: Vec<&str> = self.samplers.keys().map(String::as_str).collect();
+            if n.is_empty() {
+                "none".to_string()
+            } else {
+                n.join(", ")
+            }
+        };
+        if name.is_empty() {
+            if self.samplers.len() == 1
+                && let Some(s) = self.samplers.values().next()
+            {
+                return Ok(s.clone());
+            }
+            return Err(ApiError::invalid(
+                "model",
+                format!(
+                    "required unless exactly one sampling model is resident (resident: {})",
+                    names()
+                ),
+            ));
+        }
+        self.samplers.get(name).cloned().ok_or_else(|| {
+            let why = if self.models.contains_key(name) {
+                "is not a sampling model; Generate needs one"
+            } else {
+                "is not resident"
+            };
+            ApiError::invalid(
+                "model",
+                format!("{name:?} {why} (sampling models: {})", names()),
+            )
+        })
+    }
+
+    /// Validates and admits a Generate call, then runs its samples in a task. Events arrive
+    /// on the returned channel, which holds everything the call produces (at most one event
+    /// per step plus one per sample), so a slow reader never holds up the passes.
+    pub async fn start_generate(
+        self: &Arc<Self>,
+        req: GenerateSpec,
+        ctx: RequestCtx,
+    ) -> Result<GenerateHandle, ApiError> {
+        let admitted = self
+            .admit_check()
+            .and_then(|()| self.resolve_sampler(&req.model));
+        match admitted {
+            Ok(sampler) => sampler.start_generate(self, req, ctx),
+            Err(e) => Err(self.reject(&ctx, "generate", e)),
+        }
+    }
+
+    pub(crate) fn admit_check(&self) -> Result<(), ApiError> {
         if self.is_draining() {
             return Err(ApiError::unavailable("server is shutting down"));
         }
@@ -332,7 +388,7 @@ impl Engine {
         Ok(())
     }
 
-    fn retry_after(&self) -> Duration {
+    pub(crate) fn retry_after(&self) -> Duration {
         Duration::from_millis(self.config.retry_after_ms)
     }
 

@@ -3,21 +3,21 @@
 
 use std::sync::Arc;
 
-use dynaserve_api::build::{BuiltScene, build_scene};
 use dynaserve_api::limits::{Caps, Limits};
-use dynaserve_api::spec::{ModelInfo, ModelKind, Scene};
-use dynaserve_model::{OutOfRange, PreparedScene, SceneState, WorldModel};
+use dynaserve_api::spec::{ModelInfo, Scene};
+use dynaserve_model::{OutOfRange, SceneState};
 
 use crate::error::ApiError;
+use crate::families::{SteppedScene, SteppingModel};
 use crate::metrics::Metrics;
-use crate::scheduler::{RigidSteps, Scheduler, SchedulerConfig};
+use crate::scheduler::{Scheduler, SchedulerConfig, Steps};
 
-/// A resident model: its scheduler, limits and description.
+/// A resident stepping model: its scheduler, limits and description.
 pub struct ModelEntry {
     /// Name used in requests.
     pub name: String,
     /// The scheduler that owns all forward passes of the model.
-    pub scheduler: Scheduler<RigidSteps>,
+    pub scheduler: Scheduler<Steps>,
     /// Request limits.
     pub limits: Limits,
     /// Description returned by ListModels.
@@ -29,27 +29,18 @@ pub struct ModelEntry {
 impl ModelEntry {
     /// Starts the scheduler of `model` and derives its limits under the server's `caps`.
     pub fn start(
-        model: Arc<dyn WorldModel>,
+        model: Arc<dyn SteppingModel>,
         caps: &Caps,
         scheduling: SchedulerConfig,
         metrics: &Metrics,
     ) -> std::io::Result<ModelEntry> {
         let name = model.name().to_string();
-        let config = model.config().clone();
-        let limits = Limits::new(caps, &config);
-        let members = model.member_names();
-        let dt_frame = f64::from(config.dt_frame);
-        let scheduler = Scheduler::start(
-            Arc::new(RigidSteps::new(model)),
-            scheduling,
-            metrics.clone(),
-        )?;
+        let limits = model.limits(caps);
+        let info = model.info(limits);
+        let dt_frame = model.dt_frame();
+        let scheduler = Scheduler::start(Arc::new(Steps::new(model)), scheduling, metrics.clone())?;
         Ok(ModelEntry {
-            info: ModelInfo {
-                name: name.clone(),
-                kind: ModelKind::Rigid { config, limits },
-                members,
-            },
+            info,
             name,
             scheduler,
             limits,
@@ -58,7 +49,7 @@ impl ModelEntry {
     }
 
     /// The model.
-    pub fn model(&self) -> &Arc<dyn WorldModel> {
+    pub fn model(&self) -> &Arc<dyn SteppingModel> {
         self.scheduler.family().model()
     }
 
@@ -68,32 +59,12 @@ impl ModelEntry {
     }
 }
 
-/// The pose one step before the start (`translation - velocity * dt`) must lie in the model's
-/// domain too, or the first step would fail; the error names the velocity that puts it there.
-fn check_previous(state: &SceneState, path: &str) -> Result<(), ApiError> {
-    let limit = dynaserve_model::MAX_WORLD_EXTENT;
-    match state
-        .previous
-        .iter()
-        .position(|p| !crate::scheduler::pose_in_domain(p))
-    {
-        None => Ok(()),
-        Some(j) => Err(ApiError::invalid(
-            format!("{path}.objects[{j}].velocity.linear"),
-            format!(
-                "with this translation and velocity the object was beyond {limit} m one step \
-                 earlier; the model accepts positions within {limit} m"
-            ),
-        )),
-    }
-}
-
 /// Scenes prepared for a model (request order), with every parameter of their objects that
 /// lies outside the model's trained ranges (`(scene path, parameter)`; empty when the model
 /// records no ranges).
 pub(crate) struct PreparedScenes {
     /// Each scene's caches and initial state.
-    pub scenes: Vec<(Arc<PreparedScene>, SceneState)>,
+    pub scenes: Vec<(Arc<dyn SteppedScene>, SceneState)>,
     /// Parameters outside the trained ranges, with the path of their scene.
     pub outside: Vec<(String, OutOfRange)>,
 }
@@ -142,9 +113,7 @@ pub(crate) async fn prepare_scenes(
 ) -> Result<PreparedScenes, ApiError> {
     let entry = entry.clone();
     let single = field == "scene";
-    let ranges = entry.model().config().trained_ranges;
     tokio::task::spawn_blocking(move || {
-        let dt_seconds = (f64::from(dt_steps) * entry.dt_frame) as f32;
         let mut outside = Vec::new();
         let scenes = scenes
             .iter()
@@ -155,23 +124,11 @@ pub(crate) async fn prepare_scenes(
                 } else {
                     format!("{field}[{i}]")
                 };
-                let BuiltScene { mut objects, state } =
-                    build_scene(s, &path, &entry.limits, dt_seconds)?;
-                for (o, &k) in objects.iter_mut().zip(kinematic.iter()) {
-                    o.kinematic = k;
-                }
-                check_previous(&state, &path)?;
-                if let Some(r) = &ranges {
-                    let out = r.check(&objects);
-                    outside.extend(out.into_iter().map(|o| (path.clone(), o)));
-                }
-                let prepared = entry.model().prepare(objects).map_err(|e| match e {
-                    dynaserve_model::ModelError::InvalidInput(m) => {
-                        ApiError::invalid(path.clone(), m)
-                    }
-                    other => ApiError::internal(other.to_string()),
-                })?;
-                Ok((Arc::new(prepared), state))
+                let p = entry
+                    .model()
+                    .prepare(s, &path, &entry.limits, dt_steps, &kinematic)?;
+                outside.extend(p.outside.into_iter().map(|o| (path.clone(), o)));
+                Ok((p.scene, p.state))
             })
             .collect::<Result<Vec<_>, ApiError>>()?;
         Ok(PreparedScenes { scenes, outside })

@@ -6,21 +6,22 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use dynaserve_api::spec::{Frame, StepTiming};
-use dynaserve_model::{MAX_WORLD_EXTENT, Pose, PreparedScene, SceneState};
+use dynaserve_model::{MAX_WORLD_EXTENT, Pose, SceneState};
 use tokio::sync::oneshot;
 
 use super::registry::ModelEntry;
 use crate::error::ApiError;
-use crate::scheduler::{Done, Job, Priority, SceneStep, StepError, pose_in_domain};
+use crate::families::{KinematicNext, SceneStep, Stepped, SteppedScene, pose_in_domain};
+use crate::scheduler::{Done, Job, Priority, StepError};
 
 /// The reply of one submitted step.
-pub(crate) type StepReply = oneshot::Receiver<Result<Done<Vec<Pose>>, StepError>>;
+pub(crate) type StepReply = oneshot::Receiver<Result<Done<Stepped>, StepError>>;
 
 /// A scene, its state and its place in the scheduler (one stream). Dropping it tells the
 /// scheduler not to wait for the stream any more.
 pub(crate) struct Stepper {
     entry: Arc<ModelEntry>,
-    scene: Arc<PreparedScene>,
+    scene: Arc<dyn SteppedScene>,
     state: SceneState,
     dt_steps: u32,
     priority: Priority,
@@ -35,7 +36,7 @@ pub(crate) struct Stepper {
 /// Where a stepper's scene comes from and how its steps are scheduled.
 pub(crate) struct StepperSpec {
     /// The prepared scene.
-    pub scene: Arc<PreparedScene>,
+    pub scene: Arc<dyn SteppedScene>,
     /// Its initial state.
     pub state: SceneState,
     /// Frames per step.
@@ -85,19 +86,23 @@ impl Stepper {
 
     /// Queues the next step; `more_steps` says another will follow right after it.
     pub(crate) fn submit(&self, more_steps: bool) -> StepReply {
-        self.submit_from(self.state.clone(), more_steps)
+        self.submit_driven(None, more_steps)
     }
 
-    /// Queues the next step computed from `state` instead of the stepper's own (the same
-    /// scene seen differently, e.g. [`SceneState::lead_kinematic`]); [`Stepper::accept`] still
-    /// advances the stepper's own state.
-    pub(crate) fn submit_from(&self, state: SceneState, more_steps: bool) -> StepReply {
+    /// Queues the next step with the kinematic objects' poses after it (`drive`, for a
+    /// driven scene); [`Stepper::accept`] advances the stepper's state.
+    pub(crate) fn submit_driven(
+        &self,
+        drive: Option<KinematicNext>,
+        more_steps: bool,
+    ) -> StepReply {
         let (reply, rx) = oneshot::channel();
         self.entry.scheduler.submit(Job {
             item: SceneStep {
                 scene: self.scene.clone(),
-                state,
+                state: self.state.clone(),
                 dt_steps: self.dt_steps,
+                drive,
             },
             priority: self.priority,
             deadline: self.deadline,
@@ -114,15 +119,17 @@ impl Stepper {
     /// step whose poses leave the model's domain (not finite, or a translation beyond
     /// `MAX_WORLD_EXTENT`) ends the scene with OUT_OF_RANGE naming the object; the state is not
     /// advanced, so no later step runs on it.
-    pub(crate) fn accept(&mut self, done: Done<Vec<Pose>>) -> Result<Frame, ApiError> {
-        check_domain(&done.output, self.step + 1)?;
+    pub(crate) fn accept(&mut self, done: Done<Stepped>) -> Result<Frame, ApiError> {
+        let Stepped { poses, carry } = done.output;
+        check_domain(&poses, self.step + 1)?;
         self.step += 1;
         tracing::trace!(step = self.step, batch = done.batch_id, "step");
-        self.state.advance(done.output.clone());
+        self.state.advance(poses.clone());
+        self.state.carry = carry;
         Ok(Frame {
             step: self.step,
             time: self.entry.time_at(self.step, self.dt_steps),
-            poses: done.output,
+            poses,
             timing: Some(StepTiming {
                 queue: done.queue_wait,
                 forward: done.forward,

@@ -1,6 +1,6 @@
 //! Warm-up: two steps of a small synthetic scene through every model's scheduler before the
-//! server reports ready (for PhysiFormer models: one denoising step of a two-frame sample of
-//! one tetrahedron), so that the first request does not pay for lazy initialisation.
+//! server reports ready (for sampling models, what their family's warm-up runs), so that the
+//! first request does not pay for lazy initialisation.
 
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
@@ -13,9 +13,6 @@ use super::registry::prepare_scenes;
 use super::stepper::{Stepper, StepperSpec};
 use crate::error::ApiError;
 use crate::scheduler::Priority;
-use crate::scheduler::denoise::{GenerateJob, generate};
-use dynaserve_model::physiformer::flow::SamplerKind;
-use dynaserve_model::physiformer::scene::{Material, MeshScene};
 
 /// Steps run per model.
 const STEPS: u32 = 2;
@@ -81,38 +78,11 @@ impl Engine {
                 "warmed up"
             );
         }
-        for entry in self.generators.values() {
+        for sampler in self.samplers.values() {
             let start = Instant::now();
-            let positions = vec![
-                [0.0, 0.0, -0.9],
-                [0.1, 0.0, -0.9],
-                [0.0, 0.1, -0.9],
-                [0.0, 0.0, -0.8],
-            ];
-            let scene = MeshScene {
-                velocities: vec![[0.0; 3]; positions.len()],
-                positions,
-                vertex_offsets: vec![0, 4],
-                materials: vec![Material::Elastic],
-            };
-            let job = GenerateJob {
-                scene: Arc::new(scene),
-                frames: 2,
-                steps: 1,
-                sampler: SamplerKind::Heun,
-                seed: 0,
-                noise: None,
-                priority: Priority::Interactive,
-                deadline: None,
-                stream_id: self.next_stream.fetch_add(1, Ordering::Relaxed),
-                caller: 0,
-                request_id: crate::scheduler::WARMUP_REQUEST_ID.into(),
-            };
-            generate(&entry.scheduler, job, |_| {})
-                .await
-                .map_err(|e| ApiError::internal(format!("warm-up sample: {e}")))?;
+            sampler.warm_up(self).await?;
             tracing::info!(
-                model = %entry.name,
+                model = %sampler.name(),
                 ms = start.elapsed().as_secs_f64() * 1e3,
                 "warmed up"
             );

@@ -1,8 +1,9 @@
 //! Continuous batching: one scheduler thread per resident model.
 //!
 //! Callers (rollout sessions, Predict variants, warm-up) submit one [`Job`] at a time: a unit
-//! of work of the model's [`Family`] (for rigid models a [`SceneStep`]: a prepared scene and
-//! its two latest poses) with its priority, deadline, stream and a oneshot reply channel.
+//! of work of the model's [`Family`] (for stepping models a
+//! [`SceneStep`](crate::families::SceneStep): a prepared scene and its state; for PhysiFormer
+//! one denoising evaluation) with its priority, deadline, stream and a oneshot reply channel.
 //! Between forward passes the worker (`worker`) drains its channel into the [`Queue`]
 //! ([`queue`], plain state tested without threads or sleeps), which
 //!
@@ -14,7 +15,8 @@
 //! 3. takes the next pass by class ([`Priority`]): interactive jobs first, bulk jobs joining
 //!    with their share of the work, callers within a class in fair order, under the scene cap
 //!    and the object budget (the one batching rule, `dynaserve_model::PassBudget`; see
-//!    [`queue`]);
+//!    [`queue`]), in whole forwards of a model that splits a pass into forwards
+//!    ([`Family::forward_objects`]);
 //! 4. waits for the device at the [`PassGate`] every scheduler of the engine shares ([`gate`]:
 //!    a bulk pass never runs beside an interactive one, and gets its share of device time
 //!    while both wait), runs one pass of the family over the jobs on the scheduler thread,
@@ -24,10 +26,6 @@
 //! A scene's result does not depend on its pass-mates: the model computes every scene of a
 //! pass independently (tested end to end).
 //!
-//! [`denoise`] is the PhysiFormer family (one denoising evaluation per job) with the loop that
-//! drives a sample through it.
-
-pub mod denoise;
 mod family;
 pub mod gate;
 pub mod queue;
@@ -40,7 +38,7 @@ use std::time::{Duration, Instant};
 
 use tokio::sync::oneshot;
 
-pub use family::{Family, RigidSteps, SceneStep, pose_in_domain};
+pub use family::{Family, Steps};
 pub use gate::PassGate;
 pub use queue::{Dropped, Queue, Queued, Ticket};
 

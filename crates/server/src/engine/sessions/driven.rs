@@ -17,12 +17,13 @@ use super::super::request::{RequestCtx, RequestRecord, sleep_until};
 use super::super::stepper::{Stepper, StepperSpec, step_error};
 use super::Session;
 use crate::error::ApiError;
+use crate::families::KinematicNext;
 use crate::scheduler::Priority;
 
-/// One stream of steps from a session's state: the model's output for kinematic objects is
-/// replaced by the given poses before the state advances ([`drive`]); a model with
-/// `dynamics.kinematic_lead` reads those poses before the step too. Frame step indices and
-/// times count from `base_step`.
+/// One stream of steps from a session's state: the model is told the kinematic objects'
+/// poses after each step ([`KinematicNext`]; a family reads them as it needs), and its output for
+/// those objects is replaced by them before the state advances ([`drive`]). Frame step
+/// indices and times count from `base_step`.
 pub(crate) struct Driven {
     stepper: Stepper,
     kinematic: Arc<[bool]>,
@@ -79,23 +80,23 @@ impl Driven {
         targets: &Targets,
         more_steps: bool,
     ) -> Result<Frame, ApiError> {
-        let reply = if self.session.entry.model().config().dynamics.kinematic_lead {
-            // The poses the kinematic objects are driven to, read by the step in advance.
-            let state = self.stepper.state();
-            let mut next = state.current.clone();
-            drive(&mut next, state, &self.kinematic, targets);
-            self.stepper
-                .submit_from(state.lead_kinematic(&self.kinematic, &next), more_steps)
-        } else {
-            self.stepper.submit(more_steps)
-        };
+        let state = self.stepper.state();
+        let mut next = state.current.clone();
+        drive(&mut next, state, &self.kinematic, targets);
+        let reply = self.stepper.submit_driven(
+            Some(KinematicNext {
+                kinematic: self.kinematic.clone(),
+                next,
+            }),
+            more_steps,
+        );
         let mut done = match reply.await {
             Ok(Ok(done)) => done,
             Ok(Err(e)) => return Err(step_error(e)),
             Err(_) => return Err(ApiError::unavailable("server shutting down")),
         };
         drive(
-            &mut done.output,
+            &mut done.output.poses,
             self.stepper.state(),
             &self.kinematic,
             targets,

@@ -36,7 +36,7 @@ use dynaserve_api::session_input::{apply_states, kinematic_mask};
 use dynaserve_api::spec::session::{
     CreateSessionSpec, SessionInfo, SessionStateView, SetStateSpec,
 };
-use dynaserve_model::{PreparedScene, SceneState};
+use dynaserve_model::SceneState;
 use tracing::Instrument;
 
 pub use driven::StepHandle;
@@ -47,13 +47,14 @@ use super::registry::ModelEntry;
 use super::request::{RequestCtx, RequestRecord};
 use crate::config::SessionConfig;
 use crate::error::ApiError;
+use crate::families::SteppedScene;
 use crate::metrics::Metrics;
 use ledger::{Charge, Ledger, Usage};
 
 /// A prepared scene held by sessions, counted once in the store's memory however many forks
 /// share it; its bytes are released when the last holder goes.
 struct HeldScene {
-    scene: Arc<PreparedScene>,
+    scene: Arc<dyn SteppedScene>,
     bytes: usize,
     total: Arc<AtomicUsize>,
     /// Its bytes in its creator's quota.
@@ -64,18 +65,6 @@ impl Drop for HeldScene {
     fn drop(&mut self) {
         self.total.fetch_sub(self.bytes, Ordering::Relaxed);
     }
-}
-
-/// Approximate heap bytes of a prepared scene: reference points (12 B each), the anchor
-/// distance table (4 B per anchor and point) and the index lists.
-fn scene_bytes(s: &PreparedScene) -> usize {
-    (0..s.len())
-        .map(|j| {
-            let n = s.points_of(j).unwrap_or(0);
-            let k = s.anchor_indices(j).map_or(0, <[usize]>::len);
-            n * 12 + k * n * 4 + (k + 2 * n) * 8 + 64
-        })
-        .sum()
 }
 
 /// Bytes of one session's own state (three poses per object: the step before, previous and
@@ -121,7 +110,7 @@ pub(crate) struct Session {
 
 impl Session {
     /// The prepared scene.
-    pub fn scene(&self) -> &Arc<PreparedScene> {
+    pub fn scene(&self) -> &Arc<dyn SteppedScene> {
         &self.held.scene
     }
 
@@ -508,7 +497,7 @@ impl Engine {
         let (scene, state, warnings) = self
             .prepare_one(&entry, req.scene, dt_steps, kinematic.clone())
             .await?;
-        let bytes = scene_bytes(&scene);
+        let bytes = scene.bytes();
         let own = state_bytes(state.len());
         self.sessions.check_fits(bytes + own)?;
         self.sessions.admit(bytes + own, self.retry_after())?;

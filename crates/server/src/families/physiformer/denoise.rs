@@ -12,7 +12,7 @@ use dynaserve_model::physiformer::inputs::{PreparedItem, PreparedScene};
 use dynaserve_model::physiformer::scene::MeshScene;
 use tokio::sync::oneshot;
 
-use super::{Family, Job, Priority, Scheduler, StepError};
+use crate::scheduler::{Family, Job, Priority, Scheduler, StepError};
 
 /// One evaluation: the prepared scene, its current noisy trajectory and its flow time.
 #[derive(Clone, Debug)]

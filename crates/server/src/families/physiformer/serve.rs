@@ -14,19 +14,19 @@ use dynaserve_api::limits::{GenerateCaps, GenerateLimits};
 use dynaserve_api::spec::generate::{
     GenerateEvent, GenerateProgress, GenerateSpec, GeneratedSample,
 };
-use dynaserve_api::spec::{ModelInfo, ModelKind, StepTiming};
+use dynaserve_api::spec::{About, ModelInfo, ModelKind, StepTiming};
 use dynaserve_model::PhysiFormer;
-use dynaserve_model::physiformer::scene::MeshScene;
+use dynaserve_model::physiformer::scene::{Material, MeshScene};
 use futures::future::try_join_all;
 use tokio::sync::{OwnedSemaphorePermit, mpsc};
 use tracing::Instrument;
 
-use super::Engine;
-use super::request::{GaugeGuard, RequestCtx, RequestRecord, sleep_until};
-use super::stepper::step_error;
+use super::denoise::{DenoiseSteps, GenerateError, GenerateJob, StepProgress, generate};
+use crate::engine::request::{GaugeGuard, RequestRecord, sleep_until};
+use crate::engine::{Engine, RequestCtx, step_error};
 use crate::error::ApiError;
+use crate::families::{GenerateHandle, Sampler};
 use crate::metrics::Metrics;
-use crate::scheduler::denoise::{DenoiseSteps, GenerateError, GenerateJob, StepProgress, generate};
 use crate::scheduler::{Priority, Scheduler, SchedulerConfig};
 
 /// A resident PhysiFormer model: its scheduler, Generate limits and description.
@@ -62,7 +62,15 @@ impl GeneratorEntry {
         Ok(GeneratorEntry {
             info: ModelInfo {
                 name: name.clone(),
-                kind: ModelKind::Physi { config, limits },
+                kind: ModelKind::Sampling {
+                    about: About {
+                        architecture: config.architecture.clone(),
+                        dt_frame: f64::from(config.dt_frame),
+                        gravity: config.gravity,
+                        config: serde_json::to_value(&config).unwrap_or_default(),
+                    },
+                    limits,
+                },
                 members: Vec::new(),
             },
             name,
@@ -70,18 +78,6 @@ impl GeneratorEntry {
             limits,
         })
     }
-}
-
-/// A started Generate call: events (or one final error) arrive on `events`.
-pub struct GenerateHandle {
-    /// Model serving the call.
-    pub model: String,
-    /// Request id.
-    pub request_id: Arc<str>,
-    /// Denoising steps the call runs.
-    pub steps: u32,
-    /// Progress events, then one sample event per sample; an `Err` ends the stream.
-    pub events: mpsc::Receiver<Result<GenerateEvent, ApiError>>,
 }
 
 const CLOSE_MSG: &str =
@@ -134,67 +130,33 @@ impl Progress {
     }
 }
 
-impl Engine {
-    fn resolve_generator(&self, name: &str) -> Result<Arc<GeneratorEntry>, ApiError> {
-        let names = || {
-            let n: Vec<&str> = self.generators.keys().map(String::as_str).collect();
-            if n.is_empty() {
-                "none".to_string()
-            } else {
-                n.join(", ")
-            }
-        };
-        if name.is_empty() {
-            if self.generators.len() == 1
-                && let Some(e) = self.generators.values().next()
-            {
-                return Ok(e.clone());
-            }
-            return Err(ApiError::invalid(
-                "model",
-                format!(
-                    "required unless exactly one PhysiFormer model is resident (resident: {})",
-                    names()
-                ),
-            ));
-        }
-        self.generators.get(name).cloned().ok_or_else(|| {
-            let why = if self.models.contains_key(name) {
-                "is not a PhysiFormer model; Generate needs one"
-            } else {
-                "is not resident"
-            };
-            ApiError::invalid(
-                "model",
-                format!("{name:?} {why} (PhysiFormer models: {})", names()),
-            )
-        })
-    }
-
+impl GeneratorEntry {
     /// Validates and admits a Generate call, then runs its samples in a task. Events arrive
     /// on the returned channel, which holds everything the call produces (at most one event
     /// per step plus one per sample), so a slow reader never holds up the passes.
-    pub async fn start_generate(
-        self: &Arc<Self>,
+    fn generate_call(
+        self: Arc<Self>,
+        engine: &Arc<Engine>,
         req: GenerateSpec,
         ctx: RequestCtx,
     ) -> Result<GenerateHandle, ApiError> {
-        let mut rec = RequestRecord::new(&self.metrics, &ctx, "generate");
+        let mut rec = RequestRecord::new(&engine.metrics, &ctx, "generate");
         let span = tracing::info_span!(
             "generate",
             request_id = %ctx.request_id,
             protocol = ctx.protocol.as_str(),
             model = tracing::field::Empty
         );
-        let admitted = span.in_scope(|| self.admit_generate(&req, &ctx));
-        let (entry, params, scene, permit, priority) = match admitted {
+        let admitted = span.in_scope(|| self.admit_generate(engine, &req, &ctx));
+        let (params, scene, permit, priority) = match admitted {
             Ok(a) => a,
             Err(e) => return Err(span.in_scope(|| rec.fail(e))),
         };
-        let deadline = ctx.deadline_with(req.timeout_ms, self.config.default_timeout());
+        let deadline = ctx.deadline_with(req.timeout_ms, engine.config.default_timeout());
         let (tx, rx) = mpsc::channel(params.steps + params.samples as usize + 1);
+        let entry = self;
         let run = GenerateRun {
-            engine: self.clone(),
+            engine: engine.clone(),
             entry: entry.clone(),
             params,
             scene,
@@ -206,7 +168,7 @@ impl Engine {
             priority,
             caller: ctx.caller(),
         };
-        let gauge = self
+        let gauge = engine
             .metrics
             .active_generate_samples
             .with_label_values(&[entry.name.as_str()]);
@@ -248,11 +210,11 @@ impl Engine {
     #[allow(clippy::type_complexity)]
     fn admit_generate(
         &self,
+        engine: &Engine,
         req: &GenerateSpec,
         ctx: &RequestCtx,
     ) -> Result<
         (
-            Arc<GeneratorEntry>,
             GenerateParams,
             Arc<MeshScene>,
             OwnedSemaphorePermit,
@@ -260,8 +222,8 @@ impl Engine {
         ),
         ApiError,
     > {
-        self.admit_check()?;
-        let entry = self.resolve_generator(&req.model)?;
+        engine.admit_check()?;
+        let entry = self;
         tracing::Span::current().record("model", entry.name.as_str());
         let params = check_generate(req, &entry.limits)?;
         let scene = build_mesh_scene(&req.objects, &entry.limits)?;
@@ -271,12 +233,12 @@ impl Engine {
             .map_err(|e| ApiError::invalid("scene", e))?;
         // The call's cost, now that the scene's vertices are counted; before any slot is taken.
         let cost = check_generate_cost(&params, req.sampler, scene.vertices(), &entry.limits)?;
-        let priority = if self.config.scheduling.generate_is_bulk(cost) {
+        let priority = if engine.config.scheduling.generate_is_bulk(cost) {
             Priority::Bulk
         } else {
             Priority::Interactive
         };
-        let permit = self
+        let permit = engine
             .generate_slots
             .clone()
             .try_acquire_many_owned(params.samples)
@@ -284,13 +246,13 @@ impl Engine {
                 ApiError::exhausted(
                     format!(
                         "{} Generate samples are in flight, the server's limit; retry later",
-                        self.config.max_generate_samples
+                        engine.config.max_generate_samples
                     ),
-                    self.retry_after(),
+                    engine.retry_after(),
                 )
             })?;
         tracing::debug!(request_id = %ctx.request_id, samples = params.samples, "admitted");
-        Ok((entry, params, Arc::new(scene), permit, priority))
+        Ok((params, Arc::new(scene), permit, priority))
     }
 }
 
@@ -398,5 +360,66 @@ impl GenerateRun {
             }
         }
         Ok(())
+    }
+}
+
+impl Sampler for GeneratorEntry {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn info(&self) -> &ModelInfo {
+        &self.info
+    }
+
+    fn start_generate(
+        self: Arc<Self>,
+        engine: &Arc<Engine>,
+        req: GenerateSpec,
+        ctx: RequestCtx,
+    ) -> Result<GenerateHandle, ApiError> {
+        self.generate_call(engine, req, ctx)
+    }
+
+    /// One denoising step of a two-frame sample of one tetrahedron.
+    fn warm_up<'a>(
+        &'a self,
+        engine: &'a Engine,
+    ) -> futures::future::BoxFuture<'a, Result<(), ApiError>> {
+        Box::pin(async move {
+            let positions = vec![
+                [0.0, 0.0, -0.9],
+                [0.1, 0.0, -0.9],
+                [0.0, 0.1, -0.9],
+                [0.0, 0.0, -0.8],
+            ];
+            let scene = MeshScene {
+                velocities: vec![[0.0; 3]; positions.len()],
+                positions,
+                vertex_offsets: vec![0, 4],
+                materials: vec![Material::Elastic],
+            };
+            let job = GenerateJob {
+                scene: Arc::new(scene),
+                frames: 2,
+                steps: 1,
+                sampler: dynaserve_model::physiformer::flow::SamplerKind::Heun,
+                seed: 0,
+                noise: None,
+                priority: Priority::Interactive,
+                deadline: None,
+                stream_id: engine.next_stream.fetch_add(1, Ordering::Relaxed),
+                caller: 0,
+                request_id: crate::scheduler::WARMUP_REQUEST_ID.into(),
+            };
+            generate(&self.scheduler, job, |_| {})
+                .await
+                .map(|_| ())
+                .map_err(|e| ApiError::internal(format!("warm-up sample: {e}")))
+        })
+    }
+
+    fn shutdown(&self) {
+        self.scheduler.shutdown();
     }
 }

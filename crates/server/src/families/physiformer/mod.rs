@@ -1,0 +1,54 @@
+//! The PhysiFormer family: mesh scenes sampled whole with flow matching, served through
+//! Generate. Each sample is its own scheduler stream submitting one network evaluation at a
+//! time ([`denoise`]), so requests at different denoising steps share passes; [`serve`] admits
+//! a call, runs its samples and reports progress.
+
+pub mod denoise;
+pub mod serve;
+
+use std::path::Path;
+use std::sync::Arc;
+
+use dynaserve_model::PhysiFormer;
+use dynaserve_model::physiformer::config::PHYSIFORMER;
+
+use super::{LoadOptions, ModelFamily, Resident, SamplingCaps, SamplingModel};
+use crate::metrics::Metrics;
+use crate::scheduler::SchedulerConfig;
+
+pub use serve::GeneratorEntry;
+
+/// Loads `physiformer` checkpoints.
+pub struct PhysiFormerFamily;
+
+impl ModelFamily for PhysiFormerFamily {
+    fn recognises(&self, architecture: &str) -> bool {
+        architecture == PHYSIFORMER
+    }
+
+    fn load(&self, dir: &Path, opts: &LoadOptions) -> anyhow::Result<Resident> {
+        let model = PhysiFormer::load(dir, &opts.device, false)?;
+        Ok(Resident::Sampling(Arc::new(model)))
+    }
+}
+
+impl SamplingModel for PhysiFormer {
+    fn name(&self) -> &str {
+        PhysiFormer::name(self)
+    }
+
+    fn start(
+        self: Arc<Self>,
+        caps: SamplingCaps,
+        scheduling: SchedulerConfig,
+        metrics: &Metrics,
+    ) -> std::io::Result<Arc<dyn super::Sampler>> {
+        Ok(Arc::new(GeneratorEntry::start(
+            self,
+            &caps.generate,
+            caps.max_objects,
+            scheduling,
+            metrics,
+        )?))
+    }
+}

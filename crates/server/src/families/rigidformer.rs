@@ -1,0 +1,320 @@
+//! The RigidFormer family (single checkpoints and ensembles, any [`WorldModel`]): scenes are
+//! built from point clouds or sampled meshes and prepared once ([`WorldModel::prepare`]:
+//! anchors, grouping); a scheduler pass is one batched [`WorldModel::step`], which the model
+//! splits into forwards of at most [`DEFAULT_MAX_PASS_OBJECTS`] objects.
+
+use std::any::Any;
+use std::path::Path;
+use std::sync::Arc;
+
+use dynaserve_api::build::{BuiltScene, build_scene};
+use dynaserve_api::limits::{Caps, Limits};
+use dynaserve_api::spec::{About, ModelInfo, ModelKind, Scene};
+use dynaserve_model::config::RIGIDFORMER;
+use dynaserve_model::ensemble::ENSEMBLE;
+use dynaserve_model::rigidformer::DEFAULT_MAX_PASS_OBJECTS;
+use dynaserve_model::{MAX_WORLD_EXTENT, PreparedScene, SceneState, StepItem, WorldModel};
+
+use super::{
+    LoadOptions, ModelFamily, Prepared, Resident, SceneStep, Stepped, SteppedScene, SteppingModel,
+    pose_in_domain,
+};
+use crate::error::ApiError;
+
+/// Loads `rigidformer` checkpoints and `rigidformer-ensemble` directories.
+pub struct RigidFormerFamily;
+
+impl ModelFamily for RigidFormerFamily {
+    fn recognises(&self, architecture: &str) -> bool {
+        architecture == RIGIDFORMER || architecture == ENSEMBLE
+    }
+
+    fn load(&self, dir: &Path, opts: &LoadOptions) -> anyhow::Result<Resident> {
+        let model = dynaserve_model::load_model(dir, &opts.device)?;
+        Ok(Resident::Stepping(Arc::new(RigidFormerModel::new(model))))
+    }
+}
+
+/// A resident [`WorldModel`] served step by step.
+pub struct RigidFormerModel {
+    model: Arc<dyn WorldModel>,
+}
+
+impl RigidFormerModel {
+    /// Serves `model`.
+    pub fn new(model: Arc<dyn WorldModel>) -> RigidFormerModel {
+        RigidFormerModel { model }
+    }
+
+    /// One [`WorldModel::step`] over `items` (every state usable); each scene's output is
+    /// checked to hold one pose per object.
+    #[allow(clippy::type_complexity)]
+    fn step_pass(&self, items: &[&SceneStep]) -> Result<Vec<Result<Stepped, String>>, String> {
+        let scenes: Vec<&PreparedScene> = items
+            .iter()
+            .map(|s| prepared(s.scene.as_ref()))
+            .collect::<Result<_, _>>()?;
+        let led: Vec<Option<SceneState>> = items.iter().map(|s| self.input_state(s)).collect();
+        let batch: Vec<StepItem<'_>> = items
+            .iter()
+            .zip(&scenes)
+            .zip(&led)
+            .map(|((s, scene), led)| StepItem {
+                scene,
+                state: led.as_ref().unwrap_or(&s.state),
+                dt_steps: s.dt_steps,
+            })
+            .collect();
+        let out = self.model.step(&batch).map_err(|e| e.to_string())?;
+        Ok(out
+            .into_iter()
+            .zip(items)
+            .map(|(poses, item)| {
+                if poses.len() == item.scene.len() {
+                    Ok(Stepped {
+                        poses,
+                        carry: Default::default(),
+                    })
+                } else {
+                    Err(format!(
+                        "model returned {} poses for {} objects",
+                        poses.len(),
+                        item.scene.len()
+                    ))
+                }
+            })
+            .collect())
+    }
+
+    /// The state the network reads for a driven step of a model trained with the kinematic
+    /// objects' coming poses ([`dynaserve_model::DynamicsConfig::kinematic_lead`]); `None`
+    /// when it reads the scene's own state.
+    fn input_state(&self, item: &SceneStep) -> Option<SceneState> {
+        let drive = item.drive.as_ref()?;
+        self.model
+            .config()
+            .dynamics
+            .kinematic_lead
+            .then(|| item.state.lead_kinematic(&drive.kinematic, &drive.next))
+    }
+}
+
+/// RigidFormer models served step by step (the models of `dynaserve_server::load_models`).
+impl From<Vec<Arc<dyn WorldModel>>> for crate::engine::Models {
+    fn from(models: Vec<Arc<dyn WorldModel>>) -> crate::engine::Models {
+        crate::engine::Models {
+            stepping: models
+                .into_iter()
+                .map(|m| Arc::new(RigidFormerModel::new(m)) as Arc<dyn SteppingModel>)
+                .collect(),
+            sampling: Vec::new(),
+        }
+    }
+}
+
+/// Loads RigidFormer model directories (checkpoints or ensembles) on the CPU.
+pub fn load_models(dirs: &[std::path::PathBuf]) -> anyhow::Result<Vec<Arc<dyn WorldModel>>> {
+    load_models_on(dirs, &candle_core::Device::Cpu)
+}
+
+/// [`load_models`] on `device`.
+pub fn load_models_on(
+    dirs: &[std::path::PathBuf],
+    device: &candle_core::Device,
+) -> anyhow::Result<Vec<Arc<dyn WorldModel>>> {
+    use anyhow::Context;
+    dirs.iter()
+        .map(|d| {
+            dynaserve_model::load_model(d, device)
+                .with_context(|| format!("loading model {}", d.display()))
+        })
+        .collect()
+}
+
+/// The model's own prepared scene inside `scene`.
+fn prepared(scene: &dyn SteppedScene) -> Result<&PreparedScene, String> {
+    scene
+        .as_any()
+        .downcast_ref::<PreparedScene>()
+        .ok_or_else(|| "scene was prepared by another family".to_string())
+}
+
+impl SteppedScene for PreparedScene {
+    fn len(&self) -> usize {
+        PreparedScene::len(self)
+    }
+
+    /// Reference points (12 B each), the anchor distance table (4 B per anchor and point) and
+    /// the index lists.
+    fn bytes(&self) -> usize {
+        (0..PreparedScene::len(self))
+            .map(|j| {
+                let n = self.points_of(j).unwrap_or(0);
+                let k = self.anchor_indices(j).map_or(0, <[usize]>::len);
+                n * 12 + k * n * 4 + (k + 2 * n) * 8 + 64
+            })
+            .sum()
+    }
+
+    fn as_any(&self) -> &dyn Any {
+        self
+    }
+}
+
+impl SteppingModel for RigidFormerModel {
+    fn name(&self) -> &str {
+        self.model.name()
+    }
+
+    fn dt_frame(&self) -> f64 {
+        f64::from(self.model.config().dt_frame)
+    }
+
+    fn limits(&self, caps: &Caps) -> Limits {
+        Limits::new(caps, self.model.config())
+    }
+
+    fn info(&self, limits: Limits) -> ModelInfo {
+        let config = self.model.config();
+        ModelInfo {
+            name: self.model.name().to_string(),
+            kind: ModelKind::Stepping {
+                about: About {
+                    architecture: config.architecture.clone(),
+                    dt_frame: f64::from(config.dt_frame),
+                    gravity: config.gravity,
+                    config: serde_json::to_value(config).unwrap_or_default(),
+                },
+                limits,
+            },
+            members: self.model.member_names(),
+        }
+    }
+
+    fn prepare(
+        &self,
+        scene: &Scene,
+        path: &str,
+        limits: &Limits,
+        dt_steps: u32,
+        kinematic: &[bool],
+    ) -> Result<Prepared, ApiError> {
+        let dt_seconds = (f64::from(dt_steps) * self.dt_frame()) as f32;
+        let BuiltScene { mut objects, state } = build_scene(scene, path, limits, dt_seconds)?;
+        for (o, &k) in objects.iter_mut().zip(kinematic) {
+            o.kinematic = k;
+        }
+        check_previous(&state, path)?;
+        let outside = match &self.model.config().trained_ranges {
+            Some(r) => r.check(&objects),
+            None => Vec::new(),
+        };
+        let scene = self.model.prepare(objects).map_err(|e| match e {
+            dynaserve_model::ModelError::InvalidInput(m) => ApiError::invalid(path, m),
+            other => ApiError::internal(other.to_string()),
+        })?;
+        Ok(Prepared {
+            scene: Arc::new(scene),
+            state,
+            outside,
+        })
+    }
+
+    fn forward_objects(&self) -> Option<usize> {
+        Some(DEFAULT_MAX_PASS_OBJECTS)
+    }
+
+    /// Items whose state the model would refuse (see [`state_problem`]) fail alone before
+    /// the pass; the others go through one [`WorldModel::step`].
+    fn step(&self, items: &[&SceneStep]) -> Result<Vec<Result<Stepped, String>>, String> {
+        let problems: Vec<Option<String>> = items.iter().map(|s| state_problem(&s.state)).collect();
+        let usable: Vec<&SceneStep> = items
+            .iter()
+            .zip(&problems)
+            .filter(|(_, p)| p.is_none())
+            .map(|(s, _)| *s)
+            .collect();
+        let mut out = if usable.is_empty() {
+            Vec::new().into_iter()
+        } else {
+            self.step_pass(&usable)?.into_iter()
+        };
+        Ok(problems
+            .into_iter()
+            .map(|p| match p {
+                Some(msg) => Err(msg),
+                None => out
+                    .next()
+                    .unwrap_or_else(|| Err("model returned too few scenes".to_string())),
+            })
+            .collect())
+    }
+}
+
+/// The pose one step before the start (`translation - velocity * dt`) must lie in the model's
+/// domain too, or the first step would fail; the error names the velocity that puts it there.
+fn check_previous(state: &SceneState, path: &str) -> Result<(), ApiError> {
+    match state.previous.iter().position(|p| !pose_in_domain(p)) {
+        None => Ok(()),
+        Some(j) => Err(ApiError::invalid(
+            format!("{path}.objects[{j}].velocity.linear"),
+            format!(
+                "with this translation and velocity the object was beyond {MAX_WORLD_EXTENT} m \
+                 one step earlier; the model accepts positions within {MAX_WORLD_EXTENT} m"
+            ),
+        )),
+    }
+}
+
+/// Why a state is outside the model's domain (a pose translation not finite or beyond
+/// [`MAX_WORLD_EXTENT`] metres, a rotation that is not a usable quaternion), naming the object;
+/// `None` for a usable state. The message holds only this scene's data.
+pub fn state_problem(state: &SceneState) -> Option<String> {
+    let earlier = state.earlier.as_deref().unwrap_or_default();
+    for (which, poses) in [
+        ("earlier", earlier),
+        ("previous", &state.previous[..]),
+        ("current", &state.current[..]),
+    ] {
+        for (j, p) in poses.iter().enumerate() {
+            if !pose_in_domain(p) {
+                return Some(format!(
+                    "objects[{j}]: {which} pose outside the model's domain (translation {:?} m, \
+                     limit {MAX_WORLD_EXTENT} m)",
+                    p.translation
+                ));
+            }
+        }
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dynaserve_model::Pose;
+
+    fn at(x: f32) -> Pose {
+        Pose {
+            translation: [x, 0.0, 1.0],
+            rotation: [0.0, 0.0, 0.0, 1.0],
+        }
+    }
+
+    #[test]
+    fn a_state_outside_the_domain_is_named_by_object_and_pose() {
+        let fine = SceneState::new(vec![at(0.0), at(1.0)], vec![at(0.0), at(1.1)]);
+        assert_eq!(state_problem(&fine), None);
+        let far = 2.0 * MAX_WORLD_EXTENT;
+        let mut current = fine.clone();
+        current.current[1] = at(far);
+        let said = state_problem(&current).unwrap();
+        assert!(said.starts_with("objects[1]: current pose"), "{said}");
+        let mut earlier = fine.clone();
+        earlier.earlier = Some(vec![at(f32::NAN), at(1.0)]);
+        let said = state_problem(&earlier).unwrap();
+        assert!(said.starts_with("objects[0]: earlier pose"), "{said}");
+        earlier.earlier = Some(vec![at(0.0), at(0.9)]);
+        assert_eq!(state_problem(&earlier), None);
+    }
+}
