@@ -15,6 +15,7 @@ the ground truth, where both executed pusher paths are replayed in rapier by
     python examples/push_planner.py --grpc 127.0.0.1:50051     # the same over gRPC
     python examples/push_planner.py --seeds 0-199   # one plan per seed, then a summary line
     python examples/push_planner.py --seeds 0-199 --json planner.json   # ... and every seed's distances
+    python examples/push_planner.py --model rapier   # plan in the simulator itself (served beside)
 
 Planning in the model's own rollout makes the rapier distance a measure of the model: over many
 seeds, a model whose pushes are forecast better ends closer to the goal more often.
@@ -184,7 +185,7 @@ def plan(client: Any, args: argparse.Namespace, seed: int, dt_frame: float, bina
     rng = np.random.default_rng(seed)
     goal = np.array(args.goal)
     bodies = scene(seed)
-    session = client.create_session(bodies, kinematic=[PUSHER])
+    session = client.create_session(bodies, kinematic=[PUSHER], model=args.model)
     baseline = session.fork()
     start = session.state()["poses"]
     d0 = float(np.linalg.norm(start[BOX, :2] - goal))
@@ -262,6 +263,11 @@ def main() -> None:
         help="weight of the pusher's distance to the box's pushing side in the cost (0: goal distance "
         "only; --approach-weight is its former name)",
     )
+    ap.add_argument(
+        "--model",
+        help="the model to plan with (default: the one RigidFormer); `rapier` plans in the simulator "
+        "itself, the ceiling a perfect forecast would reach",
+    )
     ap.add_argument("--seed", type=int, default=0, help="the scene's and the sampler's seed")
     ap.add_argument(
         "--seeds",
@@ -289,8 +295,13 @@ def main() -> None:
         client = GrpcClient(args.grpc)
     else:
         client = Client(args.server)
-    # The session's model: the one RigidFormer (a PhysiFormer may be resident beside it).
-    model = next(m for m in client.list_models() if m["architecture"] == "rigidformer")
+    # The session's model: the one named, else the one RigidFormer (others may be resident).
+    models = client.list_models()
+    wanted = [m for m in models if (m["name"] == args.model if args.model else m["architecture"] == "rigidformer")]
+    if len(wanted) != 1:
+        ap.error(f"--model: name one of {[m['name'] for m in models]}")
+    model = wanted[0]
+    args.model = model["name"]
     dt_frame = model["dt_frame"]
     results = []
     for seed in seeds:
