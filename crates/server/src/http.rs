@@ -23,30 +23,27 @@
 use std::convert::Infallible;
 use std::sync::Arc;
 
-use axum::Router;
-use axum::body::Body;
 use axum::extract::{DefaultBodyLimit, State};
-use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
-use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::http::{HeaderValue, StatusCode, header};
+use axum::response::sse::Event;
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
+use axum::{Json, Router};
+use dynaserve_api::FieldError;
 use dynaserve_api::json;
-use dynaserve_api::spec::{Frame, PredictSpec, Prediction, RolloutSpec, Timing};
+use dynaserve_api::spec::{Frame, PredictSpec, RolloutSpec, Timing};
 use futures::Stream;
-use serde::de::DeserializeOwned;
 use utoipa::OpenApi;
 
-use crate::engine::{Engine, Protocol, RequestCtx};
+use crate::engine::{Engine, RequestCtx};
 use crate::error::ApiError;
-use crate::security::Caller;
+use extract::{AppState, Call, Spec, Streamed};
+use reply::{Model, Predicted, Reply, RequestId, Timed, Warnings, collect_frames, sse};
 
+mod extract;
 pub mod generate;
+mod reply;
 pub mod sessions;
-
-#[derive(Clone)]
-struct AppState {
-    engine: Arc<Engine>,
-}
 
 /// The OpenAPI document of the HTTP API.
 #[derive(OpenApi)]
@@ -88,7 +85,8 @@ pub fn router(engine: Arc<Engine>) -> Router {
         .merge(generate::routes())
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
-        // Bodies are read with the configured limit in `read_json`, which names the field.
+        // Bodies are read with the configured limit by the `Call` extractor, which names the
+        // field.
         .layer(DefaultBodyLimit::disable())
         .with_state(AppState { engine })
 }
@@ -105,161 +103,23 @@ pub fn probes_router(engine: Arc<Engine>) -> Router {
         .with_state(AppState { engine })
 }
 
-/// The context of an HTTP request; `caller` is whom it is attributed to (see [`Caller`]).
-fn ctx_of(headers: &HeaderMap, caller: Caller) -> RequestCtx {
-    let rid = headers.get("x-request-id").and_then(|v| v.to_str().ok());
-    RequestCtx::new(Protocol::Http, rid, None).with_identity(caller.0)
-}
-
-fn set_header(headers: &mut HeaderMap, key: &'static str, value: &str) {
-    if let Ok(v) = HeaderValue::from_str(value) {
-        headers.insert(key, v);
+impl Spec for RolloutSpec {
+    const METHOD: &'static str = "rollout";
+    type Json = json::RolloutRequest;
+    fn read(r: &json::RolloutRequest, _: &str) -> Result<Self, FieldError> {
+        RolloutSpec::from_json(r)
+    }
+    fn stream(r: &json::RolloutRequest) -> bool {
+        r.stream
     }
 }
 
-/// Appends one `x-dynaserve-warning` header per warning (object parameters outside the model's
-/// trained range).
-fn with_warnings(mut r: Response, warnings: &[String]) -> Response {
-    for w in warnings {
-        if let Ok(v) = HeaderValue::from_str(w) {
-            r.headers_mut().append(dynaserve_api::WARNING_HEADER, v);
-        }
+impl Spec for PredictSpec {
+    const METHOD: &'static str = "predict";
+    type Json = json::PredictRequest;
+    fn read(r: &json::PredictRequest, _: &str) -> Result<Self, FieldError> {
+        PredictSpec::from_json(r)
     }
-    r
-}
-
-fn error_response(e: ApiError, rid: &str) -> Response {
-    let mut r = e.into_response();
-    set_header(r.headers_mut(), "x-request-id", rid);
-    r
-}
-
-/// A JSON answer with `status` carrying the request id.
-fn json_response<T: serde::Serialize>(status: StatusCode, body: T, rid: &str) -> Response {
-    let mut r = (status, axum::Json(body)).into_response();
-    set_header(r.headers_mut(), "x-request-id", rid);
-    r
-}
-
-/// A server-sent-event stream of `events` with keep-alive comments, carrying the request id and
-/// the model that answers.
-fn sse_response<S>(events: S, rid: &str, model: &str) -> Response
-where
-    S: Stream<Item = Result<Event, Infallible>> + Send + 'static,
-{
-    let mut r = Sse::new(events)
-        .keep_alive(KeepAlive::default())
-        .into_response();
-    set_header(r.headers_mut(), "x-request-id", rid);
-    set_header(r.headers_mut(), "x-dynaserve-model", model);
-    r
-}
-
-/// Adds the model and timing headers of a call that stepped scenes.
-fn timed(mut r: Response, model: &str, timing: &json::RequestTiming) -> Response {
-    set_header(r.headers_mut(), "x-dynaserve-model", model);
-    timing_headers(r.headers_mut(), timing);
-    r
-}
-
-/// Reads a JSON request (see [`read_json`]) and converts it; a failure of either is counted
-/// as a rejected `method` call and becomes the error response.
-async fn parse<J: DeserializeOwned, T, E: Into<ApiError>>(
-    engine: &Engine,
-    ctx: &RequestCtx,
-    method: &'static str,
-    body: Body,
-    convert: impl FnOnce(J) -> Result<T, E>,
-) -> Result<T, Response> {
-    read_json(engine, body)
-        .await
-        .and_then(|j| convert(j).map_err(Into::into))
-        .map_err(|e| error_response(engine.reject(ctx, method, e), &ctx.request_id))
-}
-
-/// Receives every frame of a stepping call, with the summed step timings (total: since
-/// `arrival`); the first error ends it.
-async fn collect_frames(
-    mut rx: tokio::sync::mpsc::Receiver<Result<Frame, ApiError>>,
-    arrival: std::time::Instant,
-) -> Result<(Vec<json::StepFrame>, json::RequestTiming), ApiError> {
-    let mut frames = Vec::new();
-    let mut timing = Timing::default();
-    while let Some(item) = rx.recv().await {
-        let f = item?;
-        if let Some(t) = &f.timing {
-            timing.add_step(t);
-        }
-        frames.push(f.to_json());
-    }
-    timing.total = arrival.elapsed();
-    Ok((frames, timing.to_json()))
-}
-
-/// The answer of a Predict call (whole scenes or from a session).
-fn prediction_response(r: Result<Prediction, ApiError>, rid: &str) -> Response {
-    match r {
-        Ok(out) => {
-            let body = out.to_json();
-            let (timing, model) = (body.timing, body.model.clone());
-            let r = timed(json_response(StatusCode::OK, body, rid), &model, &timing);
-            with_warnings(r, &out.warnings)
-        }
-        Err(e) => error_response(e, rid),
-    }
-}
-
-fn timing_headers(headers: &mut HeaderMap, t: &json::RequestTiming) {
-    set_header(
-        headers,
-        "x-dynaserve-queue-ms",
-        &format!("{:.3}", t.queue_ms),
-    );
-    set_header(
-        headers,
-        "x-dynaserve-forward-ms",
-        &format!("{:.3}", t.forward_ms),
-    );
-    set_header(
-        headers,
-        "x-dynaserve-total-ms",
-        &format!("{:.3}", t.total_ms),
-    );
-    set_header(
-        headers,
-        "server-timing",
-        &format!(
-            "queue;dur={:.3}, forward;dur={:.3}, total;dur={:.3}",
-            t.queue_ms, t.forward_ms, t.total_ms
-        ),
-    );
-}
-
-async fn read_json<T: DeserializeOwned>(engine: &Engine, body: Body) -> Result<T, ApiError> {
-    let limit = engine.config().max_request_bytes;
-    let bytes = axum::body::to_bytes(body, limit).await.map_err(|e| {
-        if let Some(m) = crate::listener::body_deadline_message(&e) {
-            return ApiError::body_timeout(m);
-        }
-        if crate::security::is_body_timeout(&e) {
-            return ApiError::body_timeout(
-                "the request body stopped arriving before it was complete",
-            );
-        }
-        ApiError::invalid(
-            "request",
-            format!("payload could not be read within the limit of {limit} bytes: {e}"),
-        )
-    })?;
-    engine.check_payload(bytes.len())?;
-    Ok(dynaserve_api::json_body::decode(&bytes)?)
-}
-
-fn wants_sse(headers: &HeaderMap) -> bool {
-    headers
-        .get(header::ACCEPT)
-        .and_then(|v| v.to_str().ok())
-        .is_some_and(|a| a.contains("text/event-stream"))
 }
 
 /// Roll one scene forward.
@@ -281,60 +141,30 @@ fn wants_sse(headers: &HeaderMap) -> bool {
 )]
 async fn rollout(
     State(s): State<AppState>,
-    caller: Caller,
-    headers: HeaderMap,
-    body: Body,
-) -> Response {
-    let ctx = ctx_of(&headers, caller);
-    let rid = ctx.request_id.clone();
-    let arrival = ctx.arrival;
-    let parsed = parse(
-        &s.engine,
-        &ctx,
-        "rollout",
-        body,
-        |req: json::RolloutRequest| {
-            RolloutSpec::from_json(&req).map(|spec| (spec, req.stream || wants_sse(&headers)))
-        },
-    );
-    let (spec, sse) = match parsed.await {
-        Ok(p) => p,
-        Err(r) => return r,
-    };
-    // The caller's stream quota, held until the answer is complete.
-    let quota = match s.engine.stream_quota(&ctx) {
-        Ok(q) => q,
-        Err(e) => return error_response(s.engine.reject(&ctx, "rollout", e), &rid),
-    };
-    let handle = match s.engine.start_rollout(spec, ctx).await {
+    Streamed { call, quota }: Streamed<RolloutSpec>,
+) -> Reply {
+    let (rid, arrival) = (RequestId::of(&call.ctx), call.ctx.arrival);
+    let handle = match s.engine.start_rollout(call.spec, call.ctx).await {
         Ok(h) => h,
-        Err(e) => return error_response(e, &rid),
+        Err(e) => return (rid, Err(e)),
     };
-    let model = handle.model.clone();
-    let warnings = handle.warnings;
-    if sse {
+    let head = (Model(handle.model.clone()), Warnings(handle.warnings));
+    if call.sse {
         let events = sse_events(handle.frames, rid.to_string(), arrival);
-        let events = futures::StreamExt::map(events, move |e| {
-            let _ = &quota;
-            e
-        });
-        let r = sse_response(events, &rid, &model);
-        return with_warnings(r, &warnings);
+        return (rid, Ok((head, sse(events, quota)).into_response()));
     }
     let collected = collect_frames(handle.frames, arrival).await;
     drop(quota);
-    let (frames, timing) = match collected {
-        Ok(f) => f,
-        Err(e) => return error_response(e, &rid),
-    };
-    let body = json::RolloutResponse {
-        model: model.clone(),
-        request_id: rid.to_string(),
-        frames,
-        timing,
-    };
-    let r = timed(json_response(StatusCode::OK, body, &rid), &model, &timing);
-    with_warnings(r, &warnings)
+    let answer = collected.map(|(frames, timing)| {
+        let body = json::RolloutResponse {
+            model: handle.model,
+            request_id: rid.to_string(),
+            frames,
+            timing,
+        };
+        (head, Timed(timing), Json(body)).into_response()
+    });
+    (rid, answer)
 }
 
 fn sse_events(
@@ -408,26 +238,10 @@ fn sse_events(
         (status = 504, description = "Deadline (`timeout_ms`) exceeded", body = json::ErrorResponse),
     )
 )]
-async fn predict(
-    State(s): State<AppState>,
-    caller: Caller,
-    headers: HeaderMap,
-    body: Body,
-) -> Response {
-    let ctx = ctx_of(&headers, caller);
-    let rid = ctx.request_id.clone();
-    let parsed = parse(
-        &s.engine,
-        &ctx,
-        "predict",
-        body,
-        |req: json::PredictRequest| PredictSpec::from_json(&req),
-    );
-    let spec = match parsed.await {
-        Ok(r) => r,
-        Err(r) => return r,
-    };
-    prediction_response(s.engine.predict(spec, ctx).await, &rid)
+async fn predict(State(s): State<AppState>, call: Call<PredictSpec>) -> Reply<Predicted> {
+    let rid = RequestId::of(&call.ctx);
+    let prediction = s.engine.predict(call.spec, call.ctx).await;
+    (rid, prediction.map(Predicted))
 }
 
 /// Resident models and the server's limits for each.
@@ -436,19 +250,17 @@ async fn predict(
     path = "/v1/models",
     responses((status = 200, description = "Resident models", body = json::ListModelsResponse))
 )]
-async fn list_models(State(s): State<AppState>, caller: Caller, headers: HeaderMap) -> Response {
-    let ctx = ctx_of(&headers, caller);
-    let list = json::ListModelsResponse {
-        models: s
-            .engine
-            .list_models(&ctx)
-            .iter()
-            .map(|m| m.to_json())
-            .collect(),
-    };
-    let mut resp = axum::Json(list).into_response();
-    set_header(resp.headers_mut(), "x-request-id", &ctx.request_id);
-    resp
+async fn list_models(State(s): State<AppState>, ctx: RequestCtx) -> impl IntoResponse {
+    let models = s
+        .engine
+        .list_models(&ctx)
+        .iter()
+        .map(|m| m.to_json())
+        .collect();
+    (
+        RequestId::of(&ctx),
+        Json(json::ListModelsResponse { models }),
+    )
 }
 
 /// Liveness: 200 while the process serves HTTP.

@@ -7,13 +7,12 @@
 use std::convert::Infallible;
 use std::time::Instant;
 
-use axum::Router;
-use axum::body::Body;
 use axum::extract::State;
-use axum::http::{HeaderMap, StatusCode};
-use axum::response::Response;
+use axum::response::IntoResponse;
 use axum::response::sse::Event;
 use axum::routing::post;
+use axum::{Json, Router};
+use dynaserve_api::FieldError;
 use dynaserve_api::json;
 use dynaserve_api::spec::Timing;
 use dynaserve_api::spec::generate::{GenerateEvent, GenerateSpec};
@@ -21,11 +20,8 @@ use futures::Stream;
 use tokio::sync::mpsc;
 use utoipa::OpenApi;
 
-use crate::security::Caller;
-
-use super::{
-    AppState, ctx_of, error_response, json_response, parse, sse_response, timed, wants_sse,
-};
+use super::extract::{AppState, Spec, Streamed};
+use super::reply::{Model, Reply, RequestId, Timed, sse};
 use crate::error::ApiError;
 
 /// The OpenAPI description of `POST /v1/generate` (merged into the HTTP API's document).
@@ -55,6 +51,17 @@ pub(super) fn routes() -> Router<AppState> {
 
 type Events = mpsc::Receiver<Result<GenerateEvent, ApiError>>;
 
+impl Spec for GenerateSpec {
+    const METHOD: &'static str = "generate";
+    type Json = json::GenerateRequest;
+    fn read(r: &json::GenerateRequest, _: &str) -> Result<Self, FieldError> {
+        GenerateSpec::from_json(r)
+    }
+    fn stream(r: &json::GenerateRequest) -> bool {
+        r.stream
+    }
+}
+
 /// Sample whole trajectories of a mesh scene (rigid and elastic objects) with a PhysiFormer
 /// model.
 ///
@@ -76,58 +83,31 @@ type Events = mpsc::Receiver<Result<GenerateEvent, ApiError>>;
 )]
 async fn generate(
     State(s): State<AppState>,
-    caller: Caller,
-    headers: HeaderMap,
-    body: Body,
-) -> Response {
-    let ctx = ctx_of(&headers, caller);
-    let rid = ctx.request_id.clone();
-    let arrival = ctx.arrival;
-    let parsed = parse(
-        &s.engine,
-        &ctx,
-        "generate",
-        body,
-        |req: json::GenerateRequest| {
-            GenerateSpec::from_json(&req).map(|spec| (spec, req.stream || wants_sse(&headers)))
-        },
-    );
-    let (spec, sse) = match parsed.await {
-        Ok(p) => p,
-        Err(r) => return r,
-    };
-    // The caller's stream quota, held until the answer is complete.
-    let quota = match s.engine.stream_quota(&ctx) {
-        Ok(q) => q,
-        Err(e) => return error_response(s.engine.reject(&ctx, "generate", e), &rid),
-    };
-    let handle = match s.engine.start_generate(spec, ctx).await {
+    Streamed { call, quota }: Streamed<GenerateSpec>,
+) -> Reply {
+    let (rid, arrival) = (RequestId::of(&call.ctx), call.ctx.arrival);
+    let handle = match s.engine.start_generate(call.spec, call.ctx).await {
         Ok(h) => h,
-        Err(e) => return error_response(e, &rid),
+        Err(e) => return (rid, Err(e)),
     };
-    let model = handle.model.clone();
-    if sse {
+    let model = Model(handle.model.clone());
+    if call.sse {
         let events = sse_events(handle.events, rid.to_string(), arrival);
-        let events = futures::StreamExt::map(events, move |e| {
-            let _ = &quota;
-            e
-        });
-        return sse_response(events, &rid, &model);
+        return (rid, Ok((model, sse(events, quota)).into_response()));
     }
     let collected = collect(handle.events, arrival).await;
     drop(quota);
-    let (samples, timing) = match collected {
-        Ok(c) => c,
-        Err(e) => return error_response(e, &rid),
-    };
-    let body = json::GenerateResponse {
-        model: model.clone(),
-        request_id: rid.to_string(),
-        denoise_steps: handle.steps,
-        samples,
-        timing,
-    };
-    timed(json_response(StatusCode::OK, body, &rid), &model, &timing)
+    let answer = collected.map(|(samples, timing)| {
+        let body = json::GenerateResponse {
+            model: handle.model,
+            request_id: rid.to_string(),
+            denoise_steps: handle.steps,
+            samples,
+            timing,
+        };
+        (model, Timed(timing), Json(body)).into_response()
+    });
+    (rid, answer)
 }
 
 /// Every sample of a call, with the summed step timings (total: since `arrival`); the first

@@ -15,22 +15,19 @@
 //! with an `ErrorResponse` naming `session_id`: a session belongs to the caller that created
 //! it (its bearer token, or without authentication its IP address).
 
-use axum::Router;
-use axum::body::Body;
 use axum::extract::{Path, State};
-use axum::http::{HeaderMap, StatusCode};
-use axum::response::{IntoResponse, Response};
+use axum::http::StatusCode;
+use axum::response::IntoResponse;
 use axum::routing::{get, post, put};
+use axum::{Json, Router};
+use dynaserve_api::FieldError;
 use dynaserve_api::json;
 use dynaserve_api::spec::session::{CreateSessionSpec, SessionPredictSpec, SetStateSpec, StepSpec};
 use utoipa::OpenApi;
 
-use crate::security::Caller;
-
-use super::{
-    AppState, collect_frames, ctx_of, error_response, json_response as ok, parse,
-    prediction_response, set_header, timed, with_warnings,
-};
+use super::extract::{AppState, Call, Spec};
+use super::reply::{Model, Predicted, Reply, RequestId, Timed, Warnings, collect_frames};
+use crate::engine::RequestCtx;
 
 /// The OpenAPI description of the session routes (merged into the HTTP API's document).
 #[derive(OpenApi)]
@@ -63,6 +60,38 @@ pub(super) fn routes() -> Router<AppState> {
         .route("/v1/sessions/{id}/predict", post(predict))
 }
 
+impl Spec for CreateSessionSpec {
+    const METHOD: &'static str = "create_session";
+    type Json = json::CreateSessionRequest;
+    fn read(r: &json::CreateSessionRequest, _: &str) -> Result<Self, FieldError> {
+        CreateSessionSpec::from_json(r)
+    }
+}
+
+impl Spec for SetStateSpec {
+    const METHOD: &'static str = "set_state";
+    type Json = json::SetStateRequest;
+    fn read(r: &json::SetStateRequest, session_id: &str) -> Result<Self, FieldError> {
+        SetStateSpec::from_json(session_id, r)
+    }
+}
+
+impl Spec for StepSpec {
+    const METHOD: &'static str = "session_step";
+    type Json = json::StepRequest;
+    fn read(r: &json::StepRequest, session_id: &str) -> Result<Self, FieldError> {
+        Ok(StepSpec::from_json(session_id, r))
+    }
+}
+
+impl Spec for SessionPredictSpec {
+    const METHOD: &'static str = "session_predict";
+    type Json = json::SessionPredictRequest;
+    fn read(r: &json::SessionPredictRequest, session_id: &str) -> Result<Self, FieldError> {
+        SessionPredictSpec::from_json(session_id, r)
+    }
+}
+
 /// Create a session: the scene is validated and prepared once and kept with its state.
 #[utoipa::path(
     post,
@@ -76,29 +105,18 @@ pub(super) fn routes() -> Router<AppState> {
 )]
 async fn create(
     State(s): State<AppState>,
-    caller: Caller,
-    headers: HeaderMap,
-    body: Body,
-) -> Response {
-    let ctx = ctx_of(&headers, caller);
-    let rid = ctx.request_id.clone();
-    let parsed = parse(
-        &s.engine,
-        &ctx,
-        "create_session",
-        body,
-        |r: json::CreateSessionRequest| CreateSessionSpec::from_json(&r),
-    );
-    let spec = match parsed.await {
-        Ok(r) => r,
-        Err(r) => return r,
-    };
-    match s.engine.create_session(spec, ctx).await {
-        Ok((info, warnings)) => {
-            with_warnings(ok(StatusCode::CREATED, info.to_json(), &rid), &warnings)
-        }
-        Err(e) => error_response(e, &rid),
-    }
+    call: Call<CreateSessionSpec>,
+) -> Reply<impl IntoResponse> {
+    let rid = RequestId::of(&call.ctx);
+    let created = s.engine.create_session(call.spec, call.ctx).await;
+    let answer = created.map(|(info, warnings)| {
+        (
+            StatusCode::CREATED,
+            Warnings(warnings),
+            Json(info.to_json()),
+        )
+    });
+    (rid, answer)
 }
 
 /// A session's current state.
@@ -114,15 +132,11 @@ async fn create(
 async fn get_state(
     State(s): State<AppState>,
     Path(id): Path<String>,
-    caller: Caller,
-    headers: HeaderMap,
-) -> Response {
-    let ctx = ctx_of(&headers, caller);
-    let rid = ctx.request_id.clone();
-    match s.engine.session_state(&id, ctx).await {
-        Ok(v) => ok(StatusCode::OK, v.to_json(), &rid),
-        Err(e) => error_response(e, &rid),
-    }
+    ctx: RequestCtx,
+) -> Reply<impl IntoResponse> {
+    let rid = RequestId::of(&ctx);
+    let state = s.engine.session_state(&id, ctx).await;
+    (rid, state.map(|v| Json(v.to_json())))
 }
 
 /// Overwrite some objects' states (e.g. from a real observation).
@@ -139,28 +153,11 @@ async fn get_state(
 )]
 async fn set_state(
     State(s): State<AppState>,
-    Path(id): Path<String>,
-    caller: Caller,
-    headers: HeaderMap,
-    body: Body,
-) -> Response {
-    let ctx = ctx_of(&headers, caller);
-    let rid = ctx.request_id.clone();
-    let parsed = parse(
-        &s.engine,
-        &ctx,
-        "set_state",
-        body,
-        |r: json::SetStateRequest| SetStateSpec::from_json(&id, &r),
-    );
-    let spec = match parsed.await {
-        Ok(r) => r,
-        Err(r) => return r,
-    };
-    match s.engine.set_session_state(spec, ctx).await {
-        Ok(v) => ok(StatusCode::OK, v.to_json(), &rid),
-        Err(e) => error_response(e, &rid),
-    }
+    call: Call<SetStateSpec>,
+) -> Reply<impl IntoResponse> {
+    let rid = RequestId::of(&call.ctx);
+    let state = s.engine.set_session_state(call.spec, call.ctx).await;
+    (rid, state.map(|v| Json(v.to_json())))
 }
 
 /// Advance the session `steps` steps; its state moves with every finished step.
@@ -176,41 +173,24 @@ async fn set_state(
         (status = 504, description = "Deadline (`timeout_ms`) exceeded", body = json::ErrorResponse),
     )
 )]
-async fn step(
-    State(s): State<AppState>,
-    Path(id): Path<String>,
-    caller: Caller,
-    headers: HeaderMap,
-    body: Body,
-) -> Response {
-    let ctx = ctx_of(&headers, caller);
-    let rid = ctx.request_id.clone();
-    let arrival = ctx.arrival;
-    let parsed = parse(
-        &s.engine,
-        &ctx,
-        "session_step",
-        body,
-        |r: json::StepRequest| Ok::<_, dynaserve_api::FieldError>(StepSpec::from_json(&id, &r)),
-    );
-    let spec = match parsed.await {
-        Ok(r) => r,
-        Err(r) => return r,
-    };
-    let handle = match s.engine.session_step(spec, ctx).await {
+async fn step(State(s): State<AppState>, call: Call<StepSpec>) -> Reply {
+    let (rid, arrival) = (RequestId::of(&call.ctx), call.ctx.arrival);
+    let session_id = call.spec.session_id.clone();
+    let handle = match s.engine.session_step(call.spec, call.ctx).await {
         Ok(h) => h,
-        Err(e) => return error_response(e, &rid),
+        Err(e) => return (rid, Err(e)),
     };
-    let (frames, timing) = match collect_frames(handle.frames, arrival).await {
-        Ok(f) => f,
-        Err(e) => return error_response(e, &rid),
-    };
-    let body = json::StepResponse {
-        session_id: id,
-        frames,
-        timing,
-    };
-    timed(ok(StatusCode::OK, body, &rid), &handle.model, &timing)
+    let answer = collect_frames(handle.frames, arrival)
+        .await
+        .map(|(frames, timing)| {
+            let body = json::StepResponse {
+                session_id,
+                frames,
+                timing,
+            };
+            (Model(handle.model), Timed(timing), Json(body)).into_response()
+        });
+    (rid, answer)
 }
 
 /// Copy the session's state under a new id (the prepared scene is shared).
@@ -227,15 +207,14 @@ async fn step(
 async fn fork(
     State(s): State<AppState>,
     Path(id): Path<String>,
-    caller: Caller,
-    headers: HeaderMap,
-) -> Response {
-    let ctx = ctx_of(&headers, caller);
-    let rid = ctx.request_id.clone();
-    match s.engine.fork_session(&id, ctx).await {
-        Ok(info) => ok(StatusCode::CREATED, info.to_json(), &rid),
-        Err(e) => error_response(e, &rid),
-    }
+    ctx: RequestCtx,
+) -> Reply<impl IntoResponse> {
+    let rid = RequestId::of(&ctx);
+    let forked = s.engine.fork_session(&id, ctx).await;
+    (
+        rid,
+        forked.map(|info| (StatusCode::CREATED, Json(info.to_json()))),
+    )
 }
 
 /// Roll many variants of the session's state forward (planner calls); the session does not
@@ -252,27 +231,10 @@ async fn fork(
         (status = 429, description = "Server full; retry after the Retry-After header", body = json::ErrorResponse),
     )
 )]
-async fn predict(
-    State(s): State<AppState>,
-    Path(id): Path<String>,
-    caller: Caller,
-    headers: HeaderMap,
-    body: Body,
-) -> Response {
-    let ctx = ctx_of(&headers, caller);
-    let rid = ctx.request_id.clone();
-    let parsed = parse(
-        &s.engine,
-        &ctx,
-        "session_predict",
-        body,
-        |r: json::SessionPredictRequest| SessionPredictSpec::from_json(&id, &r),
-    );
-    let spec = match parsed.await {
-        Ok(r) => r,
-        Err(r) => return r,
-    };
-    prediction_response(s.engine.session_predict(spec, ctx).await, &rid)
+async fn predict(State(s): State<AppState>, call: Call<SessionPredictSpec>) -> Reply<Predicted> {
+    let rid = RequestId::of(&call.ctx);
+    let prediction = s.engine.session_predict(call.spec, call.ctx).await;
+    (rid, prediction.map(Predicted))
 }
 
 /// Delete the session.
@@ -289,17 +251,9 @@ async fn predict(
 async fn delete(
     State(s): State<AppState>,
     Path(id): Path<String>,
-    caller: Caller,
-    headers: HeaderMap,
-) -> Response {
-    let ctx = ctx_of(&headers, caller);
-    let rid = ctx.request_id.clone();
-    match s.engine.delete_session(&id, ctx).await {
-        Ok(()) => {
-            let mut r = StatusCode::NO_CONTENT.into_response();
-            set_header(r.headers_mut(), "x-request-id", &rid);
-            r
-        }
-        Err(e) => error_response(e, &rid),
-    }
+    ctx: RequestCtx,
+) -> Reply<StatusCode> {
+    let rid = RequestId::of(&ctx);
+    let deleted = s.engine.delete_session(&id, ctx).await;
+    (rid, deleted.map(|()| StatusCode::NO_CONTENT))
 }
