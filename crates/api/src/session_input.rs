@@ -5,9 +5,10 @@
 //! Kinematic objects: the model's inputs for a step are the state's previous and current poses,
 //! which for a kinematic object are the poses the caller gave (or its initial ones); its output
 //! is replaced by the pose given for the end of the step, or by its current pose when none is
-//! given (it holds still). See [`drive`].
+//! given (it holds still). See [`drive`] and [`dynaserve_model::drive`], where the driven step
+//! is defined once for serving, evaluation and training.
 
-use dynaserve_model::{Pose, SceneState};
+use dynaserve_model::{Drive, Pose, SceneState};
 
 use crate::build::{check_implied_speed, check_pose, previous_pose};
 use crate::error::FieldError;
@@ -172,23 +173,16 @@ pub fn check_action_speeds(
 
 /// Replaces the model's output for kinematic objects: the given pose of `targets`, or the
 /// object's current pose in `state` (before the step) when none is given.
-/// `output`, `state` and `kinematic` have one entry per object.
+/// `output`, `state` and `kinematic` have one entry per object. The rule is
+/// [`Drive::overwrite`], which serving, evaluation and training share; this is it under the
+/// session's names.
 pub fn drive(
     output: &mut [Pose],
     state: &SceneState,
     kinematic: &[bool],
     targets: &[(usize, Pose)],
 ) {
-    for (j, k) in kinematic.iter().enumerate() {
-        if *k && let (Some(o), Some(c)) = (output.get_mut(j), state.current.get(j)) {
-            *o = *c;
-        }
-    }
-    for (j, p) in targets {
-        if let Some(o) = output.get_mut(*j) {
-            *o = *p;
-        }
-    }
+    Drive::new(kinematic, targets).overwrite(state, output);
 }
 
 #[cfg(test)]

@@ -3,7 +3,9 @@
 //!
 //! Callers use the [`WorldModel`] trait: [`WorldModel::prepare`] a scene once (validation,
 //! anchors, encoder grouping), then [`WorldModel::step`] many scenes at once, or [`rollout`].
-//! Trainers use [`RigidFormer::train_forward`] and [`RigidFormer::varmap`].
+//! Trainers use [`RigidFormer::train_forward`] and [`RigidFormer::varmap`]. Scenes whose
+//! kinematic objects follow given poses step by [`Drive`] (serving, evaluation and training
+//! alike).
 //! Units: metres, seconds, kilograms; z up; ground plane at z = 0; quaternions `[x, y, z, w]`.
 
 pub mod api;
@@ -11,6 +13,7 @@ pub mod batching;
 pub mod checkpoint;
 pub mod config;
 pub mod device;
+pub mod drive;
 pub mod ensemble;
 pub mod error;
 pub mod kernels;
@@ -34,6 +37,7 @@ pub use config::{
     OBJECT_SUMMARY_FEATURES, PreparedKey, SURFACE_NORMAL_FEATURES,
 };
 pub use device::{check_device_name, cuda_compiled, device_from_name, device_name};
+pub use drive::{Drive, frame_targets};
 pub use ensemble::Ensemble;
 pub use error::ModelError;
 pub use kernels::kabsch::{self as kabsch_op, KabschOp};

@@ -1,9 +1,10 @@
 //! Rollouts of scenes with kinematic objects (a pusher following a path): the predictor steps
 //! every scene one step at a time, and after each step the kinematic objects' predicted poses
 //! are replaced by their recorded poses at that frame, so the next step's inputs hold the given
-//! poses, as a session's `Step` with actions does on the server.
+//! poses. Each step is a [`Drive`] to the recorded frame, the rule a session's `Step` with
+//! actions follows on the server and pushforward training follows too.
 
-use dynaserve_model::{Pose, SceneState};
+use dynaserve_model::{Drive, Pose, SceneState, frame_targets};
 use dynaserve_sim::SceneRecord;
 
 use super::{EvalError, Predictor, RolloutRequest, poses_at};
@@ -38,49 +39,49 @@ pub fn driven_rollout_batch(
         .collect();
     let most = requests.iter().map(|r| r.steps).max().unwrap_or(0);
     let lead = predictor.leads_kinematic();
-    // Per request: its kinematic flags, or `None` when it has no kinematic object.
-    let kinematic: Vec<Option<Vec<bool>>> = requests
+    // Per request: its kinematic flags, `[objects]`.
+    let kinematic: Vec<Vec<bool>> = requests
         .iter()
-        .map(|r| {
-            has_kinematic(r.scene).then(|| r.scene.objects.iter().map(|o| o.kinematic).collect())
-        })
+        .map(|r| r.scene.objects.iter().map(|o| o.kinematic).collect())
         .collect();
     for step in 0..most {
         let live: Vec<usize> = (0..requests.len())
             .filter(|&i| step < requests[i].steps)
             .collect();
-        // The recorded poses after this step of every live request with kinematic objects.
-        let given: Vec<Option<Vec<Pose>>> = live
+        // The recorded poses after this step of the kinematic objects of every live request
+        // (none for a request without kinematic objects).
+        let targets: Vec<Vec<(usize, Pose)>> = live
             .iter()
             .map(|&i| {
                 let r = &requests[i];
+                if !kinematic[i].contains(&true) {
+                    return Ok(Vec::new());
+                }
                 let frame = starts[i] + (step + 1) * r.dt_steps as usize;
-                kinematic[i]
-                    .as_ref()
-                    .map(|_| poses_at(r.scene, frame))
-                    .transpose()
+                Ok(frame_targets(&kinematic[i], &poses_at(r.scene, frame)?))
             })
             .collect::<Result<_, EvalError>>()?;
+        let drives: Vec<Drive<'_>> = live
+            .iter()
+            .zip(&targets)
+            .map(|(&i, t)| Drive::new(&kinematic[i], t))
+            .collect();
         let batch: Vec<RolloutRequest<'_>> = live
             .iter()
-            .zip(&given)
-            .map(|(&i, given)| {
+            .zip(&drives)
+            .map(|(&i, drive)| {
                 let r = &requests[i];
-                let observed = match (&kinematic[i], given) {
-                    (Some(flags), Some(next)) if lead => states[i].lead_kinematic(flags, next),
-                    _ => states[i].clone(),
-                };
                 RolloutRequest {
                     scene: r.scene,
-                    observed,
+                    observed: drive.input(&states[i], lead),
                     dt_steps: r.dt_steps,
                     steps: 1,
                 }
             })
             .collect();
         let next = predictor.rollout_batch(&batch)?;
-        for ((&i, rollout), given) in live.iter().zip(next).zip(given) {
-            let mut poses = rollout
+        for ((&i, rollout), drive) in live.iter().zip(next).zip(&drives) {
+            let poses = rollout
                 .into_iter()
                 .next()
                 .ok_or_else(|| EvalError::Predictor {
@@ -88,15 +89,7 @@ pub fn driven_rollout_batch(
                     scene: i,
                     message: "returned no step".into(),
                 })?;
-            if let (Some(flags), Some(given)) = (&kinematic[i], given) {
-                for ((p, g), &k) in poses.iter_mut().zip(given).zip(flags) {
-                    if k {
-                        *p = g;
-                    }
-                }
-            }
-            states[i].advance(poses.clone());
-            out[i].push(poses);
+            out[i].push(drive.finish(&mut states[i], poses).to_vec());
         }
     }
     Ok(out)

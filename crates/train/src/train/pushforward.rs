@@ -2,7 +2,7 @@
 //! predictions, so that training sees the inputs a rollout gives the model
 //! (`DataConfig::pushforward` and `pushforward_steps`, docs/training.md).
 
-use dynaserve_model::{Pose, RigidFormer, SceneState, StepItem, WorldModel};
+use dynaserve_model::{Drive, Pose, RigidFormer, SceneState, StepItem, WorldModel, frame_targets};
 
 use super::TrainError;
 use super::data::Sample;
@@ -10,7 +10,9 @@ use super::data::Sample;
 /// Steps the model (inference, no gradient) for every sample that carries pushforward poses,
 /// all such samples in one batched pass per step, and makes its predictions the sample's
 /// observed poses: after one step the current pose, after two both (the previous one is then
-/// the first step's prediction). Kinematic objects keep their recorded poses at every step.
+/// the first step's prediction). Each step is a [`Drive`] to the recorded frame after it, the
+/// rule serving and driven evaluation follow too: kinematic objects keep their recorded poses
+/// at every step (and a `kinematic_lead` model reads them before the step).
 /// The first step has no earlier poses (as a rollout's first step from two poses); after two
 /// steps a sample that carries earlier poses gets the recorded ones before its new previous.
 /// Returns how many samples were replaced.
@@ -37,17 +39,25 @@ pub fn apply(model: &RigidFormer, samples: &mut [Sample]) -> Result<usize, Train
         let active: Vec<usize> = (0..chosen.len())
             .filter(|&c| step < recorded[c].len() - 1)
             .collect();
-        let seen: Vec<SceneState> = active
+        // Every kinematic object is driven to its recorded pose after this step: index
+        // step + 2 of `recorded`, or the sample's own current frame after the last recorded one.
+        let targets: Vec<Vec<(usize, Pose)>> = active
             .iter()
             .map(|&c| {
                 let s = &samples[chosen[c]];
-                if !lead {
-                    return states[c].clone();
-                }
-                // The kinematic objects' recorded poses after this step (`next` below).
                 let after = recorded[c].get(step + 2).unwrap_or(&s.state.current);
-                states[c].lead_kinematic(&s.kinematic, after)
+                frame_targets(&s.kinematic, after)
             })
+            .collect();
+        let drives: Vec<Drive<'_>> = active
+            .iter()
+            .zip(&targets)
+            .map(|(&c, t)| Drive::new(&samples[chosen[c]].kinematic, t))
+            .collect();
+        let seen: Vec<SceneState> = active
+            .iter()
+            .zip(&drives)
+            .map(|(&c, drive)| drive.input(&states[c], lead))
             .collect();
         let items: Vec<StepItem<'_>> = active
             .iter()
@@ -59,26 +69,8 @@ pub fn apply(model: &RigidFormer, samples: &mut [Sample]) -> Result<usize, Train
             })
             .collect();
         let predicted = model.step(&items)?;
-        drop(items);
-        for (&c, poses) in active.iter().zip(predicted) {
-            let s = &samples[chosen[c]];
-            // The recorded frame this step predicted: index step + 2 of `recorded`, or the
-            // sample's own current frame after the last recorded one.
-            let next: Vec<Pose> = poses
-                .into_iter()
-                .enumerate()
-                .map(|(j, pose)| {
-                    if s.kinematic.get(j).copied().unwrap_or(false) {
-                        match recorded[c].get(step + 2) {
-                            Some(frame) => frame[j],
-                            None => s.state.current[j],
-                        }
-                    } else {
-                        pose
-                    }
-                })
-                .collect();
-            states[c].advance(next);
+        for ((&c, poses), drive) in active.iter().zip(predicted).zip(&drives) {
+            drive.finish(&mut states[c], poses);
         }
     }
     for (c, &i) in chosen.iter().enumerate() {

@@ -21,8 +21,8 @@ use std::time::Instant;
 use candle_core::backprop::GradStore;
 use dynaserve_model::config::RIGIDFORMER;
 use dynaserve_model::{
-    FeatureNormalization, InputGroup, ModelUnit, RigidFormer, TrainItem, WorldModel,
-    load_rigidformer,
+    Drive, FeatureNormalization, InputGroup, ModelUnit, RigidFormer, TrainItem, WorldModel,
+    frame_targets, load_rigidformer,
 };
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -509,10 +509,12 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainSummary, Tra
                 )));
             }
             super::pushforward::apply(&model, &mut batch.samples)?;
-            if model.config().dynamics.kinematic_lead {
-                for s in batch.samples.iter_mut().filter(|s| s.kinematic.contains(&true)) {
-                    s.state = s.state.lead_kinematic(&s.kinematic, &s.target);
-                }
+            // The step trained on reads what a driven step reads: the kinematic objects
+            // driven to their poses in the target.
+            let lead = model.config().dynamics.kinematic_lead;
+            for s in batch.samples.iter_mut().filter(|s| s.kinematic.contains(&true)) {
+                let targets = frame_targets(&s.kinematic, &s.target);
+                s.state = Drive::new(&s.kinematic, &targets).input(&s.state, lead);
             }
             let items: Vec<TrainItem<'_>> = batch
                 .samples
