@@ -126,6 +126,7 @@ mod tests {
             previous: vec![at(0.0), at(1.0), at(2.0)],
             current: vec![at(0.1), at(1.1), at(2.1)],
             earlier: Some(vec![at(-0.1), at(0.9), at(1.9)]),
+            carry: Default::default(),
         }
     }
 

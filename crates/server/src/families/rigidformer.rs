@@ -13,7 +13,9 @@ use dynaserve_api::spec::{About, ModelInfo, ModelKind, Scene};
 use dynaserve_model::config::RIGIDFORMER;
 use dynaserve_model::ensemble::ENSEMBLE;
 use dynaserve_model::rigidformer::DEFAULT_MAX_PASS_OBJECTS;
-use dynaserve_model::{MAX_WORLD_EXTENT, PreparedScene, SceneState, StepItem, WorldModel};
+use dynaserve_model::{
+    Drive, MAX_WORLD_EXTENT, PreparedScene, SceneState, StepItem, WorldModel, frame_targets,
+};
 
 use super::{
     LoadOptions, ModelFamily, Prepared, Resident, SceneStep, Stepped, SteppedScene, SteppingModel,
@@ -91,11 +93,9 @@ impl RigidFormerModel {
     /// when it reads the scene's own state.
     fn input_state(&self, item: &SceneStep) -> Option<SceneState> {
         let drive = item.drive.as_ref()?;
-        self.model
-            .config()
-            .dynamics
-            .kinematic_lead
-            .then(|| item.state.lead_kinematic(&drive.kinematic, &drive.next))
+        let lead = self.model.config().dynamics.kinematic_lead;
+        let targets = frame_targets(&drive.kinematic, &drive.next);
+        lead.then(|| Drive::new(&drive.kinematic, &targets).input(&item.state, true))
     }
 }
 

@@ -5,10 +5,10 @@ use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use dynaserve_api::build::{check_request_cost, check_steps};
-use dynaserve_api::session_input::{Targets, check_action_speeds, check_actions, drive};
+use dynaserve_api::session_input::{Targets, check_action_speeds, check_actions};
 use dynaserve_api::spec::Frame;
 use dynaserve_api::spec::session::StepSpec;
-use dynaserve_model::SceneState;
+use dynaserve_model::{Drive, SceneState};
 use tokio::sync::mpsc;
 use tracing::Instrument;
 
@@ -22,7 +22,7 @@ use crate::scheduler::Priority;
 
 /// One stream of steps from a session's state: the model is told the kinematic objects'
 /// poses after each step ([`KinematicNext`]; a family reads them as it needs), and its output for
-/// those objects is replaced by them before the state advances ([`drive`]). Frame step
+/// those objects is replaced by them before the state advances ([`Drive`]). Frame step
 /// indices and times count from `base_step`.
 pub(crate) struct Driven {
     stepper: Stepper,
@@ -80,13 +80,13 @@ impl Driven {
         targets: &Targets,
         more_steps: bool,
     ) -> Result<Frame, ApiError> {
-        let state = self.stepper.state();
-        let mut next = state.current.clone();
-        drive(&mut next, state, &self.kinematic, targets);
+        // The one driven step (`dynaserve_model::Drive`): the kinematic poses after the step go
+        // to the family with the step, and replace its outputs for those objects after it.
+        let drive = Drive::new(&self.kinematic, targets);
         let reply = self.stepper.submit_driven(
             Some(KinematicNext {
                 kinematic: self.kinematic.clone(),
-                next,
+                next: drive.given_poses(self.stepper.state()),
             }),
             more_steps,
         );
@@ -95,12 +95,7 @@ impl Driven {
             Ok(Err(e)) => return Err(step_error(e)),
             Err(_) => return Err(ApiError::unavailable("server shutting down")),
         };
-        drive(
-            &mut done.output.poses,
-            self.stepper.state(),
-            &self.kinematic,
-            targets,
-        );
+        drive.overwrite(self.stepper.state(), &mut done.output.poses);
         let mut frame = self.stepper.accept(done)?;
         self.base_step += 1;
         frame.step = self.base_step;
