@@ -9,7 +9,7 @@ use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
 use common::*;
-use futures::SinkExt;
+use futures::{SinkExt, StreamExt};
 use http_body_util::{BodyExt, StreamBody};
 use hyper::body::{Bytes, Frame};
 use prost::Message;
@@ -490,13 +490,6 @@ fn create_body(model: &str, seed: u64, shared: bool) -> serde_json::Value {
     })
 }
 
-fn grpc_as<T>(token: &str, msg: T) -> tonic::Request<T> {
-    let mut r = tonic::Request::new(msg);
-    r.metadata_mut()
-        .insert("authorization", bearer(token).parse().unwrap());
-    r
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sessions_belong_to_their_caller_and_others_get_not_found() {
     let m = test_model();
@@ -554,25 +547,14 @@ async fn sessions_belong_to_their_caller_and_others_get_not_found() {
         );
     }
     // The same over gRPC, Interact included.
-    let mut c = grpc_sessions(&server).await;
-    let e = c
-        .get_state(grpc_as(
-            TOKEN_B,
-            dynaserve_api::v1::GetStateRequest {
-                session_id: id.clone(),
-            },
-        ))
-        .await
-        .unwrap_err();
+    let mut c = client(&server).await.with_bearer_token(TOKEN_B).unwrap();
+    let e = grpc_error(c.get_state(&id).await);
     assert_eq!(e.code(), tonic::Code::NotFound, "{}", e.message());
-    let (mut tx, rx) = futures::channel::mpsc::channel(4);
-    tx.send(dynaserve_api::v1::InteractRequest {
+    let open = dynaserve_api::v1::InteractRequest {
         session_id: id.clone(),
         ..Default::default()
-    })
-    .await
-    .unwrap();
-    let e = c.interact(grpc_as(TOKEN_B, rx)).await.unwrap_err();
+    };
+    let e = grpc_error(c.interact(open).await);
     assert_eq!(e.code(), tonic::Code::NotFound, "{}", e.message());
     // Still there for its owner after all that.
     assert_eq!(
@@ -694,35 +676,33 @@ async fn session_and_stream_quotas_are_per_caller() {
     assert_eq!(r.status, 201, "{}", r.text());
 
     // Streams: the first of A's holds its one slot while nobody reads it.
-    let mut c = grpc_world_model(&server).await;
-    let long = rollout_request(&m.name, scene(95, 1, 16), 5000).to_proto();
-    let held = c.rollout(grpc_as(TOKEN_A, long.clone())).await.unwrap();
-    let e = c.rollout(grpc_as(TOKEN_A, long.clone())).await.unwrap_err();
+    let mut a = client(&server).await.with_bearer_token(TOKEN_A).unwrap();
+    let mut b = a.clone().with_bearer_token(TOKEN_B).unwrap();
+    let long = rollout_request(&m.name, scene(95, 1, 16), 5000);
+    let held = a.rollout(&long).await.unwrap();
+    let e = grpc_error(a.rollout(&long).await);
     assert_eq!(e.code(), tonic::Code::ResourceExhausted, "{}", e.message());
     assert!(
         e.message().contains("--max-streams-per-caller"),
         "{}",
         e.message()
     );
-    let short = rollout_request(&m.name, scene(96, 1, 16), 2).to_proto();
-    let mut b = c
-        .rollout(grpc_as(TOKEN_B, short.clone()))
-        .await
-        .unwrap()
-        .into_inner();
+    let short = rollout_request(&m.name, scene(96, 1, 16), 2);
+    let mut frames = b.rollout(&short).await.unwrap().frames;
     let mut n = 0;
-    while let Some(f) = b.message().await.unwrap() {
+    while let Some(f) = frames.next().await {
         n += 1;
-        assert_eq!(f.step, n);
+        assert_eq!(f.unwrap().step, n);
     }
     assert_eq!(n, 2);
     // A's slot comes back when its stream goes.
     drop(held);
     let t = Instant::now();
     loop {
-        match c.rollout(grpc_as(TOKEN_A, short.clone())).await {
+        match a.rollout(&short).await {
             Ok(_) => break,
             Err(e) => {
+                let e = status_of(e);
                 assert_eq!(e.code(), tonic::Code::ResourceExhausted, "{}", e.message());
                 assert!(t.elapsed() < HANG, "the stream's quota never came back");
                 tokio::time::sleep(Duration::from_millis(50)).await;
@@ -751,17 +731,17 @@ async fn a_session_that_could_never_fit_is_invalid_not_a_retry() {
         "{}",
         e.error.message
     );
-    let mut c = grpc_sessions(&server).await;
-    let e = c
-        .create_session(dynaserve_api::v1::CreateSessionRequest {
+    let mut c = client(&server).await;
+    let e = grpc_error(
+        c.create_session(dynaserve_api::v1::CreateSessionRequest {
             model: m.name.clone(),
             scene: Some(scene(97, 64, 512).to_proto()),
             dt_steps: 1,
             kinematic: vec![],
             shared: false,
         })
-        .await
-        .unwrap_err();
+        .await,
+    );
     assert_eq!(e.code(), tonic::Code::InvalidArgument, "{}", e.message());
     // A small one fits.
     create_session_http(server.http_addr, &m.name, scene(98, 2, 32), vec![]).await;
@@ -791,11 +771,8 @@ async fn poses_implying_more_than_1000_m_per_s_are_refused_naming_the_object() {
         Some("scene.objects[1].previous_pose")
     );
     assert!(e.error.message.contains("1000 m/s"), "{}", e.error.message);
-    let mut c = grpc_world_model(&server).await;
-    let e = c
-        .rollout(rollout_request(&m.name, s, 2).to_proto())
-        .await
-        .unwrap_err();
+    let mut c = client(&server).await;
+    let e = grpc_error(c.rollout(&rollout_request(&m.name, s, 2)).await);
     assert_eq!(e.code(), tonic::Code::InvalidArgument, "{}", e.message());
     assert!(
         e.message().starts_with("scene.objects[1].previous_pose"),
@@ -885,8 +862,8 @@ async fn a_predict_variant_leaving_the_domain_is_named() {
         "{}",
         e.error.message
     );
-    let mut c = grpc_world_model(&server).await;
-    let e = c.predict(req.to_proto()).await.unwrap_err();
+    let mut c = client(&server).await;
+    let e = grpc_error(c.predict(&req).await);
     assert_eq!(e.code(), tonic::Code::OutOfRange);
     assert!(
         e.message().starts_with("variants[1].objects[0]"),
@@ -913,9 +890,9 @@ async fn a_grpc_client_that_never_reads_loses_its_slot_and_finds_the_status_afte
         .connect()
         .await
         .unwrap();
-    let mut slow = dynaserve_api::v1::world_model_client::WorldModelClient::new(channel);
-    let long = rollout_request(&m.name, scene(121, 8, 16), 10_000).to_proto();
-    let mut unread = slow.rollout(long).await.unwrap().into_inner();
+    let mut slow = dynaserve_client::Client::from_channel(channel);
+    let long = rollout_request(&m.name, scene(121, 8, 16), 10_000);
+    let mut unread = slow.rollout(&long).await.unwrap().frames;
     let t = Instant::now();
     loop {
         let stalled = sample(
@@ -929,20 +906,17 @@ async fn a_grpc_client_that_never_reads_loses_its_slot_and_finds_the_status_afte
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
     // Its slot is free: another client's rollout runs.
-    let mut c = grpc_world_model(&server).await;
-    let mut other = c
-        .rollout(rollout_request(&m.name, scene(122, 1, 16), 2).to_proto())
+    let mut c = client(&server).await;
+    c.rollout_collect(&rollout_request(&m.name, scene(122, 1, 16), 2))
         .await
-        .unwrap()
-        .into_inner();
-    while other.message().await.unwrap().is_some() {}
+        .unwrap();
     // Reading at last: the frames the server had sent, then the status that ended the stream.
     let mut frames = 0;
     let status = loop {
-        match tokio::time::timeout(HANG, unread.message()).await.unwrap() {
-            Ok(Some(_)) => frames += 1,
-            Ok(None) => panic!("ended without a status after {frames} frames"),
-            Err(s) => break s,
+        match tokio::time::timeout(HANG, unread.next()).await.unwrap() {
+            Some(Ok(_)) => frames += 1,
+            None => panic!("ended without a status after {frames} frames"),
+            Some(Err(e)) => break status_of(e),
         }
     };
     assert!(frames < 10_000);

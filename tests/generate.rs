@@ -9,12 +9,12 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use common::{grpc_world_model, http, metrics, parse_sse, post_json, sample};
+use common::{client, grpc_error, http, metrics, parse_sse, post_json, sample};
 use dynaserve_api::json;
 use dynaserve_api::v1;
-use dynaserve_api::v1::world_model_client::WorldModelClient;
+use dynaserve_client::{Client, ClientError};
 use dynaserve_server::{RunningServer, ServeConfig};
-use tonic::transport::Channel;
+use futures::StreamExt;
 
 const PHYSI: &str = "physiformer-small";
 const RIGID: &str = "rigidformer-small";
@@ -36,12 +36,8 @@ async fn start(tweak: impl FnOnce(&mut ServeConfig)) -> RunningServer {
 }
 
 /// The models ListModels reports over gRPC.
-async fn list_models(c: &mut WorldModelClient<Channel>) -> Vec<v1::ModelInfo> {
-    c.list_models(v1::ListModelsRequest {})
-        .await
-        .unwrap()
-        .into_inner()
-        .models
+async fn list_models(c: &mut Client) -> Vec<v1::ModelInfo> {
+    c.list_models().await.unwrap()
 }
 
 fn cube(c: [f32; 3], h: f32) -> Vec<[f32; 3]> {
@@ -95,22 +91,20 @@ fn request(frames: u32, steps: u32, samples: u32, seed: u64) -> json::GenerateRe
 
 /// A Generate call over gRPC: its progress events and samples (JSON form).
 async fn generate_grpc(
-    c: &mut WorldModelClient<Channel>,
+    c: &mut Client,
     req: &json::GenerateRequest,
-) -> Result<(Vec<json::GenerateProgress>, Vec<json::GeneratedSample>), tonic::Status> {
-    let mut stream = c.generate(req.to_proto()).await?.into_inner();
-    let (mut progress, mut samples) = (vec![], vec![]);
-    while let Some(ev) = stream.message().await? {
-        match ev.event.unwrap() {
-            v1::generate_event::Event::Progress(p) => {
-                progress.push(json::GenerateProgress::from_proto(&p))
-            }
-            v1::generate_event::Event::Sample(s) => {
-                samples.push(json::GeneratedSample::from_proto(&s))
-            }
-        }
-    }
-    Ok((progress, samples))
+) -> Result<(Vec<json::GenerateProgress>, Vec<json::GeneratedSample>), ClientError> {
+    let out = c.generate_collect(req.to_proto()).await?;
+    Ok((
+        out.progress
+            .iter()
+            .map(json::GenerateProgress::from_proto)
+            .collect(),
+        out.samples
+            .iter()
+            .map(json::GeneratedSample::from_proto)
+            .collect(),
+    ))
 }
 
 fn dist(a: [f32; 3], b: [f32; 3]) -> f32 {
@@ -138,7 +132,7 @@ fn max_vertex_diff(a: &[json::GeneratedSample], b: &[json::GeneratedSample]) -> 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn generate_over_grpc_and_http_with_both_models_resident() {
     let server = start(|_| {}).await;
-    let mut c = grpc_world_model(&server).await;
+    let mut c = client(&server).await;
 
     // ListModels shows both families with their limits.
     let models = list_models(&mut c).await;
@@ -331,7 +325,7 @@ async fn calls_started_at_different_steps_share_passes_and_return_what_they_retu
     // A longer wait for expected pass-mates than the default, so that the two calls meet on a
     // busy machine too; it changes when passes start, never what they compute.
     let server = start(|c| c.max_queue_delay_ms = 20.0).await;
-    let mut c = grpc_world_model(&server).await;
+    let mut c = client(&server).await;
     let a = request(6, 8, 1, 11);
     let mut b = request(6, 8, 1, 22);
     b.scene.objects.remove(0);
@@ -342,17 +336,18 @@ async fn calls_started_at_different_steps_share_passes_and_return_what_they_retu
     let (_, shared_before) = passes(&metrics(&server).await, PHYSI);
 
     // A starts; B starts once A has completed three denoising steps.
-    let mut stream_a = c.generate(a.to_proto()).await.unwrap().into_inner();
+    let mut stream_a = c.generate(a.to_proto()).await.unwrap().events;
     let mut progress_a = vec![];
     while progress_a.len() < 3 {
-        match stream_a.message().await.unwrap().unwrap().event.unwrap() {
+        match stream_a.next().await.unwrap().unwrap().event.unwrap() {
             v1::generate_event::Event::Progress(p) => progress_a.push(p),
             v1::generate_event::Event::Sample(_) => panic!("A finished before B started"),
         }
     }
     let rest_a = tokio::spawn(async move {
         let (mut progress, mut samples) = (vec![], vec![]);
-        while let Some(ev) = stream_a.message().await.unwrap() {
+        while let Some(ev) = stream_a.next().await {
+            let ev = ev.unwrap();
             match ev.event.unwrap() {
                 v1::generate_event::Event::Progress(p) => progress.push(p),
                 v1::generate_event::Event::Sample(s) => {
@@ -362,7 +357,7 @@ async fn calls_started_at_different_steps_share_passes_and_return_what_they_retu
         }
         (progress, samples)
     });
-    let mut cb = grpc_world_model(&server).await;
+    let mut cb = client(&server).await;
     let (progress_b, together_b) = generate_grpc(&mut cb, &b).await.unwrap();
     let (later_a, together_a) = rest_a.await.unwrap();
     progress_a.extend(later_a);
@@ -407,13 +402,13 @@ async fn calls_started_at_different_steps_share_passes_and_return_what_they_retu
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bad_generate_input_gets_a_clear_error_and_slots_are_freed() {
     let server = start(|c| c.max_generate_samples = 2).await;
-    let mut c = grpc_world_model(&server).await;
+    let mut c = client(&server).await;
     let good = request(4, 2, 1, 0);
 
     // gRPC: INVALID_ARGUMENT whose message starts with the field path.
     let mut p = good.to_proto();
     p.scene.as_mut().unwrap().objects[1].material = 0;
-    let e = c.generate(p).await.unwrap_err();
+    let e = grpc_error(c.generate(p).await);
     assert_eq!(e.code(), tonic::Code::InvalidArgument);
     assert!(
         e.message().starts_with("scene.objects[1].material"),
@@ -422,7 +417,7 @@ async fn bad_generate_input_gets_a_clear_error_and_slots_are_freed() {
     );
     let mut far = good.clone();
     far.scene.objects[0].vertices[2] = [0.0, 0.0, 3.0];
-    let e = c.generate(far.to_proto()).await.unwrap_err();
+    let e = grpc_error(c.generate(far.to_proto()).await);
     assert!(
         e.message().starts_with("scene.objects[0].vertices[2]"),
         "{}",
@@ -430,7 +425,7 @@ async fn bad_generate_input_gets_a_clear_error_and_slots_are_freed() {
     );
     let mut p = good.to_proto();
     p.scene.as_mut().unwrap().objects[0].vertices.pop();
-    let e = c.generate(p).await.unwrap_err();
+    let e = grpc_error(c.generate(p).await);
     assert!(
         e.message().starts_with("scene.objects[0].vertices"),
         "{}",
@@ -493,12 +488,12 @@ async fn bad_generate_input_gets_a_clear_error_and_slots_are_freed() {
     // A deadline that passes mid-way answers DEADLINE_EXCEEDED.
     let mut slow = request(49, 200, 1, 0);
     slow.timeout_ms = 50;
-    let e = generate_grpc(&mut c, &slow).await.unwrap_err();
+    let e = grpc_error(generate_grpc(&mut c, &slow).await);
     assert_eq!(e.code(), tonic::Code::DeadlineExceeded, "{e:?}");
 
     // Admission counts samples: two in flight fill the server; a third waits for a cancel.
     let busy = request(49, 200, 2, 0);
-    let stream = c.generate(busy.to_proto()).await.unwrap().into_inner();
+    let stream = c.generate(busy.to_proto()).await.unwrap();
     let resp = post_json(server.http_addr, "/v1/generate", &good).await;
     assert_eq!(resp.status, 429, "{}", resp.text());
     drop(stream);
@@ -530,7 +525,7 @@ async fn generate_above_the_cost_ceiling_is_refused_naming_denoise_steps_and_the
         c.max_request_cost = 5000;
     })
     .await;
-    let mut c = grpc_world_model(&server).await;
+    let mut c = client(&server).await;
     let models = list_models(&mut c).await;
     let physi = models.iter().find(|m| m.name == PHYSI).unwrap();
     let rigid = models.iter().find(|m| m.name == RIGID).unwrap();
@@ -547,7 +542,7 @@ async fn generate_above_the_cost_ceiling_is_refused_naming_denoise_steps_and_the
                 denoise steps - 1) x 1 sample = 320 vertex-frame evaluations exceeds the \
                 server's limit of 192 (--max-generate-cost); lower denoise_steps, frames, \
                 samples or vertices";
-    let e = generate_grpc(&mut c, &over).await.unwrap_err();
+    let e = grpc_error(generate_grpc(&mut c, &over).await);
     assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
     assert_eq!(e.message(), want);
     let resp = post_json(server.http_addr, "/v1/generate", &over).await;

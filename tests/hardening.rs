@@ -12,7 +12,6 @@ use std::time::{Duration, Instant};
 use common::*;
 use dynaserve_api::json;
 use dynaserve_api::v1;
-use dynaserve_api::v1::world_model_client::WorldModelClient;
 use dynaserve_server::ServeConfig;
 use futures::StreamExt;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -310,12 +309,6 @@ async fn a_client_that_never_reads_loses_its_stream_and_slot() {
 
 const TOKEN: &str = "test-token-0123456789abcdef";
 
-fn authed<T>(mut req: tonic::Request<T>, token: &str) -> tonic::Request<T> {
-    req.metadata_mut()
-        .insert("authorization", format!("Bearer {token}").parse().unwrap());
-    req
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bearer_tokens_guard_both_protocols() {
     let m = test_model();
@@ -364,22 +357,15 @@ async fn bearer_tokens_guard_both_protocols() {
         401
     );
 
-    let mut g = grpc_world_model(&server).await;
-    let e = g.list_models(v1::ListModelsRequest {}).await.unwrap_err();
+    let mut g = client(&server).await;
+    let e = grpc_error(g.list_models().await);
     assert_eq!(e.code(), Code::Unauthenticated, "{e:?}");
-    let e = g
-        .list_models(authed(
-            tonic::Request::new(v1::ListModelsRequest {}),
-            "nope-nope-nope-nope",
-        ))
-        .await
-        .unwrap_err();
+    let mut wrong = g.clone().with_bearer_token("nope-nope-nope-nope").unwrap();
+    let e = grpc_error(wrong.list_models().await);
     assert_eq!(e.code(), Code::Unauthenticated, "{e:?}");
-    let ok = g
-        .list_models(authed(tonic::Request::new(v1::ListModelsRequest {}), TOKEN))
-        .await
-        .unwrap();
-    assert_eq!(ok.into_inner().models[0].name, m.name);
+    let mut right = g.with_bearer_token(TOKEN).unwrap();
+    let ok = right.list_models().await.unwrap();
+    assert_eq!(ok[0].name, m.name);
     let channel = tonic::transport::Channel::from_shared(format!("http://{}", server.grpc_addr))
         .unwrap()
         .connect()
@@ -635,11 +621,11 @@ async fn odd_requests_get_the_right_status() {
     );
     // Oversized gRPC messages (beyond the decoding cap of 4x the limit) are INVALID_ARGUMENT
     // naming `request`, with a google.rpc.BadRequest detail.
-    let mut g = grpc_world_model(&server).await;
-    let big = rollout_request(&m.name, scene(90, 64, 64), 2).to_proto();
-    let e = match g.rollout(big).await {
+    let mut g = client(&server).await;
+    let big = rollout_request(&m.name, scene(90, 64, 64), 2);
+    let e = match g.rollout(&big).await {
         Ok(_) => panic!("oversized message accepted"),
-        Err(e) => e,
+        Err(e) => status_of(e),
     };
     assert_eq!(e.code(), Code::InvalidArgument, "{e:?}");
     assert!(e.message().starts_with("request: "), "{}", e.message());
@@ -769,8 +755,8 @@ async fn undecodable_grpc_messages_are_invalid_argument_naming_request() {
     }
     // A later message of an Interact stream that does not decode ends the stream with the
     // same refusal (not CANCELLED).
-    let mut sessions = dynaserve_api::v1::sessions_client::SessionsClient::new(channel.clone());
-    let info = sessions
+    let mut c = dynaserve_client::Client::from_channel(channel);
+    let info = c
         .create_session(v1::CreateSessionRequest {
             model: m.name.clone(),
             scene: Some(scene(73, 1, 16).to_proto()),
@@ -780,7 +766,7 @@ async fn undecodable_grpc_messages_are_invalid_argument_naming_request() {
         })
         .await
         .unwrap()
-        .into_inner();
+        .info;
     let open = prost::Message::encode_to_vec(&v1::InteractRequest {
         session_id: info.session_id.clone(),
         ..Default::default()
@@ -805,8 +791,7 @@ async fn undecodable_grpc_messages_are_invalid_argument_naming_request() {
     };
     assert_invalid_request(&e, "Interact step");
     // The server is unharmed: a well-formed call is served on the same connection.
-    let mut w = WorldModelClient::new(channel);
-    w.list_models(v1::ListModelsRequest {}).await.unwrap();
+    c.list_models().await.unwrap();
     server.shutdown();
     server.wait().await.unwrap();
 }

@@ -11,12 +11,11 @@ use std::time::{Duration, Instant};
 use common::*;
 use dynaserve_api::json;
 use dynaserve_api::v1;
-use dynaserve_api::v1::sessions_client::SessionsClient;
+use dynaserve_client::Client;
 use dynaserve_model::Pose;
-use futures::{SinkExt, StreamExt};
+use futures::StreamExt;
 use prost::Message;
 use tonic::Code;
-use tonic::transport::Channel;
 
 fn poses_of(frames: &[v1::StepFrame]) -> Vec<json::StepFrame> {
     frames.iter().map(json::StepFrame::from_proto).collect()
@@ -32,21 +31,14 @@ fn create(model: &str, scene: &json::Scene, kinematic: Vec<u32>) -> v1::CreateSe
     }
 }
 
-async fn step(c: &mut SessionsClient<Channel>, id: &str, steps: u32) -> Vec<v1::StepFrame> {
-    let mut s = c
-        .step(v1::StepRequest {
-            session_id: id.to_string(),
-            steps,
-            ..Default::default()
-        })
-        .await
-        .unwrap()
-        .into_inner();
-    let mut out = Vec::new();
-    while let Some(f) = s.next().await {
-        out.push(f.unwrap());
-    }
-    out
+async fn step(c: &mut Client, id: &str, steps: u32) -> Vec<v1::StepFrame> {
+    c.step_collect(v1::StepRequest {
+        session_id: id.to_string(),
+        steps,
+        ..Default::default()
+    })
+    .await
+    .unwrap()
 }
 
 fn pose_of(p: &v1::Pose) -> Pose {
@@ -65,21 +57,15 @@ async fn session_steps_fork_and_set_state_equal_the_rollout() {
     let model = load(&m.dir);
     let scene = scene(11, 3, 48);
     let expected = in_process(&*model, &rollout_request(&m.name, scene.clone(), 10));
-    let mut c = grpc_sessions(&server).await;
+    let mut c = client(&server).await;
     let info = c
         .create_session(create(&m.name, &scene, vec![]))
         .await
         .unwrap()
-        .into_inner();
+        .info;
     assert_eq!((info.session_id.len(), info.objects), (32, 3));
     let id = info.session_id.clone();
-    let start = c
-        .get_state(v1::GetStateRequest {
-            session_id: id.clone(),
-        })
-        .await
-        .unwrap()
-        .into_inner();
+    let start = c.get_state(&id).await.unwrap();
     // Two calls of 4 and 6 steps continue one trajectory: the rollout's.
     let mut frames = step(&mut c, &id, 4).await;
     frames.extend(step(&mut c, &id, 6).await);
@@ -87,13 +73,7 @@ async fn session_steps_fork_and_set_state_equal_the_rollout() {
     assert!(diff <= 1e-5, "session differs from the rollout by {diff}");
 
     // A fork continues exactly like its original.
-    let fork = c
-        .fork(v1::ForkRequest {
-            session_id: id.clone(),
-        })
-        .await
-        .unwrap()
-        .into_inner();
+    let fork = c.fork(&id).await.unwrap();
     assert_ne!(fork.session_id, id);
     let a = step(&mut c, &id, 3).await;
     let b = step(&mut c, &fork.session_id, 3).await;
@@ -117,8 +97,7 @@ async fn session_steps_fork_and_set_state_equal_the_rollout() {
             objects,
         })
         .await
-        .unwrap()
-        .into_inner();
+        .unwrap();
     assert_eq!(set.poses, start.poses);
     let again = step(&mut c, &id, 4).await;
     let mut renumbered = poses_of(&again);
@@ -128,19 +107,13 @@ async fn session_steps_fork_and_set_state_equal_the_rollout() {
     let diff = max_diff(&renumbered, &expected[..4]);
     assert!(diff <= 1e-5, "after SetState: {diff}");
     // The fork did not move with it.
-    let fs = c
-        .get_state(v1::GetStateRequest {
-            session_id: fork.session_id.clone(),
-        })
-        .await
-        .unwrap()
-        .into_inner();
+    let fs = c.get_state(&fork.session_id).await.unwrap();
     assert_eq!(fs.step, 13);
     assert_eq!(fs.poses, b[2].poses);
 
     // Bad input names the field; an unknown or deleted id is NOT_FOUND.
-    let bad = c
-        .set_state(v1::SetStateRequest {
+    let bad = grpc_error(
+        c.set_state(v1::SetStateRequest {
             session_id: id.clone(),
             objects: vec![v1::ObjectState {
                 object: 7,
@@ -148,23 +121,16 @@ async fn session_steps_fork_and_set_state_equal_the_rollout() {
                 motion: None,
             }],
         })
-        .await
-        .unwrap_err();
+        .await,
+    );
     assert_eq!(bad.code(), Code::InvalidArgument);
     assert!(
         bad.message().starts_with("objects[0].object"),
         "{}",
         bad.message()
     );
-    c.delete_session(v1::DeleteSessionRequest {
-        session_id: id.clone(),
-    })
-    .await
-    .unwrap();
-    let gone = c
-        .get_state(v1::GetStateRequest { session_id: id })
-        .await
-        .unwrap_err();
+    c.delete_session(&id).await.unwrap();
+    let gone = grpc_error(c.get_state(&id).await);
     assert_eq!(gone.code(), Code::NotFound);
     let text = metrics(&server).await;
     let forks = sample(
@@ -202,14 +168,14 @@ async fn predict_from_a_session_sends_20x_fewer_bytes_and_answers_identically() 
         dt_steps: 1,
         every: 2,
         timeout_ms: 0,
-    }
-    .to_proto();
-    let mut c = grpc_sessions(&server).await;
+    };
+    let full_bytes = full.to_proto().encoded_len();
+    let mut c = client(&server).await;
     let id = c
         .create_session(create(&m.name, &scene, vec![]))
         .await
         .unwrap()
-        .into_inner()
+        .info
         .session_id;
     let from_session = v1::SessionPredictRequest {
         session_id: id,
@@ -240,16 +206,14 @@ async fn predict_from_a_session_sends_20x_fewer_bytes_and_answers_identically() 
         every: 2,
         timeout_ms: 0,
     };
-    let ratio = full.encoded_len() as f64 / from_session.encoded_len() as f64;
+    let ratio = full_bytes as f64 / from_session.encoded_len() as f64;
     println!(
-        "request bytes: full scenes {} B, session {} B, ratio {ratio:.1}",
-        full.encoded_len(),
+        "request bytes: full scenes {full_bytes} B, session {} B, ratio {ratio:.1}",
         from_session.encoded_len()
     );
     assert!(ratio >= 20.0, "only {ratio:.1}x fewer bytes");
-    let mut wm = grpc_world_model(&server).await;
-    let a = wm.predict(full).await.unwrap().into_inner();
-    let b = c.predict(from_session).await.unwrap().into_inner();
+    let a = c.predict(&full).await.unwrap();
+    let b = c.predict_session(from_session).await.unwrap();
     assert_eq!(a.trajectories.len(), n);
     assert_eq!(b.trajectories.len(), n);
     let mut worst = 0.0f32;
@@ -257,12 +221,21 @@ async fn predict_from_a_session_sends_20x_fewer_bytes_and_answers_identically() 
         assert_eq!(ta.frames.len(), tb.frames.len());
         // The same steps are kept (every 2nd and the last), numbered alike: the renumbering
         // below only fits `max_diff`'s 1, 2, 3... convention.
-        let kept = |t: &v1::Trajectory| t.frames.iter().map(|f| f.step).collect::<Vec<_>>();
-        assert_eq!(kept(ta), kept(tb));
+        let kept_a: Vec<u32> = ta.frames.iter().map(|f| f.step).collect();
+        let kept_b: Vec<u32> = tb.frames.iter().map(|f| f.step).collect();
+        assert_eq!(kept_a, kept_b);
         let expected: Vec<Vec<Pose>> = ta
             .frames
             .iter()
-            .map(|f| f.poses.iter().map(pose_of).collect())
+            .map(|f| {
+                f.poses
+                    .iter()
+                    .map(|p| Pose {
+                        translation: p.translation,
+                        rotation: p.rotation,
+                    })
+                    .collect()
+            })
             .collect();
         let mut got = poses_of(&tb.frames);
         for (i, f) in got.iter_mut().enumerate() {
@@ -420,26 +393,18 @@ async fn caps_ttl_reaping_and_interact() {
     .await;
     let model = load(&m.dir);
     let scene = scene(41, 2, 48);
-    let mut c = grpc_sessions(&server).await;
+    let mut c = client(&server).await;
     let a = c
         .create_session(create(&m.name, &scene, vec![]))
         .await
         .unwrap()
-        .into_inner();
+        .info;
     c.create_session(create(&m.name, &scene, vec![]))
         .await
         .unwrap();
-    let full = c
-        .create_session(create(&m.name, &scene, vec![]))
-        .await
-        .unwrap_err();
+    let full = grpc_error(c.create_session(create(&m.name, &scene, vec![])).await);
     assert_eq!(full.code(), Code::ResourceExhausted);
-    let fork = c
-        .fork(v1::ForkRequest {
-            session_id: a.session_id.clone(),
-        })
-        .await
-        .unwrap_err();
+    let fork = grpc_error(c.fork(&a.session_id).await);
     assert_eq!(fork.code(), Code::ResourceExhausted);
 
     // Left alone, both expire.
@@ -449,46 +414,31 @@ async fn caps_ttl_reaping_and_interact() {
         assert!(Instant::now() < give_up, "sessions were not reaped");
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
-    let gone = c
-        .get_state(v1::GetStateRequest {
-            session_id: a.session_id,
-        })
-        .await
-        .unwrap_err();
+    let gone = grpc_error(c.get_state(&a.session_id).await);
     assert_eq!(gone.code(), Code::NotFound);
 
     // Interact: a stream that creates its session, then one frame per message; equal to the
     // rollout.
     let expected = in_process(&*model, &rollout_request(&m.name, scene.clone(), 5));
-    let (mut tx, rx) = futures::channel::mpsc::channel(8);
-    tx.send(v1::InteractRequest {
-        create: Some(create(&m.name, &scene, vec![])),
-        ..Default::default()
-    })
-    .await
-    .unwrap();
-    let resp = c.interact(rx).await.unwrap();
-    assert_eq!(
-        resp.metadata()
-            .get("x-dynaserve-session")
-            .unwrap()
-            .to_str()
-            .unwrap()
-            .len(),
-        32
-    );
-    let mut frames_in = resp.into_inner();
+    let mut interaction = c
+        .interact(v1::InteractRequest {
+            create: Some(create(&m.name, &scene, vec![])),
+            ..Default::default()
+        })
+        .await
+        .unwrap();
+    assert_eq!(interaction.session_id.len(), 32);
     let mut frames = Vec::new();
     for _ in 0..5 {
         // The next step is asked for only after the previous frame arrived: a closed loop.
-        tx.send(v1::InteractRequest::default()).await.unwrap();
-        frames.push(frames_in.next().await.unwrap().unwrap());
+        let step = interaction.step(v1::InteractRequest::default()).await;
+        frames.push(step.unwrap());
     }
     let diff = max_diff(&poses_of(&frames), &expected);
     assert!(diff <= 1e-5, "Interact differs from the rollout by {diff}");
-    drop(tx);
+    let mut rest = interaction.finish();
     assert!(
-        frames_in.next().await.is_none(),
+        rest.next().await.is_none(),
         "the stream ends with its input"
     );
     // Its own session is gone with it.
@@ -507,17 +457,12 @@ async fn caps_ttl_reaping_and_interact() {
 
 /// The box's pose after 4 steps of a session on `push_scene` with the box at 1 kg, the
 /// pusher at `pusher_mass` kg and `kinematic` the kinematic objects.
-async fn box_after(
-    c: &mut SessionsClient<Channel>,
-    model: &str,
-    pusher_mass: f32,
-    kinematic: Vec<u32>,
-) -> Pose {
+async fn box_after(c: &mut Client, model: &str, pusher_mass: f32, kinematic: Vec<u32>) -> Pose {
     let mut scene = push_scene();
     scene.objects[0].mass = 1.0;
     scene.objects[1].mass = pusher_mass;
     let created = c.create_session(create(model, &scene, kinematic)).await;
-    let id = created.unwrap().into_inner().session_id;
+    let id = created.unwrap().info.session_id;
     let frames = step(c, &id, 4).await;
     pose_of(&frames.last().unwrap().poses[0])
 }
@@ -529,7 +474,7 @@ async fn box_after(
 async fn a_kinematic_objects_mass_changes_nothing_under_relative_mass() {
     let m = random_model_with("relative", 41, |c| c.dynamics.relative_mass = true);
     let server = start(&m.dir, |_| {}).await;
-    let mut c = grpc_sessions(&server).await;
+    let mut c = client(&server).await;
     let diff = |a: &Pose, b: &Pose| {
         (0..3)
             .map(|d| (a.translation[d] - b.translation[d]).abs())
@@ -631,24 +576,22 @@ async fn interact_on_a_session_deleted_mid_stream_ends_with_not_found() {
     let server = start(&m.dir, |_| {}).await;
     let scene = scene(43, 2, 32);
     for over_http in [true, false] {
-        let mut c = grpc_sessions(&server).await;
+        let mut c = client(&server).await;
         let id = c
             .create_session(create(&m.name, &scene, vec![]))
             .await
             .unwrap()
-            .into_inner()
+            .info
             .session_id;
-        let (mut tx, rx) = futures::channel::mpsc::channel(8);
-        tx.send(v1::InteractRequest {
-            session_id: id.clone(),
-            ..Default::default()
-        })
-        .await
-        .unwrap();
-        let mut frames_in = c.interact(rx).await.unwrap().into_inner();
-        tx.send(v1::InteractRequest::default()).await.unwrap();
-        let first = frames_in.next().await.unwrap().unwrap();
-        assert_eq!(first.step, 1);
+        let mut interaction = c
+            .interact(v1::InteractRequest {
+                session_id: id.clone(),
+                ..Default::default()
+            })
+            .await
+            .unwrap();
+        let first = interaction.step(v1::InteractRequest::default()).await;
+        assert_eq!(first.unwrap().step, 1);
 
         if over_http {
             let resp = http(
@@ -662,30 +605,27 @@ async fn interact_on_a_session_deleted_mid_stream_ends_with_not_found() {
             assert_eq!(resp.status, 204, "{}", resp.text());
         } else {
             // Another client, on its own connection.
-            let mut other = grpc_sessions(&server).await;
-            other
-                .delete_session(v1::DeleteSessionRequest {
-                    session_id: id.clone(),
-                })
-                .await
-                .unwrap();
+            let mut other = client(&server).await;
+            other.delete_session(&id).await.unwrap();
         }
 
-        tx.send(v1::InteractRequest::default()).await.unwrap();
-        let end = frames_in.next().await.unwrap();
-        let status = end.expect_err("a deleted session must not be stepped");
+        interaction
+            .actions
+            .send(v1::InteractRequest::default())
+            .await
+            .unwrap();
+        let end = interaction.frames.next().await.unwrap();
+        let status = match end {
+            Err(dynaserve_client::ClientError::Status(s)) => s,
+            other => panic!("a deleted session must not be stepped: {other:?}"),
+        };
         assert_eq!(status.code(), Code::NotFound, "{}", status.message());
         assert!(status.message().contains(&id), "{}", status.message());
         assert!(
-            frames_in.next().await.is_none(),
+            interaction.frames.next().await.is_none(),
             "no frame follows the error"
         );
-        let gone = c
-            .get_state(v1::GetStateRequest {
-                session_id: id.clone(),
-            })
-            .await
-            .unwrap_err();
+        let gone = grpc_error(c.get_state(&id).await);
         assert_eq!(gone.code(), Code::NotFound);
     }
     server.shutdown();

@@ -233,7 +233,6 @@ struct BulkTally {
 
 /// Starts the bulk calls, each restarted when it ends; abort the returned tasks to cancel.
 fn start_bulk(
-    channel: &tonic::transport::Channel,
     client: &Client,
     predict: Option<json::PredictRequest>,
     gen_req: Option<v1::GenerateRequest>,
@@ -262,24 +261,22 @@ fn start_bulk(
     }
     if let Some(g) = gen_req {
         for _ in 0..a.generates {
-            let mut c = v1::world_model_client::WorldModelClient::new(channel.clone())
-                .max_decoding_message_size(usize::MAX);
-            let (g, t) = (g.clone(), tally.clone());
+            let (mut c, g, t) = (client.clone(), g.clone(), tally.clone());
             tasks.push(tokio::spawn(async move {
                 loop {
                     let r = async {
-                        let mut s = c.generate(g.clone()).await?.into_inner();
-                        while let Some(ev) = s.message().await? {
-                            if let Some(v1::generate_event::Event::Progress(_)) = ev.event {
+                        let mut generation = c.generate(g.clone()).await?;
+                        while let Some(ev) = generation.events.next().await {
+                            if let Some(v1::generate_event::Event::Progress(_)) = ev?.event {
                                 t.denoise_steps.fetch_add(1, Ordering::Relaxed);
                             }
                         }
-                        Ok::<(), tonic::Status>(())
+                        Ok::<(), dynaserve_client::ClientError>(())
                     }
                     .await;
                     if let Err(e) = r {
                         if t.errors.fetch_add(1, Ordering::Relaxed) == 0 {
-                            eprintln!("bulk Generate failed: {} {}", e.code(), e.message());
+                            eprintln!("bulk Generate failed: {e}");
                         }
                         tokio::time::sleep(Duration::from_millis(500)).await;
                     }
@@ -355,12 +352,9 @@ async fn measure(
     metrics_url: Option<&str>,
     gen_body: json::GenerateRequest,
 ) -> anyhow::Result<i32> {
-    let channel = tonic::transport::Channel::from_shared(target.to_string())
-        .context("bad --target")?
-        .connect()
+    let client = Client::connect(target)
         .await
         .with_context(|| format!("cannot reach the gRPC server at {target}"))?;
-    let client = Client::from_channel(channel.clone());
     let models = client.clone().list_models().await?;
     let (rigid, physi) = pick_models(&models);
     let rigid = rigid.context("the server has no RigidFormer model")?;
@@ -405,7 +399,6 @@ async fn measure(
     // Window 2: the same streams beside the bulk calls, which start first.
     let tally = Arc::new(BulkTally::default());
     let bulk = start_bulk(
-        &channel,
         &client,
         predict,
         gen_req.as_ref().map(json::GenerateRequest::to_proto),

@@ -11,8 +11,8 @@ use anyhow::Context;
 use clap::Args;
 use dynaserve_api::json;
 use dynaserve_api::v1;
-use dynaserve_api::v1::world_model_client::WorldModelClient;
-use tonic::transport::Channel;
+use dynaserve_client::{Client, ClientError};
+use futures::StreamExt;
 
 /// Flags of `generate`.
 #[derive(Args, Debug)]
@@ -52,15 +52,15 @@ struct Tally {
 }
 
 async fn one_call(
-    client: &mut WorldModelClient<Channel>,
+    client: &mut Client,
     req: &v1::GenerateRequest,
     t: &mut Tally,
-) -> Result<(), tonic::Status> {
+) -> Result<(), ClientError> {
     let start = Instant::now();
-    let mut stream = client.generate(req.clone()).await?.into_inner();
+    let mut generation = client.generate(req.clone()).await?;
     let (mut samples, mut steps, mut widest) = (0u64, 0u64, 0f64);
-    while let Some(ev) = stream.message().await? {
-        match ev.event {
+    while let Some(ev) = generation.events.next().await {
+        match ev?.event {
             Some(v1::generate_event::Event::Progress(p)) => {
                 steps += 1;
                 widest += f64::from(p.timing.map_or(0, |t| t.batch_scenes));
@@ -107,9 +107,7 @@ pub fn run(a: &GenerateArgs) -> anyhow::Result<i32> {
         .build()
         .context("starting the async runtime")?;
     runtime.block_on(async move {
-        let channel = Channel::from_shared(a.target.clone())
-            .context("bad --target")?
-            .connect()
+        let client = Client::connect(&a.target)
             .await
             .with_context(|| format!("cannot reach the gRPC server at {}", a.target))?;
         println!(
@@ -138,15 +136,14 @@ pub fn run(a: &GenerateArgs) -> anyhow::Result<i32> {
             let start = Instant::now();
             let workers: Vec<_> = (0..c)
                 .map(|_| {
-                    let mut client = WorldModelClient::new(channel.clone())
-                        .max_decoding_message_size(usize::MAX);
+                    let mut client = client.clone();
                     let req = req.clone();
                     tokio::spawn(async move {
                         let mut t = Tally::default();
                         while Instant::now() < until {
                             if let Err(e) = one_call(&mut client, &req, &mut t).await {
                                 if t.errors == 0 {
-                                    eprintln!("call failed: {} {}", e.code(), e.message());
+                                    eprintln!("call failed: {e}");
                                 }
                                 t.errors += 1;
                             }

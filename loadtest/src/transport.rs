@@ -44,6 +44,8 @@ impl From<ClientError> for CallError {
                 s.message().to_string(),
             ),
             ClientError::File { .. } => ("file".to_string(), e.to_string()),
+            ClientError::Metadata { .. } => ("metadata".to_string(), e.to_string()),
+            ClientError::StreamEnded(_) => ("incomplete".to_string(), e.to_string()),
         };
         CallError {
             code,

@@ -114,14 +114,32 @@ pub async fn start(dir: &Path, tweak: impl FnOnce(&mut ServeConfig)) -> RunningS
     server
 }
 
+/// The client crate's gRPC client on `server` (both services).
 pub async fn client(server: &RunningServer) -> dynaserve_client::Client {
     dynaserve_client::Client::connect(&format!("http://{}", server.grpc_addr))
         .await
         .unwrap()
 }
 
-/// The generated WorldModel gRPC stub on `server` (for what the client crate does not wrap:
-/// raw requests, metadata, status details).
+/// The server's error status in a client error (which must be one, not a local error).
+pub fn status_of(e: dynaserve_client::ClientError) -> tonic::Status {
+    match e {
+        dynaserve_client::ClientError::Status(s) => s,
+        e => panic!("expected an error status, got {e}"),
+    }
+}
+
+/// The status of a call that must fail with one.
+pub fn grpc_error<T>(r: Result<T, dynaserve_client::ClientError>) -> tonic::Status {
+    match r {
+        Ok(_) => panic!("the call succeeded; expected an error status"),
+        Err(e) => status_of(e),
+    }
+}
+
+/// The generated WorldModel gRPC stub on `server`, for what the client must not do: send
+/// requests it would not (malformed messages, metadata that is not sent that way) and read
+/// the answer's raw metadata. Ordinary calls go through [`client`].
 pub async fn grpc_world_model(
     server: &RunningServer,
 ) -> dynaserve_api::v1::world_model_client::WorldModelClient<tonic::transport::Channel> {
@@ -133,7 +151,7 @@ pub async fn grpc_world_model(
     .unwrap()
 }
 
-/// The generated Sessions gRPC stub on `server`.
+/// The generated Sessions gRPC stub on `server`, for the same uses as [`grpc_world_model`].
 pub async fn grpc_sessions(
     server: &RunningServer,
 ) -> dynaserve_api::v1::sessions_client::SessionsClient<tonic::transport::Channel> {

@@ -27,7 +27,7 @@ async fn a_disconnected_stream_frees_its_slot_before_the_next_step() {
         rollout.frames.next().await.unwrap().unwrap();
     }
     // A second stream is refused while the only slot is taken.
-    let err = c.rollout(&req).await.err().expect("slot should be taken");
+    let err = c.rollout(&req).await.expect_err("slot should be taken");
     assert!(
         matches!(err, dynaserve_client::ClientError::Status(ref s) if s.code() == Code::ResourceExhausted)
     );
@@ -260,8 +260,7 @@ async fn overload_yields_resource_exhausted_and_429_with_a_retry_hint() {
     let err = c
         .rollout(&req)
         .await
-        .err()
-        .expect("third stream must be refused");
+        .expect_err("third stream must be refused");
     assert_eq!(err.retry_after(), Some(Duration::from_millis(1500)));
     match err {
         dynaserve_client::ClientError::Status(s) => assert_eq!(s.code(), Code::ResourceExhausted),

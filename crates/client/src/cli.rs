@@ -6,9 +6,11 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
+use dynaserve_api::json;
 use futures::StreamExt;
 
-use crate::{Client, json, scene_file};
+use crate::client::Client;
+use crate::scene_file;
 
 /// Flags of `dynaserve rollout`.
 #[derive(Clone, Debug, clap::Args)]

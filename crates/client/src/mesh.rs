@@ -5,7 +5,7 @@ use std::path::Path;
 
 use dynaserve_api::json::TriangleMesh;
 
-use crate::ClientError;
+use crate::error::ClientError;
 
 fn err(path: &Path, message: impl Into<String>) -> ClientError {
     ClientError::File {

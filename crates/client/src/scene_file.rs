@@ -26,7 +26,7 @@ use std::path::Path;
 use dynaserve_api::json;
 use serde_json::Value;
 
-use crate::ClientError;
+use crate::error::ClientError;
 
 fn err(path: &Path, message: impl Into<String>) -> ClientError {
     ClientError::File {
