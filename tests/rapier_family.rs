@@ -14,7 +14,6 @@ use dynaserve_api::json;
 use dynaserve_api::v1;
 use dynaserve_server::ServeConfig;
 use dynaserve_sim::replay::{PathDoc, ReplayOptions, replay};
-use futures::{SinkExt, StreamExt};
 
 const SIM: &str = "rapier";
 const SIM_DIR: &str = "models/simulators/rapier";
@@ -307,36 +306,35 @@ async fn sessions_and_interact_drive_the_simulator_as_a_replay_with_paths() {
         assert!(w <= TOLERANCE, "session predict: {w} m");
     }
 
-    // gRPC Interact: a new session for the stream, one action per message.
-    let mut s = grpc_sessions(&server).await;
-    let (mut tx, rx) = futures::channel::mpsc::channel(4);
-    tx.send(v1::InteractRequest {
-        create: Some(v1::CreateSessionRequest {
-            model: SIM.into(),
-            scene: Some(scene.to_proto()),
-            dt_steps: 1,
-            kinematic: vec![1],
-            shared: false,
-        }),
-        ..Default::default()
-    })
-    .await
-    .unwrap();
-    let mut frames_in = s.interact(rx).await.unwrap().into_inner();
-    let mut frames = Vec::new();
-    for p in &path {
-        tx.send(v1::InteractRequest {
-            action: Some(v1::Action {
-                kinematic: vec![v1::ObjectPose {
-                    object: 1,
-                    pose: Some(p.to_proto()),
-                }],
+    // gRPC Interact through the client: a new session for the stream, one action per message.
+    let mut c = client(&server).await;
+    let mut interaction = c
+        .interact(v1::InteractRequest {
+            create: Some(v1::CreateSessionRequest {
+                model: SIM.into(),
+                scene: Some(scene.to_proto()),
+                dt_steps: 1,
+                kinematic: vec![1],
+                shared: false,
             }),
             ..Default::default()
         })
         .await
         .unwrap();
-        let f = frames_in.next().await.unwrap().unwrap();
+    let mut frames = Vec::new();
+    for p in &path {
+        let f = interaction
+            .step(v1::InteractRequest {
+                action: Some(v1::Action {
+                    kinematic: vec![v1::ObjectPose {
+                        object: 1,
+                        pose: Some(p.to_proto()),
+                    }],
+                }),
+                ..Default::default()
+            })
+            .await
+            .unwrap();
         frames.push(json::StepFrame::from_proto(&f));
     }
     let w = worst(&frames, &expected, 1);
