@@ -381,3 +381,47 @@ fn a_person_opens_the_viewer_runs_an_example_and_scrubs_the_timeline() {
     server.shutdown();
     runtime.block_on(server.wait()).unwrap();
 }
+
+/// The simulator beside a learned model: `?beside=rapier` rolls the same scene out on the
+/// served rapier family and draws it as the ghost, with the error chart against it.
+#[test]
+fn the_viewer_shows_the_simulator_beside_a_learned_model() {
+    let runtime = tokio::runtime::Runtime::new().unwrap();
+    let model = test_model();
+    let server = runtime.block_on(async {
+        let dirs = vec![
+            model.dir.clone(),
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("models/simulators/rapier"),
+        ];
+        let config = ServeConfig::local(dirs.clone());
+        let models = dynaserve_server::load_all(&dirs).unwrap();
+        let server = dynaserve_server::start(config, models).await.unwrap();
+        server.wait_ready(Duration::from_secs(60)).await.unwrap();
+        server
+    });
+    let url = format!(
+        "http://{}/?model={}&beside=rapier&scene=collision",
+        server.http_addr, model.name
+    );
+    let mut b = Browser::launch(1280, 800).unwrap();
+    b.navigate(&url).unwrap();
+    let done = b
+        .wait_for(
+            "document.body.dataset.state === 'done' && \
+             document.getElementById('error-text').textContent.includes('rapier (ghost)') && \
+             ({...document.body.dataset, legend: document.getElementById('legend').textContent, \
+               error: document.getElementById('error-text').textContent})",
+            WAIT,
+            PAGE_STATE,
+        )
+        .unwrap();
+    assert!(
+        done["legend"].as_str().unwrap().contains("ghost: rapier"),
+        "{done}"
+    );
+    assert!(
+        done["error"].as_str().unwrap().contains("cm mean point error"),
+        "{done}"
+    );
+    server.shutdown();
+}

@@ -3,7 +3,9 @@
 // frame as it arrives; for a PhysiFormer model (family `generate`), show the denoising
 // progress, then play the sampled trajectory back as deforming meshes in the model's box.
 // Play, pause and scrub; chart the server's per-step timings and, when the scene has ground
-// truth, the error against time.
+// truth, the error against time. "Beside" rolls the same scene out on a second resident model
+// (the rapier simulator shows what the learned model should have predicted) and draws it as
+// the ghost in place of the example's ground truth.
 //
 // The page reports its progress on <body> for people and for tests: data-state (loading, idle,
 // running, done, stopped, error), data-family (rollout or generate), data-frames (rollout:
@@ -22,7 +24,7 @@ import {
   positionsOf,
   sampleFrames,
 } from './scene.js';
-import { ApiFailure, getJson, setToken, streamPost } from './sse.js';
+import { ApiFailure, getJson, headers, setToken, streamPost } from './sse.js';
 import { drawChart } from './charts.js';
 
 const $ = (id) => document.getElementById(id);
@@ -163,7 +165,7 @@ function selectMeshExample(example, keepCamera) {
 }
 
 function hasTruth(example) {
-  return !!(example.ground_truth && example.ground_truth.length);
+  return !!($('ghost').value || (example.ground_truth && example.ground_truth.length));
 }
 
 function legend() {
@@ -187,7 +189,7 @@ function legend() {
     const sw = document.createElement('span');
     sw.className = 'swatch';
     sw.style.background = '#bfc5cc';
-    row.append(sw, 'ghost: ground truth');
+    row.append(sw, `ghost: ${$('ghost').value || 'ground truth'}`);
     items.push(row);
   }
   box.replaceChildren(...items);
@@ -269,7 +271,7 @@ async function run() {
   delete req.timeout_ms;
   st.requested = steps;
   st.stepSeconds = dtSteps * (model ? model.dt_frame : 1 / 24);
-  st.truth = truthFrames(st.example, dtSteps);
+  st.truth = $('ghost').value ? null : truthFrames(st.example, dtSteps);
   st.view.show(st.truth ? st.truth[0].positions : null, 'truth');
   st.running = true;
   st.playing = true;
@@ -277,6 +279,7 @@ async function run() {
   st.startedAt = performance.now();
   const abort = new AbortController();
   st.abort = abort;
+  if ($('ghost').value) ghostRollout($('ghost').value, { ...req, stream: false });
   setState('running');
   buttons();
   progress();
@@ -412,6 +415,28 @@ function selectExampleKeepInputs() {
     $(id).value = kept[i];
   });
   return ok;
+}
+
+/** Rolls the request out on the model `name` and shows its frames as the ghost. */
+async function ghostRollout(name, request) {
+  const abort = st.abort;
+  try {
+    const resp = await fetch('v1/rollout', {
+      method: 'POST',
+      headers: headers({ 'content-type': 'application/json' }),
+      body: JSON.stringify({ ...request, model: name }),
+    });
+    const doc = await resp.json();
+    if (!resp.ok) throw new Error(`${name}: ${doc.message || resp.status}`);
+    if (st.abort !== abort) return; // another run started meanwhile
+    const frames = [st.frames[0]];
+    for (const f of doc.frames) frames.push({ step: f.step, time: f.time, positions: positionsOf(f, st.bodies) });
+    st.truth = frames;
+    st.view.show(frames[0].positions, 'truth');
+    charts();
+  } catch (e) {
+    showError(`beside: ${e.message}`);
+  }
 }
 
 function truthFrames(example, dtSteps) {
@@ -582,7 +607,7 @@ function charts() {
     });
     const lastErr = pts[pts.length - 1];
     $('error-text').textContent = lastErr
-      ? `model (solid) against ground truth (ghost): ${(lastErr[1] * 100).toFixed(1)} cm mean point error at ${lastErr[0].toFixed(2)} s`
+      ? `model (solid) against ${$('ghost').value || 'ground truth'} (ghost): ${(lastErr[1] * 100).toFixed(1)} cm mean point error at ${lastErr[0].toFixed(2)} s`
       : 'model against ground truth';
   }
 }
@@ -609,6 +634,18 @@ async function loadLists() {
     st.models.find((m) => familyOf(m) === 'rollout' && st.examples.rollout.length) ||
     st.models[0];
   if (first) $('model').value = first.name;
+  $('ghost').append(
+    ...st.models
+      .filter((m) => familyOf(m) === 'rollout')
+      .map((m) => {
+        const o = document.createElement('option');
+        o.value = m.name;
+        o.textContent = `${m.name} (${m.architecture})`;
+        return o;
+      }),
+  );
+  const beside = st.models.find((m) => m.name === params.get('beside'));
+  if (beside) $('ghost').value = beside.name;
   setFamily(familyOf(first));
   fillExamples(params.get('scene') || (examples()[0] && examples()[0].name));
 }
@@ -637,6 +674,10 @@ function wire() {
   $('stop').addEventListener('click', () => stop());
   $('play').addEventListener('click', () => togglePlay());
   $('model').addEventListener('change', () => selectModel());
+  $('ghost').addEventListener('change', () => {
+    legend();
+    run();
+  });
   $('example').addEventListener('change', () => {
     stop();
     const e = examples()[Number($('example').value)];
