@@ -44,7 +44,8 @@ pub enum LogFormat {
 #[derive(Clone, Debug, clap::Args)]
 pub struct ServeConfig {
     /// Model checkpoint directories to serve (each with config.json and model.safetensors),
-    /// RigidFormer or PhysiFormer: the family is read from config.json's `architecture`.
+    /// a RigidFormer, a PhysiFormer or the rapier simulator (`models/simulators/rapier`): the
+    /// family is read from config.json's `architecture`.
     /// Repeatable. When none is given, every such directory under --models-dir is served.
     #[arg(long = "model", env = "DYNASERVE_MODELS", value_delimiter = ',')]
     pub models: Vec<PathBuf>,
