@@ -28,16 +28,13 @@ async fn start_both() -> dynaserve_server::RunningServer {
     server
 }
 
+/// The corners of a cube of half-size `half` metres.
 fn cube(half: f32) -> Vec<[f32; 3]> {
-    let mut p = Vec::new();
-    for x in [-half, half] {
-        for y in [-half, half] {
-            for z in [-half, half] {
-                p.push([x, y, z]);
-            }
-        }
-    }
-    p
+    dynaserve_geometry::mesh::cube()
+        .vertices
+        .iter()
+        .map(|v| v.map(|c| 2.0 * half * c))
+        .collect()
 }
 
 fn at_rest(points: Vec<[f32; 3]>, x: f32, z: f32, mass: f32) -> json::ObjectSpec {

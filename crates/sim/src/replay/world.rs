@@ -239,16 +239,13 @@ mod tests {
     use crate::scene::simulate;
     use dynaserve_api::json;
 
+    /// The corners of a cube of half-size `half` metres.
     fn cube(half: f32) -> Vec<[f32; 3]> {
-        let mut p = Vec::new();
-        for x in [-half, half] {
-            for y in [-half, half] {
-                for z in [-half, half] {
-                    p.push([x, y, z]);
-                }
-            }
-        }
-        p
+        dynaserve_geometry::mesh::cube()
+            .vertices
+            .iter()
+            .map(|v| v.map(|c| 2.0 * half * c))
+            .collect()
     }
 
     fn object(x: f32, vx: f32) -> json::ObjectSpec {
