@@ -14,6 +14,7 @@ use dynaserve_api::build::{build_scene, check_steps};
 use dynaserve_api::json;
 use dynaserve_api::limits::{Caps, Limits};
 use dynaserve_api::spec::Scene;
+use dynaserve_model::rigidformer::DEFAULT_MAX_PASS_OBJECTS;
 use dynaserve_model::{PassBudget, PreparedScene, SceneState, StepItem, WorldModel};
 
 use crate::recorder::{Recorder, RequestClock, ServerTiming};
@@ -63,10 +64,12 @@ impl InProcess {
         InProcess {
             model,
             limits,
+            // The server's rule: whole forwards of the RigidFormer's pass size.
             budget: PassBudget {
                 max_scenes: max_batch_scenes,
                 max_objects: max_batch_objects,
-            },
+            }
+            .in_whole_forwards(Some(DEFAULT_MAX_PASS_OBJECTS)),
         }
     }
 

@@ -25,6 +25,20 @@ impl PassBudget {
         }
     }
 
+    /// This budget in whole forwards of a model that computes a pass in forwards of
+    /// `forward` objects (RigidFormer: [`crate::rigidformer::DEFAULT_MAX_PASS_OBJECTS`]): the
+    /// object budget rounded down to a multiple of it, so that a full pass does not end in a
+    /// short forward; unchanged without a forward size or below one forward.
+    pub fn in_whole_forwards(self, forward: Option<usize>) -> PassBudget {
+        match forward {
+            Some(f) if f > 0 && self.max_objects > f => PassBudget {
+                max_objects: self.max_objects / f * f,
+                ..self
+            },
+            _ => self,
+        }
+    }
+
     /// How many leading items of `objects` (object count per item, in queue order) form the
     /// next pass, and their total object count. `(0, 0)` only when `objects` is empty.
     pub fn first_pass(&self, objects: impl IntoIterator<Item = usize>) -> (usize, usize) {
@@ -57,6 +71,15 @@ impl PassBudget {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_budget_in_whole_forwards_rounds_its_objects_down_to_a_multiple() {
+        let b = |n| PassBudget::objects(n);
+        assert_eq!(b(2048).in_whole_forwards(Some(160)).max_objects, 1920);
+        assert_eq!(b(2048).in_whole_forwards(None).max_objects, 2048);
+        assert_eq!(b(100).in_whole_forwards(Some(160)).max_objects, 100);
+        assert_eq!(b(320).in_whole_forwards(Some(160)).max_objects, 320);
+    }
 
     fn budget(max_scenes: usize, max_objects: usize) -> PassBudget {
         PassBudget {

@@ -62,7 +62,9 @@ pub struct ServeConfig {
     /// Most scenes in one batched forward pass (1 disables batching).
     #[arg(long, env = "DYNASERVE_MAX_BATCH_SCENES", default_value_t = 64)]
     pub max_batch_scenes: usize,
-    /// Most objects in one batched forward pass (a larger single scene still runs alone).
+    /// Most objects in one batched pass (a larger single scene still runs alone); a model that
+    /// computes a pass in forwards of a fixed size gets whole forwards (RigidFormer: multiples
+    /// of 160 objects, 1920 by default).
     #[arg(long, env = "DYNASERVE_MAX_BATCH_OBJECTS", default_value_t = 2048)]
     pub max_batch_objects: usize,
     /// Longest time, in milliseconds, a queued step waits for batch-mates that are expected

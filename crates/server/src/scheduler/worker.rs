@@ -49,8 +49,9 @@ impl<F: Family> Worker<F> {
     ) -> Worker<F> {
         let budget = PassBudget {
             max_scenes: config.max_batch_scenes.max(1),
-            max_objects: whole_forwards(config.max_batch_objects.max(1), family.forward_objects()),
-        };
+            max_objects: config.max_batch_objects.max(1),
+        }
+        .in_whole_forwards(family.forward_objects());
         let queue = Queue::new(budget, config.max_queue_delay, config.bulk_share);
         let queue = if family.separate_forwards() {
             queue.one_bulk_item_per_pass()
@@ -403,15 +404,6 @@ fn run_guarded<F: Family>(
     }
 }
 
-/// The pass object budget in whole forwards of `forward` objects (at least one), so that a
-/// full pass does not end in a short forward; `max_objects` itself without a forward size.
-fn whole_forwards(max_objects: usize, forward: Option<usize>) -> usize {
-    match forward {
-        Some(f) if f > 0 && max_objects > f => max_objects / f * f,
-        _ => max_objects,
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use std::sync::Mutex;
@@ -420,15 +412,6 @@ mod tests {
 
     use super::super::{Scheduler, StepError};
     use super::*;
-
-    #[test]
-    fn passes_are_whole_forwards_of_a_model_that_splits_them() {
-        assert_eq!(whole_forwards(2048, Some(160)), 1920);
-        assert_eq!(whole_forwards(2048, None), 2048);
-        // A budget below one forward stays as set.
-        assert_eq!(whole_forwards(100, Some(160)), 100);
-        assert_eq!(whole_forwards(320, Some(160)), 320);
-    }
 
     /// A stand-in family: an item is its tag, the output the tag plus one. The first pass
     /// reports that it started and is held until the test releases it, so a queue builds up
