@@ -1,6 +1,6 @@
 //! Per-request bookkeeping shared by every kind of request: the context a front end sets
-//! (protocol, request id, arrival, transport deadline), the call an engine entry point runs
-//! in (its span, and the record that counts its outcome in the metrics exactly once), and
+//! (protocol, request id, arrival, transport deadline), the call every engine entry point
+//! runs in (its span, and the record that counts its outcome in the metrics exactly once), and
 //! deadline helpers.
 
 use std::sync::Arc;
@@ -129,10 +129,11 @@ pub fn new_request_id() -> String {
     )
 }
 
-/// One engine call: its metrics record and its span. The call runs its admission (and, when
-/// it answers at once, all of its work) in the span, and its outcome is recorded exactly once,
-/// by [`Call::answer`], [`Call::fail`] or [`Call::finish`], or as cancelled when the call is
-/// dropped without one (client went away).
+/// One engine call: its metrics record and its span. Every entry point opens one; the call
+/// runs its admission (and, when it answers at once, all of its work) in the span, and its
+/// outcome is recorded exactly once, by [`Call::answer`], [`Call::end`], [`Call::fail`] or
+/// [`Call::finish`], or as cancelled when the call is dropped without one (client went away).
+/// A streamed call hands itself on to the task that produces its stream ([`Call::spawn`]).
 pub(crate) struct Call {
     rec: RequestRecord,
     span: tracing::Span,
@@ -162,6 +163,14 @@ impl Call {
         r.map_err(|e| self.fail_now(e))
     }
 
+    /// [`Call::admit`] for admission that does not wait.
+    pub(crate) fn admit_now<T>(
+        &mut self,
+        f: impl FnOnce() -> Result<T, ApiError>,
+    ) -> Result<T, ApiError> {
+        self.span.in_scope(f).map_err(|e| self.fail_now(e))
+    }
+
     /// Runs a call that answers at once: `fut` in the span, its outcome recorded.
     pub(crate) async fn answer<T>(
         mut self,
@@ -170,6 +179,26 @@ impl Call {
         let v = self.admit(fut).await?;
         self.rec.finish(None);
         Ok(v)
+    }
+
+    /// Spawns the task of a streamed call in the span, handing it the call to
+    /// [`end`](Call::end) when the stream is over.
+    pub(crate) fn spawn<F>(self, task: impl FnOnce(Call) -> F)
+    where
+        F: Future<Output = ()> + Send + 'static,
+    {
+        let span = self.span.clone();
+        tokio::spawn(task(self).instrument(span));
+    }
+
+    /// Records a streamed call's outcome (logging its error).
+    pub(crate) fn end(mut self, outcome: Result<(), ApiError>) {
+        match outcome {
+            Ok(()) => self.rec.finish(None),
+            Err(e) => {
+                self.fail_now(e);
+            }
+        }
     }
 
     /// Logs and records a failure in the span, returning the error.
@@ -189,7 +218,7 @@ impl Call {
 
 /// Records a request's outcome in the metrics exactly once; a request dropped without an
 /// outcome (client went away) counts as cancelled.
-pub(crate) struct RequestRecord {
+struct RequestRecord {
     metrics: Metrics,
     protocol: &'static str,
     method: &'static str,
@@ -199,7 +228,7 @@ pub(crate) struct RequestRecord {
 
 impl RequestRecord {
     /// Counts the request and starts its record.
-    pub(crate) fn new(metrics: &Metrics, ctx: &RequestCtx, method: &'static str) -> RequestRecord {
+    fn new(metrics: &Metrics, ctx: &RequestCtx, method: &'static str) -> RequestRecord {
         metrics
             .requests
             .with_label_values(&[ctx.protocol.as_str(), method])
@@ -214,7 +243,7 @@ impl RequestRecord {
     }
 
     /// Records the outcome (once; later calls do nothing).
-    pub(crate) fn finish(&mut self, error: Option<&ApiError>) {
+    fn finish(&mut self, error: Option<&ApiError>) {
         if !self.done {
             self.done = true;
             self.metrics.finish_request(
@@ -227,7 +256,7 @@ impl RequestRecord {
     }
 
     /// Logs and records a failure, returning the error.
-    pub(crate) fn fail(&mut self, e: ApiError) -> ApiError {
+    fn fail(&mut self, e: ApiError) -> ApiError {
         tracing::info!(code = e.code_name(), error = %e.message, "request failed");
         self.finish(Some(&e));
         e
@@ -315,11 +344,19 @@ mod tests {
         drop(refused);
         // Answered at once.
         assert_eq!(call("answered").answer(async { Ok(7) }).await.unwrap(), 7);
+        // Streamed: the task ends the call.
+        let (done_tx, done_rx) = tokio::sync::oneshot::channel();
+        call("streamed").spawn(move |c| async move {
+            c.end(Err(ApiError::deadline("deadline exceeded")));
+            let _ = done_tx.send(());
+        });
+        done_rx.await.unwrap();
         // Dropped without an outcome: the client went away.
         drop(call("dropped"));
         for (method, reason) in [
             ("refused", Some("invalid_argument")),
             ("answered", None),
+            ("streamed", Some("deadline_exceeded")),
             ("dropped", Some("cancelled")),
         ] {
             let counted =
