@@ -5,7 +5,8 @@
 //! - this module: the engine's lifecycle (ready, drain, close, shutdown), admission checks and
 //!   model lookup;
 //! - [`registry`]: resident models with their schedulers and limits, scene preparation;
-//! - [`request`]: request context, ids and the metrics record of each request;
+//! - [`request`]: request context, ids, and the call every entry point runs in (its span and
+//!   the metrics record of its outcome);
 //! - `stepper`: one scene stepping through the scheduler (the only code that submits steps);
 //! - `rollout`, `predict`, `warmup`: the three users of steppers;
 //! - Generate: resolved here, run by the sampling model's family (`crate::families`);
