@@ -5,7 +5,8 @@
 //! - this module: the engine's lifecycle (ready, drain, close, shutdown), admission checks and
 //!   model lookup;
 //! - [`registry`]: resident models with their schedulers and limits, scene preparation;
-//! - [`request`]: request context, ids and the metrics record of each request;
+//! - [`request`]: request context, ids, and the call every entry point runs in (its span and
+//!   the metrics record of its outcome);
 //! - `stepper`: one scene stepping through the scheduler (the only code that submits steps);
 //! - `rollout`, `predict`, `warmup`: the three users of steppers;
 //! - Generate: resolved here, run by the sampling model's family (`crate::families`);
@@ -45,7 +46,7 @@ use crate::families::{
 };
 use crate::metrics::Metrics;
 use crate::scheduler::{PassGate, SchedulerConfig};
-use request::RequestRecord;
+use request::Call;
 
 /// The models an engine serves, by how they are served.
 #[derive(Clone, Default)]
@@ -267,15 +268,13 @@ impl Engine {
     /// Counts a request that a front end rejected before it reached the engine (malformed or
     /// oversized payload) and returns the error.
     pub fn reject(&self, ctx: &RequestCtx, method: &'static str, e: ApiError) -> ApiError {
-        let mut rec = RequestRecord::new(&self.metrics, ctx, method);
         let span = tracing::info_span!("request", request_id = %ctx.request_id, method);
-        span.in_scope(|| rec.fail(e))
+        Call::new(&self.metrics, ctx, method, span).fail(e)
     }
 
     /// Resident models (both families) and their limits, sorted by name, for ListModels.
     pub fn list_models(&self, ctx: &RequestCtx) -> Vec<ModelInfo> {
-        let mut rec = RequestRecord::new(&self.metrics, ctx, "list_models");
-        rec.finish(None);
+        Call::new(&self.metrics, ctx, "list_models", tracing::Span::none()).finish();
         let mut out: Vec<ModelInfo> = self
             .models
             .values()

@@ -10,11 +10,10 @@ use dynaserve_api::build::{check_object_count, check_request_cost, check_steps};
 use dynaserve_api::spec::{Frame, PredictSpec, Prediction, Timing};
 use futures::future::try_join_all;
 use tokio::sync::OwnedSemaphorePermit;
-use tracing::Instrument;
 
 use super::Engine;
 use super::registry::{ModelEntry, prepare_scenes};
-use super::request::{GaugeGuard, RequestCtx, RequestRecord, for_variant, with_deadline};
+use super::request::{Call, GaugeGuard, RequestCtx, for_variant, with_deadline};
 use super::stepper::{Stepper, StepperSpec};
 use crate::error::ApiError;
 use crate::scheduler::Priority;
@@ -26,7 +25,6 @@ impl Engine {
         req: PredictSpec,
         ctx: RequestCtx,
     ) -> Result<Prediction, ApiError> {
-        let mut rec = RequestRecord::new(&self.metrics, &ctx, "predict");
         let span = tracing::info_span!(
             "predict",
             request_id = %ctx.request_id,
@@ -34,14 +32,9 @@ impl Engine {
             model = tracing::field::Empty,
             variants = req.variants.len()
         );
-        let result = self.predict_inner(req, &ctx).instrument(span.clone()).await;
-        span.in_scope(|| match result {
-            Ok(r) => {
-                rec.finish(None);
-                Ok(r)
-            }
-            Err(e) => Err(rec.fail(e)),
-        })
+        Call::new(&self.metrics, &ctx, "predict", span)
+            .answer(self.predict_inner(req, &ctx))
+            .await
     }
 
     async fn predict_inner(

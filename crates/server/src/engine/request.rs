@@ -1,10 +1,13 @@
 //! Per-request bookkeeping shared by every kind of request: the context a front end sets
-//! (protocol, request id, arrival, transport deadline), the record that counts the outcome in
-//! the metrics exactly once, and deadline helpers.
+//! (protocol, request id, arrival, transport deadline), the call every engine entry point
+//! runs in (its span, and the record that counts its outcome in the metrics exactly once), and
+//! deadline helpers.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
+
+use tracing::Instrument;
 
 use crate::error::ApiError;
 use crate::metrics::Metrics;
@@ -126,9 +129,96 @@ pub fn new_request_id() -> String {
     )
 }
 
+/// One engine call: its metrics record and its span. Every entry point opens one; the call
+/// runs its admission (and, when it answers at once, all of its work) in the span, and its
+/// outcome is recorded exactly once, by [`Call::answer`], [`Call::end`], [`Call::fail`] or
+/// [`Call::finish`], or as cancelled when the call is dropped without one (client went away).
+/// A streamed call hands itself on to the task that produces its stream ([`Call::spawn`]).
+pub(crate) struct Call {
+    rec: RequestRecord,
+    span: tracing::Span,
+}
+
+impl Call {
+    /// Counts the request under `method` and opens its record, logged in `span`.
+    pub(crate) fn new(
+        metrics: &Metrics,
+        ctx: &RequestCtx,
+        method: &'static str,
+        span: tracing::Span,
+    ) -> Call {
+        Call {
+            rec: RequestRecord::new(metrics, ctx, method),
+            span,
+        }
+    }
+
+    /// Runs `fut` in the span; its error is logged and recorded as the call's outcome. On
+    /// success the call goes on (the outcome is recorded later).
+    pub(crate) async fn admit<T>(
+        &mut self,
+        fut: impl Future<Output = Result<T, ApiError>>,
+    ) -> Result<T, ApiError> {
+        let r = fut.instrument(self.span.clone()).await;
+        r.map_err(|e| self.fail_now(e))
+    }
+
+    /// [`Call::admit`] for admission that does not wait.
+    pub(crate) fn admit_now<T>(
+        &mut self,
+        f: impl FnOnce() -> Result<T, ApiError>,
+    ) -> Result<T, ApiError> {
+        self.span.in_scope(f).map_err(|e| self.fail_now(e))
+    }
+
+    /// Runs a call that answers at once: `fut` in the span, its outcome recorded.
+    pub(crate) async fn answer<T>(
+        mut self,
+        fut: impl Future<Output = Result<T, ApiError>>,
+    ) -> Result<T, ApiError> {
+        let v = self.admit(fut).await?;
+        self.rec.finish(None);
+        Ok(v)
+    }
+
+    /// Spawns the task of a streamed call in the span, handing it the call to
+    /// [`end`](Call::end) when the stream is over.
+    pub(crate) fn spawn<F>(self, task: impl FnOnce(Call) -> F)
+    where
+        F: Future<Output = ()> + Send + 'static,
+    {
+        let span = self.span.clone();
+        tokio::spawn(task(self).instrument(span));
+    }
+
+    /// Records a streamed call's outcome (logging its error).
+    pub(crate) fn end(mut self, outcome: Result<(), ApiError>) {
+        match outcome {
+            Ok(()) => self.rec.finish(None),
+            Err(e) => {
+                self.fail_now(e);
+            }
+        }
+    }
+
+    /// Logs and records a failure in the span, returning the error.
+    pub(crate) fn fail(mut self, e: ApiError) -> ApiError {
+        self.fail_now(e)
+    }
+
+    /// Records a success.
+    pub(crate) fn finish(mut self) {
+        self.rec.finish(None);
+    }
+
+    fn fail_now(&mut self, e: ApiError) -> ApiError {
+        self.span.in_scope(|| self.rec.fail(e))
+    }
+}
+
 /// Records a request's outcome in the metrics exactly once; a request dropped without an
 /// outcome (client went away) counts as cancelled.
-pub(crate) struct RequestRecord {
+struct RequestRecord {
     metrics: Metrics,
     protocol: &'static str,
     method: &'static str,
@@ -138,7 +228,7 @@ pub(crate) struct RequestRecord {
 
 impl RequestRecord {
     /// Counts the request and starts its record.
-    pub(crate) fn new(metrics: &Metrics, ctx: &RequestCtx, method: &'static str) -> RequestRecord {
+    fn new(metrics: &Metrics, ctx: &RequestCtx, method: &'static str) -> RequestRecord {
         metrics
             .requests
             .with_label_values(&[ctx.protocol.as_str(), method])
@@ -153,7 +243,7 @@ impl RequestRecord {
     }
 
     /// Records the outcome (once; later calls do nothing).
-    pub(crate) fn finish(&mut self, error: Option<&ApiError>) {
+    fn finish(&mut self, error: Option<&ApiError>) {
         if !self.done {
             self.done = true;
             self.metrics.finish_request(
@@ -166,7 +256,7 @@ impl RequestRecord {
     }
 
     /// Logs and records a failure, returning the error.
-    pub(crate) fn fail(&mut self, e: ApiError) -> ApiError {
+    fn fail(&mut self, e: ApiError) -> ApiError {
         tracing::info!(code = e.code_name(), error = %e.message, "request failed");
         self.finish(Some(&e));
         e
@@ -240,5 +330,47 @@ mod tests {
         // With one, every request of that identity is one caller.
         let (a, b) = (a.with_identity(42), b.with_identity(42));
         assert_eq!((a.caller(), b.caller()), (42, 42));
+    }
+
+    #[tokio::test]
+    async fn a_call_records_one_outcome_whichever_way_it_ends() {
+        let metrics = Metrics::new(&[]);
+        let ctx = RequestCtx::new(Protocol::Grpc, None, None);
+        let call = |method| Call::new(&metrics, &ctx, method, tracing::Span::none());
+        // Refused in admission: the refusal is the outcome, not a cancellation on drop.
+        let mut refused = call("refused");
+        let e = ApiError::invalid("steps", "0 steps");
+        assert!(refused.admit(async { Err::<(), _>(e) }).await.is_err());
+        drop(refused);
+        // Answered at once.
+        assert_eq!(call("answered").answer(async { Ok(7) }).await.unwrap(), 7);
+        // Streamed: the task ends the call.
+        let (done_tx, done_rx) = tokio::sync::oneshot::channel();
+        call("streamed").spawn(move |c| async move {
+            c.end(Err(ApiError::deadline("deadline exceeded")));
+            let _ = done_tx.send(());
+        });
+        done_rx.await.unwrap();
+        // Dropped without an outcome: the client went away.
+        drop(call("dropped"));
+        for (method, reason) in [
+            ("refused", Some("invalid_argument")),
+            ("answered", None),
+            ("streamed", Some("deadline_exceeded")),
+            ("dropped", Some("cancelled")),
+        ] {
+            let counted =
+                |v: &prometheus::IntCounterVec, labels: &[&str]| v.with_label_values(labels).get();
+            assert_eq!(counted(&metrics.requests, &["grpc", method]), 1, "{method}");
+            let outcomes = metrics
+                .request_duration
+                .with_label_values(&["grpc", method])
+                .get_sample_count();
+            assert_eq!(outcomes, 1, "{method}");
+            for r in crate::metrics::FAILURE_REASONS {
+                let n = counted(&metrics.failures, &["grpc", method, r]);
+                assert_eq!(n, u64::from(reason == Some(*r)), "{method} {r}");
+            }
+        }
     }
 }

@@ -11,10 +11,9 @@ use std::time::Instant;
 use dynaserve_api::build::{check_object_count, check_request_cost, check_steps};
 use dynaserve_api::spec::{Frame, RolloutSpec};
 use tokio::sync::{OwnedSemaphorePermit, mpsc, watch};
-use tracing::Instrument;
 
 use super::Engine;
-use super::request::{GaugeGuard, RequestCtx, RequestRecord, sleep_until};
+use super::request::{Call, GaugeGuard, RequestCtx, sleep_until};
 use super::stepper::{Stepper, StepperSpec, step_error};
 use crate::error::ApiError;
 use crate::scheduler::Priority;
@@ -45,13 +44,13 @@ impl Engine {
         req: RolloutSpec,
         ctx: RequestCtx,
     ) -> Result<RolloutHandle, ApiError> {
-        let mut rec = RequestRecord::new(&self.metrics, &ctx, "rollout");
         let span = tracing::info_span!(
             "rollout",
             request_id = %ctx.request_id,
             protocol = ctx.protocol.as_str(),
             model = tracing::field::Empty
         );
+        let mut call = Call::new(&self.metrics, &ctx, "rollout", span);
         let steps = req.steps;
         let prepared = async {
             self.admit_check()?;
@@ -92,13 +91,8 @@ impl Engine {
                 },
             );
             Ok::<_, ApiError>((entry, deadline, permit, stepper, warnings))
-        }
-        .instrument(span.clone())
-        .await;
-        let (entry, deadline, permit, stepper, warnings) = match prepared {
-            Ok(p) => p,
-            Err(e) => return Err(span.in_scope(|| rec.fail(e))),
         };
+        let (entry, deadline, permit, stepper, warnings) = call.admit(prepared).await?;
         // One slot more than the buffer, held for the final error.
         let (tx, rx) = mpsc::channel(self.config.stream_buffer + 1);
         let session = Session {
@@ -117,27 +111,20 @@ impl Engine {
             .active_rollouts
             .with_label_values(&[entry.name.as_str()]);
         gauge.inc();
-        tokio::spawn(
-            async move {
-                let _permit: OwnedSemaphorePermit = permit;
-                let _gauge = GaugeGuard(gauge, 1);
-                let start = Instant::now();
-                match session.run(tx).await {
-                    Ok(()) => {
-                        tracing::info!(
-                            steps,
-                            ms = start.elapsed().as_secs_f64() * 1e3,
-                            "rollout finished"
-                        );
-                        rec.finish(None);
-                    }
-                    Err(e) => {
-                        rec.fail(e);
-                    }
-                }
+        call.spawn(move |call| async move {
+            let _permit: OwnedSemaphorePermit = permit;
+            let _gauge = GaugeGuard(gauge, 1);
+            let start = Instant::now();
+            let r = session.run(tx).await;
+            if r.is_ok() {
+                tracing::info!(
+                    steps,
+                    ms = start.elapsed().as_secs_f64() * 1e3,
+                    "rollout finished"
+                );
             }
-            .instrument(span),
-        );
+            call.end(r);
+        });
         Ok(RolloutHandle {
             model: entry.name.clone(),
             request_id: ctx.request_id,

@@ -10,10 +10,9 @@ use dynaserve_api::spec::Frame;
 use dynaserve_api::spec::session::StepSpec;
 use dynaserve_model::{Drive, SceneState};
 use tokio::sync::mpsc;
-use tracing::Instrument;
 
 use super::super::Engine;
-use super::super::request::{RequestCtx, RequestRecord, sleep_until};
+use super::super::request::{Call, RequestCtx, sleep_until};
 use super::super::stepper::{Stepper, StepperSpec, step_error};
 use super::Session;
 use crate::error::ApiError;
@@ -131,13 +130,13 @@ impl Engine {
         req: StepSpec,
         ctx: RequestCtx,
     ) -> Result<StepHandle, ApiError> {
-        let mut rec = RequestRecord::new(&self.metrics, &ctx, "session_step");
         let span = tracing::info_span!(
             "session_step",
             request_id = %ctx.request_id,
             session = %req.session_id,
             steps = req.steps
         );
+        let mut call = Call::new(&self.metrics, &ctx, "session_step", span);
         let prepared = async {
             self.admit_check()?;
             let session = self.sessions.get(&req.session_id, ctx.identity)?;
@@ -151,33 +150,23 @@ impl Engine {
             let targets = check_actions(&req.actions, req.steps, &session.kinematic, "actions")?;
             let quota = self.stream_quota(&ctx)?;
             Ok::<_, ApiError>((session, targets, quota))
-        }
-        .instrument(span.clone())
-        .await;
-        let (session, targets, quota) = match prepared {
-            Ok(p) => p,
-            Err(e) => return Err(span.in_scope(|| rec.fail(e))),
         };
+        let (session, targets, quota) = call.admit(prepared).await?;
         let deadline = ctx.deadline_with(req.timeout_ms, self.config.default_timeout());
         // Room for every frame and the final error: the call's own frames are its only backlog,
         // and the error always reaches a client that reads again.
         let (tx, rx) = mpsc::channel(targets.len() + 1);
         let engine = self.clone();
         let model = session.entry.name.clone();
-        tokio::spawn(
-            async move {
-                // The caller's stream quota is held until the steps end.
-                let _quota = quota;
-                match engine.run_steps(session, targets, deadline, ctx, &tx).await {
-                    Ok(()) => rec.finish(None),
-                    Err(e) => {
-                        let _ = tx.try_send(Err(e.clone()));
-                        rec.fail(e);
-                    }
-                }
+        call.spawn(move |call| async move {
+            // The caller's stream quota is held until the steps end.
+            let _quota = quota;
+            let r = engine.run_steps(session, targets, deadline, ctx, &tx).await;
+            if let Err(e) = &r {
+                let _ = tx.try_send(Err(e.clone()));
             }
-            .instrument(span),
-        );
+            call.end(r);
+        });
         Ok(StepHandle { model, frames: rx })
     }
 

@@ -9,10 +9,9 @@ use dynaserve_api::spec::Frame;
 use dynaserve_api::spec::session::{InteractOpen, InteractStep};
 use futures::{Stream, StreamExt};
 use tokio::sync::mpsc;
-use tracing::Instrument;
 
 use super::super::Engine;
-use super::super::request::{RequestCtx, RequestRecord, sleep_until};
+use super::super::request::{Call, RequestCtx, sleep_until};
 use super::driven::Driven;
 use super::{Session, not_found};
 use crate::error::ApiError;
@@ -46,8 +45,8 @@ impl Engine {
     where
         S: Stream<Item = Result<InteractStep, ApiError>> + Send + Unpin + 'static,
     {
-        let mut rec = RequestRecord::new(&self.metrics, &ctx, "interact");
         let span = tracing::info_span!("interact", request_id = %ctx.request_id);
+        let mut call = Call::new(&self.metrics, &ctx, "interact", span);
         let opened = async {
             self.admit_check()?;
             match open {
@@ -60,13 +59,8 @@ impl Engine {
                 }
             }
             .and_then(|opened| Ok((opened, self.stream_quota(&ctx)?)))
-        }
-        .instrument(span.clone())
-        .await;
-        let ((session, owned, warnings), quota) = match opened {
-            Ok(o) => o,
-            Err(e) => return Err(span.in_scope(|| rec.fail(e))),
         };
+        let ((session, owned, warnings), quota) = call.admit(opened).await?;
         let (tx, rx) = mpsc::channel(self.config.stream_buffer.max(1) + 1);
         let engine = self.clone();
         let handle = InteractHandle {
@@ -75,28 +69,22 @@ impl Engine {
             frames: rx,
             warnings,
         };
-        tokio::spawn(
-            async move {
-                // The caller's stream quota is held until the stream ends.
-                let _quota = quota;
-                // The slot of the final error, reserved first so that it always fits.
-                let last = tx.clone().reserve_owned().await;
-                let r = engine.run_interact(&session, input, &ctx, &tx).await;
-                if owned {
-                    engine.sessions.remove(&session.id);
-                }
-                match r {
-                    Ok(()) => rec.finish(None),
-                    Err(e) => {
-                        if let Ok(last) = last {
-                            last.send(Err(e.clone()));
-                        }
-                        rec.fail(e);
-                    }
-                }
+        call.spawn(move |call| async move {
+            // The caller's stream quota is held until the stream ends.
+            let _quota = quota;
+            // The slot of the final error, reserved first so that it always fits.
+            let last = tx.clone().reserve_owned().await;
+            let r = engine.run_interact(&session, input, &ctx, &tx).await;
+            if owned {
+                engine.sessions.remove(&session.id);
             }
-            .instrument(span),
-        );
+            if let Err(e) = &r
+                && let Ok(last) = last
+            {
+                last.send(Err(e.clone()));
+            }
+            call.end(r);
+        });
         Ok(handle)
     }
 

@@ -37,14 +37,13 @@ use dynaserve_api::spec::session::{
     CreateSessionSpec, SessionInfo, SessionStateView, SetStateSpec,
 };
 use dynaserve_model::SceneState;
-use tracing::Instrument;
 
 pub use driven::StepHandle;
 pub use interact::InteractHandle;
 
 use super::Engine;
 use super::registry::ModelEntry;
-use super::request::{RequestCtx, RequestRecord};
+use super::request::{Call, RequestCtx};
 use crate::config::SessionConfig;
 use crate::error::ApiError;
 use crate::families::SteppedScene;
@@ -444,21 +443,13 @@ impl Engine {
         method: &'static str,
         call: impl Future<Output = Result<T, ApiError>>,
     ) -> Result<T, ApiError> {
-        let mut rec = RequestRecord::new(&self.metrics, ctx, method);
         let span = tracing::info_span!("session", request_id = %ctx.request_id, method);
-        let r = async {
-            self.admit_check()?;
-            call.await
-        }
-        .instrument(span.clone())
-        .await;
-        span.in_scope(|| match r {
-            Ok(v) => {
-                rec.finish(None);
-                Ok(v)
-            }
-            Err(e) => Err(rec.fail(e)),
-        })
+        Call::new(&self.metrics, ctx, method, span)
+            .answer(async {
+                self.admit_check()?;
+                call.await
+            })
+            .await
     }
 
     /// Number of sessions held.

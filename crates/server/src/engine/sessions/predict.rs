@@ -9,11 +9,10 @@ use dynaserve_api::build::{check_request_cost, check_steps};
 use dynaserve_api::session_input::{Targets, apply_states, check_action_speeds, check_actions};
 use dynaserve_api::spec::session::SessionPredictSpec;
 use dynaserve_api::spec::{Frame, Prediction};
-use tracing::Instrument;
 
 use super::super::Engine;
 use super::super::predict::{Variant, check_variant_count};
-use super::super::request::{RequestCtx, RequestRecord, with_deadline};
+use super::super::request::{Call, RequestCtx, with_deadline};
 use super::driven::Driven;
 use crate::error::ApiError;
 
@@ -24,24 +23,15 @@ impl Engine {
         req: SessionPredictSpec,
         ctx: RequestCtx,
     ) -> Result<Prediction, ApiError> {
-        let mut rec = RequestRecord::new(&self.metrics, &ctx, "session_predict");
         let span = tracing::info_span!(
             "session_predict",
             request_id = %ctx.request_id,
             session = %req.session_id,
             variants = req.variants.len()
         );
-        match self
-            .session_predict_inner(req, &ctx)
-            .instrument(span.clone())
+        Call::new(&self.metrics, &ctx, "session_predict", span)
+            .answer(self.session_predict_inner(req, &ctx))
             .await
-        {
-            Ok(r) => {
-                rec.finish(None);
-                Ok(r)
-            }
-            Err(e) => Err(span.in_scope(|| rec.fail(e))),
-        }
     }
 
     async fn session_predict_inner(

@@ -19,10 +19,9 @@ use dynaserve_model::PhysiFormer;
 use dynaserve_model::physiformer::scene::{Material, MeshScene};
 use futures::future::try_join_all;
 use tokio::sync::{OwnedSemaphorePermit, mpsc};
-use tracing::Instrument;
 
 use super::denoise::{DenoiseSteps, GenerateError, GenerateJob, StepProgress, generate};
-use crate::engine::request::{GaugeGuard, RequestRecord, sleep_until};
+use crate::engine::request::{Call, GaugeGuard, sleep_until};
 use crate::engine::{Engine, RequestCtx, step_error};
 use crate::error::ApiError;
 use crate::families::{GenerateHandle, Sampler};
@@ -140,18 +139,15 @@ impl GeneratorEntry {
         req: GenerateSpec,
         ctx: RequestCtx,
     ) -> Result<GenerateHandle, ApiError> {
-        let mut rec = RequestRecord::new(&engine.metrics, &ctx, "generate");
         let span = tracing::info_span!(
             "generate",
             request_id = %ctx.request_id,
             protocol = ctx.protocol.as_str(),
             model = tracing::field::Empty
         );
-        let admitted = span.in_scope(|| self.admit_generate(engine, &req, &ctx));
-        let (params, scene, permit, priority) = match admitted {
-            Ok(a) => a,
-            Err(e) => return Err(span.in_scope(|| rec.fail(e))),
-        };
+        let mut call = Call::new(&engine.metrics, &ctx, "generate", span);
+        let (params, scene, permit, priority) =
+            call.admit_now(|| self.admit_generate(engine, &req, &ctx))?;
         let deadline = ctx.deadline_with(req.timeout_ms, engine.config.default_timeout());
         let (tx, rx) = mpsc::channel(params.steps + params.samples as usize + 1);
         let entry = self;
@@ -173,30 +169,24 @@ impl GeneratorEntry {
             .active_generate_samples
             .with_label_values(&[entry.name.as_str()]);
         gauge.add(i64::from(params.samples));
-        tokio::spawn(
-            async move {
-                let _permit: OwnedSemaphorePermit = permit;
-                let _gauge = GaugeGuard(gauge, i64::from(params.samples));
-                let start = Instant::now();
-                let r = run.run(&tx).await;
-                match r {
-                    Ok(()) => {
-                        tracing::info!(
-                            steps = params.steps,
-                            samples = params.samples,
-                            ms = start.elapsed().as_secs_f64() * 1e3,
-                            "generation finished"
-                        );
-                        rec.finish(None);
-                    }
-                    Err(e) => {
-                        let _ = tx.try_send(Err(e.clone()));
-                        rec.fail(e);
-                    }
+        call.spawn(move |call| async move {
+            let _permit: OwnedSemaphorePermit = permit;
+            let _gauge = GaugeGuard(gauge, i64::from(params.samples));
+            let start = Instant::now();
+            let r = run.run(&tx).await;
+            match &r {
+                Ok(()) => tracing::info!(
+                    steps = params.steps,
+                    samples = params.samples,
+                    ms = start.elapsed().as_secs_f64() * 1e3,
+                    "generation finished"
+                ),
+                Err(e) => {
+                    let _ = tx.try_send(Err(e.clone()));
                 }
             }
-            .instrument(span),
-        );
+            call.end(r);
+        });
         Ok(GenerateHandle {
             model: entry.name.clone(),
             request_id: ctx.request_id,
