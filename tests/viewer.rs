@@ -420,7 +420,10 @@ fn the_viewer_shows_the_simulator_beside_a_learned_model() {
         "{done}"
     );
     assert!(
-        done["error"].as_str().unwrap().contains("cm mean point error"),
+        done["error"]
+            .as_str()
+            .unwrap()
+            .contains("cm mean point error"),
         "{done}"
     );
     server.shutdown();
