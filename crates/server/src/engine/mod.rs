@@ -18,7 +18,7 @@ pub mod registry;
 pub mod request;
 mod rollout;
 pub mod sessions;
-mod stepper;
+pub(crate) mod stepper;
 mod warmup;
 
 use std::collections::BTreeMap;
@@ -31,50 +31,19 @@ use dynaserve_api::spec::{ModelInfo, Scene};
 use dynaserve_model::SceneState;
 use tokio::sync::{Semaphore, watch};
 
-pub use crate::families::GenerateHandle;
+pub use crate::families::contract::{GenerateHandle, Models};
 pub use registry::ModelEntry;
 use registry::{PreparedScenes, prepare_scenes};
 pub use request::{Protocol, RequestCtx, new_request_id};
 pub use rollout::RolloutHandle;
 pub use sessions::{InteractHandle, StepHandle};
-pub(crate) use stepper::step_error;
 
 use crate::config::ServeConfig;
 use crate::error::ApiError;
-use crate::families::{
-    Resident, Sampler, SamplingCaps, SamplingModel, SteppedScene, SteppingModel,
-};
+use crate::families::contract::{Sampler, SamplingCaps, SamplingHost, SteppedScene};
 use crate::metrics::Metrics;
 use crate::scheduler::{PassGate, SchedulerConfig};
 use request::Call;
-
-/// The models an engine serves, by how they are served.
-#[derive(Clone, Default)]
-pub struct Models {
-    /// Models served step by step (Rollout, Predict, sessions).
-    pub stepping: Vec<Arc<dyn SteppingModel>>,
-    /// Models served by sampling (Generate).
-    pub sampling: Vec<Arc<dyn SamplingModel>>,
-}
-
-impl Models {
-    /// Names of every model, stepping ones first.
-    pub fn names(&self) -> Vec<String> {
-        self.stepping
-            .iter()
-            .map(|m| m.name().to_string())
-            .chain(self.sampling.iter().map(|m| m.name().to_string()))
-            .collect()
-    }
-
-    /// Adds a loaded model.
-    pub fn push(&mut self, model: Resident) {
-        match model {
-            Resident::Stepping(m) => self.stepping.push(m),
-            Resident::Sampling(m) => self.sampling.push(m),
-        }
-    }
-}
 
 /// The server core shared by both front ends.
 pub struct Engine {
@@ -372,7 +341,7 @@ impl Engine {
             .admit_check()
             .and_then(|()| self.resolve_sampler(&req.model));
         match admitted {
-            Ok(sampler) => sampler.start_generate(self, req, ctx),
+            Ok(sampler) => sampler.start_generate(self.clone(), req, ctx),
             Err(e) => Err(self.reject(&ctx, "generate", e)),
         }
     }
@@ -403,5 +372,35 @@ impl Engine {
             ));
         }
         Ok(())
+    }
+}
+
+impl SamplingHost for Engine {
+    fn metrics(&self) -> &Metrics {
+        &self.metrics
+    }
+
+    fn config(&self) -> &ServeConfig {
+        &self.config
+    }
+
+    fn admit_check(&self) -> Result<(), ApiError> {
+        Engine::admit_check(self)
+    }
+
+    fn retry_after(&self) -> Duration {
+        Engine::retry_after(self)
+    }
+
+    fn generate_slots(&self) -> &Arc<Semaphore> {
+        &self.generate_slots
+    }
+
+    fn next_stream_id(&self) -> u64 {
+        self.next_stream.fetch_add(1, Ordering::Relaxed)
+    }
+
+    fn closing(&self) -> watch::Receiver<bool> {
+        self.close_tx.subscribe()
     }
 }

@@ -8,7 +8,7 @@ use dynaserve_api::spec::{ModelInfo, Scene};
 use dynaserve_model::{OutOfRange, SceneState};
 
 use crate::error::ApiError;
-use crate::families::{SteppedScene, SteppingModel};
+use crate::families::contract::{SteppedScene, SteppingModel};
 use crate::metrics::Metrics;
 use crate::scheduler::{Scheduler, SchedulerConfig, Steps};
 

@@ -11,7 +11,7 @@ use tokio::sync::oneshot;
 
 use super::registry::ModelEntry;
 use crate::error::ApiError;
-use crate::families::{KinematicNext, SceneStep, Stepped, SteppedScene, pose_in_domain};
+use crate::families::contract::{KinematicNext, SceneStep, Stepped, SteppedScene, pose_in_domain};
 use crate::scheduler::{Done, Job, Priority, StepError};
 
 /// The reply of one submitted step.

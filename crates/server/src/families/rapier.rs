@@ -28,9 +28,8 @@ use dynaserve_sim::replay::{
 use dynaserve_sim::scene::FloorSpec;
 use serde::{Deserialize, Serialize};
 
-use super::{
-    LoadOptions, ModelFamily, Prepared, Resident, SceneStep, Stepped, SteppedScene, SteppingModel,
-};
+use super::contract::{Prepared, Resident, SceneStep, Stepped, SteppedScene, SteppingModel};
+use super::{LoadOptions, ModelFamily};
 use crate::error::ApiError;
 
 /// config.json's `architecture` for the simulator.

@@ -17,10 +17,10 @@ use dynaserve_model::{
     Drive, MAX_WORLD_EXTENT, PreparedScene, SceneState, StepItem, WorldModel, frame_targets,
 };
 
-use super::{
-    LoadOptions, ModelFamily, Prepared, Resident, SceneStep, Stepped, SteppedScene, SteppingModel,
-    pose_in_domain,
+use super::contract::{
+    Models, Prepared, Resident, SceneStep, Stepped, SteppedScene, SteppingModel, pose_in_domain,
 };
+use super::{LoadOptions, ModelFamily};
 use crate::error::ApiError;
 
 /// Loads `rigidformer` checkpoints and `rigidformer-ensemble` directories.
@@ -100,9 +100,9 @@ impl RigidFormerModel {
 }
 
 /// RigidFormer models served step by step (the models of `dynaserve_server::load_models`).
-impl From<Vec<Arc<dyn WorldModel>>> for crate::engine::Models {
-    fn from(models: Vec<Arc<dyn WorldModel>>) -> crate::engine::Models {
-        crate::engine::Models {
+impl From<Vec<Arc<dyn WorldModel>>> for Models {
+    fn from(models: Vec<Arc<dyn WorldModel>>) -> Models {
+        Models {
             stepping: models
                 .into_iter()
                 .map(|m| Arc::new(RigidFormerModel::new(m)) as Arc<dyn SteppingModel>)

@@ -4,7 +4,7 @@
 
 use std::sync::Arc;
 
-use crate::families::{SceneStep, Stepped, SteppingModel};
+use crate::families::contract::{SceneStep, Stepped, SteppingModel};
 
 /// A model family as the scheduler sees it.
 pub trait Family: Send + Sync + 'static {

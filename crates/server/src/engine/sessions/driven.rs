@@ -16,7 +16,7 @@ use super::super::request::{Call, RequestCtx, sleep_until};
 use super::super::stepper::{Stepper, StepperSpec, step_error};
 use super::Session;
 use crate::error::ApiError;
-use crate::families::KinematicNext;
+use crate::families::contract::KinematicNext;
 use crate::scheduler::Priority;
 
 /// One stream of steps from a session's state: the model is told the kinematic objects'

@@ -46,7 +46,7 @@ use super::registry::ModelEntry;
 use super::request::{Call, RequestCtx};
 use crate::config::SessionConfig;
 use crate::error::ApiError;
-use crate::families::SteppedScene;
+use crate::families::contract::SteppedScene;
 use crate::metrics::Metrics;
 use ledger::{Charge, Ledger, Usage};
 

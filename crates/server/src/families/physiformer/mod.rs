@@ -12,7 +12,8 @@ use std::sync::Arc;
 use dynaserve_model::PhysiFormer;
 use dynaserve_model::physiformer::config::PHYSIFORMER;
 
-use super::{LoadOptions, ModelFamily, Resident, SamplingCaps, SamplingModel};
+use super::contract::{Resident, Sampler, SamplingCaps, SamplingModel};
+use super::{LoadOptions, ModelFamily};
 use crate::metrics::Metrics;
 use crate::scheduler::SchedulerConfig;
 
@@ -42,7 +43,7 @@ impl SamplingModel for PhysiFormer {
         caps: SamplingCaps,
         scheduling: SchedulerConfig,
         metrics: &Metrics,
-    ) -> std::io::Result<Arc<dyn super::Sampler>> {
+    ) -> std::io::Result<Arc<dyn Sampler>> {
         Ok(Arc::new(GeneratorEntry::start(
             self,
             &caps.generate,

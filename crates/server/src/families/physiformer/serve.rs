@@ -4,7 +4,6 @@
 //! has completed a step; the samples follow, in order, once all are done.
 
 use std::sync::Arc;
-use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use dynaserve_api::generate::{
@@ -21,10 +20,11 @@ use futures::future::try_join_all;
 use tokio::sync::{OwnedSemaphorePermit, mpsc};
 
 use super::denoise::{DenoiseSteps, GenerateError, GenerateJob, StepProgress, generate};
+use crate::engine::request::RequestCtx;
 use crate::engine::request::{Call, GaugeGuard, sleep_until};
-use crate::engine::{Engine, RequestCtx, step_error};
+use crate::engine::stepper::step_error;
 use crate::error::ApiError;
-use crate::families::{GenerateHandle, Sampler};
+use crate::families::contract::{GenerateHandle, Sampler, SamplingHost};
 use crate::metrics::Metrics;
 use crate::scheduler::{Priority, Scheduler, SchedulerConfig};
 
@@ -135,7 +135,7 @@ impl GeneratorEntry {
     /// per step plus one per sample), so a slow reader never holds up the passes.
     fn generate_call(
         self: Arc<Self>,
-        engine: &Arc<Engine>,
+        engine: Arc<dyn SamplingHost>,
         req: GenerateSpec,
         ctx: RequestCtx,
     ) -> Result<GenerateHandle, ApiError> {
@@ -145,10 +145,10 @@ impl GeneratorEntry {
             protocol = ctx.protocol.as_str(),
             model = tracing::field::Empty
         );
-        let mut call = Call::new(&engine.metrics, &ctx, "generate", span);
+        let mut call = Call::new(engine.metrics(), &ctx, "generate", span);
         let (params, scene, permit, priority) =
-            call.admit_now(|| self.admit_generate(engine, &req, &ctx))?;
-        let deadline = ctx.deadline_with(req.timeout_ms, engine.config.default_timeout());
+            call.admit_now(|| self.admit_generate(engine.as_ref(), &req, &ctx))?;
+        let deadline = ctx.deadline_with(req.timeout_ms, engine.config().default_timeout());
         let (tx, rx) = mpsc::channel(params.steps + params.samples as usize + 1);
         let entry = self;
         let run = GenerateRun {
@@ -165,7 +165,7 @@ impl GeneratorEntry {
             caller: ctx.caller(),
         };
         let gauge = engine
-            .metrics
+            .metrics()
             .active_generate_samples
             .with_label_values(&[entry.name.as_str()]);
         gauge.add(i64::from(params.samples));
@@ -200,7 +200,7 @@ impl GeneratorEntry {
     #[allow(clippy::type_complexity)]
     fn admit_generate(
         &self,
-        engine: &Engine,
+        engine: &dyn SamplingHost,
         req: &GenerateSpec,
         ctx: &RequestCtx,
     ) -> Result<
@@ -223,20 +223,20 @@ impl GeneratorEntry {
             .map_err(|e| ApiError::invalid("scene", e))?;
         // The call's cost, now that the scene's vertices are counted; before any slot is taken.
         let cost = check_generate_cost(&params, req.sampler, scene.vertices(), &entry.limits)?;
-        let priority = if engine.config.scheduling.generate_is_bulk(cost) {
+        let priority = if engine.config().scheduling.generate_is_bulk(cost) {
             Priority::Bulk
         } else {
             Priority::Interactive
         };
         let permit = engine
-            .generate_slots
+            .generate_slots()
             .clone()
             .try_acquire_many_owned(params.samples)
             .map_err(|_| {
                 ApiError::exhausted(
                     format!(
                         "{} Generate samples are in flight, the server's limit; retry later",
-                        engine.config.max_generate_samples
+                        engine.config().max_generate_samples
                     ),
                     engine.retry_after(),
                 )
@@ -248,7 +248,7 @@ impl GeneratorEntry {
 
 /// One admitted Generate call.
 struct GenerateRun {
-    engine: Arc<Engine>,
+    engine: Arc<dyn SamplingHost>,
     entry: Arc<GeneratorEntry>,
     params: GenerateParams,
     scene: Arc<MeshScene>,
@@ -272,10 +272,14 @@ impl GenerateRun {
         tx: &mpsc::Sender<Result<GenerateEvent, ApiError>>,
     ) -> Result<(), ApiError> {
         let name = self.entry.name.as_str();
-        let steps_metric = self.engine.metrics.denoise_steps.with_label_values(&[name]);
+        let steps_metric = self
+            .engine
+            .metrics()
+            .denoise_steps
+            .with_label_values(&[name]);
         let sample_seconds = self
             .engine
-            .metrics
+            .metrics()
             .generate_sample_seconds
             .with_label_values(&[name]);
         let progress = std::sync::Mutex::new(Progress {
@@ -294,7 +298,7 @@ impl GenerateRun {
                 noise: self.noise.get(i as usize).cloned(),
                 priority: self.priority,
                 deadline: self.deadline,
-                stream_id: self.engine.next_stream.fetch_add(1, Ordering::Relaxed),
+                stream_id: self.engine.next_stream_id(),
                 caller: self.caller,
                 request_id: self.request_id.clone(),
             };
@@ -317,7 +321,7 @@ impl GenerateRun {
                 Ok::<_, ApiError>(out)
             }
         });
-        let mut close = self.engine.close_tx.subscribe();
+        let mut close = self.engine.closing();
         let trajectories = tokio::select! {
             r = try_join_all(samples) => r?,
             _ = tx.closed() => return Err(ApiError::cancelled("client went away")),
@@ -364,7 +368,7 @@ impl Sampler for GeneratorEntry {
 
     fn start_generate(
         self: Arc<Self>,
-        engine: &Arc<Engine>,
+        engine: Arc<dyn SamplingHost>,
         req: GenerateSpec,
         ctx: RequestCtx,
     ) -> Result<GenerateHandle, ApiError> {
@@ -374,7 +378,7 @@ impl Sampler for GeneratorEntry {
     /// One denoising step of a two-frame sample of one tetrahedron.
     fn warm_up<'a>(
         &'a self,
-        engine: &'a Engine,
+        engine: &'a dyn SamplingHost,
     ) -> futures::future::BoxFuture<'a, Result<(), ApiError>> {
         Box::pin(async move {
             let positions = vec![
@@ -398,7 +402,7 @@ impl Sampler for GeneratorEntry {
                 noise: None,
                 priority: Priority::Interactive,
                 deadline: None,
-                stream_id: engine.next_stream.fetch_add(1, Ordering::Relaxed),
+                stream_id: engine.next_stream_id(),
                 caller: 0,
                 request_id: crate::scheduler::WARMUP_REQUEST_ID.into(),
             };
