@@ -16,8 +16,6 @@
 //!   conversions from and to each wire form ([`spec::json`], [`spec::v1`]);
 //! - [`limits`]: every request limit, defined once (the extents are the model's);
 //! - [`build`]: validation of a neutral scene into model inputs;
-//! - [`generate`]: validation of a Generate request into PhysiFormer inputs, and its sampled
-//!   trajectories back into per-object frames with fitted rigid motions;
 //! - [`session_input`]: validation of session inputs (kinematic objects, object states,
 //!   actions) against a session's scene.
 //!
@@ -27,8 +25,6 @@
 #[cfg(feature = "model")]
 pub mod build;
 mod error;
-#[cfg(feature = "model")]
-pub mod generate;
 pub mod json;
 pub mod json_body;
 #[cfg(feature = "model")]

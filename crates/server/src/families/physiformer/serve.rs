@@ -7,9 +7,6 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Instant;
 
-use dynaserve_api::generate::{
-    GenerateParams, build_mesh_scene, check_generate, check_generate_cost, mesh_frames,
-};
 use dynaserve_api::limits::{GenerateCaps, GenerateLimits};
 use dynaserve_api::spec::generate::{
     GenerateEvent, GenerateProgress, GenerateSpec, GeneratedSample,
@@ -22,6 +19,8 @@ use tokio::sync::{OwnedSemaphorePermit, mpsc};
 use tracing::Instrument;
 
 use super::denoise::{DenoiseSteps, GenerateError, GenerateJob, StepProgress, generate};
+use super::mesh_scene::{GenerateParams, build_mesh_scene, check_generate, check_generate_cost};
+use super::sample_frames::mesh_frames;
 use crate::engine::request::{GaugeGuard, RequestRecord, sleep_until};
 use crate::engine::{Engine, RequestCtx, step_error};
 use crate::error::ApiError;
