@@ -5,6 +5,7 @@
 //! - this module: the engine's lifecycle (ready, drain, close, shutdown), admission checks and
 //!   model lookup;
 //! - [`registry`]: resident models with their schedulers and limits, scene preparation;
+//! - [`admission`]: a stepping request's steps, step size and cost against its limits;
 //! - [`request`]: request context, ids and the metrics record of each request;
 //! - `stepper`: one scene stepping through the scheduler (the only code that submits steps);
 //! - `rollout`, `predict`, `warmup`: the three users of steppers;
@@ -12,6 +13,7 @@
 //! - [`sessions`]: scenes kept with their state between calls (planners), stepped through
 //!   steppers whose kinematic objects follow given poses.
 
+pub mod admission;
 mod predict;
 pub mod registry;
 pub mod request;

@@ -4,8 +4,6 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Instant;
 
-use dynaserve_api::build::{check_request_cost, check_steps};
-use dynaserve_api::session_input::{Targets, check_action_speeds, check_actions};
 use dynaserve_api::spec::Frame;
 use dynaserve_api::spec::session::StepSpec;
 use dynaserve_model::{Drive, SceneState};
@@ -13,9 +11,11 @@ use tokio::sync::mpsc;
 use tracing::Instrument;
 
 use super::super::Engine;
+use super::super::admission::{check_request_cost, check_steps};
 use super::super::request::{RequestCtx, RequestRecord, sleep_until};
 use super::super::stepper::{Stepper, StepperSpec, step_error};
 use super::Session;
+use super::input::{Targets, check_action_speeds, check_actions};
 use crate::error::ApiError;
 use crate::families::KinematicNext;
 use crate::scheduler::Priority;
