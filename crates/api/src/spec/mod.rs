@@ -7,8 +7,8 @@
 //!
 //! Units: metres, seconds, kilograms, radians; z up; quaternions `[x, y, z, w]`.
 
-pub mod generate;
 pub mod json;
+pub mod sampling;
 pub mod session;
 pub mod v1;
 

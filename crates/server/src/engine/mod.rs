@@ -27,7 +27,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
-use dynaserve_api::spec::generate::GenerateSpec;
+use dynaserve_api::spec::sampling::GenerateSpec;
 use dynaserve_api::spec::{ModelInfo, Scene};
 use dynaserve_model::SceneState;
 use tokio::sync::{Semaphore, watch};

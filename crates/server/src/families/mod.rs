@@ -25,7 +25,7 @@ use std::sync::Arc;
 
 use anyhow::Context;
 use dynaserve_api::limits::{Caps, GenerateCaps, Limits};
-use dynaserve_api::spec::generate::{GenerateEvent, GenerateSpec};
+use dynaserve_api::spec::sampling::{GenerateEvent, GenerateSpec};
 use dynaserve_api::spec::{ModelInfo, Scene};
 use dynaserve_model::{Carry, OutOfRange, Pose, SceneState};
 

@@ -15,7 +15,7 @@
 
 use dynaserve_api::FieldError;
 use dynaserve_api::limits::{GenerateLimits, network_evaluations, vertex_frame_evaluations};
-use dynaserve_api::spec::generate::{GenerateSpec, MeshObjectSpec, SamplerKind};
+use dynaserve_api::spec::sampling::{GenerateSpec, MeshObjectSpec, SamplerKind};
 use dynaserve_model::physiformer::scene::{MAX_SPEED, MeshScene};
 
 use crate::error::count;

@@ -2,7 +2,7 @@
 //! (Kabsch) to each rigid object and, unless the request asked for the raw sample, its
 //! vertices moved exactly rigidly by it.
 
-use dynaserve_api::spec::generate::{MeshFrame, ObjectFrame, RigidFit};
+use dynaserve_api::spec::sampling::{MeshFrame, ObjectFrame, RigidFit};
 use dynaserve_model::physiformer::rigid::fit_rigid;
 use dynaserve_model::physiformer::scene::{Material, MeshScene};
 
@@ -83,7 +83,7 @@ pub fn mesh_frames(
 mod tests {
     use super::*;
     use dynaserve_api::limits::{GenerateCaps, GenerateLimits};
-    use dynaserve_api::spec::generate::MeshObjectSpec;
+    use dynaserve_api::spec::sampling::MeshObjectSpec;
     use dynaserve_model::physiformer::config::PhysiConfig;
 
     use crate::families::physiformer::mesh_scene::build_mesh_scene;

@@ -8,7 +8,7 @@ use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use dynaserve_api::limits::{GenerateCaps, GenerateLimits};
-use dynaserve_api::spec::generate::{
+use dynaserve_api::spec::sampling::{
     GenerateEvent, GenerateProgress, GenerateSpec, GeneratedSample,
 };
 use dynaserve_api::spec::{About, ModelInfo, ModelKind, StepTiming};
@@ -261,7 +261,7 @@ struct GenerateRun {
     entry: Arc<GeneratorEntry>,
     params: GenerateParams,
     scene: Arc<MeshScene>,
-    sampler: dynaserve_api::spec::generate::SamplerKind,
+    sampler: dynaserve_api::spec::sampling::SamplerKind,
     seed: u64,
     /// Starting noise per sample, when the request gave it.
     noise: Vec<Arc<Vec<f32>>>,
