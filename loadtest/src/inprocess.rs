@@ -1,21 +1,22 @@
 //! The same load run through `dynaserve_model` directly, with no server: scenes are validated
-//! and built exactly as the server builds them (`dynaserve_api::build`, under the server's
-//! default caps), prepared, and stepped in lockstep, every round split into forward passes by
-//! the one batching rule (`dynaserve_model::PassBudget`: scene cap and object budget, FIFO), as
-//! the server's scheduler forms passes when every stream is waiting. Comparing this with a
-//! server run of the same scenes gives the server's overhead.
+//! and built exactly as the server builds them (`dynaserve_server::families::built_scene`,
+//! under the server's default caps), prepared, and stepped in lockstep, every round split into
+//! forward passes by the one batching rule (`dynaserve_model::PassBudget`: scene cap and
+//! object budget, FIFO), as the server's scheduler forms passes when every stream is waiting.
+//! Comparing this with a server run of the same scenes gives the server's overhead.
 
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use dynaserve_api::build::{build_scene, check_steps};
 use dynaserve_api::json;
 use dynaserve_api::limits::{Caps, Limits};
 use dynaserve_api::spec::Scene;
 use dynaserve_model::rigidformer::DEFAULT_MAX_PASS_OBJECTS;
 use dynaserve_model::{PassBudget, PreparedScene, SceneState, StepItem, WorldModel};
+use dynaserve_server::engine::admission::check_steps;
+use dynaserve_server::families::built_scene::build_scene;
 
 use crate::recorder::{Recorder, RequestClock, ServerTiming};
 use crate::transport::CallError;

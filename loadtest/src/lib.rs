@@ -20,7 +20,7 @@
 
 pub mod cli;
 pub mod fairness;
-pub mod generate;
+pub mod generate_mode;
 pub mod inprocess;
 pub mod recorder;
 pub mod report;

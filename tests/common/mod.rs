@@ -1,7 +1,7 @@
 //! Shared helpers of the end-to-end tests: a real RigidFormer checkpoint on disk, a server on
 //! 127.0.0.1 with free ports, scenes (the client crate's random scenes), the in-process
-//! reference rollout (scenes built by the API crate, as the server builds them), and one-shot
-//! HTTP calls through the client crate's HTTP client.
+//! reference rollout (scenes built by the server crate's `families::built_scene`, as the
+//! server builds them), and one-shot HTTP calls through the client crate's HTTP client.
 
 #![allow(dead_code)]
 
@@ -9,12 +9,12 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 
-use dynaserve_api::build::build_scene;
 use dynaserve_api::json;
 use dynaserve_api::limits::{Caps, Limits};
 use dynaserve_api::spec::Scene;
 use dynaserve_client::http::{HttpBase, HttpConn, SseParser, read_all};
 use dynaserve_model::{ModelConfig, Pose, RigidFormer, WorldModel};
+use dynaserve_server::families::built_scene::build_scene;
 use dynaserve_server::{RunningServer, ServeConfig};
 
 /// Directory removed on drop.

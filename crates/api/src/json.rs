@@ -11,9 +11,9 @@
 
 use serde::{Deserialize, Serialize};
 
-mod generate;
+mod sampling;
 mod session;
-pub use generate::{
+pub use sampling::{
     GenerateDone, GenerateProgress, GenerateRequest, GenerateResponse, GeneratedSample, Material,
     MeshFrame, MeshObject, MeshScene, ObjectFrame, Sampler,
 };

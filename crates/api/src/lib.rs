@@ -13,29 +13,22 @@
 //!
 //! With the `model` feature (the server, the load tester's in-process mode, the tests):
 //! - [`spec`]: the protocol-neutral requests and results the engine takes and emits, with
-//!   conversions from and to each wire form ([`spec::json`], [`spec::v1`]);
-//! - [`limits`]: every request limit, defined once (the extents are the model's);
-//! - [`build`]: validation of a neutral scene into model inputs;
-//! - [`generate`]: validation of a Generate request into PhysiFormer inputs, and its sampled
-//!   trajectories back into per-object frames with fitted rigid motions;
-//! - [`session_input`]: validation of session inputs (kinematic objects, object states,
-//!   actions) against a session's scene.
+//!   conversions from and to each wire form ([`spec::json`], [`spec::v1`]) that check what the
+//!   wire form's structure demands and name the field;
+//! - [`limits`]: every request limit, defined once (the extents are the model's).
+//!
+//! What a request's values must satisfy beyond that (scene building, session inputs, Generate
+//! scenes) is the server's to check, with the model family that uses them.
 //!
 //! Units and conventions (metres, seconds, kilograms, z up, quaternions `[x, y, z, w]`) are
 //! documented on every field of the `.proto` file and of [`json`].
 
-#[cfg(feature = "model")]
-pub mod build;
 mod error;
-#[cfg(feature = "model")]
-pub mod generate;
 pub mod json;
 pub mod json_body;
 #[cfg(feature = "model")]
 pub mod limits;
 pub mod listening;
-#[cfg(feature = "model")]
-pub mod session_input;
 #[cfg(feature = "model")]
 pub mod spec;
 pub mod wire;

@@ -195,6 +195,16 @@ impl ApiError {
     }
 }
 
+/// `n` and the word for one or for many, as messages count what a request asks for: `1 step`,
+/// `3 steps`.
+pub(crate) fn count(n: u64, one: &str, many: &str) -> String {
+    if n == 1 {
+        format!("{n} {one}")
+    } else {
+        format!("{n} {many}")
+    }
+}
+
 impl From<FieldError> for ApiError {
     fn from(e: FieldError) -> ApiError {
         ApiError::invalid(e.field, e.message)

@@ -10,7 +10,7 @@ use std::pin::Pin;
 use std::sync::Arc;
 use std::time::Duration;
 
-use dynaserve_api::spec::generate::GenerateSpec;
+use dynaserve_api::spec::sampling::GenerateSpec;
 use dynaserve_api::spec::{Frame, PredictSpec, RolloutSpec, millis};
 use dynaserve_api::v1;
 use dynaserve_api::v1::world_model_server::{WorldModel as WorldModelApi, WorldModelServer};

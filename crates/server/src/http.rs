@@ -4,7 +4,7 @@
 //! |---|---|
 //! | `POST /v1/rollout` | whole trajectory as JSON, or Server-Sent Events frame by frame when the body has `"stream": true` or the request sends `Accept: text/event-stream` |
 //! | `POST /v1/predict` | many variants, final poses or every k-th frame |
-//! | `POST /v1/generate` | PhysiFormer: sampled mesh trajectories as JSON, or SSE progress and samples ([`generate`]) |
+//! | `POST /v1/generate` | PhysiFormer: sampled mesh trajectories as JSON, or SSE progress and samples ([`generate_route`]) |
 //! | `GET /v1/models` | resident models and limits |
 //! | `GET /health` | liveness: 200 while the process serves HTTP |
 //! | `GET /ready` | readiness: 200 once models are loaded and warmed up, 503 while warming up or draining |
@@ -41,7 +41,7 @@ use extract::{AppState, Call, Spec, Streamed};
 use reply::{Model, Predicted, Reply, RequestId, Timed, Warnings, collect_frames, sse};
 
 mod extract;
-pub mod generate;
+pub mod generate_route;
 mod reply;
 pub mod sessions;
 
@@ -82,7 +82,7 @@ pub fn router(engine: Arc<Engine>) -> Router {
         .route("/metrics", get(metrics))
         .route("/openapi.json", get(openapi))
         .merge(sessions::routes())
-        .merge(generate::routes())
+        .merge(generate_route::routes())
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
         // Bodies are read with the configured limit by the `Call` extractor, which names the
@@ -317,7 +317,7 @@ async fn openapi() -> Response {
     let mut doc = ApiDoc::openapi();
     doc.merge(crate::viewer::ViewerDoc::openapi());
     doc.merge(sessions::SessionsDoc::openapi());
-    doc.merge(generate::GenerateDoc::openapi());
+    doc.merge(generate_route::GenerateDoc::openapi());
     axum::Json(doc).into_response()
 }
 

@@ -2,13 +2,12 @@
 //! stepped from the same state, with the same kinematic mask and the pusher's same recorded
 //! poses as targets, through driven evaluation (`driven_rollout_batch`), pushforward training
 //! (`pushforward::apply`) and the calls a session step makes around its scheduled network call
-//! (`Drive::input`, then `session_input::drive` and the state's advance), gives the same poses,
+//! (`Drive::input`, then `Drive::overwrite` and the state's advance), gives the same poses,
 //! bit for bit, with the kinematic lead off and on.
 
 use std::path::Path;
 use std::sync::Arc;
 
-use dynaserve_api::session_input::{Targets, drive};
 use dynaserve_model::{
     Device, Drive, Pose, PreparedScene, RigidFormer, SceneState, StepItem, WorldModel,
     load_rigidformer,
@@ -81,7 +80,7 @@ fn training(model: &RigidFormer, prepared: PreparedScene, scene: &SceneRecord) -
 
 /// A session's `Step` with one action per step naming the pusher's recorded pose: the state
 /// to submit from `Drive::input`, the network's answer (the scheduler's call, made here
-/// directly), its kinematic poses overwritten by `session_input::drive`, the state advanced.
+/// directly), its kinematic poses overwritten by `Drive::overwrite`, the state advanced.
 fn serving(model: &RigidFormer, prepared: &PreparedScene, scene: &SceneRecord) -> Vec<Vec<Pose>> {
     let kinematic: Vec<bool> = scene.objects.iter().map(|o| o.kinematic).collect();
     let lead = model.config().dynamics.kinematic_lead;
@@ -89,11 +88,12 @@ fn serving(model: &RigidFormer, prepared: &PreparedScene, scene: &SceneRecord) -
     (1..=STEPS)
         .map(|k| {
             let recorded = frame(scene, START + k);
-            let targets: Targets = (0..kinematic.len())
+            let targets: Vec<(usize, Pose)> = (0..kinematic.len())
                 .filter(|&j| kinematic[j])
                 .map(|j| (j, recorded[j]))
                 .collect();
-            let submitted = Drive::new(&kinematic, &targets).input(&state, lead);
+            let drive = Drive::new(&kinematic, &targets);
+            let submitted = drive.input(&state, lead);
             let mut output = model
                 .step(&[StepItem {
                     scene: prepared,
@@ -103,7 +103,7 @@ fn serving(model: &RigidFormer, prepared: &PreparedScene, scene: &SceneRecord) -
                 .unwrap()
                 .pop()
                 .unwrap();
-            drive(&mut output, &state, &kinematic, &targets);
+            drive.overwrite(&state, &mut output);
             state.advance(output.clone());
             output
         })

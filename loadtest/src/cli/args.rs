@@ -35,7 +35,7 @@ pub enum ModeCmd {
     Soak(SoakArgs),
     /// Closed-loop Generate calls (PhysiFormer) at each concurrency level: samples and
     /// denoising steps per second, gain over the first level, latency.
-    Generate(crate::generate::GenerateArgs),
+    Generate(crate::generate_mode::GenerateArgs),
     /// Step latency of interactive streams alone and beside bulk Predict and Generate calls
     /// at the server's limits, with the ratio (how well the scheduler isolates them).
     Fairness(crate::fairness::FairnessArgs),

@@ -19,7 +19,7 @@ use plan::seconds;
 pub fn main() -> anyhow::Result<i32> {
     let cli = Cli::parse();
     if let ModeCmd::Generate(a) = &cli.mode {
-        return crate::generate::run(a);
+        return crate::generate_mode::run(a);
     }
     if let ModeCmd::Fairness(a) = &cli.mode {
         return crate::fairness::run(a);

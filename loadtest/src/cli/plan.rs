@@ -143,7 +143,7 @@ pub fn plan_sides(c: &Common) -> anyhow::Result<Vec<SidePlan>> {
 /// Builds the load description from the parsed command line.
 pub fn build_load(cli: &Cli) -> anyhow::Result<(Load, Common)> {
     let (mode, common) = match &cli.mode {
-        ModeCmd::Generate(_) => anyhow::bail!("generate runs on its own (generate::run)"),
+        ModeCmd::Generate(_) => anyhow::bail!("generate runs on its own (generate_mode::run)"),
         ModeCmd::Fairness(_) => anyhow::bail!("fairness runs on its own (fairness::run)"),
         ModeCmd::Streams(a) => {
             anyhow::ensure!(

@@ -2,13 +2,13 @@
 //! [`PredictSpec`] holding [`Scene`]s) and what it emits ([`Frame`]s, a [`Prediction`],
 //! [`ModelInfo`]). Each wire form maps to it on its own: [`json`] for the HTTP documents, [`v1`]
 //! for the gRPC messages. Nothing here is validated beyond the wire form's own structure
-//! (exactly one shape, at most one motion); limits and ranges are checked by
-//! [`crate::build::build_scene`].
+//! (exactly one shape, at most one motion); limits and ranges are the server's to check, as it
+//! builds a scene into its model's inputs.
 //!
 //! Units: metres, seconds, kilograms, radians; z up; quaternions `[x, y, z, w]`.
 
-pub mod generate;
 pub mod json;
+pub mod sampling;
 pub mod session;
 pub mod v1;
 

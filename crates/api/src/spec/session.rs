@@ -1,7 +1,7 @@
 //! The neutral vocabulary of sessions (`dynaserve.v1.Sessions`, `/v1/sessions`): requests in
 //! from either wire form, descriptions and states out. Only structure is checked here (one
 //! motion per object state, required poses); indices, kinematic sets and values are checked
-//! against the session by [`crate::session_input`].
+//! against the session by the server.
 
 use dynaserve_model::SceneState;
 

@@ -209,7 +209,7 @@ impl ModelInfo {
                     out.max_denoise_steps,
                     out.default_denoise_steps,
                     out.max_samples,
-                ] = super::generate::generate_fields(l);
+                ] = super::sampling::generate_fields(l);
                 out.box_half_extent = l.box_half_extent;
                 out.max_request_cost = l.max_cost;
             }

@@ -5,6 +5,7 @@
 //! - this module: the engine's lifecycle (ready, drain, close, shutdown), admission checks and
 //!   model lookup;
 //! - [`registry`]: resident models with their schedulers and limits, scene preparation;
+//! - [`admission`]: a stepping request's steps, step size and cost against its limits;
 //! - [`request`]: request context, ids, and the call every entry point runs in (its span and
 //!   the metrics record of its outcome);
 //! - `stepper`: one scene stepping through the scheduler (the only code that submits steps);
@@ -13,6 +14,7 @@
 //! - [`sessions`]: scenes kept with their state between calls (planners), stepped through
 //!   steppers whose kinematic objects follow given poses.
 
+pub mod admission;
 mod predict;
 pub mod registry;
 pub mod request;
@@ -26,7 +28,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
-use dynaserve_api::spec::generate::GenerateSpec;
+use dynaserve_api::spec::sampling::GenerateSpec;
 use dynaserve_api::spec::{ModelInfo, Scene};
 use dynaserve_model::SceneState;
 use tokio::sync::{Semaphore, watch};

@@ -6,16 +6,17 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Instant;
 
-use dynaserve_api::build::{check_object_count, check_request_cost, check_steps};
 use dynaserve_api::spec::{Frame, PredictSpec, Prediction, Timing};
 use futures::future::try_join_all;
 use tokio::sync::OwnedSemaphorePermit;
 
 use super::Engine;
+use super::admission::{check_request_cost, check_steps};
 use super::registry::{ModelEntry, prepare_scenes};
 use super::request::{Call, GaugeGuard, RequestCtx, for_variant, with_deadline};
 use super::stepper::{Stepper, StepperSpec};
 use crate::error::ApiError;
+use crate::families::built_scene::check_object_count;
 use crate::scheduler::Priority;
 
 impl Engine {

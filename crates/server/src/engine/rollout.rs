@@ -8,14 +8,15 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Instant;
 
-use dynaserve_api::build::{check_object_count, check_request_cost, check_steps};
 use dynaserve_api::spec::{Frame, RolloutSpec};
 use tokio::sync::{OwnedSemaphorePermit, mpsc, watch};
 
 use super::Engine;
+use super::admission::{check_request_cost, check_steps};
 use super::request::{Call, GaugeGuard, RequestCtx, sleep_until};
 use super::stepper::{Stepper, StepperSpec, step_error};
 use crate::error::ApiError;
+use crate::families::built_scene::check_object_count;
 use crate::scheduler::Priority;
 
 /// A started rollout: frames (or one final error) arrive on `frames`.

@@ -9,7 +9,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use dynaserve_api::limits::{Caps, GenerateCaps, Limits};
-use dynaserve_api::spec::generate::{GenerateEvent, GenerateSpec};
+use dynaserve_api::spec::sampling::{GenerateEvent, GenerateSpec};
 use dynaserve_api::spec::{ModelInfo, Scene};
 use dynaserve_model::{Carry, OutOfRange, Pose, SceneState};
 use tokio::sync::{Semaphore, watch};

@@ -8,9 +8,13 @@
 //!   Sessions and Interact (RigidFormer, the rapier simulator);
 //! - [`SamplingModel`]: samples whole trajectories, served through Generate (PhysiFormer).
 //!
+//! [`built_scene`] validates a stepping request's scene into model inputs, the same for every
+//! stepping family (and for the poses sessions are given).
+//!
 //! Adding a family is one module here and one line in [`registry`] (docs/architecture.md,
 //! "Adding a family").
 
+pub mod built_scene;
 pub mod contract;
 pub mod physiformer;
 pub mod rapier;

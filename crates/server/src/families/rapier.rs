@@ -17,7 +17,6 @@ use std::any::Any;
 use std::path::Path;
 use std::sync::Arc;
 
-use dynaserve_api::build::build_scene;
 use dynaserve_api::limits::{Caps, Limits, MAX_DT_STEPS};
 use dynaserve_api::spec::{About, ModelInfo, ModelKind, Motion, Scene, Shape};
 use dynaserve_model::{Carry, Pose, SceneState};
@@ -28,6 +27,7 @@ use dynaserve_sim::replay::{
 use dynaserve_sim::scene::FloorSpec;
 use serde::{Deserialize, Serialize};
 
+use super::built_scene::build_scene;
 use super::contract::{Prepared, Resident, SceneStep, Stepped, SteppedScene, SteppingModel};
 use super::{LoadOptions, ModelFamily};
 use crate::error::ApiError;

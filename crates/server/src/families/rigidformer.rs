@@ -1,5 +1,5 @@
 //! The RigidFormer family (single checkpoints and ensembles, any [`WorldModel`]): scenes are
-//! built from point clouds or sampled meshes and prepared once ([`WorldModel::prepare`]:
+//! built from point clouds or sampled meshes ([`super::built_scene`]) and prepared once ([`WorldModel::prepare`]:
 //! anchors, grouping); a scheduler pass is one batched [`WorldModel::step`], which the model
 //! splits into forwards of at most [`DEFAULT_MAX_PASS_OBJECTS`] objects.
 
@@ -7,7 +7,6 @@ use std::any::Any;
 use std::path::Path;
 use std::sync::Arc;
 
-use dynaserve_api::build::{BuiltScene, build_scene};
 use dynaserve_api::limits::{Caps, Limits};
 use dynaserve_api::spec::{About, ModelInfo, ModelKind, Scene};
 use dynaserve_model::config::RIGIDFORMER;
@@ -17,6 +16,7 @@ use dynaserve_model::{
     Drive, MAX_WORLD_EXTENT, PreparedScene, SceneState, StepItem, WorldModel, frame_targets,
 };
 
+use super::built_scene::{BuiltScene, build_scene};
 use super::contract::{
     Models, Prepared, Resident, SceneStep, Stepped, SteppedScene, SteppingModel, pose_in_domain,
 };

@@ -4,17 +4,17 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Instant;
 
-use dynaserve_api::build::{check_request_cost, check_steps};
-use dynaserve_api::session_input::{Targets, check_action_speeds, check_actions};
 use dynaserve_api::spec::Frame;
 use dynaserve_api::spec::session::StepSpec;
 use dynaserve_model::{Drive, SceneState};
 use tokio::sync::mpsc;
 
 use super::super::Engine;
+use super::super::admission::{check_request_cost, check_steps};
 use super::super::request::{Call, RequestCtx, sleep_until};
 use super::super::stepper::{Stepper, StepperSpec, step_error};
 use super::Session;
+use super::input::{Targets, check_action_speeds, check_actions};
 use crate::error::ApiError;
 use crate::families::contract::KinematicNext;
 use crate::scheduler::Priority;

@@ -4,7 +4,6 @@
 
 use std::sync::Arc;
 
-use dynaserve_api::session_input::{apply_states, check_action, check_target_speeds};
 use dynaserve_api::spec::Frame;
 use dynaserve_api::spec::session::{InteractOpen, InteractStep};
 use futures::{Stream, StreamExt};
@@ -13,6 +12,7 @@ use tokio::sync::mpsc;
 use super::super::Engine;
 use super::super::request::{Call, RequestCtx, sleep_until};
 use super::driven::Driven;
+use super::input::{apply_states, check_action, check_target_speeds};
 use super::{Session, not_found};
 use crate::error::ApiError;
 use crate::scheduler::Priority;

@@ -22,6 +22,7 @@
 //! to) the caller that forked it.
 
 mod driven;
+pub mod input;
 mod interact;
 mod ledger;
 mod predict;
@@ -32,7 +33,6 @@ use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, Weak};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use dynaserve_api::session_input::{apply_states, kinematic_mask};
 use dynaserve_api::spec::session::{
     CreateSessionSpec, SessionInfo, SessionStateView, SetStateSpec,
 };
@@ -42,12 +42,14 @@ pub use driven::StepHandle;
 pub use interact::InteractHandle;
 
 use super::Engine;
+use super::admission::check_steps;
 use super::registry::ModelEntry;
 use super::request::{Call, RequestCtx};
 use crate::config::SessionConfig;
 use crate::error::ApiError;
 use crate::families::contract::SteppedScene;
 use crate::metrics::Metrics;
+use input::{apply_states, kinematic_mask};
 use ledger::{Charge, Ledger, Usage};
 
 /// A prepared scene held by sessions, counted once in the store's memory however many forks
@@ -480,7 +482,7 @@ impl Engine {
     ) -> Result<(Arc<Session>, Vec<String>), ApiError> {
         let shared = req.shared;
         let entry = self.resolve(&req.model)?;
-        let dt_steps = dynaserve_api::build::check_steps(1, req.dt_steps, &entry.limits)?;
+        let dt_steps = check_steps(1, req.dt_steps, &entry.limits)?;
         let kinematic: Arc<[bool]> =
             kinematic_mask(&req.kinematic, req.scene.objects.len())?.into();
         // The count cap first, before preparing anything.

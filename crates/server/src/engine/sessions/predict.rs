@@ -5,15 +5,15 @@
 
 use std::sync::Arc;
 
-use dynaserve_api::build::{check_request_cost, check_steps};
-use dynaserve_api::session_input::{Targets, apply_states, check_action_speeds, check_actions};
 use dynaserve_api::spec::session::SessionPredictSpec;
 use dynaserve_api::spec::{Frame, Prediction};
 
 use super::super::Engine;
+use super::super::admission::{check_request_cost, check_steps};
 use super::super::predict::{Variant, check_variant_count};
 use super::super::request::{Call, RequestCtx, with_deadline};
 use super::driven::Driven;
+use super::input::{Targets, apply_states, check_action_speeds, check_actions};
 use crate::error::ApiError;
 
 impl Engine {

@@ -1,9 +1,13 @@
 //! The PhysiFormer family: mesh scenes sampled whole with flow matching, served through
-//! Generate. Each sample is its own scheduler stream submitting one network evaluation at a
-//! time ([`denoise`]), so requests at different denoising steps share passes; [`serve`] admits
-//! a call, runs its samples and reports progress.
+//! Generate. [`mesh_scene`] checks a request into the model's scene and sampling parameters;
+//! each sample is its own scheduler stream submitting one network evaluation at a time
+//! ([`denoise`]), so requests at different denoising steps share passes; [`serve`] admits a
+//! call, runs its samples and reports progress; [`sample_frames`] splits each sample into
+//! per-object frames with the Kabsch-fitted pose of every rigid object.
 
 pub mod denoise;
+pub mod mesh_scene;
+pub mod sample_frames;
 pub mod serve;
 
 use std::path::Path;

@@ -6,11 +6,8 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use dynaserve_api::generate::{
-    GenerateParams, build_mesh_scene, check_generate, check_generate_cost, mesh_frames,
-};
 use dynaserve_api::limits::{GenerateCaps, GenerateLimits};
-use dynaserve_api::spec::generate::{
+use dynaserve_api::spec::sampling::{
     GenerateEvent, GenerateProgress, GenerateSpec, GeneratedSample,
 };
 use dynaserve_api::spec::{About, ModelInfo, ModelKind, StepTiming};
@@ -20,6 +17,8 @@ use futures::future::try_join_all;
 use tokio::sync::{OwnedSemaphorePermit, mpsc};
 
 use super::denoise::{DenoiseSteps, GenerateError, GenerateJob, StepProgress, generate};
+use super::mesh_scene::{GenerateParams, build_mesh_scene, check_generate, check_generate_cost};
+use super::sample_frames::mesh_frames;
 use crate::engine::request::RequestCtx;
 use crate::engine::request::{Call, GaugeGuard, sleep_until};
 use crate::engine::stepper::step_error;
@@ -252,7 +251,7 @@ struct GenerateRun {
     entry: Arc<GeneratorEntry>,
     params: GenerateParams,
     scene: Arc<MeshScene>,
-    sampler: dynaserve_api::spec::generate::SamplerKind,
+    sampler: dynaserve_api::spec::sampling::SamplerKind,
     seed: u64,
     /// Starting noise per sample, when the request gave it.
     noise: Vec<Arc<Vec<f32>>>,

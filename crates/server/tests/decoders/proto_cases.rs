@@ -1,12 +1,12 @@
 //! The protobuf side: the gRPC calls, a valid message of each, every number of a message
 //! reachable for hostile values, and structural damage (missing or extra parts).
 
-use dynaserve_api::session_input::{apply_states, check_action};
 use dynaserve_api::spec::session::{
     CreateSessionSpec, InteractOpen, InteractStep, SessionPredictSpec, SetStateSpec, StepSpec,
 };
 use dynaserve_api::spec::{PredictSpec, RolloutSpec};
 use dynaserve_api::{FieldError, json, v1};
+use dynaserve_server::engine::sessions::input::{apply_states, check_action};
 use proptest::prelude::*;
 use prost::Message;
 

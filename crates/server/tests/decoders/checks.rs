@@ -6,12 +6,13 @@ use std::path::Path;
 use std::sync::OnceLock;
 
 use dynaserve_api::FieldError;
-use dynaserve_api::build::{build_scene, check_steps};
 use dynaserve_api::limits::{Caps, Limits};
-use dynaserve_api::session_input::{apply_states, check_actions, kinematic_mask};
 use dynaserve_api::spec::session::{CreateSessionSpec, SessionPredictSpec, SetStateSpec, StepSpec};
 use dynaserve_api::spec::{Pose, PredictSpec, RolloutSpec};
 use dynaserve_model::SceneState;
+use dynaserve_server::engine::admission::check_steps;
+use dynaserve_server::engine::sessions::input::{apply_states, check_actions, kinematic_mask};
+use dynaserve_server::families::built_scene::build_scene;
 
 /// Limits and frame duration of the shipped model.
 pub(crate) struct Model {

@@ -1,18 +1,19 @@
 //! Validation of session inputs against a session's scene: the set of kinematic objects, object
-//! states (SetState, Predict overrides, Interact corrections) and per-step actions, and how a
-//! step's output is driven by the given kinematic poses. Errors name the field.
+//! states (SetState, Predict overrides, Interact corrections) and per-step actions. Poses and
+//! motions are held to the rules of a request's scene ([`crate::families::built_scene`]).
+//! Errors name the field.
 //!
 //! Kinematic objects: the model's inputs for a step are the state's previous and current poses,
 //! which for a kinematic object are the poses the caller gave (or its initial ones); its output
 //! is replaced by the pose given for the end of the step, or by its current pose when none is
-//! given (it holds still). See [`drive`] and [`dynaserve_model::drive`], where the driven step
-//! is defined once for serving, evaluation and training.
+//! given (it holds still): [`dynaserve_model::Drive`], where the driven step is defined once
+//! for serving, evaluation and training.
 
-use dynaserve_model::{Drive, Pose, SceneState};
+use dynaserve_api::FieldError;
+use dynaserve_api::spec::session::{Action, ObjectState};
+use dynaserve_model::{Pose, SceneState};
 
-use crate::build::{check_implied_speed, check_pose, previous_pose};
-use crate::error::FieldError;
-use crate::spec::session::{Action, ObjectState};
+use crate::families::built_scene::{check_implied_speed, check_pose, previous_pose};
 
 /// Kinematic poses of one step, validated: `(object index, normalised pose)`, each object at
 /// most once, every one kinematic.
@@ -171,24 +172,10 @@ pub fn check_action_speeds(
     Ok(())
 }
 
-/// Replaces the model's output for kinematic objects: the given pose of `targets`, or the
-/// object's current pose in `state` (before the step) when none is given.
-/// `output`, `state` and `kinematic` have one entry per object. The rule is
-/// [`Drive::overwrite`], which serving, evaluation and training share; this is it under the
-/// session's names.
-pub fn drive(
-    output: &mut [Pose],
-    state: &SceneState,
-    kinematic: &[bool],
-    targets: &[(usize, Pose)],
-) {
-    Drive::new(kinematic, targets).overwrite(state, output);
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::spec::Motion;
+    use dynaserve_api::spec::Motion;
 
     fn at(x: f32) -> Pose {
         Pose {
@@ -301,18 +288,5 @@ mod tests {
         };
         let e = apply_states(&mut s, &[jump], 1e-3, "objects").unwrap_err();
         assert_eq!(e.field, "objects[0].previous_pose");
-    }
-
-    #[test]
-    fn drive_holds_unposed_kinematic_objects_and_places_posed_ones() {
-        let state = SceneState {
-            previous: vec![at(0.0), at(1.0), at(2.0)],
-            current: vec![at(0.1), at(1.1), at(2.1)],
-            earlier: None,
-            carry: Default::default(),
-        };
-        let mut out = vec![at(0.2), at(1.2), at(2.2)];
-        drive(&mut out, &state, &[true, false, true], &[(2, at(3.0))]);
-        assert_eq!(out, vec![at(0.1), at(1.2), at(3.0)]);
     }
 }

@@ -1,31 +1,37 @@
-//! Request validation and scene building: a neutral [`Scene`] becomes model inputs, or a
-//! [`FieldError`] naming the offending field (the server answers INVALID_ARGUMENT / HTTP 422).
+//! A stepping request's scene validated and built into model inputs ([`BuiltScene`]: the
+//! objects' point clouds and parameters, the previous and current poses), or a [`FieldError`]
+//! naming the offending field (the server answers INVALID_ARGUMENT / HTTP 422). Every stepping
+//! family prepares its scenes from here, and the sessions check the poses and motions they are
+//! given with the same rules ([`check_pose`], [`previous_pose`], [`check_implied_speed`]). The
+//! load tester's in-process mode and the end-to-end tests' reference rollouts build their
+//! scenes here too, so they agree with the server by construction.
 //!
-//! Rules (the numbers are in [`crate::limits`]; every limit is also reported by `ListModels`):
+//! Rules (the numbers are in [`dynaserve_api::limits`]; every limit is also reported by
+//! `ListModels`):
 //! - every number finite;
 //! - a scene holds 1..=`max_objects` objects and at most `max_scene_points` points in all;
 //! - `points`: [`MIN_POINTS`]..=`max_points_per_object` points, each coordinate within ±[`MAX_BODY_EXTENT`]
 //!   of the centre of mass; `mesh`: vertices within the same bound, faces indexing existing
 //!   vertices, positive area, `samples` 0 (the model's default) or [`MIN_POINTS`] up to
-//!   `max_points_per_object`;
+//!   `max_points_per_object`, sampled into a point cloud;
 //! - pose translations within ±[`MAX_WORLD_EXTENT`]; quaternions must have norm
 //!   1 ± [`QUATERNION_TOLERANCE`] and are then renormalised (anything else, including the zero
 //!   quaternion, is rejected rather than guessed at);
-//! - speeds up to [`MAX_SPEED`] and [`MAX_ANGULAR_SPEED`] per component;
-//! - mass in [[`MIN_MASS`], [`MAX_MASS`]] kg, friction in [0, [`MAX_FRICTION`]], restitution in [0, 1];
-//! - steps in 1..=`max_steps`, dt_steps in 1..=`max_dt_steps` (0 means 1);
-//! - objects x steps, summed over a Predict call's variants, at most `max_request_cost`
-//!   object-steps ([`check_request_cost`], named `steps`).
+//! - speeds up to [`MAX_SPEED`] and [`MAX_ANGULAR_SPEED`] per component, given or implied by a
+//!   previous pose;
+//! - mass in [[`MIN_MASS`], [`MAX_MASS`]] kg, friction in [0, [`MAX_FRICTION`]], restitution in [0, 1].
+//!
+//! Steps, step size and a request's cost are the engine's admission
+//! ([`crate::engine::admission`]).
 
+use dynaserve_api::FieldError;
+use dynaserve_api::limits::{
+    Limits, MAX_ANGULAR_SPEED, MAX_BODY_EXTENT, MAX_FRICTION, MAX_MASS, MAX_SPEED,
+    MAX_WORLD_EXTENT, MIN_MASS, MIN_POINTS, QUATERNION_TOLERANCE,
+};
+use dynaserve_api::spec::{Motion, Scene, Shape};
 use dynaserve_geometry::{TriMesh, sample_surface};
 use dynaserve_model::{ObjectInput, Pose, SceneState};
-
-use crate::error::FieldError;
-use crate::limits::{
-    Limits, MAX_ANGULAR_SPEED, MAX_BODY_EXTENT, MAX_FRICTION, MAX_MASS, MAX_SPEED,
-    MAX_WORLD_EXTENT, MIN_MASS, MIN_POINTS, QUATERNION_TOLERANCE, object_steps,
-};
-use crate::spec::{Motion, Scene, Shape};
 
 /// Model inputs built from a validated scene.
 #[derive(Clone, Debug, PartialEq)]
@@ -269,8 +275,8 @@ fn parameter(
 }
 
 /// Checks that `scene` (at path `field`) holds 1..=`max_objects` objects; [`build_scene`]
-/// checks this first, and the server before it weighs a request's cost
-/// ([`check_request_cost`]), so that a scene with too many objects is refused naming them.
+/// checks this first, and the engine before it weighs a request's cost
+/// ([`check_request_cost`](crate::engine::admission::check_request_cost)), so that a scene with too many objects is refused naming them.
 pub fn check_object_count(scene: &Scene, field: &str, limits: &Limits) -> Result<(), FieldError> {
     let of = || format!("{field}.objects");
     if scene.objects.is_empty() {
@@ -367,89 +373,11 @@ pub fn build_scene(
     })
 }
 
-/// Checks `steps` and `dt_steps` (0 means 1); returns the effective `dt_steps`.
-pub fn check_steps(steps: u32, dt_steps: u32, limits: &Limits) -> Result<u32, FieldError> {
-    if steps == 0 || steps > limits.caps.max_steps {
-        return Err(FieldError::new(
-            "steps",
-            format!("{steps} is outside 1..={}", limits.caps.max_steps),
-        ));
-    }
-    let dt = dt_steps.max(1);
-    if dt > limits.caps.max_dt_steps {
-        return Err(FieldError::new(
-            "dt_steps",
-            format!(
-                "{dt_steps} is outside 1..={} frames",
-                limits.caps.max_dt_steps
-            ),
-        ));
-    }
-    Ok(dt)
-}
-
-/// `n` and the word for one or for many: `1 step`, `3 steps`.
-pub(crate) fn count(n: u64, one: &str, many: &str) -> String {
-    if n == 1 {
-        format!("{n} {one}")
-    } else {
-        format!("{n} {many}")
-    }
-}
-
-/// Checks the cost of a RigidFormer request against the server's `--max-request-cost`: `steps`
-/// steps of scenes with `objects[i]` objects each ([`object_steps`]). `variants`: the scenes
-/// are a Predict call's variants (one count per variant); otherwise `objects` holds the one
-/// scene of a Rollout or a session's Step. Above the limit: an error naming `steps` whose
-/// message names every factor and the flag. Returns the cost.
-pub fn check_request_cost(
-    objects: &[usize],
-    steps: u32,
-    variants: bool,
-    limits: &Limits,
-) -> Result<u64, FieldError> {
-    let cost = object_steps(objects.iter().copied(), steps);
-    let max = limits.caps.max_request_cost;
-    if cost <= max {
-        return Ok(cost);
-    }
-    let total = object_steps(objects.iter().copied(), 1);
-    let steps_x = count(u64::from(steps), "step", "steps");
-    let (factors, lower) = if !variants {
-        (
-            format!("{} x {steps_x}", count(total, "object", "objects")),
-            "steps or objects",
-        )
-    } else {
-        let n = count(objects.len() as u64, "variant", "variants");
-        let first = objects.first().copied().unwrap_or(0);
-        let factors = if objects.iter().all(|&o| o == first) {
-            format!(
-                "{} x {steps_x} x {n}",
-                count(first as u64, "object", "objects")
-            )
-        } else {
-            format!(
-                "{} (summed over {n}) x {steps_x}",
-                count(total, "object", "objects")
-            )
-        };
-        (factors, "steps, variants or objects")
-    };
-    Err(FieldError::new(
-        "steps",
-        format!(
-            "{factors} = {cost} object-steps exceeds the server's limit of {max} \
-             (--max-request-cost); lower {lower}"
-        ),
-    ))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::json;
-    use crate::limits::Caps;
+    use dynaserve_api::json;
+    use dynaserve_api::limits::Caps;
 
     fn limits() -> Limits {
         Limits {
@@ -551,42 +479,6 @@ mod tests {
             .field,
             "scene.objects"
         );
-        assert_eq!(check_steps(0, 1, &limits()).unwrap_err().field, "steps");
-        assert_eq!(check_steps(5, 5, &limits()).unwrap_err().field, "dt_steps");
-        assert_eq!(check_steps(5, 0, &limits()).unwrap(), 1);
-    }
-
-    #[test]
-    fn request_cost_names_every_factor_and_the_flag() {
-        let l = limits();
-        assert_eq!(check_request_cost(&[10], 100, false, &l), Ok(1000));
-        let e = check_request_cost(&[10], 101, false, &l).unwrap_err();
-        assert_eq!(e.field, "steps");
-        assert_eq!(
-            e.message,
-            "10 objects x 101 steps = 1010 object-steps exceeds the server's limit of 1000 \
-             (--max-request-cost); lower steps or objects"
-        );
-        let e = check_request_cost(&[4; 3], 100, true, &l).unwrap_err();
-        assert_eq!(
-            e.message,
-            "4 objects x 100 steps x 3 variants = 1200 object-steps exceeds the server's limit \
-             of 1000 (--max-request-cost); lower steps, variants or objects"
-        );
-        let e = check_request_cost(&[1, 4, 6], 100, true, &l).unwrap_err();
-        assert_eq!(
-            e.message,
-            "11 objects (summed over 3 variants) x 100 steps = 1100 object-steps exceeds the \
-             server's limit of 1000 (--max-request-cost); lower steps, variants or objects"
-        );
-        let e = check_request_cost(&[1001], 1, true, &l).unwrap_err();
-        assert!(
-            e.message
-                .starts_with("1001 objects x 1 step x 1 variant = 1001 object-steps"),
-            "{}",
-            e.message
-        );
-        assert_eq!(check_request_cost(&[2, 3], 200, true, &l), Ok(1000));
     }
 
     #[test]

@@ -15,7 +15,7 @@ use axum::{Json, Router};
 use dynaserve_api::FieldError;
 use dynaserve_api::json;
 use dynaserve_api::spec::Timing;
-use dynaserve_api::spec::generate::{GenerateEvent, GenerateSpec};
+use dynaserve_api::spec::sampling::{GenerateEvent, GenerateSpec};
 use futures::Stream;
 use tokio::sync::mpsc;
 use utoipa::OpenApi;

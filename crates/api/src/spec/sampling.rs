@@ -1,7 +1,7 @@
 //! The neutral form of Generate (PhysiFormer): a mesh scene in, denoising progress and sampled
 //! trajectories out, with the conversions from and to both wire forms. Conversion checks only
 //! the wire form's structure (whole triples, a material given); ranges and limits are checked
-//! by [`crate::generate::build_mesh_scene`] and [`crate::generate::check_generate`].
+//! by the server's PhysiFormer family.
 
 pub use dynaserve_model::physiformer::flow::SamplerKind;
 pub use dynaserve_model::physiformer::scene::Material;

@@ -6,7 +6,8 @@
 //!   `.../predict`): the server's body reader (`json_body::decode`: a JSON object, errors naming
 //!   the field), the conversion to the neutral request, then its checks: steps and step size,
 //!   the variant count, every scene through `build_scene`, session states, kinematic sets and
-//!   actions through `session_input` (against a three-object session, object 0 kinematic).
+//!   actions through the sessions' input checks (against a three-object session, object 0
+//!   kinematic).
 //! - Protobuf (`Rollout`, `Predict`, `CreateSession`, `Step`, `SetState`, session `Predict`,
 //!   `Interact`): `prost` decoding, the conversion from the gRPC form, then the same checks.
 //!
