@@ -23,7 +23,7 @@ use anyhow::Context;
 use dynaserve_api::limits::{Caps, GenerateCaps, Limits};
 use dynaserve_api::spec::generate::{GenerateEvent, GenerateSpec};
 use dynaserve_api::spec::{ModelInfo, Scene};
-use dynaserve_model::{Carry, OutOfRange, Pose, SceneState};
+use dynaserve_model::{Carry, OutOfRange, Pose, PoseSpread, SceneState};
 
 use crate::engine::{Engine, RequestCtx};
 use crate::error::ApiError;
@@ -86,6 +86,10 @@ pub struct Stepped {
     pub poses: Vec<Pose>,
     /// The family's continuation for the new state ([`SceneState::carry`]).
     pub carry: Carry,
+    /// Every object's spread, `[objects]`, when the model estimates one (an ensemble's
+    /// members' disagreement on this step, [`dynaserve_model::WorldModel::step_with_spread`]);
+    /// `None` otherwise.
+    pub spread: Option<Vec<PoseSpread>>,
 }
 
 /// A model served step by step (Rollout, Predict, Sessions, Interact).
