@@ -265,7 +265,7 @@ pub fn weighted_mean_pose(poses: &[Pose], weights: &[f32]) -> Pose {
 /// (positive, with a finite sum) weighs `poses[i]`; `poses` is as long as `weights`.
 pub fn weighted_pose_spread(poses: &[Pose], weights: &[f32], mean: &Pose) -> PoseSpread {
     let total: f64 = weights.iter().map(|w| f64::from(*w)).sum();
-    if poses.is_empty() || !(total > 0.0) {
+    if poses.is_empty() || total.is_nan() || total <= 0.0 {
         return PoseSpread::default();
     }
     let quaternion = |p: &Pose| {
