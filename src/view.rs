@@ -111,6 +111,7 @@ pub fn comparison(
                 time: f64::from(i) * dt,
                 poses: at(start + i as usize * k)?.into_iter().map(pose).collect(),
                 timing: None,
+                spread: Vec::new(),
             })
         })
         .collect::<anyhow::Result<Vec<_>>>()?;

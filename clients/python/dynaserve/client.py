@@ -40,15 +40,36 @@ AFFINITY_HEADER = "x-dynaserve-affinity"
 @dataclass
 class Frame:
     """The state after one step: ``poses`` ``[objects, 7]`` at ``time`` seconds (step ``step``,
-    counted from 1; within a session from the session's start)."""
+    counted from 1; within a session from the session's start). ``spread`` ``[objects, 2]``:
+    each object's spread of this step's prediction, ``[position_m, orientation_deg]`` (an
+    ensemble's members' weighted RMS disagreement, metres and degrees; row ``j`` belongs to
+    object ``j``); ``None`` when the model estimates none."""
 
     step: int
     time: float
     poses: np.ndarray
+    spread: Optional[np.ndarray] = None
+
+
+def spread_array(entries: Sequence[Any]) -> Optional[np.ndarray]:
+    """``[objects, 2]`` (``position_m``, ``orientation_deg``) from a frame's spread entries
+    (JSON objects or ``ObjectSpread`` messages); ``None`` for none."""
+    if not entries:
+        return None
+    get = (lambda e, k: e[k]) if isinstance(entries[0], dict) else getattr
+    return np.array(
+        [[float(get(e, "position_m")), float(get(e, "orientation_deg"))] for e in entries],
+        dtype=np.float32,
+    )
 
 
 def _frame(doc: Dict[str, Any]) -> Frame:
-    return Frame(step=int(doc["step"]), time=float(doc["time"]), poses=poses_array(doc["poses"]))
+    return Frame(
+        step=int(doc["step"]),
+        time=float(doc["time"]),
+        poses=poses_array(doc["poses"]),
+        spread=spread_array(doc.get("spread", [])),
+    )
 
 
 def _scene(scene: Any, variant: Optional[int] = None) -> Dict[str, Any]:

@@ -55,7 +55,7 @@ except ImportError as _missing:  # pragma: no cover - depends on the environment
         "pip install 'dynaserve[grpc]'"
     ) from _missing
 
-from .client import AFFINITY_HEADER, Frame
+from .client import AFFINITY_HEADER, Frame, spread_array
 from .errors import DynaserveError, warn_out_of_range
 from .mesh import Collector, Generated, MeshObject, check_sampler, checked_objects
 from .scene import Body, array_arg, index_arg, kinematic_paths, number
@@ -287,8 +287,9 @@ def _states(
 
 
 def frame_of(f: pb.StepFrame) -> Frame:
-    """A ``StepFrame`` message as a :class:`Frame` (``poses`` ``[objects, 7]``)."""
-    return Frame(step=int(f.step), time=float(f.time), poses=poses_np(f.poses))
+    """A ``StepFrame`` message as a :class:`Frame` (``poses`` ``[objects, 7]``, ``spread``
+    ``[objects, 2]`` or ``None``)."""
+    return Frame(step=int(f.step), time=float(f.time), poses=poses_np(f.poses), spread=spread_array(f.spread))
 
 
 def _trajectories(resp: pb.PredictResponse) -> np.ndarray:

@@ -29,6 +29,8 @@ class ClientTest(unittest.TestCase):
         frames = list(self.c.rollout(bodies(), steps=6))
         self.assertEqual([f.step for f in frames], list(range(1, 7)))
         self.assertEqual(frames[0].poses.shape, (2, 7))
+        # A single network estimates no spread (an ensemble's frames carry [objects, 2]).
+        self.assertIsNone(frames[0].spread)
         s = self.c.create_session(bodies())
         stepped = s.step(3) + s.step(3)
         for a, b in zip(frames, stepped):

@@ -171,6 +171,23 @@ pub struct StepFrame {
     /// Server-side timing of this step.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub timing: Option<StepTiming>,
+    /// How far the model's own predictions of this step disagree, per object: entry `j`
+    /// belongs to object `j` (as `poses[j]`). Absent (empty) when the model estimates none;
+    /// an ensemble reports its members' disagreement.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub spread: Vec<ObjectSpread>,
+}
+
+/// The spread of one object's predicted pose in one step (an ensemble: the weighted root mean
+/// square over its members' predictions, around the mean the frame's pose is).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct ObjectSpread {
+    /// Root mean square distance of the predicted positions from the frame's position, metres.
+    pub position_m: f32,
+    /// Root mean square rotation angle of the predicted orientations from the frame's
+    /// orientation, degrees.
+    pub orientation_deg: f32,
 }
 
 /// Whole-request timings, milliseconds. For a planner call the variants step concurrently, so

@@ -127,6 +127,14 @@ impl StepFrame {
                 forward_ms: t.forward_ms,
                 batch_scenes: t.batch_scenes,
             }),
+            spread: f
+                .spread
+                .iter()
+                .map(|s| crate::json::ObjectSpread {
+                    position_m: s.position_m,
+                    orientation_deg: s.orientation_deg,
+                })
+                .collect(),
         }
     }
 }
@@ -254,6 +262,7 @@ mod tests {
                 forward_ms: 2.0,
                 batch_scenes: 4,
             }),
+            spread: Vec::new(),
         };
         let j = StepFrame::from_proto(&f);
         assert_eq!(j.poses[0].translation, [1.0, 2.0, 3.0]);

@@ -236,6 +236,26 @@ pub struct StepItem<'a> {
     pub dt_steps: u32,
 }
 
+/// How far the predictions a step combines disagree on one object's new pose: the model's own
+/// estimate of its uncertainty there (an ensemble's members' disagreement).
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PoseSpread {
+    /// Root mean square distance of the predicted positions from the served one, metres.
+    pub position_m: f32,
+    /// Root mean square rotation angle of the predicted orientations from the served one,
+    /// degrees.
+    pub orientation_deg: f32,
+}
+
+/// One scene's result of [`WorldModel::step_with_spread`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct SpreadStep {
+    /// Every object's new pose, as [`WorldModel::step`] gives it, `[objects]`.
+    pub poses: Vec<Pose>,
+    /// Every object's spread, `[objects]`; `None` when the model estimates none.
+    pub spread: Option<Vec<PoseSpread>>,
+}
+
 /// A learned world model that advances rigid scenes one step at a time.
 ///
 /// Implementations are resident in memory, thread-safe, and give every scene of a batch the
@@ -250,6 +270,18 @@ pub trait WorldModel: Send + Sync {
     /// Advances every scene of `batch` by one step in one pass. `output[i][j]` is the new pose
     /// of object `j` of scene `i`, `batch[i].dt_steps` frames after `batch[i].state.current`.
     fn step(&self, batch: &[StepItem<'_>]) -> Result<Vec<Vec<Pose>>, ModelError>;
+    /// [`WorldModel::step`] with each object's [`PoseSpread`] when the model can estimate
+    /// one (an ensemble); the poses are those `step` gives. By default `step` and no spread.
+    fn step_with_spread(&self, batch: &[StepItem<'_>]) -> Result<Vec<SpreadStep>, ModelError> {
+        Ok(self
+            .step(batch)?
+            .into_iter()
+            .map(|poses| SpreadStep {
+                poses,
+                spread: None,
+            })
+            .collect())
+    }
     /// Names of the networks whose predictions each step averages (an ensemble's members, in
     /// order); empty for a single network.
     fn member_names(&self) -> Vec<String> {

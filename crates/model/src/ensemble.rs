@@ -24,6 +24,13 @@
 //! averaging weights (`dynaserve train average`), needs no shared training history; it costs
 //! one network pass per member.
 //!
+//! A step also reports, object by object, how far the members disagree
+//! ([`WorldModel::step_with_spread`], [`weighted_pose_spread`]): the weighted root mean square
+//! distance of the predicted translations from the mean translation (metres) and the weighted
+//! root mean square rotation angle of the predicted rotations from the mean rotation
+//! (degrees), over the same weighted predictions the mean averages (turned copies among them).
+//! It describes that step's prediction from the state the rollout reached through the means.
+//!
 //! With `yaw_copies = n > 1` every member also steps `n - 1` copies of each scene turned
 //! about the vertical through the scene's centre (the mean of its current centres) by
 //! multiples of 360/n degrees; each copy's answer is turned back and weighs as much as the
@@ -40,7 +47,8 @@ use serde::Deserialize;
 use crate::checkpoint::{dir_name, load_rigidformer, parse_config};
 use crate::rigidformer::RigidFormer;
 use crate::{
-    ModelConfig, ModelError, ObjectInput, Pose, PreparedScene, SceneState, StepItem, WorldModel,
+    ModelConfig, ModelError, ObjectInput, Pose, PoseSpread, PreparedScene, SceneState, SpreadStep,
+    StepItem, WorldModel,
 };
 
 /// `architecture` of an ensemble directory's `config.json`.
@@ -251,33 +259,39 @@ pub fn weighted_mean_pose(poses: &[Pose], weights: &[f32]) -> Pose {
     Pose::from_parts(translation, rotation)
 }
 
-impl WorldModel for Ensemble {
-    fn name(&self) -> &str {
-        &self.name
+/// How far weighted predictions of one object's pose lie from their mean `mean` (module docs):
+/// the weighted root mean square distance of the translations from the mean's (metres) and of
+/// the rotation angles from the mean's rotation (degrees, `q` and `-q` alike). `weights[i]`
+/// (positive, with a finite sum) weighs `poses[i]`; `poses` is as long as `weights`.
+pub fn weighted_pose_spread(poses: &[Pose], weights: &[f32], mean: &Pose) -> PoseSpread {
+    let total: f64 = weights.iter().map(|w| f64::from(*w)).sum();
+    if poses.is_empty() || total.is_nan() || total <= 0.0 {
+        return PoseSpread::default();
     }
-
-    fn config(&self) -> &ModelConfig {
-        self.members[0].config()
+    let quaternion = |p: &Pose| {
+        let [x, y, z, w] = p.rotation.map(f64::from);
+        UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z))
+    };
+    let centre = Vector3::from(mean.translation.map(f64::from));
+    let inverse = quaternion(mean).inverse();
+    let (mut distance, mut angle) = (0.0f64, 0.0f64);
+    for (p, w) in poses.iter().zip(weights) {
+        let w = f64::from(*w) / total;
+        distance += w * (Vector3::from(p.translation.map(f64::from)) - centre).norm_squared();
+        // The relative rotation's angle, 2 atan2(|v|, |s|): accurate for small angles too.
+        let r = (inverse * quaternion(p)).into_inner();
+        let a = 2.0 * r.imag().norm().atan2(r.scalar().abs());
+        angle += w * a * a;
     }
-
-    fn prepare(&self, objects: Vec<ObjectInput>) -> Result<PreparedScene, ModelError> {
-        // The first member of each anchor and grouping size prepares the scene for all members
-        // of that size; the first member's preparation carries the others.
-        let key = |m: &RigidFormer| m.config().prepared_key();
-        let first = &self.members[0];
-        if self.members.iter().all(|m| key(m) == key(first)) {
-            return first.prepare(objects);
-        }
-        let mut scene = first.prepare(objects.clone())?;
-        for m in &self.members[1..] {
-            if scene.for_key(key(m)).is_none() {
-                scene.attach(m.prepare(objects.clone())?)?;
-            }
-        }
-        Ok(scene)
+    PoseSpread {
+        position_m: distance.sqrt() as f32,
+        orientation_deg: angle.sqrt().to_degrees() as f32,
     }
+}
 
-    fn step(&self, batch: &[StepItem<'_>]) -> Result<Vec<Vec<Pose>>, ModelError> {
+impl Ensemble {
+    /// Every scene's mean poses and, with `spread`, each object's spread around them.
+    fn combine(&self, batch: &[StepItem<'_>], spread: bool) -> Result<Vec<SpreadStep>, ModelError> {
         let copies = self.yaw_copies as usize;
         let turns: Vec<Yaw> = (1..copies)
             .flat_map(|c| {
@@ -327,21 +341,68 @@ impl WorldModel for Ensemble {
         let mut poses = Vec::with_capacity(weights.len());
         Ok((0..batch.len())
             .map(|scene| {
-                (0..batch[scene].scene.len())
-                    .map(|object| {
-                        poses.clear();
-                        for o in &outputs {
-                            poses.push(o[scene][object]);
-                            poses.extend((1..copies).map(|c| {
-                                let k = (c - 1) * batch.len() + scene;
-                                turns[k].back(o[batch.len() + k][object])
-                            }));
-                        }
-                        weighted_mean_pose(&poses, &weights)
-                    })
-                    .collect()
+                let objects = batch[scene].scene.len();
+                let mut step = SpreadStep {
+                    poses: Vec::with_capacity(objects),
+                    spread: spread.then(|| Vec::with_capacity(objects)),
+                };
+                for object in 0..objects {
+                    poses.clear();
+                    for o in &outputs {
+                        poses.push(o[scene][object]);
+                        poses.extend((1..copies).map(|c| {
+                            let k = (c - 1) * batch.len() + scene;
+                            turns[k].back(o[batch.len() + k][object])
+                        }));
+                    }
+                    let mean = weighted_mean_pose(&poses, &weights);
+                    if let Some(s) = step.spread.as_mut() {
+                        s.push(weighted_pose_spread(&poses, &weights, &mean));
+                    }
+                    step.poses.push(mean);
+                }
+                step
             })
             .collect())
+    }
+}
+
+impl WorldModel for Ensemble {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn config(&self) -> &ModelConfig {
+        self.members[0].config()
+    }
+
+    fn prepare(&self, objects: Vec<ObjectInput>) -> Result<PreparedScene, ModelError> {
+        // The first member of each anchor and grouping size prepares the scene for all members
+        // of that size; the first member's preparation carries the others.
+        let key = |m: &RigidFormer| m.config().prepared_key();
+        let first = &self.members[0];
+        if self.members.iter().all(|m| key(m) == key(first)) {
+            return first.prepare(objects);
+        }
+        let mut scene = first.prepare(objects.clone())?;
+        for m in &self.members[1..] {
+            if scene.for_key(key(m)).is_none() {
+                scene.attach(m.prepare(objects.clone())?)?;
+            }
+        }
+        Ok(scene)
+    }
+
+    fn step(&self, batch: &[StepItem<'_>]) -> Result<Vec<Vec<Pose>>, ModelError> {
+        Ok(self
+            .combine(batch, false)?
+            .into_iter()
+            .map(|s| s.poses)
+            .collect())
+    }
+
+    fn step_with_spread(&self, batch: &[StepItem<'_>]) -> Result<Vec<SpreadStep>, ModelError> {
+        self.combine(batch, true)
     }
 
     fn member_names(&self) -> Vec<String> {
@@ -397,5 +458,121 @@ impl Yaw {
             earlier: state.earlier.as_deref().map(turn),
             carry: Default::default(),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Device;
+
+    /// A box's surface, `n` points per face side, half extents `h` (metres).
+    fn box_points(n: usize, h: [f32; 3]) -> Vec<[f32; 3]> {
+        let mut points = Vec::new();
+        for axis in 0..3 {
+            for side in [-1.0, 1.0] {
+                for i in 0..n {
+                    for j in 0..n {
+                        let u = (i as f32 + 0.5) / n as f32 * 2.0 - 1.0;
+                        let v = (j as f32 + 0.5) / n as f32 * 2.0 - 1.0;
+                        let mut p = [0.0; 3];
+                        p[axis] = side * h[axis];
+                        p[(axis + 1) % 3] = u * h[(axis + 1) % 3];
+                        p[(axis + 2) % 3] = v * h[(axis + 2) % 3];
+                        points.push(p);
+                    }
+                }
+            }
+        }
+        points
+    }
+
+    #[test]
+    fn the_spread_of_two_members_is_their_weighted_rms_disagreement() {
+        let member = |seed| RigidFormer::new(ModelConfig::tiny(), seed, &Device::Cpu).unwrap();
+        let ensemble = Ensemble::weighted("pair", vec![member(1), member(2)], &[3.0, 1.0]).unwrap();
+        let objects: Vec<ObjectInput> = [[0.2, 0.3, 0.25], [0.4, 0.2, 0.3]]
+            .into_iter()
+            .map(|h| ObjectInput {
+                reference: box_points(4, h),
+                mass: 1.5,
+                friction: 0.5,
+                restitution: 0.3,
+                kinematic: false,
+            })
+            .collect();
+        let scene = ensemble.prepare(objects).unwrap();
+        let at = |x: f32, z: f32, yaw: f32| {
+            Pose::from_parts(
+                Vector3::new(x, 0.1, z),
+                UnitQuaternion::from_euler_angles(0.3, 0.1, yaw),
+            )
+        };
+        let state = SceneState::new(
+            vec![at(0.0, 1.0, 0.0), at(1.0, 0.6, 0.5)],
+            vec![at(0.1, 0.95, 0.1), at(0.95, 0.5, 0.6)],
+        );
+        let batch = [StepItem {
+            scene: &scene,
+            state: &state,
+            dt_steps: 2,
+        }];
+        let got = ensemble.step_with_spread(&batch).unwrap().remove(0);
+        // The poses are the plain step's; a single network estimates no spread.
+        assert_eq!(got.poses, ensemble.step(&batch).unwrap()[0]);
+        let single = ensemble.members()[0].step_with_spread(&batch).unwrap();
+        assert_eq!(single[0].spread, None);
+        let spread = got.spread.expect("an ensemble estimates a spread");
+        assert_eq!(spread.len(), 2);
+
+        let a = ensemble.members()[0].step(&batch).unwrap().remove(0);
+        let b = ensemble.members()[1].step(&batch).unwrap().remove(0);
+        let (w0, w1) = (0.75f64, 0.25f64);
+        for j in 0..2 {
+            // Two points weighted w0, w1 lie w1 d and w0 d from their mean (d apart), so their
+            // RMS distance is sqrt(w0 w1) d.
+            let d = (0..3)
+                .map(|k| f64::from(a[j].translation[k] - b[j].translation[k]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            let position = (w0 * w1).sqrt() * d;
+            // Two rotations theta apart: the normalised weighted quaternion sum lies on the
+            // geodesic between them, half-angle phi from the first with
+            // tan(phi) = w1 sin(theta/2) / (w0 + w1 cos(theta/2)).
+            let dot: f64 = (0..4)
+                .map(|k| f64::from(a[j].rotation[k]) * f64::from(b[j].rotation[k]))
+                .sum();
+            let theta = 2.0 * dot.abs().min(1.0).acos();
+            let phi = (w1 * (theta / 2.0).sin()).atan2(w0 + w1 * (theta / 2.0).cos());
+            let orientation = (w0 * (2.0 * phi).powi(2) + w1 * (theta - 2.0 * phi).powi(2))
+                .sqrt()
+                .to_degrees();
+            assert!(position > 1e-4 && orientation > 1e-3, "members agree");
+            let s = spread[j];
+            assert!(
+                (f64::from(s.position_m) - position).abs() < 1e-6,
+                "object {j}: {s:?} vs {position} m"
+            );
+            assert!(
+                (f64::from(s.orientation_deg) - orientation).abs() < 1e-3,
+                "object {j}: {s:?} vs {orientation} deg"
+            );
+        }
+    }
+
+    #[test]
+    fn identical_predictions_have_no_spread() {
+        let p = Pose::from_parts(
+            Vector3::new(1.0, 2.0, 0.5),
+            UnitQuaternion::from_euler_angles(0.2, 0.4, 1.0),
+        );
+        let mut q = p;
+        q.rotation = q.rotation.map(|c| -c);
+        let s = weighted_pose_spread(
+            &[p, q],
+            &[0.5, 0.5],
+            &weighted_mean_pose(&[p, q], &[0.5; 2]),
+        );
+        assert!(s.position_m < 1e-7 && s.orientation_deg < 1e-3, "{s:?}");
     }
 }

@@ -27,7 +27,9 @@ pub mod scene_threads;
 pub mod team;
 pub mod trained_ranges;
 
-pub use api::{Carry, ObjectInput, Pose, SceneState, StepItem, WorldModel, rollout};
+pub use api::{
+    Carry, ObjectInput, Pose, PoseSpread, SceneState, SpreadStep, StepItem, WorldModel, rollout,
+};
 pub use batching::PassBudget;
 pub use checkpoint::{load_rigidformer, read_architecture, read_config, save_tensors};
 pub use config::{

@@ -24,17 +24,17 @@ _sym_db = _symbol_database.Default()
 
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x1e\x64ynaserve/v1/world_model.proto\x12\x0c\x64ynaserve.v1\"\'\n\x04Vec3\x12\t\n\x01x\x18\x01 \x01(\x02\x12\t\n\x01y\x18\x02 \x01(\x02\x12\t\n\x01z\x18\x03 \x01(\x02\"8\n\nQuaternion\x12\t\n\x01x\x18\x01 \x01(\x02\x12\t\n\x01y\x18\x02 \x01(\x02\x12\t\n\x01z\x18\x03 \x01(\x02\x12\t\n\x01w\x18\x04 \x01(\x02\"[\n\x04Pose\x12\'\n\x0btranslation\x18\x01 \x01(\x0b\x32\x12.dynaserve.v1.Vec3\x12*\n\x08rotation\x18\x02 \x01(\x0b\x32\x18.dynaserve.v1.Quaternion\"\x19\n\nPointCloud\x12\x0b\n\x03xyz\x18\x01 \x03(\x02\"N\n\x0cTriangleMesh\x12\x10\n\x08vertices\x18\x01 \x03(\x02\x12\r\n\x05\x66\x61\x63\x65s\x18\x02 \x03(\r\x12\x0f\n\x07samples\x18\x03 \x01(\r\x12\x0c\n\x04seed\x18\x04 \x01(\x04\"S\n\x08Velocity\x12\"\n\x06linear\x18\x01 \x01(\x0b\x32\x12.dynaserve.v1.Vec3\x12#\n\x07\x61ngular\x18\x02 \x01(\x0b\x32\x12.dynaserve.v1.Vec3\"\xa7\x02\n\nObjectSpec\x12*\n\x06points\x18\x01 \x01(\x0b\x32\x18.dynaserve.v1.PointCloudH\x00\x12*\n\x04mesh\x18\x02 \x01(\x0b\x32\x1a.dynaserve.v1.TriangleMeshH\x00\x12 \n\x04pose\x18\x03 \x01(\x0b\x32\x12.dynaserve.v1.Pose\x12+\n\rprevious_pose\x18\x04 \x01(\x0b\x32\x12.dynaserve.v1.PoseH\x01\x12*\n\x08velocity\x18\x05 \x01(\x0b\x32\x16.dynaserve.v1.VelocityH\x01\x12\x0c\n\x04mass\x18\x06 \x01(\x02\x12\x10\n\x08\x66riction\x18\x07 \x01(\x02\x12\x13\n\x0brestitution\x18\x08 \x01(\x02\x42\x07\n\x05shapeB\x08\n\x06motion\"2\n\x05Scene\x12)\n\x07objects\x18\x01 \x03(\x0b\x32\x18.dynaserve.v1.ObjectSpec\"x\n\x0eRolloutRequest\x12\r\n\x05model\x18\x01 \x01(\t\x12\"\n\x05scene\x18\x02 \x01(\x0b\x32\x13.dynaserve.v1.Scene\x12\r\n\x05steps\x18\x03 \x01(\r\x12\x10\n\x08\x64t_steps\x18\x04 \x01(\r\x12\x12\n\ntimeout_ms\x18\x05 \x01(\r\"H\n\nStepTiming\x12\x10\n\x08queue_ms\x18\x01 \x01(\x02\x12\x12\n\nforward_ms\x18\x02 \x01(\x02\x12\x14\n\x0c\x62\x61tch_scenes\x18\x03 \x01(\r\"t\n\tStepFrame\x12\x0c\n\x04step\x18\x01 \x01(\r\x12\x0c\n\x04time\x18\x02 \x01(\x01\x12!\n\x05poses\x18\x03 \x03(\x0b\x32\x12.dynaserve.v1.Pose\x12(\n\x06timing\x18\x04 \x01(\x0b\x32\x18.dynaserve.v1.StepTiming\"\x8a\x01\n\x0ePredictRequest\x12\r\n\x05model\x18\x01 \x01(\t\x12%\n\x08variants\x18\x02 \x03(\x0b\x32\x13.dynaserve.v1.Scene\x12\r\n\x05steps\x18\x03 \x01(\r\x12\x10\n\x08\x64t_steps\x18\x04 \x01(\r\x12\r\n\x05\x65very\x18\x05 \x01(\r\x12\x12\n\ntimeout_ms\x18\x06 \x01(\r\"5\n\nTrajectory\x12\'\n\x06\x66rames\x18\x01 \x03(\x0b\x32\x17.dynaserve.v1.StepFrame\"P\n\x0fPredictResponse\x12.\n\x0ctrajectories\x18\x01 \x03(\x0b\x32\x18.dynaserve.v1.Trajectory\x12\r\n\x05model\x18\x02 \x01(\t\"\x13\n\x11ListModelsRequest\"\xc3\x03\n\tModelInfo\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x14\n\x0c\x61rchitecture\x18\x02 \x01(\t\x12\x10\n\x08\x64t_frame\x18\x03 \x01(\x01\x12\x16\n\x0e\x64\x65\x66\x61ult_points\x18\x04 \x01(\r\x12\x13\n\x0bmax_objects\x18\x05 \x01(\r\x12\x1d\n\x15max_points_per_object\x18\x06 \x01(\r\x12\x11\n\tmax_steps\x18\x07 \x01(\r\x12\x14\n\x0cmax_dt_steps\x18\x08 \x01(\r\x12\x14\n\x0cmax_variants\x18\t \x01(\r\x12#\n\x07gravity\x18\n \x01(\x0b\x32\x12.dynaserve.v1.Vec3\x12\x13\n\x0b\x63onfig_json\x18\x0b \x01(\t\x12\x14\n\x0cmax_vertices\x18\x0c \x01(\r\x12\x12\n\nmax_frames\x18\r \x01(\r\x12\x19\n\x11max_denoise_steps\x18\x0e \x01(\r\x12\x1d\n\x15\x64\x65\x66\x61ult_denoise_steps\x18\x0f \x01(\r\x12\x13\n\x0bmax_samples\x18\x10 \x01(\r\x12\x17\n\x0f\x62ox_half_extent\x18\x11 \x01(\x02\x12\x0f\n\x07members\x18\x12 \x03(\t\x12\x18\n\x10max_request_cost\x18\x13 \x01(\x04\"=\n\x12ListModelsResponse\x12\'\n\x06models\x18\x01 \x03(\x0b\x32\x17.dynaserve.v1.ModelInfo\"\x9c\x01\n\nMeshObject\x12\x10\n\x08vertices\x18\x01 \x03(\x02\x12\r\n\x05\x66\x61\x63\x65s\x18\x02 \x03(\r\x12(\n\x08material\x18\x03 \x01(\x0e\x32\x16.dynaserve.v1.Material\x12(\n\x08velocity\x18\x04 \x01(\x0b\x32\x16.dynaserve.v1.Velocity\x12\x19\n\x11vertex_velocities\x18\x05 \x03(\x02\"6\n\tMeshScene\x12)\n\x07objects\x18\x01 \x03(\x0b\x32\x18.dynaserve.v1.MeshObject\"\xef\x01\n\x0fGenerateRequest\x12\r\n\x05model\x18\x01 \x01(\t\x12&\n\x05scene\x18\x02 \x01(\x0b\x32\x17.dynaserve.v1.MeshScene\x12\x0e\n\x06\x66rames\x18\x03 \x01(\r\x12\x15\n\rdenoise_steps\x18\x04 \x01(\r\x12&\n\x07sampler\x18\x05 \x01(\x0e\x32\x15.dynaserve.v1.Sampler\x12\x0f\n\x07samples\x18\x06 \x01(\r\x12\x0c\n\x04seed\x18\x07 \x01(\x04\x12\x12\n\ntimeout_ms\x18\x08 \x01(\r\x12\x14\n\x0craw_vertices\x18\t \x01(\x08\x12\r\n\x05noise\x18\n \x03(\x02\"d\n\x10GenerateProgress\x12\x0c\n\x04step\x18\x01 \x01(\r\x12\r\n\x05steps\x18\x02 \x01(\r\x12\t\n\x01t\x18\x03 \x01(\x02\x12(\n\x06timing\x18\x04 \x01(\x0b\x32\x18.dynaserve.v1.StepTiming\"R\n\x0bObjectFrame\x12\x10\n\x08vertices\x18\x01 \x03(\x02\x12 \n\x04pose\x18\x02 \x01(\x0b\x32\x12.dynaserve.v1.Pose\x12\x0f\n\x07\x66it_rms\x18\x03 \x01(\x02\"T\n\tMeshFrame\x12\r\n\x05\x66rame\x18\x01 \x01(\r\x12\x0c\n\x04time\x18\x02 \x01(\x01\x12*\n\x07objects\x18\x03 \x03(\x0b\x32\x19.dynaserve.v1.ObjectFrame\"X\n\x0fGeneratedSample\x12\x0e\n\x06sample\x18\x01 \x01(\r\x12\x0c\n\x04seed\x18\x02 \x01(\x04\x12\'\n\x06\x66rames\x18\x03 \x03(\x0b\x32\x17.dynaserve.v1.MeshFrame\"}\n\rGenerateEvent\x12\x32\n\x08progress\x18\x01 \x01(\x0b\x32\x1e.dynaserve.v1.GenerateProgressH\x00\x12/\n\x06sample\x18\x02 \x01(\x0b\x32\x1d.dynaserve.v1.GeneratedSampleH\x00\x42\x07\n\x05\x65vent*N\n\x08Material\x12\x18\n\x14MATERIAL_UNSPECIFIED\x10\x00\x12\x12\n\x0eMATERIAL_RIGID\x10\x01\x12\x14\n\x10MATERIAL_ELASTIC\x10\x02*G\n\x07Sampler\x12\x17\n\x13SAMPLER_UNSPECIFIED\x10\x00\x12\x10\n\x0cSAMPLER_HEUN\x10\x01\x12\x11\n\rSAMPLER_EULER\x10\x02\x32\xb3\x02\n\nWorldModel\x12\x42\n\x07Rollout\x12\x1c.dynaserve.v1.RolloutRequest\x1a\x17.dynaserve.v1.StepFrame0\x01\x12\x46\n\x07Predict\x12\x1c.dynaserve.v1.PredictRequest\x1a\x1d.dynaserve.v1.PredictResponse\x12O\n\nListModels\x12\x1f.dynaserve.v1.ListModelsRequest\x1a .dynaserve.v1.ListModelsResponse\x12H\n\x08Generate\x12\x1d.dynaserve.v1.GenerateRequest\x1a\x1b.dynaserve.v1.GenerateEvent0\x01\x62\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x1e\x64ynaserve/v1/world_model.proto\x12\x0c\x64ynaserve.v1\"\'\n\x04Vec3\x12\t\n\x01x\x18\x01 \x01(\x02\x12\t\n\x01y\x18\x02 \x01(\x02\x12\t\n\x01z\x18\x03 \x01(\x02\"8\n\nQuaternion\x12\t\n\x01x\x18\x01 \x01(\x02\x12\t\n\x01y\x18\x02 \x01(\x02\x12\t\n\x01z\x18\x03 \x01(\x02\x12\t\n\x01w\x18\x04 \x01(\x02\"[\n\x04Pose\x12\'\n\x0btranslation\x18\x01 \x01(\x0b\x32\x12.dynaserve.v1.Vec3\x12*\n\x08rotation\x18\x02 \x01(\x0b\x32\x18.dynaserve.v1.Quaternion\"\x19\n\nPointCloud\x12\x0b\n\x03xyz\x18\x01 \x03(\x02\"N\n\x0cTriangleMesh\x12\x10\n\x08vertices\x18\x01 \x03(\x02\x12\r\n\x05\x66\x61\x63\x65s\x18\x02 \x03(\r\x12\x0f\n\x07samples\x18\x03 \x01(\r\x12\x0c\n\x04seed\x18\x04 \x01(\x04\"S\n\x08Velocity\x12\"\n\x06linear\x18\x01 \x01(\x0b\x32\x12.dynaserve.v1.Vec3\x12#\n\x07\x61ngular\x18\x02 \x01(\x0b\x32\x12.dynaserve.v1.Vec3\"\xa7\x02\n\nObjectSpec\x12*\n\x06points\x18\x01 \x01(\x0b\x32\x18.dynaserve.v1.PointCloudH\x00\x12*\n\x04mesh\x18\x02 \x01(\x0b\x32\x1a.dynaserve.v1.TriangleMeshH\x00\x12 \n\x04pose\x18\x03 \x01(\x0b\x32\x12.dynaserve.v1.Pose\x12+\n\rprevious_pose\x18\x04 \x01(\x0b\x32\x12.dynaserve.v1.PoseH\x01\x12*\n\x08velocity\x18\x05 \x01(\x0b\x32\x16.dynaserve.v1.VelocityH\x01\x12\x0c\n\x04mass\x18\x06 \x01(\x02\x12\x10\n\x08\x66riction\x18\x07 \x01(\x02\x12\x13\n\x0brestitution\x18\x08 \x01(\x02\x42\x07\n\x05shapeB\x08\n\x06motion\"2\n\x05Scene\x12)\n\x07objects\x18\x01 \x03(\x0b\x32\x18.dynaserve.v1.ObjectSpec\"x\n\x0eRolloutRequest\x12\r\n\x05model\x18\x01 \x01(\t\x12\"\n\x05scene\x18\x02 \x01(\x0b\x32\x13.dynaserve.v1.Scene\x12\r\n\x05steps\x18\x03 \x01(\r\x12\x10\n\x08\x64t_steps\x18\x04 \x01(\r\x12\x12\n\ntimeout_ms\x18\x05 \x01(\r\"H\n\nStepTiming\x12\x10\n\x08queue_ms\x18\x01 \x01(\x02\x12\x12\n\nforward_ms\x18\x02 \x01(\x02\x12\x14\n\x0c\x62\x61tch_scenes\x18\x03 \x01(\r\"\xa0\x01\n\tStepFrame\x12\x0c\n\x04step\x18\x01 \x01(\r\x12\x0c\n\x04time\x18\x02 \x01(\x01\x12!\n\x05poses\x18\x03 \x03(\x0b\x32\x12.dynaserve.v1.Pose\x12(\n\x06timing\x18\x04 \x01(\x0b\x32\x18.dynaserve.v1.StepTiming\x12*\n\x06spread\x18\x05 \x03(\x0b\x32\x1a.dynaserve.v1.ObjectSpread\";\n\x0cObjectSpread\x12\x12\n\nposition_m\x18\x01 \x01(\x02\x12\x17\n\x0forientation_deg\x18\x02 \x01(\x02\"\x8a\x01\n\x0ePredictRequest\x12\r\n\x05model\x18\x01 \x01(\t\x12%\n\x08variants\x18\x02 \x03(\x0b\x32\x13.dynaserve.v1.Scene\x12\r\n\x05steps\x18\x03 \x01(\r\x12\x10\n\x08\x64t_steps\x18\x04 \x01(\r\x12\r\n\x05\x65very\x18\x05 \x01(\r\x12\x12\n\ntimeout_ms\x18\x06 \x01(\r\"5\n\nTrajectory\x12\'\n\x06\x66rames\x18\x01 \x03(\x0b\x32\x17.dynaserve.v1.StepFrame\"P\n\x0fPredictResponse\x12.\n\x0ctrajectories\x18\x01 \x03(\x0b\x32\x18.dynaserve.v1.Trajectory\x12\r\n\x05model\x18\x02 \x01(\t\"\x13\n\x11ListModelsRequest\"\xc3\x03\n\tModelInfo\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x14\n\x0c\x61rchitecture\x18\x02 \x01(\t\x12\x10\n\x08\x64t_frame\x18\x03 \x01(\x01\x12\x16\n\x0e\x64\x65\x66\x61ult_points\x18\x04 \x01(\r\x12\x13\n\x0bmax_objects\x18\x05 \x01(\r\x12\x1d\n\x15max_points_per_object\x18\x06 \x01(\r\x12\x11\n\tmax_steps\x18\x07 \x01(\r\x12\x14\n\x0cmax_dt_steps\x18\x08 \x01(\r\x12\x14\n\x0cmax_variants\x18\t \x01(\r\x12#\n\x07gravity\x18\n \x01(\x0b\x32\x12.dynaserve.v1.Vec3\x12\x13\n\x0b\x63onfig_json\x18\x0b \x01(\t\x12\x14\n\x0cmax_vertices\x18\x0c \x01(\r\x12\x12\n\nmax_frames\x18\r \x01(\r\x12\x19\n\x11max_denoise_steps\x18\x0e \x01(\r\x12\x1d\n\x15\x64\x65\x66\x61ult_denoise_steps\x18\x0f \x01(\r\x12\x13\n\x0bmax_samples\x18\x10 \x01(\r\x12\x17\n\x0f\x62ox_half_extent\x18\x11 \x01(\x02\x12\x0f\n\x07members\x18\x12 \x03(\t\x12\x18\n\x10max_request_cost\x18\x13 \x01(\x04\"=\n\x12ListModelsResponse\x12\'\n\x06models\x18\x01 \x03(\x0b\x32\x17.dynaserve.v1.ModelInfo\"\x9c\x01\n\nMeshObject\x12\x10\n\x08vertices\x18\x01 \x03(\x02\x12\r\n\x05\x66\x61\x63\x65s\x18\x02 \x03(\r\x12(\n\x08material\x18\x03 \x01(\x0e\x32\x16.dynaserve.v1.Material\x12(\n\x08velocity\x18\x04 \x01(\x0b\x32\x16.dynaserve.v1.Velocity\x12\x19\n\x11vertex_velocities\x18\x05 \x03(\x02\"6\n\tMeshScene\x12)\n\x07objects\x18\x01 \x03(\x0b\x32\x18.dynaserve.v1.MeshObject\"\xef\x01\n\x0fGenerateRequest\x12\r\n\x05model\x18\x01 \x01(\t\x12&\n\x05scene\x18\x02 \x01(\x0b\x32\x17.dynaserve.v1.MeshScene\x12\x0e\n\x06\x66rames\x18\x03 \x01(\r\x12\x15\n\rdenoise_steps\x18\x04 \x01(\r\x12&\n\x07sampler\x18\x05 \x01(\x0e\x32\x15.dynaserve.v1.Sampler\x12\x0f\n\x07samples\x18\x06 \x01(\r\x12\x0c\n\x04seed\x18\x07 \x01(\x04\x12\x12\n\ntimeout_ms\x18\x08 \x01(\r\x12\x14\n\x0craw_vertices\x18\t \x01(\x08\x12\r\n\x05noise\x18\n \x03(\x02\"d\n\x10GenerateProgress\x12\x0c\n\x04step\x18\x01 \x01(\r\x12\r\n\x05steps\x18\x02 \x01(\r\x12\t\n\x01t\x18\x03 \x01(\x02\x12(\n\x06timing\x18\x04 \x01(\x0b\x32\x18.dynaserve.v1.StepTiming\"R\n\x0bObjectFrame\x12\x10\n\x08vertices\x18\x01 \x03(\x02\x12 \n\x04pose\x18\x02 \x01(\x0b\x32\x12.dynaserve.v1.Pose\x12\x0f\n\x07\x66it_rms\x18\x03 \x01(\x02\"T\n\tMeshFrame\x12\r\n\x05\x66rame\x18\x01 \x01(\r\x12\x0c\n\x04time\x18\x02 \x01(\x01\x12*\n\x07objects\x18\x03 \x03(\x0b\x32\x19.dynaserve.v1.ObjectFrame\"X\n\x0fGeneratedSample\x12\x0e\n\x06sample\x18\x01 \x01(\r\x12\x0c\n\x04seed\x18\x02 \x01(\x04\x12\'\n\x06\x66rames\x18\x03 \x03(\x0b\x32\x17.dynaserve.v1.MeshFrame\"}\n\rGenerateEvent\x12\x32\n\x08progress\x18\x01 \x01(\x0b\x32\x1e.dynaserve.v1.GenerateProgressH\x00\x12/\n\x06sample\x18\x02 \x01(\x0b\x32\x1d.dynaserve.v1.GeneratedSampleH\x00\x42\x07\n\x05\x65vent*N\n\x08Material\x12\x18\n\x14MATERIAL_UNSPECIFIED\x10\x00\x12\x12\n\x0eMATERIAL_RIGID\x10\x01\x12\x14\n\x10MATERIAL_ELASTIC\x10\x02*G\n\x07Sampler\x12\x17\n\x13SAMPLER_UNSPECIFIED\x10\x00\x12\x10\n\x0cSAMPLER_HEUN\x10\x01\x12\x11\n\rSAMPLER_EULER\x10\x02\x32\xb3\x02\n\nWorldModel\x12\x42\n\x07Rollout\x12\x1c.dynaserve.v1.RolloutRequest\x1a\x17.dynaserve.v1.StepFrame0\x01\x12\x46\n\x07Predict\x12\x1c.dynaserve.v1.PredictRequest\x1a\x1d.dynaserve.v1.PredictResponse\x12O\n\nListModels\x12\x1f.dynaserve.v1.ListModelsRequest\x1a .dynaserve.v1.ListModelsResponse\x12H\n\x08Generate\x12\x1d.dynaserve.v1.GenerateRequest\x1a\x1b.dynaserve.v1.GenerateEvent0\x01\x62\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
 _builder.BuildTopDescriptorsAndMessages(DESCRIPTOR, 'dynaserve.v1.world_model_pb2', _globals)
 if not _descriptor._USE_C_DESCRIPTORS:
   DESCRIPTOR._loaded_options = None
-  _globals['_MATERIAL']._serialized_start=2858
-  _globals['_MATERIAL']._serialized_end=2936
-  _globals['_SAMPLER']._serialized_start=2938
-  _globals['_SAMPLER']._serialized_end=3009
+  _globals['_MATERIAL']._serialized_start=2964
+  _globals['_MATERIAL']._serialized_end=3042
+  _globals['_SAMPLER']._serialized_start=3044
+  _globals['_SAMPLER']._serialized_end=3115
   _globals['_VEC3']._serialized_start=48
   _globals['_VEC3']._serialized_end=87
   _globals['_QUATERNION']._serialized_start=89
@@ -55,36 +55,38 @@ if not _descriptor._USE_C_DESCRIPTORS:
   _globals['_ROLLOUTREQUEST']._serialized_end=902
   _globals['_STEPTIMING']._serialized_start=904
   _globals['_STEPTIMING']._serialized_end=976
-  _globals['_STEPFRAME']._serialized_start=978
-  _globals['_STEPFRAME']._serialized_end=1094
-  _globals['_PREDICTREQUEST']._serialized_start=1097
-  _globals['_PREDICTREQUEST']._serialized_end=1235
-  _globals['_TRAJECTORY']._serialized_start=1237
-  _globals['_TRAJECTORY']._serialized_end=1290
-  _globals['_PREDICTRESPONSE']._serialized_start=1292
-  _globals['_PREDICTRESPONSE']._serialized_end=1372
-  _globals['_LISTMODELSREQUEST']._serialized_start=1374
-  _globals['_LISTMODELSREQUEST']._serialized_end=1393
-  _globals['_MODELINFO']._serialized_start=1396
-  _globals['_MODELINFO']._serialized_end=1847
-  _globals['_LISTMODELSRESPONSE']._serialized_start=1849
-  _globals['_LISTMODELSRESPONSE']._serialized_end=1910
-  _globals['_MESHOBJECT']._serialized_start=1913
-  _globals['_MESHOBJECT']._serialized_end=2069
-  _globals['_MESHSCENE']._serialized_start=2071
-  _globals['_MESHSCENE']._serialized_end=2125
-  _globals['_GENERATEREQUEST']._serialized_start=2128
-  _globals['_GENERATEREQUEST']._serialized_end=2367
-  _globals['_GENERATEPROGRESS']._serialized_start=2369
-  _globals['_GENERATEPROGRESS']._serialized_end=2469
-  _globals['_OBJECTFRAME']._serialized_start=2471
-  _globals['_OBJECTFRAME']._serialized_end=2553
-  _globals['_MESHFRAME']._serialized_start=2555
-  _globals['_MESHFRAME']._serialized_end=2639
-  _globals['_GENERATEDSAMPLE']._serialized_start=2641
-  _globals['_GENERATEDSAMPLE']._serialized_end=2729
-  _globals['_GENERATEEVENT']._serialized_start=2731
-  _globals['_GENERATEEVENT']._serialized_end=2856
-  _globals['_WORLDMODEL']._serialized_start=3012
-  _globals['_WORLDMODEL']._serialized_end=3319
+  _globals['_STEPFRAME']._serialized_start=979
+  _globals['_STEPFRAME']._serialized_end=1139
+  _globals['_OBJECTSPREAD']._serialized_start=1141
+  _globals['_OBJECTSPREAD']._serialized_end=1200
+  _globals['_PREDICTREQUEST']._serialized_start=1203
+  _globals['_PREDICTREQUEST']._serialized_end=1341
+  _globals['_TRAJECTORY']._serialized_start=1343
+  _globals['_TRAJECTORY']._serialized_end=1396
+  _globals['_PREDICTRESPONSE']._serialized_start=1398
+  _globals['_PREDICTRESPONSE']._serialized_end=1478
+  _globals['_LISTMODELSREQUEST']._serialized_start=1480
+  _globals['_LISTMODELSREQUEST']._serialized_end=1499
+  _globals['_MODELINFO']._serialized_start=1502
+  _globals['_MODELINFO']._serialized_end=1953
+  _globals['_LISTMODELSRESPONSE']._serialized_start=1955
+  _globals['_LISTMODELSRESPONSE']._serialized_end=2016
+  _globals['_MESHOBJECT']._serialized_start=2019
+  _globals['_MESHOBJECT']._serialized_end=2175
+  _globals['_MESHSCENE']._serialized_start=2177
+  _globals['_MESHSCENE']._serialized_end=2231
+  _globals['_GENERATEREQUEST']._serialized_start=2234
+  _globals['_GENERATEREQUEST']._serialized_end=2473
+  _globals['_GENERATEPROGRESS']._serialized_start=2475
+  _globals['_GENERATEPROGRESS']._serialized_end=2575
+  _globals['_OBJECTFRAME']._serialized_start=2577
+  _globals['_OBJECTFRAME']._serialized_end=2659
+  _globals['_MESHFRAME']._serialized_start=2661
+  _globals['_MESHFRAME']._serialized_end=2745
+  _globals['_GENERATEDSAMPLE']._serialized_start=2747
+  _globals['_GENERATEDSAMPLE']._serialized_end=2835
+  _globals['_GENERATEEVENT']._serialized_start=2837
+  _globals['_GENERATEEVENT']._serialized_end=2962
+  _globals['_WORLDMODEL']._serialized_start=3118
+  _globals['_WORLDMODEL']._serialized_end=3425
 # @@protoc_insertion_point(module_scope)

@@ -132,16 +132,26 @@ class StepTiming(_message.Message):
     def __init__(self, queue_ms: _Optional[float] = ..., forward_ms: _Optional[float] = ..., batch_scenes: _Optional[int] = ...) -> None: ...
 
 class StepFrame(_message.Message):
-    __slots__ = ("step", "time", "poses", "timing")
+    __slots__ = ("step", "time", "poses", "timing", "spread")
     STEP_FIELD_NUMBER: _ClassVar[int]
     TIME_FIELD_NUMBER: _ClassVar[int]
     POSES_FIELD_NUMBER: _ClassVar[int]
     TIMING_FIELD_NUMBER: _ClassVar[int]
+    SPREAD_FIELD_NUMBER: _ClassVar[int]
     step: int
     time: float
     poses: _containers.RepeatedCompositeFieldContainer[Pose]
     timing: StepTiming
-    def __init__(self, step: _Optional[int] = ..., time: _Optional[float] = ..., poses: _Optional[_Iterable[_Union[Pose, _Mapping]]] = ..., timing: _Optional[_Union[StepTiming, _Mapping]] = ...) -> None: ...
+    spread: _containers.RepeatedCompositeFieldContainer[ObjectSpread]
+    def __init__(self, step: _Optional[int] = ..., time: _Optional[float] = ..., poses: _Optional[_Iterable[_Union[Pose, _Mapping]]] = ..., timing: _Optional[_Union[StepTiming, _Mapping]] = ..., spread: _Optional[_Iterable[_Union[ObjectSpread, _Mapping]]] = ...) -> None: ...
+
+class ObjectSpread(_message.Message):
+    __slots__ = ("position_m", "orientation_deg")
+    POSITION_M_FIELD_NUMBER: _ClassVar[int]
+    ORIENTATION_DEG_FIELD_NUMBER: _ClassVar[int]
+    position_m: float
+    orientation_deg: float
+    def __init__(self, position_m: _Optional[float] = ..., orientation_deg: _Optional[float] = ...) -> None: ...
 
 class PredictRequest(_message.Message):
     __slots__ = ("model", "variants", "steps", "dt_steps", "every", "timeout_ms")

@@ -132,6 +132,14 @@ impl Frame {
                 forward_ms: millis(t.forward) as f32,
                 batch_scenes: t.batch_scenes,
             }),
+            spread: self
+                .spread
+                .iter()
+                .map(|s| json::ObjectSpread {
+                    position_m: s.position_m,
+                    orientation_deg: s.orientation_deg,
+                })
+                .collect(),
         }
     }
 }

@@ -14,7 +14,7 @@ pub mod v1;
 
 use std::time::Duration;
 
-pub use dynaserve_model::Pose;
+pub use dynaserve_model::{Pose, PoseSpread};
 
 use crate::limits::{GenerateLimits, Limits};
 
@@ -134,6 +134,9 @@ pub struct Frame {
     pub poses: Vec<Pose>,
     /// Server-side timing (streamed frames carry it; planner frames do not).
     pub timing: Option<StepTiming>,
+    /// Every object's spread, in request order, when the model estimates one (an ensemble's
+    /// members' disagreement on this step); empty otherwise.
+    pub spread: Vec<PoseSpread>,
 }
 
 /// Whole-request timings.

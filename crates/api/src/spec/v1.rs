@@ -146,6 +146,14 @@ impl Frame {
                 forward_ms: millis(t.forward) as f32,
                 batch_scenes: t.batch_scenes,
             }),
+            spread: self
+                .spread
+                .iter()
+                .map(|s| v1::ObjectSpread {
+                    position_m: s.position_m,
+                    orientation_deg: s.orientation_deg,
+                })
+                .collect(),
         }
     }
 }
@@ -314,8 +322,22 @@ mod tests {
                 forward: std::time::Duration::from_millis(3),
                 batch_scenes: 5,
             }),
+            spread: Vec::new(),
         };
         assert_eq!(json::StepFrame::from_proto(&f.to_v1()), f.to_json());
         assert_eq!(f.to_json().timing.unwrap().queue_ms, 1.5);
+        // Without a spread the JSON frame has no `spread` key, as before.
+        let text = serde_json::to_string(&f.to_json()).unwrap();
+        assert!(!text.contains("spread"), "{text}");
+        let spread = vec![super::super::PoseSpread {
+            position_m: 0.25,
+            orientation_deg: 3.5,
+        }];
+        let f = Frame { spread, ..f };
+        assert_eq!(json::StepFrame::from_proto(&f.to_v1()), f.to_json());
+        let back: json::StepFrame =
+            serde_json::from_str(&serde_json::to_string(&f.to_json()).unwrap()).unwrap();
+        assert_eq!(back.spread[0].position_m, 0.25);
+        assert_eq!(f.to_v1().spread[0].orientation_deg, 3.5);
     }
 }

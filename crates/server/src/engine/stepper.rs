@@ -115,12 +115,17 @@ impl Stepper {
         rx
     }
 
-    /// Takes a finished step: advances the state and returns the frame (with its timing). A
+    /// Takes a finished step: advances the state and returns the frame (with its timing and
+    /// the model's spread, when it estimates one). A
     /// step whose poses leave the model's domain (not finite, or a translation beyond
     /// `MAX_WORLD_EXTENT`) ends the scene with OUT_OF_RANGE naming the object; the state is not
     /// advanced, so no later step runs on it.
     pub(crate) fn accept(&mut self, done: Done<Stepped>) -> Result<Frame, ApiError> {
-        let Stepped { poses, carry } = done.output;
+        let Stepped {
+            poses,
+            carry,
+            spread,
+        } = done.output;
         check_domain(&poses, self.step + 1)?;
         self.step += 1;
         tracing::trace!(step = self.step, batch = done.batch_id, "step");
@@ -135,6 +140,7 @@ impl Stepper {
                 forward: done.forward,
                 batch_scenes: done.batch_scenes,
             }),
+            spread: spread.unwrap_or_default(),
         })
     }
 

@@ -11,7 +11,7 @@ use std::time::Duration;
 use dynaserve_api::limits::{Caps, GenerateCaps, Limits};
 use dynaserve_api::spec::sampling::{GenerateEvent, GenerateSpec};
 use dynaserve_api::spec::{ModelInfo, Scene};
-use dynaserve_model::{Carry, OutOfRange, Pose, SceneState};
+use dynaserve_model::{Carry, OutOfRange, Pose, PoseSpread, SceneState};
 use tokio::sync::{Semaphore, watch};
 
 use crate::config::ServeConfig;
@@ -76,6 +76,10 @@ pub struct Stepped {
     pub poses: Vec<Pose>,
     /// The family's continuation for the new state ([`SceneState::carry`]).
     pub carry: Carry,
+    /// Every object's spread, `[objects]`, when the model estimates one (an ensemble's
+    /// members' disagreement on this step, [`dynaserve_model::WorldModel::step_with_spread`]);
+    /// `None` otherwise.
+    pub spread: Option<Vec<PoseSpread>>,
 }
 
 /// A model served step by step (Rollout, Predict, Sessions, Interact).

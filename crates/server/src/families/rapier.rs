@@ -187,6 +187,8 @@ impl RapierModel {
         Ok(Stepped {
             poses,
             carry: Carry::new(world),
+            // One deterministic simulation: nothing to disagree with.
+            spread: None,
         })
     }
 }

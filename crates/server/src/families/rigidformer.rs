@@ -13,7 +13,8 @@ use dynaserve_model::config::RIGIDFORMER;
 use dynaserve_model::ensemble::ENSEMBLE;
 use dynaserve_model::rigidformer::DEFAULT_MAX_PASS_OBJECTS;
 use dynaserve_model::{
-    Drive, MAX_WORLD_EXTENT, PreparedScene, SceneState, StepItem, WorldModel, frame_targets,
+    Drive, MAX_WORLD_EXTENT, PreparedScene, SceneState, SpreadStep, StepItem, WorldModel,
+    frame_targets,
 };
 
 use super::built_scene::{BuiltScene, build_scene};
@@ -48,8 +49,8 @@ impl RigidFormerModel {
         RigidFormerModel { model }
     }
 
-    /// One [`WorldModel::step`] over `items` (every state usable); each scene's output is
-    /// checked to hold one pose per object.
+    /// One [`WorldModel::step_with_spread`] over `items` (every state usable); each scene's
+    /// output is checked to hold one pose (and spread, when there is one) per object.
     #[allow(clippy::type_complexity)]
     fn step_pass(&self, items: &[&SceneStep]) -> Result<Vec<Result<Stepped, String>>, String> {
         let scenes: Vec<&PreparedScene> = items
@@ -67,23 +68,32 @@ impl RigidFormerModel {
                 dt_steps: s.dt_steps,
             })
             .collect();
-        let out = self.model.step(&batch).map_err(|e| e.to_string())?;
+        let out = self
+            .model
+            .step_with_spread(&batch)
+            .map_err(|e| e.to_string())?;
         Ok(out
             .into_iter()
             .zip(items)
-            .map(|(poses, item)| {
-                if poses.len() == item.scene.len() {
-                    Ok(Stepped {
-                        poses,
-                        carry: Default::default(),
-                    })
-                } else {
-                    Err(format!(
-                        "model returned {} poses for {} objects",
-                        poses.len(),
-                        item.scene.len()
-                    ))
+            .map(|(SpreadStep { poses, spread }, item)| {
+                let objects = item.scene.len();
+                if poses.len() != objects {
+                    return Err(format!(
+                        "model returned {} poses for {objects} objects",
+                        poses.len()
+                    ));
                 }
+                if let Some(s) = spread.as_ref().filter(|s| s.len() != objects) {
+                    return Err(format!(
+                        "model returned {} spreads for {objects} objects",
+                        s.len()
+                    ));
+                }
+                Ok(Stepped {
+                    poses,
+                    carry: Default::default(),
+                    spread,
+                })
             })
             .collect())
     }

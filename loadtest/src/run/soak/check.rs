@@ -165,6 +165,7 @@ mod tests {
                 })
                 .collect(),
             timing: None,
+            spread: Vec::new(),
         }
     }
 
