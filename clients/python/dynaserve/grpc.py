@@ -18,17 +18,19 @@ Deadlines: every unary call has ``timeout`` seconds (the client's default unless
 stream a whole-call deadline (``stream_timeout``), and every Interact step waits at most
 ``step_timeout`` seconds for its frame; past any of them the call is cancelled and
 ``DEADLINE_EXCEEDED`` raised. The server's own ``timeout_ms`` fields are passed through.
+
+This module holds the synchronous classes (:class:`GrpcClient`, :class:`FrameStream`,
+:class:`GrpcSession`, :class:`Interaction`) and re-exports the rest of the public surface: the
+asyncio classes from :mod:`dynaserve.grpc_async`, the message conversions and metadata keys from
+:mod:`dynaserve.grpc_convert`, ``DEFAULT_STREAM_TIMEOUT`` from :mod:`dynaserve.grpc_base`.
 """
 
 from __future__ import annotations
 
-import asyncio
 import queue
-import secrets
 import threading
 from typing import (
     Any,
-    AsyncIterator,
     Callable,
     Dict,
     Iterator,
@@ -37,7 +39,6 @@ from typing import (
     Optional,
     Sequence,
     Tuple,
-    Union,
 )
 
 import numpy as np
@@ -46,7 +47,8 @@ import numpy.typing as npt
 try:
     import grpc
     import grpc.aio
-    # Used by .grpc_convert; imported here so that a missing package gets the message below.
+    # Used by .grpc_convert and .grpc_async; imported here so that a missing package of the
+    # grpc extra gets the message below.
     from google.rpc import error_details_pb2, status_pb2  # noqa: F401
 except ImportError as _missing:  # pragma: no cover - depends on the environment
     raise ImportError(
@@ -54,8 +56,10 @@ except ImportError as _missing:  # pragma: no cover - depends on the environment
         "pip install 'dynaserve[grpc]'"
     ) from _missing
 
-from .client import AFFINITY_HEADER, Frame
+from .client import Frame
 from .errors import DynaserveError, warn_out_of_range
+from .grpc_async import AsyncFrameStream, AsyncGrpcClient, AsyncGrpcSession, AsyncInteraction
+from .grpc_base import DEFAULT_STREAM_TIMEOUT, _Base, _SessionFields
 from .grpc_convert import (
     DETAILS_KEY,
     PUSHBACK_KEY,
@@ -70,7 +74,6 @@ from .grpc_convert import (
     _pairs,
     _state,
     _states,
-    _target,
     _trajectories,
     _variants,
     action_pb,
@@ -89,54 +92,7 @@ from .grpc_convert import (
 )
 from .mesh import Collector, Generated, MeshObject, checked_objects
 from .v1 import sessions_pb2 as spb
-from .v1 import sessions_pb2_grpc, world_model_pb2_grpc
 from .v1 import world_model_pb2 as pb
-
-DEFAULT_STREAM_TIMEOUT = 600.0
-"""Whole-call deadline of streaming calls (Rollout, session Step, Generate), seconds."""
-
-
-_OPTIONS = [
-    ("grpc.max_receive_message_length", 256 * 1024 * 1024),
-    ("grpc.max_send_message_length", 256 * 1024 * 1024),
-]
-
-
-class _Base:
-    def __init__(
-        self,
-        target: str,
-        timeout: float,
-        stream_timeout: float,
-        step_timeout: float,
-        affinity: Optional[str],
-        token: Optional[str],
-        root_certificates: Optional[bytes],
-    ) -> None:
-        self.address, self.tls = _target(target, root_certificates)
-        self.timeout = timeout
-        self.stream_timeout = stream_timeout
-        self.step_timeout = step_timeout
-        self.affinity = affinity or secrets.token_hex(8)
-        self._root_certificates = root_certificates
-        self.last_request_bytes = 0
-        """Encoded size of the last unary request, bytes (the planner's bandwidth figure)."""
-        self.metadata: Metadata = [(AFFINITY_HEADER, self.affinity)]
-        if token:
-            self.metadata.append(("authorization", f"Bearer {token}"))
-
-    def _connect(self, channels: Any) -> None:
-        """Opens the channel with ``channels`` (``grpc`` or ``grpc.aio``) and its stubs."""
-        if self.tls:
-            creds = grpc.ssl_channel_credentials(self._root_certificates)
-            self.channel = channels.secure_channel(self.address, creds, options=_OPTIONS)
-        else:
-            self.channel = channels.insecure_channel(self.address, options=_OPTIONS)
-        self.world = world_model_pb2_grpc.WorldModelStub(self.channel)
-        self.sessions = sessions_pb2_grpc.SessionsStub(self.channel)
-
-
-# ---- synchronous ----
 
 
 class GrpcClient(_Base):
@@ -363,21 +319,6 @@ class FrameStream(Iterator[Frame]):
         self.cancel()
 
 
-class _SessionFields:
-    """What a session object knows of its session: all of its ``SessionInfo``, or of a
-    ``SessionState`` (a session reattached by id) the id, object count and expiry only."""
-
-    def __init__(self, client: Any, info: Union[spb.SessionInfo, spb.SessionState]) -> None:
-        self.client = client
-        self.id: str = info.session_id
-        self.expires_at_unix_ms: int = int(info.expires_at_unix_ms)
-        known = isinstance(info, spb.SessionInfo)
-        self.objects: int = int(info.objects) if known else len(info.poses)
-        self.model: Optional[str] = info.model if known else None
-        self.dt_steps: Optional[int] = int(info.dt_steps) if known else None
-        self.kinematic: Optional[List[int]] = list(info.kinematic) if known else None
-
-
 class GrpcSession(_SessionFields):
     """A scene kept on the server with its state, over gRPC. Kinematic paths are ``{object
     index: [steps, 7] poses}``: each kinematic object's pose at the end of every step.
@@ -568,336 +509,6 @@ class Interaction:
     def __exit__(self, exc_type: Any, *exc: Any) -> None:
         if exc_type is None:
             self.close()
-        else:
-            self.cancel()
-
-
-# ---- asyncio ----
-
-
-class AsyncGrpcClient(_Base):
-    """The calls of :class:`GrpcClient` for asyncio code (``grpc.aio``); create it inside the
-    running event loop and ``await close()`` when done. Arguments as for :class:`GrpcClient`."""
-
-    def __init__(
-        self,
-        target: str = "127.0.0.1:50051",
-        timeout: float = 120.0,
-        stream_timeout: float = DEFAULT_STREAM_TIMEOUT,
-        step_timeout: float = 60.0,
-        affinity: Optional[str] = None,
-        token: Optional[str] = None,
-        root_certificates: Optional[bytes] = None,
-    ) -> None:
-        super().__init__(target, timeout, stream_timeout, step_timeout, affinity, token, root_certificates)
-        self._connect(grpc.aio)
-
-    async def close(self) -> None:
-        """Closes the channel."""
-        await self.channel.close()
-
-    async def __aenter__(self) -> "AsyncGrpcClient":
-        return self
-
-    async def __aexit__(self, *exc: Any) -> None:
-        await self.close()
-
-    async def _unary(self, method: Any, request: Any, timeout: Optional[float] = None) -> Any:
-        self.last_request_bytes = request.ByteSize()
-        try:
-            call = method(request, timeout=timeout or self.timeout, metadata=self.metadata)
-            resp = await call
-            md = await call.initial_metadata()
-        except grpc.aio.AioRpcError as e:
-            raise error_of(e) from None
-        warn_out_of_range(_pairs(md))
-        return resp
-
-    async def list_models(self, timeout: Optional[float] = None) -> List[Dict[str, Any]]:
-        """See :meth:`GrpcClient.list_models`."""
-        resp = await self._unary(self.world.ListModels, pb.ListModelsRequest(), timeout)
-        return [model_info(m) for m in resp.models]
-
-    def rollout(
-        self,
-        scene: Scene,
-        steps: int,
-        dt_steps: int = 1,
-        model: str = "",
-        timeout_ms: int = 0,
-        timeout: Optional[float] = None,
-    ) -> "AsyncFrameStream":
-        """See :meth:`GrpcClient.rollout`; iterate the result with ``async for``."""
-        req = pb.RolloutRequest(
-            model=model, scene=scene_pb(scene), steps=steps, dt_steps=dt_steps, timeout_ms=timeout_ms
-        )
-        return AsyncFrameStream(self.world.Rollout(req, timeout=timeout or self.stream_timeout, metadata=self.metadata))
-
-    async def predict(
-        self,
-        variants: Sequence[Scene],
-        steps: int,
-        dt_steps: int = 1,
-        every: int = 0,
-        model: str = "",
-        timeout_ms: int = 0,
-        timeout: Optional[float] = None,
-    ) -> np.ndarray:
-        """See :meth:`GrpcClient.predict`; ``[variants, frames, objects, 7]``."""
-        req = pb.PredictRequest(
-            model=model,
-            variants=[scene_pb(v, k) for k, v in enumerate(variants)],
-            steps=steps,
-            dt_steps=dt_steps,
-            every=every,
-            timeout_ms=timeout_ms,
-        )
-        return _trajectories(await self._unary(self.world.Predict, req, timeout))
-
-    async def generate(
-        self,
-        objects: Sequence[MeshObject],
-        frames: int = 0,
-        denoise_steps: int = 0,
-        sampler: str = "heun",
-        samples: int = 1,
-        seed: int = 0,
-        model: str = "",
-        timeout_ms: int = 0,
-        timeout: Optional[float] = None,
-        on_progress: Optional[Callable[[dict], None]] = None,
-        raw_vertices: bool = False,
-    ) -> Generated:
-        """See :meth:`GrpcClient.generate`; ``vertices`` ``[samples, frames, vertices, 3]``."""
-        objects = checked_objects(objects)
-        req = _generate_request(
-            objects, frames, denoise_steps, sampler, samples, seed, model, timeout_ms, raw_vertices
-        )
-        call = self.world.Generate(req, timeout=timeout or self.stream_timeout, metadata=self.metadata)
-        out = Collector(objects, on_progress)
-        try:
-            async for e in call:
-                _collect(out, e)
-            md = dict(_pairs(await call.initial_metadata()))
-        except grpc.aio.AioRpcError as e:
-            raise error_of(e) from None
-        return out.result(md.get("x-dynaserve-model", model), md.get("x-request-id", ""))
-
-    async def create_session(
-        self,
-        scene: Scene,
-        kinematic: Sequence[int] = (),
-        dt_steps: int = 1,
-        model: str = "",
-        timeout: Optional[float] = None,
-        shared: bool = False,
-    ) -> "AsyncGrpcSession":
-        """See :meth:`GrpcClient.create_session`."""
-        req = spb.CreateSessionRequest(
-            model=model,
-            scene=scene_pb(scene),
-            dt_steps=dt_steps,
-            kinematic=list(kinematic),
-            shared=shared,
-        )
-        return AsyncGrpcSession(self, await self._unary(self.sessions.CreateSession, req, timeout))
-
-    async def session(self, session_id: str, timeout: Optional[float] = None) -> "AsyncGrpcSession":
-        """See :meth:`GrpcClient.session`."""
-        req = spb.GetStateRequest(session_id=session_id)
-        return AsyncGrpcSession(self, await self._unary(self.sessions.GetState, req, timeout))
-
-    async def interact(
-        self,
-        scene: Optional[Scene] = None,
-        session_id: Optional[str] = None,
-        kinematic: Sequence[int] = (),
-        dt_steps: int = 1,
-        model: str = "",
-        step_timeout: Optional[float] = None,
-        timeout: Optional[float] = None,
-    ) -> "AsyncInteraction":
-        """See :meth:`GrpcClient.interact`; the loop's :meth:`AsyncInteraction.step` is awaited."""
-        first = _interact_open(scene, session_id, kinematic, dt_steps, model)
-        loop = AsyncInteraction(self, step_timeout or self.step_timeout, timeout)
-        await loop._open(first)
-        return loop
-
-
-class AsyncFrameStream(AsyncIterator[Frame]):
-    """The frames of one streaming call for ``async for``; see :class:`FrameStream`."""
-
-    def __init__(self, call: Any) -> None:
-        self._call = call
-        self._cancelled = False
-        self._warned = False
-
-    def __aiter__(self) -> "AsyncFrameStream":
-        return self
-
-    async def __anext__(self) -> Frame:
-        try:
-            f = await self._call.read()
-            if not self._warned and f is not grpc.aio.EOF:
-                self._warned = True
-                warn_out_of_range(_pairs(await self._call.initial_metadata()))
-        except asyncio.CancelledError:
-            if self._cancelled:
-                raise StopAsyncIteration from None
-            raise
-        except grpc.aio.AioRpcError as e:
-            if self._cancelled and e.code() == grpc.StatusCode.CANCELLED:
-                raise StopAsyncIteration from None
-            raise error_of(e) from None
-        if f is grpc.aio.EOF:
-            raise StopAsyncIteration
-        return frame_of(f)
-
-    def cancel(self) -> None:
-        """Stops the call; the server frees its slot."""
-        self._cancelled = True
-        self._call.cancel()
-
-    async def request_id(self) -> str:
-        """The server's request id (waits for the response headers)."""
-        return dict(_pairs(await self._call.initial_metadata())).get("x-request-id", "")
-
-
-class AsyncGrpcSession(_SessionFields):
-    """A session of :class:`AsyncGrpcClient`; the attributes and methods of
-    :class:`GrpcSession`, awaited."""
-
-    async def step(
-        self,
-        steps: int,
-        kinematic: Optional[Mapping[int, npt.ArrayLike]] = None,
-        timeout_ms: int = 0,
-        timeout: Optional[float] = None,
-    ) -> List[Frame]:
-        """See :meth:`GrpcSession.step`."""
-        req = spb.StepRequest(
-            session_id=self.id, steps=steps, actions=actions_pb(kinematic), timeout_ms=timeout_ms
-        )
-        c = self.client
-        return [f async for f in AsyncFrameStream(c.sessions.Step(req, timeout=timeout or c.stream_timeout, metadata=c.metadata))]
-
-    async def state(self) -> Dict[str, Any]:
-        """See :meth:`GrpcSession.state`."""
-        return _state(await self.client._unary(self.client.sessions.GetState, spb.GetStateRequest(session_id=self.id)))
-
-    async def set_state(
-        self,
-        poses: Mapping[int, npt.ArrayLike],
-        velocities: Optional[Mapping[int, npt.ArrayLike]] = None,
-    ) -> Dict[str, Any]:
-        """See :meth:`GrpcSession.set_state`."""
-        req = spb.SetStateRequest(session_id=self.id, objects=_states(poses, velocities))
-        return _state(await self.client._unary(self.client.sessions.SetState, req))
-
-    async def fork(self) -> "AsyncGrpcSession":
-        """See :meth:`GrpcSession.fork`."""
-        info = await self.client._unary(self.client.sessions.Fork, spb.ForkRequest(session_id=self.id))
-        return AsyncGrpcSession(self.client, info)
-
-    async def predict(
-        self,
-        steps: int,
-        kinematic: Optional[Sequence[Mapping[int, npt.ArrayLike]]] = None,
-        poses: Optional[Sequence[Mapping[int, npt.ArrayLike]]] = None,
-        every: int = 0,
-        timeout_ms: int = 0,
-        timeout: Optional[float] = None,
-    ) -> np.ndarray:
-        """See :meth:`GrpcSession.predict`; ``[variants, frames, objects, 7]``."""
-        req = spb.SessionPredictRequest(
-            session_id=self.id,
-            variants=_variants(kinematic, poses),
-            steps=steps,
-            every=every,
-            timeout_ms=timeout_ms,
-        )
-        return _trajectories(await self.client._unary(self.client.sessions.Predict, req, timeout))
-
-    async def interact(self, step_timeout: Optional[float] = None, timeout: Optional[float] = None) -> "AsyncInteraction":
-        """See :meth:`GrpcSession.interact`."""
-        return await self.client.interact(session_id=self.id, step_timeout=step_timeout, timeout=timeout)
-
-    async def delete(self) -> None:
-        """See :meth:`GrpcSession.delete`."""
-        await self.client._unary(self.client.sessions.DeleteSession, spb.DeleteSessionRequest(session_id=self.id))
-
-
-class AsyncInteraction:
-    """The closed loop of :class:`Interaction` for asyncio: ``await step(...)``; use it with
-    ``async with`` or ``await close()``."""
-
-    def __init__(self, client: AsyncGrpcClient, step_timeout: float, timeout: Optional[float]) -> None:
-        self.step_timeout = step_timeout
-        self._call = client.sessions.Interact(timeout=timeout, metadata=client.metadata)
-        self._done = False
-        self.session_id = ""
-        self.model = ""
-        self.request_id = ""
-
-    async def _wait(self, what: str, aw: Any) -> Any:
-        try:
-            return await asyncio.wait_for(aw, self.step_timeout)
-        except asyncio.TimeoutError:
-            self.cancel()
-            raise _deadline(what, self.step_timeout) from None
-        except grpc.aio.AioRpcError as e:
-            self._done = True
-            raise error_of(e) from None
-
-    async def _open(self, first: spb.InteractRequest) -> None:
-        await self._wait("opening the Interact stream", self._call.write(first))
-        pairs = list(_pairs(await self._wait("opening the Interact stream", self._call.initial_metadata())))
-        md = dict(pairs)
-        if SESSION_KEY not in md:
-            # The stream failed before it opened: reading surfaces its status.
-            await self._wait("opening the Interact stream", self._call.read())
-            self._done = True
-            raise DynaserveError(500, "UNKNOWN", "the Interact stream ended before it opened")
-        warn_out_of_range(pairs)
-        self.session_id = md[SESSION_KEY]
-        self.model = md.get("x-dynaserve-model", "")
-        self.request_id = md.get("x-request-id", "")
-
-    async def step(
-        self,
-        kinematic: Optional[Mapping[int, npt.ArrayLike]] = None,
-        correct: Optional[Mapping[int, npt.ArrayLike]] = None,
-        velocities: Optional[Mapping[int, npt.ArrayLike]] = None,
-    ) -> Frame:
-        """See :meth:`Interaction.step`."""
-        if self._done:
-            raise DynaserveError(499, "CANCELLED", "the Interact stream is closed")
-        await self._wait("Interact step", self._call.write(_interact_step(kinematic, correct, velocities)))
-        f = await self._wait("Interact step", self._call.read())
-        if f is grpc.aio.EOF:
-            self._done = True
-            raise DynaserveError(500, "UNKNOWN", "the Interact stream ended without answering the step")
-        return frame_of(f)
-
-    async def close(self) -> None:
-        """See :meth:`Interaction.close`."""
-        if self._done:
-            return
-        self._done = True
-        await self._wait("closing the Interact stream", self._call.done_writing())
-        await self._wait("closing the Interact stream", self._call.read())
-
-    def cancel(self) -> None:
-        """Cancels the stream at once."""
-        self._done = True
-        self._call.cancel()
-
-    async def __aenter__(self) -> "AsyncInteraction":
-        return self
-
-    async def __aexit__(self, exc_type: Any, *exc: Any) -> None:
-        if exc_type is None:
-            await self.close()
         else:
             self.cancel()
 
