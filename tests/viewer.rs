@@ -428,3 +428,36 @@ fn the_viewer_shows_the_simulator_beside_a_learned_model() {
     );
     server.shutdown();
 }
+
+/// An ensemble estimates its uncertainty: the page charts each object's spread against time
+/// and gives the widest for the step on screen.
+#[test]
+fn the_viewer_charts_an_ensembles_spread() {
+    let runtime = tokio::runtime::Runtime::new().unwrap();
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join(common::SHIPPED_ENSEMBLE);
+    let server = runtime.block_on(async {
+        let config = ServeConfig::local(vec![dir.clone()]);
+        let models = dynaserve_server::load_all(&config.models).unwrap();
+        let server = dynaserve_server::start(config, models).await.unwrap();
+        server.wait_ready(Duration::from_secs(60)).await.unwrap();
+        server
+    });
+    let name = dir.file_name().unwrap().to_string_lossy().into_owned();
+    let url = format!("http://{}/?model={name}&scene=collision", server.http_addr);
+    let mut b = Browser::launch(1280, 800).unwrap();
+    b.navigate(&url).unwrap();
+    let done = b
+        .wait_for(
+            "document.body.dataset.state === 'done' && \
+             ({...document.body.dataset, \
+               hidden: document.getElementById('spread-figure').hidden, \
+               spread: document.getElementById('spread-text').textContent})",
+            WAIT,
+            PAGE_STATE,
+        )
+        .unwrap();
+    assert_eq!(done["hidden"], false, "{done}");
+    let text = done["spread"].as_str().unwrap();
+    assert!(text.contains(" cm, ") && text.contains(" deg"), "{done}");
+    server.shutdown();
+}

@@ -5,7 +5,9 @@
 // Play, pause and scrub; chart the server's per-step timings and, when the scene has ground
 // truth, the error against time. "Beside" rolls the same scene out on a second resident model
 // (the rapier simulator shows what the learned model should have predicted) and draws it as
-// the ghost in place of the example's ground truth.
+// the ghost in place of the example's ground truth. A model that estimates its uncertainty (an
+// ensemble) sends each object's spread with every frame: charted per object against time, and
+// given for the step on screen.
 //
 // The page reports its progress on <body> for people and for tests: data-state (loading, idle,
 // running, done, stopped, error), data-family (rollout or generate), data-frames (rollout:
@@ -459,7 +461,7 @@ function onEvent(name, data) {
       showError(e.message);
       return;
     }
-    st.frames.push({ step: data.step, time: data.time, positions, timing: data.timing || null });
+    st.frames.push({ step: data.step, time: data.time, positions, timing: data.timing || null, spread: data.spread || null });
     if (st.frames.length === 2 && data.time > 0) st.stepSeconds = data.time / data.step;
     progress();
     charts();
@@ -593,6 +595,7 @@ function charts() {
   } else {
     $('timing-text').textContent = 'per-step server timing';
   }
+  spreadChart();
   $('error-figure').hidden = !st.truth;
   if (st.truth) {
     const n = Math.min(st.frames.length, st.truth.length);
@@ -610,6 +613,33 @@ function charts() {
       ? `model (solid) against ${$('ghost').value || 'ground truth'} (ghost): ${(lastErr[1] * 100).toFixed(1)} cm mean point error at ${lastErr[0].toFixed(2)} s`
       : 'model against ground truth';
   }
+}
+
+/** Each object's position spread (m) against time, when the model sends one. */
+function spreadChart() {
+  const frames = st.family === 'generate' ? [] : st.frames.filter((f) => f.spread && f.spread.length);
+  $('spread-figure').hidden = !frames.length;
+  if (!frames.length) return;
+  const objects = frames[0].spread.length;
+  const series = [];
+  for (let j = 0; j < objects; j++) {
+    series.push({
+      label: `object ${j}`,
+      colour: objectColour(j),
+      points: frames.map((f) => [f.time, f.spread[j] ? f.spread[j].position_m : 0]),
+    });
+  }
+  drawChart($('spread-chart'), series, {
+    xMax: Math.max(st.requested * st.stepSeconds, frames[frames.length - 1].time),
+    xLabel: 'time, s',
+    yLabel: 'm',
+    marker: st.frames[st.shown] ? st.frames[st.shown].time : null,
+  });
+  const shown = st.frames[st.shown] && st.frames[st.shown].spread ? st.frames[st.shown] : frames[frames.length - 1];
+  const widest = shown.spread.reduce((a, s, j) => (s.position_m > a.s.position_m ? { s, j } : a), { s: shown.spread[0], j: 0 });
+  $('spread-text').textContent =
+    `the model's spread at step ${shown.step}: largest object ${widest.j}, ` +
+    `${(widest.s.position_m * 100).toFixed(2)} cm, ${widest.s.orientation_deg.toFixed(2)} deg`;
 }
 
 // ----- start-up -----
