@@ -128,7 +128,7 @@ impl Auth {
         }
     }
 
-    /// True when `headers` carry one of the tokens (see [`Auth::token_of`]).
+    /// True when `headers` carry one of the tokens (see `Auth::token_of`).
     pub fn accepts(&self, headers: &HeaderMap) -> bool {
         self.token_of(headers).is_some()
     }

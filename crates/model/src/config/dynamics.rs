@@ -79,14 +79,14 @@ pub struct DynamicsConfig {
     /// (18 degrees at 0.83 rad per step). A body spinning in free flight then needs a zero
     /// output, as one flying straight does with `gravity_residual`.
     pub rigid_extrapolation: bool,
-    /// Object state summary: [`OBJECT_SUMMARY_FEATURES`] numbers per object (the lowest
+    /// Object state summary: [`OBJECT_SUMMARY_FEATURES`](super::feature_layout::OBJECT_SUMMARY_FEATURES) numbers per object (the lowest
     /// point's height above the ground and increment, the centre's height and increment, the
     /// rotation increment, the lowest point's offset from the centre), added to the object's
     /// token through a small MLP whose last layer starts at zero, so the floor reaches the
     /// decoder without passing through the encoder's max-pools. Absent in older `config.json`
     /// files, which means off.
     pub object_summary: bool,
-    /// Contact summary: [`CONTACT_SUMMARY_FEATURES`] numbers per object describing where it
+    /// Contact summary: [`CONTACT_SUMMARY_FEATURES`](super::feature_layout::CONTACT_SUMMARY_FEATURES) numbers per object describing where it
     /// meets other objects (the nearest gap, and over the patch of its points nearly that
     /// close: the mean direction to the other surface, the mean offset from the centre and the
     /// mean contact velocity; the patch's share of the cloud), added to the object's token

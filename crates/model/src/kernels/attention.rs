@@ -8,9 +8,9 @@
 //! Rotary codes rotate channel pairs `(2i, 2i + 1)`, `i < P`, of every head by the row's
 //! `(cos_i, sin_i)`, as `crate::layers::rotate_pairs` does.
 //!
-//! The ops' definitions are in [`super::attention_ops`], the key layout both forward paths
-//! read in [`super::attention_keys`], and the blocked path for long key lists in
-//! [`super::attention_long`]; this file holds the row kernel and the ops' forward and
+//! The ops' definitions are in `attention_ops`, the key layout both forward paths
+//! read in `attention_keys`, and the blocked path for long key lists in
+//! `attention_long`; this file holds the row kernel and the ops' forward and
 //! backward entry points.
 
 use candle_core::{CpuStorage, CustomOp2, Layout, Shape, Tensor};
