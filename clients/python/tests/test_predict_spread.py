@@ -8,7 +8,7 @@ import unittest
 
 import numpy as np
 
-from dynaserve import AsyncClient, Body, Client, Session, box_points, pose_doc
+from dynaserve import AsyncClient, Body, Client, Session, pose_doc
 from dynaserve.grpc import AsyncGrpcClient, AsyncGrpcSession, GrpcClient, GrpcSession, pose_pb
 from dynaserve.v1 import sessions_pb2 as spb
 from dynaserve.v1 import world_model_pb2 as pb
@@ -52,7 +52,8 @@ def closed_port():
 
 
 def bodies():
-    return [Body(box_points([0.1] * 3, 16, j), pose=[0, 0, 0.1, 0, 0, 0, 1]) for j in range(2)]
+    cube = [[x, y, z] for x in (-0.1, 0.1) for y in (-0.1, 0.1) for z in (-0.1, 0.1)]
+    return [Body(cube, pose=[0.3 * j, 0, 0.1, 0, 0, 0, 1]) for j in range(2)]
 
 
 class PredictSpread(unittest.TestCase):
