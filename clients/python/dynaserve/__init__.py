@@ -15,7 +15,7 @@ import importlib.metadata as _metadata
 import pathlib as _pathlib
 import re as _re
 
-from .client import AFFINITY_HEADER, AsyncClient, Client, Frame, Session
+from .client import AFFINITY_HEADER, AsyncClient, Client, Frame, PosesAndSpread, Session
 from .errors import BodyFrameWarning, DynaserveError, OutOfRangeWarning
 from .mesh import Generated, MeshObject
 from .scene import Body, box_points, pose_array, pose_doc
@@ -44,6 +44,7 @@ __all__ = [
     "Generated",
     "MeshObject",
     "OutOfRangeWarning",
+    "PosesAndSpread",
     "Session",
     "__version__",
     "box_points",

@@ -25,7 +25,7 @@ import secrets
 import socket
 import urllib.parse
 from dataclasses import dataclass
-from typing import Any, Callable, Dict, Iterator, List, Mapping, Optional, Sequence, Tuple
+from typing import Any, Callable, Dict, Iterator, List, Literal, Mapping, Optional, Sequence, Tuple, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -61,6 +61,33 @@ def spread_array(entries: Sequence[Any]) -> Optional[np.ndarray]:
         [[float(get(e, "position_m")), float(get(e, "orientation_deg"))] for e in entries],
         dtype=np.float32,
     )
+
+
+PosesAndSpread = Tuple[np.ndarray, Optional[np.ndarray]]
+"""What ``predict(..., with_spread=True)`` returns: the poses ``[variants, frames, objects,
+7]`` and the spread ``[variants, frames, objects, 2]`` (``[position_m, orientation_deg]``,
+metres and degrees, as :attr:`Frame.spread`), or ``None`` when the model estimates none."""
+
+
+def predict_arrays(
+    frames: Sequence[Sequence[Tuple[np.ndarray, Optional[np.ndarray]]]], with_spread: bool
+) -> Any:
+    """A Predict response's poses ``[variants, frames, objects, 7]`` from ``frames[i][k]``
+    ``(poses [objects, 7], spread [objects, 2] or None)`` of variant ``i``'s frame ``k``; with
+    ``with_spread``, ``(poses, spread)`` (:data:`PosesAndSpread`), the spread ``None`` when no
+    frame carries one. Frames of which only some carry a spread, or one of another length
+    than their poses, are a ``ValueError`` naming the first such frame."""
+    poses = np.stack([np.stack([p for p, _ in t]) for t in frames])
+    if not with_spread:
+        return poses
+    if all(s is None for t in frames for _, s in t):
+        return poses, None
+    for i, t in enumerate(frames):
+        for k, (p, s) in enumerate(t):
+            if s is None or s.shape != (len(p), 2):
+                got = "no spread" if s is None else f"spread of shape {s.shape}"
+                raise ValueError(f"trajectories[{i}].frames[{k}]: {got} for {len(p)} objects, unlike other frames")
+    return poses, np.stack([np.stack([s for _, s in t]) for t in frames])
 
 
 def _frame(doc: Dict[str, Any]) -> Frame:
@@ -270,6 +297,18 @@ class Client:
         finally:
             conn.close()
 
+    @overload
+    def predict(
+        self, variants: Sequence[Any], steps: int, dt_steps: int = ..., every: int = ..., model: str = ...,
+        timeout_ms: int = ..., *, with_spread: Literal[False] = ...,
+    ) -> np.ndarray: ...
+
+    @overload
+    def predict(
+        self, variants: Sequence[Any], steps: int, dt_steps: int = ..., every: int = ..., model: str = ...,
+        timeout_ms: int = ..., *, with_spread: Literal[True],
+    ) -> PosesAndSpread: ...
+
     def predict(
         self,
         variants: Sequence[Any],
@@ -278,9 +317,11 @@ class Client:
         every: int = 0,
         model: str = "",
         timeout_ms: int = 0,
-    ) -> np.ndarray:
+        *,
+        with_spread: bool = False,
+    ) -> Any:
         """Rolls every scene variant forward in one call; returns ``[variants, frames,
-        objects, 7]``.
+        objects, 7]``, or with ``with_spread`` ``(poses, spread)``.
 
         Args:
             variants: scenes, each as in :meth:`rollout`.
@@ -289,6 +330,11 @@ class Client:
             every: keep every ``every``-th step's poses. Default 0: the final frame only.
             model: as in :meth:`rollout`. Default ``""``.
             timeout_ms: the server's deadline, milliseconds. Default 0: none.
+            with_spread: also return each returned frame's per-object spread, ``(poses,
+                spread)`` with spread ``[variants, frames, objects, 2]`` float32
+                (``[position_m, orientation_deg]``: an ensemble's RMS disagreement, metres and
+                degrees), or ``None`` when the model estimates none (a single network, the
+                simulator). Keyword only. Default ``False``: the poses array alone.
         """
         out = self.request(
             "POST",
@@ -302,7 +348,7 @@ class Client:
                 "timeout_ms": timeout_ms,
             },
         )
-        return _trajectories(out)
+        return _trajectories(out, with_spread)
 
     def generate(
         self,
@@ -425,9 +471,14 @@ def _session_path(session_id: str) -> str:
     return "/v1/sessions/" + urllib.parse.quote(session_id, safe="")
 
 
-def _trajectories(out: Dict[str, Any]) -> np.ndarray:
-    return np.stack(
-        [np.stack([poses_array(f["poses"]) for f in t["frames"]]) for t in out["trajectories"]]
+def _trajectories(out: Dict[str, Any], with_spread: bool = False) -> Any:
+    """A ``PredictResponse`` document's poses, or ``(poses, spread)``: see :func:`predict_arrays`."""
+    return predict_arrays(
+        [
+            [(poses_array(f["poses"]), spread_array(f.get("spread", []))) for f in t["frames"]]
+            for t in out["trajectories"]
+        ],
+        with_spread,
     )
 
 
@@ -519,6 +570,20 @@ class Session:
         """A copy of this session (same scene, its own state) under a new id."""
         return Session(self.client, self.client.request("POST", f"{self._path}/fork"))
 
+    @overload
+    def predict(
+        self, steps: int, kinematic: Optional[Sequence[Mapping[int, npt.ArrayLike]]] = ...,
+        poses: Optional[Sequence[Mapping[int, npt.ArrayLike]]] = ..., every: int = ..., timeout_ms: int = ...,
+        *, with_spread: Literal[False] = ...,
+    ) -> np.ndarray: ...
+
+    @overload
+    def predict(
+        self, steps: int, kinematic: Optional[Sequence[Mapping[int, npt.ArrayLike]]] = ...,
+        poses: Optional[Sequence[Mapping[int, npt.ArrayLike]]] = ..., every: int = ..., timeout_ms: int = ...,
+        *, with_spread: Literal[True],
+    ) -> PosesAndSpread: ...
+
     def predict(
         self,
         steps: int,
@@ -526,9 +591,12 @@ class Session:
         poses: Optional[Sequence[Mapping[int, npt.ArrayLike]]] = None,
         every: int = 0,
         timeout_ms: int = 0,
-    ) -> np.ndarray:
+        *,
+        with_spread: bool = False,
+    ) -> Any:
         """Rolls variants of the session's state forward in one call; the session does not
-        move. Returns ``[variants, frames, objects, 7]``.
+        move. Returns ``[variants, frames, objects, 7]``, or with ``with_spread`` ``(poses,
+        spread)``.
 
         Args:
             steps: steps to roll each variant.
@@ -538,6 +606,9 @@ class Session:
                 Default ``None``: the session's state.
             every: keep every ``every``-th step's poses. Default 0: the final frame only.
             timeout_ms: the server's deadline, milliseconds. Default 0: none.
+            with_spread: also return the spread ``[variants, frames, objects, 2]`` (``None``
+                when the model estimates none), as for :meth:`Client.predict`. Keyword only.
+                Default ``False``: the poses array alone.
         """
         n = max(len(kinematic or []), len(poses or []), 1)
         variants = []
@@ -553,7 +624,7 @@ class Session:
             f"{self._path}/predict",
             {"variants": variants, "steps": steps, "every": every, "timeout_ms": timeout_ms},
         )
-        return _trajectories(out)
+        return _trajectories(out, with_spread)
 
     def delete(self) -> None:
         """Deletes the session on the server."""
@@ -581,9 +652,15 @@ class AsyncClient:
         """See :meth:`Client.list_models`."""
         return await asyncio.to_thread(self.sync.list_models)
 
-    async def predict(self, *args: Any, **kwargs: Any) -> np.ndarray:
-        """See :meth:`Client.predict`."""
-        return await asyncio.to_thread(self.sync.predict, *args, **kwargs)
+    @overload
+    async def predict(self, *args: Any, with_spread: Literal[False] = ..., **kwargs: Any) -> np.ndarray: ...
+
+    @overload
+    async def predict(self, *args: Any, with_spread: Literal[True], **kwargs: Any) -> PosesAndSpread: ...
+
+    async def predict(self, *args: Any, with_spread: bool = False, **kwargs: Any) -> Any:
+        """See :meth:`Client.predict` (``with_spread`` included)."""
+        return await asyncio.to_thread(lambda: self.sync.predict(*args, with_spread=with_spread, **kwargs))
 
     async def rollout(self, *args: Any, **kwargs: Any) -> List[Frame]:
         """See :meth:`Client.rollout`; returns the whole list of frames."""

@@ -35,10 +35,12 @@ from typing import (
     Dict,
     Iterator,
     List,
+    Literal,
     Mapping,
     Optional,
     Sequence,
     Tuple,
+    overload,
 )
 
 import numpy as np
@@ -56,7 +58,7 @@ except ImportError as _missing:  # pragma: no cover - depends on the environment
         "pip install 'dynaserve[grpc]'"
     ) from _missing
 
-from .client import Frame
+from .client import Frame, PosesAndSpread
 from .errors import DynaserveError, warn_out_of_range
 from .grpc_async import AsyncFrameStream, AsyncGrpcClient, AsyncGrpcSession, AsyncInteraction
 from .grpc_base import DEFAULT_STREAM_TIMEOUT, _Base, _SessionFields
@@ -168,6 +170,20 @@ class GrpcClient(_Base):
         )
         return FrameStream(self.world.Rollout(req, timeout=timeout or self.stream_timeout, metadata=self.metadata))
 
+    @overload
+    def predict(
+        self, variants: Sequence[Scene], steps: int, dt_steps: int = ..., every: int = ..., model: str = ...,
+        timeout_ms: int = ..., timeout: Optional[float] = ...,
+        *, with_spread: Literal[False] = ...,
+    ) -> np.ndarray: ...
+
+    @overload
+    def predict(
+        self, variants: Sequence[Scene], steps: int, dt_steps: int = ..., every: int = ..., model: str = ...,
+        timeout_ms: int = ..., timeout: Optional[float] = ...,
+        *, with_spread: Literal[True],
+    ) -> PosesAndSpread: ...
+
     def predict(
         self,
         variants: Sequence[Scene],
@@ -177,11 +193,16 @@ class GrpcClient(_Base):
         model: str = "",
         timeout_ms: int = 0,
         timeout: Optional[float] = None,
-    ) -> np.ndarray:
+        *,
+        with_spread: bool = False,
+    ) -> Any:
         """Rolls every scene variant forward; returns ``[variants, frames, objects, 7]`` (the
         final frame only unless ``every`` > 0). Arguments and defaults as for
         :meth:`dynaserve.Client.predict`; ``timeout``: the call's deadline, seconds (default
-        ``None``: the client's ``timeout``)."""
+        ``None``: the client's ``timeout``); ``with_spread`` (keyword only, default ``False``): return ``(poses, spread)``, the spread
+        ``[variants, frames, objects, 2]`` float32 (``[position_m, orientation_deg]``, metres and
+        degrees) or ``None`` when the model estimates none, as for
+        :meth:`dynaserve.Client.predict`."""
         req = pb.PredictRequest(
             model=model,
             variants=[scene_pb(v, k) for k, v in enumerate(variants)],
@@ -190,7 +211,7 @@ class GrpcClient(_Base):
             every=every,
             timeout_ms=timeout_ms,
         )
-        return _trajectories(self._unary(self.world.Predict, req, timeout))
+        return _trajectories(self._unary(self.world.Predict, req, timeout), with_spread)
 
     def generate(
         self,
@@ -367,6 +388,22 @@ class GrpcSession(_SessionFields):
         """A copy of this session (same scene, its own state) under a new id."""
         return GrpcSession(self.client, self.client._unary(self.client.sessions.Fork, spb.ForkRequest(session_id=self.id)))
 
+    @overload
+    def predict(
+        self, steps: int, kinematic: Optional[Sequence[Mapping[int, npt.ArrayLike]]] = ...,
+        poses: Optional[Sequence[Mapping[int, npt.ArrayLike]]] = ..., every: int = ..., timeout_ms: int = ...,
+        timeout: Optional[float] = ...,
+        *, with_spread: Literal[False] = ...,
+    ) -> np.ndarray: ...
+
+    @overload
+    def predict(
+        self, steps: int, kinematic: Optional[Sequence[Mapping[int, npt.ArrayLike]]] = ...,
+        poses: Optional[Sequence[Mapping[int, npt.ArrayLike]]] = ..., every: int = ..., timeout_ms: int = ...,
+        timeout: Optional[float] = ...,
+        *, with_spread: Literal[True],
+    ) -> PosesAndSpread: ...
+
     def predict(
         self,
         steps: int,
@@ -375,10 +412,14 @@ class GrpcSession(_SessionFields):
         every: int = 0,
         timeout_ms: int = 0,
         timeout: Optional[float] = None,
-    ) -> np.ndarray:
+        *,
+        with_spread: bool = False,
+    ) -> Any:
         """Rolls variants of the session's state forward in one call; the session does not
         move. Variant ``i`` has its kinematic paths ``kinematic[i]`` and pose overrides
-        ``poses[i]`` (``{index: [7]}``, at rest). Returns ``[variants, frames, objects, 7]``."""
+        ``poses[i]`` (``{index: [7]}``, at rest). Returns ``[variants, frames, objects, 7]``,
+        or with ``with_spread`` ``(poses, spread)`` (spread ``[variants, frames, objects, 2]``
+        or ``None``, as for :meth:`GrpcClient.predict`)."""
         req = spb.SessionPredictRequest(
             session_id=self.id,
             variants=_variants(kinematic, poses),
@@ -386,7 +427,7 @@ class GrpcSession(_SessionFields):
             every=every,
             timeout_ms=timeout_ms,
         )
-        return _trajectories(self.client._unary(self.client.sessions.Predict, req, timeout))
+        return _trajectories(self.client._unary(self.client.sessions.Predict, req, timeout), with_spread)
 
     def interact(self, step_timeout: Optional[float] = None, timeout: Optional[float] = None) -> "Interaction":
         """A closed loop on this session (see :meth:`GrpcClient.interact`); the session keeps

@@ -6,14 +6,14 @@ synchronous classes in :mod:`dynaserve.grpc`, which re-exports them (import them
 from __future__ import annotations
 
 import asyncio
-from typing import Any, AsyncIterator, Callable, Dict, List, Mapping, Optional, Sequence
+from typing import Any, AsyncIterator, Callable, Dict, List, Literal, Mapping, Optional, Sequence, overload
 
 import grpc
 import grpc.aio
 import numpy as np
 import numpy.typing as npt
 
-from .client import Frame
+from .client import Frame, PosesAndSpread
 from .errors import DynaserveError, warn_out_of_range
 from .grpc_base import DEFAULT_STREAM_TIMEOUT, _Base, _SessionFields
 from .grpc_convert import (
@@ -98,6 +98,20 @@ class AsyncGrpcClient(_Base):
         )
         return AsyncFrameStream(self.world.Rollout(req, timeout=timeout or self.stream_timeout, metadata=self.metadata))
 
+    @overload
+    async def predict(
+        self, variants: Sequence[Scene], steps: int, dt_steps: int = ..., every: int = ..., model: str = ...,
+        timeout_ms: int = ..., timeout: Optional[float] = ...,
+        *, with_spread: Literal[False] = ...,
+    ) -> np.ndarray: ...
+
+    @overload
+    async def predict(
+        self, variants: Sequence[Scene], steps: int, dt_steps: int = ..., every: int = ..., model: str = ...,
+        timeout_ms: int = ..., timeout: Optional[float] = ...,
+        *, with_spread: Literal[True],
+    ) -> PosesAndSpread: ...
+
     async def predict(
         self,
         variants: Sequence[Scene],
@@ -107,8 +121,11 @@ class AsyncGrpcClient(_Base):
         model: str = "",
         timeout_ms: int = 0,
         timeout: Optional[float] = None,
-    ) -> np.ndarray:
-        """See :meth:`GrpcClient.predict`; ``[variants, frames, objects, 7]``."""
+        *,
+        with_spread: bool = False,
+    ) -> Any:
+        """See :meth:`GrpcClient.predict`; ``[variants, frames, objects, 7]``, or with
+        ``with_spread`` ``(poses, spread [variants, frames, objects, 2] or None)``."""
         req = pb.PredictRequest(
             model=model,
             variants=[scene_pb(v, k) for k, v in enumerate(variants)],
@@ -117,7 +134,7 @@ class AsyncGrpcClient(_Base):
             every=every,
             timeout_ms=timeout_ms,
         )
-        return _trajectories(await self._unary(self.world.Predict, req, timeout))
+        return _trajectories(await self._unary(self.world.Predict, req, timeout), with_spread)
 
     async def generate(
         self,
@@ -264,6 +281,22 @@ class AsyncGrpcSession(_SessionFields):
         info = await self.client._unary(self.client.sessions.Fork, spb.ForkRequest(session_id=self.id))
         return AsyncGrpcSession(self.client, info)
 
+    @overload
+    async def predict(
+        self, steps: int, kinematic: Optional[Sequence[Mapping[int, npt.ArrayLike]]] = ...,
+        poses: Optional[Sequence[Mapping[int, npt.ArrayLike]]] = ..., every: int = ..., timeout_ms: int = ...,
+        timeout: Optional[float] = ...,
+        *, with_spread: Literal[False] = ...,
+    ) -> np.ndarray: ...
+
+    @overload
+    async def predict(
+        self, steps: int, kinematic: Optional[Sequence[Mapping[int, npt.ArrayLike]]] = ...,
+        poses: Optional[Sequence[Mapping[int, npt.ArrayLike]]] = ..., every: int = ..., timeout_ms: int = ...,
+        timeout: Optional[float] = ...,
+        *, with_spread: Literal[True],
+    ) -> PosesAndSpread: ...
+
     async def predict(
         self,
         steps: int,
@@ -272,8 +305,11 @@ class AsyncGrpcSession(_SessionFields):
         every: int = 0,
         timeout_ms: int = 0,
         timeout: Optional[float] = None,
-    ) -> np.ndarray:
-        """See :meth:`GrpcSession.predict`; ``[variants, frames, objects, 7]``."""
+        *,
+        with_spread: bool = False,
+    ) -> Any:
+        """See :meth:`GrpcSession.predict`; ``[variants, frames, objects, 7]``, or with
+        ``with_spread`` ``(poses, spread [variants, frames, objects, 2] or None)``."""
         req = spb.SessionPredictRequest(
             session_id=self.id,
             variants=_variants(kinematic, poses),
@@ -281,7 +317,7 @@ class AsyncGrpcSession(_SessionFields):
             every=every,
             timeout_ms=timeout_ms,
         )
-        return _trajectories(await self.client._unary(self.client.sessions.Predict, req, timeout))
+        return _trajectories(await self.client._unary(self.client.sessions.Predict, req, timeout), with_spread)
 
     async def interact(self, step_timeout: Optional[float] = None, timeout: Optional[float] = None) -> "AsyncInteraction":
         """See :meth:`GrpcSession.interact`."""

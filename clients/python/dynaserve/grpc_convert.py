@@ -26,7 +26,7 @@ import numpy as np
 import numpy.typing as npt
 from google.rpc import error_details_pb2, status_pb2
 
-from .client import Frame, spread_array
+from .client import Frame, predict_arrays, spread_array
 from .errors import DynaserveError
 from .mesh import Collector, MeshObject, check_sampler, checked_objects
 from .scene import Body, array_arg, index_arg, kinematic_paths, number
@@ -259,8 +259,13 @@ def frame_of(f: pb.StepFrame) -> Frame:
     return Frame(step=int(f.step), time=float(f.time), poses=poses_np(f.poses), spread=spread_array(f.spread))
 
 
-def _trajectories(resp: pb.PredictResponse) -> np.ndarray:
-    return np.stack([np.stack([poses_np(f.poses) for f in t.frames]) for t in resp.trajectories])
+def _trajectories(resp: pb.PredictResponse, with_spread: bool = False) -> Any:
+    """A ``PredictResponse``'s poses ``[variants, frames, objects, 7]``, or with
+    ``with_spread`` ``(poses, spread)``: see :func:`dynaserve.client.predict_arrays`."""
+    return predict_arrays(
+        [[(poses_np(f.poses), spread_array(f.spread)) for f in t.frames] for t in resp.trajectories],
+        with_spread,
+    )
 
 
 def _state(s: spb.SessionState) -> Dict[str, Any]:

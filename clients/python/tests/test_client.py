@@ -44,6 +44,13 @@ class ClientTest(unittest.TestCase):
         self.assertEqual(from_session.shape, (2, 1, 2, 7))
         np.testing.assert_allclose(from_session, full, atol=1e-5)
         np.testing.assert_allclose(full[0, -1], frames[-1].poses, atol=1e-5)
+        # with_spread: the same poses and, from a single network, no spread.
+        poses, spread = self.c.predict([bodies(), moved], steps=6, with_spread=True)
+        self.assertIsNone(spread)
+        np.testing.assert_allclose(poses, full, atol=1e-6)
+        poses, spread = start.predict(6, poses=[{}, {1: [-0.2, 0, 0.05, 0, 0, 0, 1]}], with_spread=True)
+        self.assertIsNone(spread)
+        np.testing.assert_allclose(poses, from_session, atol=1e-6)
 
     def test_objects_outside_the_trained_ranges_warn(self):
         slippery = bodies()

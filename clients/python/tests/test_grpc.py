@@ -80,6 +80,10 @@ class GrpcTest(unittest.TestCase):
         self.assertEqual(p.shape, (2, 3, 2, 7))
         np.testing.assert_allclose(p, self.h.predict([bodies(), moved], steps=6, every=2), atol=1e-6)
         np.testing.assert_allclose(p[0, -1], frames[-1].poses, atol=1e-6)
+        # with_spread: the same poses and, from a single network, no spread.
+        poses, spread = self.g.predict([bodies(), moved], steps=6, every=2, with_spread=True)
+        self.assertIsNone(spread)
+        np.testing.assert_allclose(poses, p, atol=1e-6)
         # A scene file's JSON document (meshes sampled by the server) goes over gRPC as well.
         with open(SCENES / "collision.json") as f:
             doc = json.load(f)["scene"]
@@ -117,6 +121,9 @@ class GrpcTest(unittest.TestCase):
         path = pusher_path(4)
         # The session's Predict from its start equals stepping it (and leaves it in place).
         predicted = s.predict(4, kinematic=[{1: path}], every=1)
+        poses, spread = s.predict(4, kinematic=[{1: path}], every=1, with_spread=True)
+        self.assertIsNone(spread)
+        np.testing.assert_allclose(poses, predicted, atol=1e-6)
         self.assertEqual(s.state()["step"], 0)
         frames = s.step(4, kinematic={1: path})
         self.assertEqual([x.step for x in frames], [1, 2, 3, 4])
@@ -355,6 +362,7 @@ class GrpcTest(unittest.TestCase):
             async with AsyncGrpcClient(target, timeout=60, stream_timeout=120, step_timeout=60) as a:
                 models = await a.list_models()
                 frames = [f async for f in a.rollout(bodies(), steps=4)]
+                predicted = await a.predict([bodies()], steps=4, every=1, with_spread=True)
                 s = await a.create_session(bodies(), kinematic=[1])
                 f = await s.fork()
                 stepped = await s.step(3, kinematic={1: path})
@@ -368,11 +376,13 @@ class GrpcTest(unittest.TestCase):
                 await s.delete()
                 await f.delete()
                 g = await a.generate(mesh_scene(), frames=4, denoise_steps=2, seed=3)
-                return models, frames, stepped, looped, state, e.exception, g
+                return models, frames, predicted, stepped, looped, state, e.exception, g
 
-        models, frames, stepped, looped, state, err, g = asyncio.run(run())
+        models, frames, (predicted, spread), stepped, looped, state, err, g = asyncio.run(run())
         self.assertEqual(models, self.g.list_models())
         assert_frames_equal(self, frames, list(self.g.rollout(bodies(), steps=4)))
+        self.assertIsNone(spread)
+        np.testing.assert_allclose(predicted[0], np.stack([x.poses for x in frames]), atol=1e-6)
         assert_frames_equal(self, looped, stepped)
         self.assertEqual(state["step"], 3)
         self.assertEqual((err.code, err.field), ("INVALID_ARGUMENT", "action.kinematic[0].object"))
