@@ -16,6 +16,7 @@ the ground truth, where both executed pusher paths are replayed in rapier by
     python examples/push_planner.py --seeds 0-199   # one plan per seed, then a summary line
     python examples/push_planner.py --seeds 0-199 --json planner.json   # ... and every seed's distances
     python examples/push_planner.py --model rapier   # plan in the simulator itself (served beside)
+    python examples/push_planner.py --model rigidformer-small-ensemble --risk-weight 1   # avoid what it is unsure of
 
 Planning in the model's own rollout makes the rapier distance a measure of the model: over many
 seeds, a model whose pushes are forecast better ends closer to the goal more often.
@@ -76,6 +77,14 @@ def side_cost(traj: np.ndarray, paths: np.ndarray, goal: np.ndarray) -> np.ndarr
     away /= np.linalg.norm(away, axis=-1, keepdims=True) + 1e-9
     behind = box + away * (HALF + PUSHER_HALF)
     return np.linalg.norm(paths[:, :, :2] - behind, axis=-1).min(axis=1)
+
+
+def risk(spread: np.ndarray) -> np.ndarray:
+    """How unsure the model is of each candidate's outcome ``[candidates]``, m: the box's
+    position spread of every step (``spread``: ``[candidates, steps, objects, 2]``, position
+    m and orientation deg), summed in quadrature over the horizon as independent errors would
+    add up by its end."""
+    return np.sqrt((spread[:, :, BOX, 0] ** 2).sum(axis=1))
 
 
 def find_dynaserve(given: Optional[str]) -> Optional[str]:
@@ -159,7 +168,8 @@ def record(model: dict, args: argparse.Namespace, results: list[tuple[int, tuple
     return {
         "planner": "push",
         "model": {"name": model.get("name"), "architecture": model.get("architecture")},
-        "settings": {name: getattr(args, name) for name in SETTINGS},
+        # The risk weight is recorded only when used, so records without it still compare.
+        "settings": {name: getattr(args, name) for name in SETTINGS + (("risk_weight",) if args.risk_weight else ())},
         "seeds": [
             {"seed": seed, "planned": d[0], "random": d[1], "planned_off": d[2], "random_off": d[3]}
             for seed, d in results
@@ -200,12 +210,20 @@ def plan(client: Any, args: argparse.Namespace, seed: int, dt_frame: float, bina
         for _ in range(args.iterations):
             v = np.clip(mean + std * rng.standard_normal((args.samples, args.horizon, 2)), -args.speed, args.speed)
             paths = [path_from(here[PUSHER, :2], v[i], dt_frame) for i in range(args.samples)]
-            traj = session.predict(args.horizon, kinematic=[{PUSHER: p} for p in paths])
+            candidates = [{PUSHER: p} for p in paths]
+            if args.risk_weight > 0:
+                traj, spread = session.predict(args.horizon, kinematic=candidates, with_spread=True)
+            else:
+                traj, spread = session.predict(args.horizon, kinematic=candidates), None
             calls += 1
             sent += client.last_request_bytes
             cost = np.linalg.norm(traj[:, -1, BOX, :2] - goal, axis=1)
             if args.side_weight > 0:
                 cost += args.side_weight * side_cost(traj, np.array(paths), goal)
+            if args.risk_weight > 0:
+                if spread is None:
+                    raise SystemExit("--risk-weight needs a model that reports a spread (an ensemble)")
+                cost += args.risk_weight * risk(spread)
             elite = v[np.argsort(cost)[: max(2, args.samples // 8)]]
             mean, std = elite.mean(axis=0), elite.std(axis=0) + 0.05
         best = path_from(here[PUSHER, :2], mean, dt_frame)
@@ -262,6 +280,13 @@ def main() -> None:
         default=0.5,
         help="weight of the pusher's distance to the box's pushing side in the cost (0: goal distance "
         "only; --approach-weight is its former name)",
+    )
+    ap.add_argument(
+        "--risk-weight",
+        type=float,
+        default=0.0,
+        help="weight of the model's uncertainty about the box's final position in the cost (m per m; "
+        "needs a model that reports a spread, an ensemble; 0: none)",
     )
     ap.add_argument(
         "--model",
