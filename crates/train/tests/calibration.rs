@@ -65,7 +65,7 @@ fn the_calibration_suite_runs_on_a_tiny_generated_split() {
     }
     let md = format_calibration_markdown(&report);
     assert!(md.contains("Spearman spread"));
-    let png = temp("plot.png");
+    let png = temp("plot").with_extension("png");
     plot_calibration(&png, &report).unwrap();
     assert!(std::fs::metadata(&png).unwrap().len() > 0);
     // A single network has no spread.
