@@ -25,6 +25,9 @@ pub enum SuiteKind {
     /// Rest, drop, slide, collide and stack-hit scenes: each scenario's own figures against
     /// rapier and the one-step error by contact regime.
     Physics,
+    /// How well the model's own per-object spread (an ensemble's members' disagreement)
+    /// predicts its error along rollouts of one `--data` split, against a baseline.
+    Calibration,
 }
 
 /// Arguments of `dynaserve eval`.
@@ -68,6 +71,9 @@ pub struct EvalArgs {
     /// object (a test of materials between and beyond them).
     #[arg(long, value_enum, default_value_t = dynaserve_sim::Materials::Kubric)]
     pub suite_materials: dynaserve_sim::Materials,
+    /// Calibration suite: horizons in steps of one frame, comma-separated.
+    #[arg(long, value_delimiter = ',', default_values_t = crate::eval::calibration::DEFAULT_CALIBRATION_STEPS)]
+    pub calibration_steps: Vec<usize>,
     /// Suite: score every N-th one-step window of each scene in the regime table.
     #[arg(long, default_value_t = 1)]
     pub window_stride: usize,

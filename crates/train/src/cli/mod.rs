@@ -1,6 +1,7 @@
 //! `dynaserve eval`: score a trained model and the baselines on a dataset split (see
 //! [`crate::eval`] for the protocol and the metrics, `docs/evaluation.md` for the reports).
-//! Its flags are in `args`; `--suite physics` runs `suite` instead.
+//! Its flags are in `args`; `--suite physics` runs `suite` instead, `--suite calibration`
+//! `calibration`.
 
 use std::cell::RefCell;
 use std::path::Path;
@@ -16,6 +17,7 @@ use crate::eval::{
 };
 
 mod args;
+mod calibration;
 mod suite;
 
 pub use args::{BaselineKind, EvalArgs, SuiteKind};
@@ -85,6 +87,9 @@ pub fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
             return crate::physi::official_eval::run_on_dataset(&options).map(|_| ());
         }
         return crate::physi::eval::run(&options);
+    }
+    if args.suite == Some(SuiteKind::Calibration) {
+        return calibration::run(&args);
     }
     if args.suite.is_some() {
         return suite::run(&args);

@@ -36,8 +36,11 @@
 //!
 //! The physics scenario suite (`--suite physics`) is separate: [`physics_suite`] scores
 //! scenario figures ([`scenario_figures`]) and one-step errors by contact regime ([`regimes`]).
+//! The calibration suite (`--suite calibration`, [`calibration`]) scores how well a model's own
+//! spread predicts its error.
 
 pub mod baselines;
+pub mod calibration;
 pub mod driven;
 mod error;
 mod evaluator;
