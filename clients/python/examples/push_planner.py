@@ -169,7 +169,7 @@ def record(model: dict, args: argparse.Namespace, results: list[tuple[int, tuple
         "planner": "push",
         "model": {"name": model.get("name"), "architecture": model.get("architecture")},
         # The risk weight is recorded only when used, so records without it still compare.
-        "settings": {name: getattr(args, name) for name in SETTINGS + (("risk_weight",) if args.risk_weight else ())},
+        "settings": {name: getattr(args, name) for name in SETTINGS + (("risk_weight",) if getattr(args, "risk_weight", 0.0) else ())},
         "seeds": [
             {"seed": seed, "planned": d[0], "random": d[1], "planned_off": d[2], "random_off": d[3]}
             for seed, d in results

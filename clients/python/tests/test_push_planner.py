@@ -29,6 +29,15 @@ class SideCost(unittest.TestCase):
         self.assertAlmostEqual(cost[1], 2 * -behind, places=9)
 
 
+class Risk(unittest.TestCase):
+    def test_the_box_spread_adds_in_quadrature_over_the_horizon(self):
+        spread = np.zeros((2, 4, 2, 2))  # [candidates, steps, objects, (m, deg)]
+        spread[0, :, planner.BOX, 0] = [0.03, 0.04, 0.0, 0.0]
+        spread[1, :, planner.BOX, 1] = 5.0  # orientation only: no position risk
+        spread[1, :, planner.PUSHER, 0] = 1.0  # the pusher's spread does not count
+        np.testing.assert_allclose(planner.risk(spread), [0.05, 0.0])
+
+
 class Seeds(unittest.TestCase):
     def test_single_ranges_and_lists(self):
         self.assertEqual(planner.parse_seeds("7"), [7])
