@@ -179,10 +179,7 @@ impl RapierModel {
             .step(&targets)
             .map_err(|e| e.to_string())?
             .iter()
-            .map(|p| Pose {
-                translation: [p[0], p[1], p[2]],
-                rotation: [p[3], p[4], p[5], p[6]],
-            })
+            .map(pose_of)
             .collect();
         Ok(Stepped {
             poses,
@@ -193,9 +190,18 @@ impl RapierModel {
     }
 }
 
+/// A served pose as the replay writes it.
 fn pose7(p: &Pose) -> Pose7 {
     let (t, q) = (p.translation, p.rotation);
     [t[0], t[1], t[2], q[0], q[1], q[2], q[3]]
+}
+
+/// A replay pose as served ([`pose7`] undone).
+fn pose_of(p: &Pose7) -> Pose {
+    Pose {
+        translation: [p[0], p[1], p[2]],
+        rotation: [p[3], p[4], p[5], p[6]],
+    }
 }
 
 /// A scene prepared for the simulator: its world at the start.
@@ -304,20 +310,10 @@ impl SteppingModel for RapierModel {
                 Shape::Mesh(m) => m.vertices.len() * 12 + 512,
             })
             .sum();
-        let state = SceneState {
-            carry: Carry::new(start.clone()),
-            ..state
-        };
         // The simulator's own start poses (normalised quaternions), which the carry matches.
         let state = SceneState {
-            current: start
-                .poses()
-                .iter()
-                .map(|p| Pose {
-                    translation: [p[0], p[1], p[2]],
-                    rotation: [p[3], p[4], p[5], p[6]],
-                })
-                .collect(),
+            current: start.poses().iter().map(pose_of).collect(),
+            carry: Carry::new(start.clone()),
             ..state
         };
         Ok(Prepared {
