@@ -83,22 +83,7 @@ pub fn check_request_cost(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use dynaserve_api::limits::Caps;
-
-    fn limits() -> Limits {
-        Limits {
-            caps: Caps {
-                max_objects: 4,
-                max_points_per_object: 64,
-                max_scene_points: 128,
-                max_steps: 100,
-                max_dt_steps: 4,
-                max_variants: 8,
-                max_request_cost: 1000,
-            },
-            default_points: 32,
-        }
-    }
+    use crate::families::built_scene::tests::limits;
 
     #[test]
     fn steps_and_step_size_name_their_field() {

@@ -374,12 +374,14 @@ pub fn build_scene(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use dynaserve_api::json;
     use dynaserve_api::limits::Caps;
 
-    fn limits() -> Limits {
+    /// Small limits the request-rule tests share: 4 objects of up to 64 points, 100 steps,
+    /// step sizes up to 4, a cost ceiling of 1000 object-steps.
+    pub(crate) fn limits() -> Limits {
         Limits {
             caps: Caps {
                 max_objects: 4,

@@ -293,13 +293,15 @@ pub fn build_mesh_scene(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use dynaserve_api::limits::GenerateCaps;
     use dynaserve_model::physiformer::config::PhysiConfig;
     use dynaserve_model::physiformer::scene::Material;
 
-    fn cube(c: [f32; 3], material: Material) -> MeshObjectSpec {
+    /// A 0.2 m cube of `material` centred at `c` (metres), moving at 1 m/s along x and
+    /// turning at 2 rad/s about z.
+    pub(crate) fn cube(c: [f32; 3], material: Material) -> MeshObjectSpec {
         let mut vertices = Vec::new();
         for i in 0..8 {
             let s = |b: usize| if i >> b & 1 == 1 { 0.1 } else { -0.1 };
@@ -330,7 +332,8 @@ mod tests {
         }
     }
 
-    fn limits() -> GenerateLimits {
+    /// The default Generate limits of the small PhysiFormer with 256 objects.
+    pub(crate) fn limits() -> GenerateLimits {
         GenerateLimits::new(&GenerateCaps::DEFAULT, 256, &PhysiConfig::small())
     }
 

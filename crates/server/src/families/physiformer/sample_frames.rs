@@ -82,31 +82,9 @@ pub fn mesh_frames(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use dynaserve_api::limits::{GenerateCaps, GenerateLimits};
-    use dynaserve_api::spec::sampling::MeshObjectSpec;
-    use dynaserve_model::physiformer::config::PhysiConfig;
 
     use crate::families::physiformer::mesh_scene::build_mesh_scene;
-
-    fn cube(c: [f32; 3], material: Material) -> MeshObjectSpec {
-        let mut vertices = Vec::new();
-        for i in 0..8 {
-            let s = |b: usize| if i >> b & 1 == 1 { 0.1 } else { -0.1 };
-            vertices.push([c[0] + s(0), c[1] + s(1), c[2] + s(2)]);
-        }
-        MeshObjectSpec {
-            vertices,
-            faces: vec![[0, 1, 3]],
-            material,
-            linear: [1.0, 0.0, 0.0],
-            angular: [0.0, 0.0, 2.0],
-            vertex_velocities: Vec::new(),
-        }
-    }
-
-    fn limits() -> GenerateLimits {
-        GenerateLimits::new(&GenerateCaps::DEFAULT, 256, &PhysiConfig::small())
-    }
+    use crate::families::physiformer::mesh_scene::tests::{cube, limits};
 
     #[test]
     fn rigid_objects_get_their_exact_motion_back() {
