@@ -10,8 +10,7 @@
 //! replay would. A state whose poses were set from outside (no world of those poses) is
 //! rebuilt from them, its velocities the finite difference of its last two poses. Kinematic
 //! objects follow the poses a session gives them, interpolated over the physics steps as in a
-//! replay with paths. A scheduler pass steps its scenes on the worker's threads, one scene per
-//! thread at a time.
+//! replay with paths. A scheduler pass steps its scenes in parallel on rayon's threads.
 
 use std::any::Any;
 use std::path::Path;
@@ -327,32 +326,10 @@ impl SteppingModel for RapierModel {
         None
     }
 
-    /// Every scene on its own, spread over the machine's threads.
+    /// Every scene on its own, spread over rayon's worker threads (a panic fails the pass,
+    /// which the scheduler turns into its jobs' errors).
     fn step(&self, items: &[&SceneStep]) -> Result<Vec<Result<Stepped, String>>, String> {
-        let threads = std::thread::available_parallelism()
-            .map_or(1, |n| n.get())
-            .min(items.len());
-        if threads < 2 {
-            return Ok(items.iter().map(|s| self.step_one(s)).collect());
-        }
-        let chunk = items.len().div_ceil(threads);
-        let parts: Vec<Vec<Result<Stepped, String>>> = std::thread::scope(|scope| {
-            let handles: Vec<_> = items
-                .chunks(chunk)
-                .map(|c| scope.spawn(move || c.iter().map(|s| self.step_one(s)).collect()))
-                .collect();
-            handles
-                .into_iter()
-                .map(|h| {
-                    h.join()
-                        .unwrap_or_else(|_| vec![Err("simulation panicked".into())])
-                })
-                .collect()
-        });
-        let out: Vec<_> = parts.into_iter().flatten().collect();
-        if out.len() != items.len() {
-            return Err("a simulation thread failed".into());
-        }
-        Ok(out)
+        use rayon::prelude::*;
+        Ok(items.par_iter().map(|s| self.step_one(s)).collect())
     }
 }
