@@ -271,7 +271,8 @@ pub trait WorldModel: Send + Sync {
     /// of object `j` of scene `i`, `batch[i].dt_steps` frames after `batch[i].state.current`.
     fn step(&self, batch: &[StepItem<'_>]) -> Result<Vec<Vec<Pose>>, ModelError>;
     /// [`WorldModel::step`] with each object's [`PoseSpread`] when the model can estimate
-    /// one (an ensemble); the poses are those `step` gives. By default `step` and no spread.
+    /// one (an ensemble; zero for a kinematic object, whose pose is given); the poses are
+    /// those `step` gives. By default `step` and no spread.
     fn step_with_spread(&self, batch: &[StepItem<'_>]) -> Result<Vec<SpreadStep>, ModelError> {
         Ok(self
             .step(batch)?

@@ -357,7 +357,13 @@ impl Ensemble {
                     }
                     let mean = weighted_mean_pose(&poses, &weights);
                     if let Some(s) = step.spread.as_mut() {
-                        s.push(weighted_pose_spread(&poses, &weights, &mean));
+                        // A kinematic object's pose is given, not predicted: nothing to be
+                        // unsure of.
+                        s.push(if batch[scene].scene.objects[object].kinematic {
+                            PoseSpread::default()
+                        } else {
+                            weighted_pose_spread(&poses, &weights, &mean)
+                        });
                     }
                     step.poses.push(mean);
                 }

@@ -95,13 +95,6 @@ impl Driven {
             Err(_) => return Err(ApiError::unavailable("server shutting down")),
         };
         drive.overwrite(self.stepper.state(), &mut done.output.poses);
-        // A kinematic object's pose is given, not predicted: nothing to be unsure of.
-        for (s, _) in (done.output.spread.iter_mut().flatten())
-            .zip(self.kinematic.iter())
-            .filter(|(_, k)| **k)
-        {
-            *s = Default::default();
-        }
         let mut frame = self.stepper.accept(done)?;
         self.base_step += 1;
         frame.step = self.base_step;
