@@ -23,11 +23,12 @@ use std::path::Path;
 
 use dynaserve_geometry::geodesic_angle;
 use dynaserve_geometry::metrics::squared_distance;
-use dynaserve_model::{Drive, PoseSpread, SceneState, StepItem, frame_targets};
+use dynaserve_model::{Drive, PoseSpread, SceneState, StepItem};
 use dynaserve_sim::{DatasetReader, SceneRecord};
 use plotters::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use super::driven::recorded_targets;
 use super::{EvalError, ModelPredictor, observed_frames, poses_at};
 
 /// Default horizons, steps of one frame (0.25, 0.5, 1 and 2 s at 24 fps).
@@ -251,13 +252,7 @@ fn rollouts(
         let targets: Vec<_> = scenes
             .iter()
             .zip(&kinematic)
-            .map(|(s, k)| {
-                if k.contains(&true) {
-                    Ok(frame_targets(k, &poses_at(s, frame)?))
-                } else {
-                    Ok(Vec::new())
-                }
-            })
+            .map(|(s, k)| recorded_targets(s, k, frame))
             .collect::<Result<_, EvalError>>()?;
         let drives: Vec<Drive<'_>> = kinematic
             .iter()

@@ -14,6 +14,19 @@ pub fn has_kinematic(scene: &SceneRecord) -> bool {
     scene.objects.iter().any(|o| o.kinematic)
 }
 
+/// The recorded poses at `frame` of the objects flagged in `kinematic` (`[objects]`) of
+/// `scene`, as a driven step's targets; none for a scene without kinematic objects.
+pub fn recorded_targets(
+    scene: &SceneRecord,
+    kinematic: &[bool],
+    frame: usize,
+) -> Result<Vec<(usize, Pose)>, EvalError> {
+    if !kinematic.contains(&true) {
+        return Ok(Vec::new());
+    }
+    Ok(frame_targets(kinematic, &poses_at(scene, frame)?))
+}
+
 /// Rolls every request forward from frame `starts[i]` (the frame of its `observed.current`),
 /// one step of `dt_steps` frames at a time, the kinematic objects driven along their recorded
 /// poses (read before the step too by a predictor that [`Predictor::leads_kinematic`]).
@@ -54,11 +67,8 @@ pub fn driven_rollout_batch(
             .iter()
             .map(|&i| {
                 let r = &requests[i];
-                if !kinematic[i].contains(&true) {
-                    return Ok(Vec::new());
-                }
                 let frame = starts[i] + (step + 1) * r.dt_steps as usize;
-                Ok(frame_targets(&kinematic[i], &poses_at(r.scene, frame)?))
+                recorded_targets(r.scene, &kinematic[i], frame)
             })
             .collect::<Result<_, EvalError>>()?;
         let drives: Vec<Drive<'_>> = live
