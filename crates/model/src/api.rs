@@ -288,6 +288,20 @@ pub trait WorldModel: Send + Sync {
     fn member_names(&self) -> Vec<String> {
         Vec::new()
     }
+    /// Costs and gradients of candidate paths of kinematic objects, by backpropagation
+    /// through the driven rollout ([`crate::gradient`]): `output[i][c]` answers candidate `c`
+    /// of `items[i]`; items of many calls share each step's pass. By default the model cannot
+    /// ([`ModelError::Unsupported`]).
+    fn path_gradients(
+        &self,
+        items: &[crate::GradientItem<'_>],
+    ) -> Result<Vec<Vec<crate::PathGradient>>, ModelError> {
+        let _ = items;
+        Err(ModelError::Unsupported(format!(
+            "model {} does not compute gradients",
+            self.name()
+        )))
+    }
 }
 
 /// Rolls a scene forward `steps` steps of `dt_steps` frames from `state`, calling

@@ -12,6 +12,13 @@ pub enum ModelError {
     /// An internal invariant failed (a bug, not a user error).
     #[error("internal error: {0}")]
     Internal(String),
+    /// The model cannot do what was asked (e.g. gradients from an ensemble); the message
+    /// says what and why.
+    #[error("unsupported: {0}")]
+    Unsupported(String),
+    /// The request's deadline passed before the work was done.
+    #[error("deadline exceeded: {0}")]
+    DeadlineExceeded(String),
     /// A tensor operation failed.
     #[error("tensor error: {0}")]
     Candle(#[from] candle_core::Error),

@@ -16,6 +16,7 @@ pub mod device;
 pub mod drive;
 pub mod ensemble;
 pub mod error;
+pub mod gradient;
 pub mod kernels;
 pub mod layers;
 mod load_model;
@@ -42,6 +43,7 @@ pub use device::{check_device_name, cuda_compiled, device_from_name, device_name
 pub use drive::{Drive, frame_targets};
 pub use ensemble::Ensemble;
 pub use error::ModelError;
+pub use gradient::{CostTarget, GradientItem, PathCost, PathGradient, path_cost};
 pub use kernels::kabsch::{self as kabsch_op, KabschOp};
 pub use layers::Mode;
 pub use load_model::load_model;
