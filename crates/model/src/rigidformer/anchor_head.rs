@@ -171,8 +171,13 @@ impl AnchorHead {
         let own = point_features
             .index_select(&host_index(device, &inp.anchor_idx)?, 0)?
             .reshape((o, k, c1))?;
-        let rel = host_tensor(device, &inp.anchor_rel, &[o, k, 3])?;
-        let rope_feat = host_tensor(device, &inp.anchor_rope, &[o, k, 2 * p])?;
+        let (rel, rope_feat) = match &inp.pose_inputs {
+            Some(g) => (g.anchor_rel.clone(), g.anchor_rope.clone()),
+            None => (
+                host_tensor(device, &inp.anchor_rel, &[o, k, 3])?,
+                host_tensor(device, &inp.anchor_rope, &[o, k, 2 * p])?,
+            ),
+        };
         // The order of `query_segments`.
         let q_in = Tensor::cat(&[own, rel, avp, rope_feat], 2)?;
         let query = self.query_in.forward(&q_in)?; // [O, K, D]
@@ -329,8 +334,23 @@ impl AnchorHead {
         }
         let query = gather_padded(&query.reshape((o * k, d))?, &host_index(device, &gather)?)?
             .reshape((b, m * k, d))?;
-        let qcos = host_tensor(device, &qcos, &[b, 1, m * k, p])?;
-        let qsin = host_tensor(device, &qsin, &[b, 1, m * k, p])?;
+        let (qcos, qsin) = match &inp.pose_inputs {
+            // The same layout from the graph's rows (padding reads ones and zeros).
+            Some(g) => {
+                let slots = host_index(device, &gather)?;
+                let ones = Tensor::ones((1, p), g.anchor_cos.dtype(), device)?;
+                let cos = Tensor::cat(&[&g.anchor_cos, &ones], 0)?.index_select(&slots, 0)?;
+                let sin = gather_padded(&g.anchor_sin, &slots)?;
+                (
+                    cos.reshape((b, 1, m * k, p))?,
+                    sin.reshape((b, 1, m * k, p))?,
+                )
+            }
+            None => (
+                host_tensor(device, &qcos, &[b, 1, m * k, p])?,
+                host_tensor(device, &qsin, &[b, 1, m * k, p])?,
+            ),
+        };
         let nt = dec.taps.len();
         let kmask = Tensor::cat(&vec![dec.mask.clone(); nt], 3)?;
         let kcos = Tensor::cat(&vec![dec.rope.0.clone(); nt], 2)?;

@@ -1,6 +1,8 @@
 //! What one batched forward pass reads: the scenes' requests ([`SceneRequest`]) and the flat
 //! host buffers built from them ([`BatchInputs`], assembled by [`super::inputs`]).
 
+use candle_core::Tensor;
+
 use crate::api::Pose;
 use crate::kernels::avp::padded_distances;
 use crate::prepare::PreparedScene;
@@ -13,6 +15,33 @@ pub(crate) struct SceneRequest<'a> {
     /// Poses one step before `previous`, when known (read by history inputs only).
     pub earlier: Option<Vec<Pose>>,
     pub dt_steps: u32,
+}
+
+/// The network inputs that depend on the objects' poses, as tensors of an autograd graph
+/// (gradient passes, [`super::pose_inputs`]): when present they replace the host buffers of
+/// the same names, whose values they carry.
+pub(crate) struct PoseInputs {
+    /// `[P, F]`, as [`BatchInputs::feats`].
+    pub feats: Tensor,
+    /// `[O * S * G, 3]`, as [`BatchInputs::group_rel`].
+    pub group_rel: Tensor,
+    /// `[O * S, 3]`, as [`BatchInputs::centre_rel`].
+    pub centre_rel: Tensor,
+    /// `[O, K, 3]`, as [`BatchInputs::anchor_rel`].
+    pub anchor_rel: Tensor,
+    /// `[O, K, 2P]`, as [`BatchInputs::anchor_rope`].
+    pub anchor_rope: Tensor,
+    /// `[O * K, P]`, as [`BatchInputs::anchor_cos`].
+    pub anchor_cos: Tensor,
+    /// `[O * K, P]`, as [`BatchInputs::anchor_sin`].
+    pub anchor_sin: Tensor,
+    /// `[O, P]`, as [`BatchInputs::object_cos`].
+    pub object_cos: Tensor,
+    /// `[O, P]`, as [`BatchInputs::object_sin`].
+    pub object_sin: Tensor,
+    /// `[O, OBJECT_SUMMARY_FEATURES]`, as [`BatchInputs::object_summary`]; `None` when the
+    /// model has none.
+    pub object_summary: Option<Tensor>,
 }
 
 /// Everything one batched forward pass needs, as flat host buffers.
@@ -109,6 +138,8 @@ pub(crate) struct BatchInputs<'a> {
     /// Smallest distance from a point of each object to another object's point at t, found
     /// by the contact search, `[o]` metres; infinite when none is within the contact radius.
     pub object_gap: Vec<f32>,
+    /// The pose-dependent inputs as graph tensors (gradient passes only; `None` otherwise).
+    pub pose_inputs: Option<PoseInputs>,
 }
 
 impl BatchInputs<'_> {

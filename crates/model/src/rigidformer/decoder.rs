@@ -244,10 +244,32 @@ impl Decoder {
         } else {
             padded
         };
+        let (cos_t, sin_t) = match &inp.pose_inputs {
+            // The same layout gathered from the graph's rows: padding and registers read the
+            // appended row of ones (cosines) or zeros (sines).
+            Some(g) => {
+                let mut slots = vec![inp.o as u32; b * t];
+                for s in 0..b {
+                    let first = inp.scene_offsets[s];
+                    for j in 0..inp.scene_offsets[s + 1] - first {
+                        slots[s * t + j] = (first + j) as u32;
+                    }
+                }
+                let slots = super::host_index(device, &slots)?;
+                let ones = Tensor::ones((1, p), g.object_cos.dtype(), device)?;
+                let cos = Tensor::cat(&[&g.object_cos, &ones], 0)?.index_select(&slots, 0)?;
+                let sin = gather_padded(&g.object_sin, &slots)?;
+                (cos.reshape((b, 1, t, p))?, sin.reshape((b, 1, t, p))?)
+            }
+            None => (
+                host_tensor(device, &cos, &[b, 1, t, p])?,
+                host_tensor(device, &sin, &[b, 1, t, p])?,
+            ),
+        };
         let ctx = PassContext {
             mask: host_tensor(device, &mask, &[b, 1, 1, t])?,
-            cos: host_tensor(device, &cos, &[b, 1, t, p])?,
-            sin: host_tensor(device, &sin, &[b, 1, t, p])?,
+            cos: cos_t,
+            sin: sin_t,
             tau: inp.tau.clone(),
             key_bias: Arc::new(mask),
             rope_rows: Arc::new(RotaryRows { cos, sin, pairs: p }),

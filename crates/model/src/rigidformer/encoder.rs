@@ -54,8 +54,12 @@ impl Encoder {
     ) -> Result<(Tensor, Tensor), ModelError> {
         let fused = exec.fused;
         let (o, s, g) = (inp.o, self.sa_centres, self.sa_neighbours);
-        let feats = host_tensor(device, &inp.feats, &[inp.points, self.features])?;
-        if exec.fused_inference() && device.is_cpu() {
+        let graph = inp.pose_inputs.as_ref();
+        let feats = match graph {
+            Some(g) => g.feats.clone(),
+            None => host_tensor(device, &inp.feats, &[inp.points, self.features])?,
+        };
+        if exec.fused_inference() && device.is_cpu() && graph.is_none() {
             return self.forward_cpu_inference(inp, &feats, messages);
         }
         let h = self.point.forward(&feats, fused)?; // [P, C1]
@@ -64,10 +68,16 @@ impl Encoder {
             None => h,
         };
         let grouped = h.index_select(&host_index(device, &inp.group_idx)?, 0)?; // [O*S*G, C1]
-        let rel = host_tensor(device, &inp.group_rel, &[o * s * g, 3])?;
+        let rel = match graph {
+            Some(g) => g.group_rel.clone(),
+            None => host_tensor(device, &inp.group_rel, &[o * s * g, 3])?,
+        };
         let x = Tensor::cat(&[rel, grouped], 1)?;
         let x = self.sa1.forward_max_pool(&x, g, fused)?; // [O*S, C2]
-        let crel = host_tensor(device, &inp.centre_rel, &[o * s, 3])?;
+        let crel = match graph {
+            Some(g) => g.centre_rel.clone(),
+            None => host_tensor(device, &inp.centre_rel, &[o * s, 3])?,
+        };
         let x = Tensor::cat(&[crel, x], 1)?;
         let x = self.sa2.forward_max_pool(&x, s, fused)?; // [O, D]
         let x = if exec.fused_inference() {

@@ -205,6 +205,7 @@ pub(crate) fn build_inputs<'a>(
             .flat_map(|r| r.current.iter().map(|p| p.rotation))
             .collect(),
         object_gap: Vec::with_capacity(o),
+        pose_inputs: None,
     };
     for c in chunks.into_iter().flatten() {
         inp.group_idx.extend(c.group_idx);

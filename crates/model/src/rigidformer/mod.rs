@@ -20,9 +20,11 @@ pub(crate) mod decoder;
 pub(crate) mod encoder;
 pub mod features;
 pub(crate) mod free_flight;
+mod gradient;
 pub(crate) mod inertia;
 pub(crate) mod inputs;
 pub(crate) mod messages;
+pub(crate) mod pose_inputs;
 pub(crate) mod projection;
 pub(crate) mod summary;
 pub mod train;
@@ -260,6 +262,16 @@ impl RigidFormer {
             mode,
             fused: self.fused_kernels && self.device.is_cpu(),
         };
+        self.network_exec(inp, exec, profile)
+    }
+
+    /// [`RigidFormer::network`] with the kernels chosen by `exec`.
+    fn network_exec(
+        &self,
+        inp: &BatchInputs,
+        exec: Exec,
+        profile: Option<&mut StepProfile>,
+    ) -> Result<Tensor, ModelError> {
         let t0 = Instant::now();
         let (h, tokens) = self
             .encoder
@@ -395,5 +407,12 @@ impl WorldModel for RigidFormer {
 
     fn step(&self, batch: &[StepItem<'_>]) -> Result<Vec<Vec<Pose>>, ModelError> {
         self.step_mode(batch, Mode::Inference, None)
+    }
+
+    fn path_gradients(
+        &self,
+        items: &[crate::GradientItem<'_>],
+    ) -> Result<Vec<Vec<crate::PathGradient>>, ModelError> {
+        self.gradients(items)
     }
 }

@@ -93,11 +93,18 @@ impl SummaryMlp {
         device: &Device,
         exec: Exec,
     ) -> Result<Tensor, ModelError> {
-        let s = host_tensor(
-            device,
-            self.kind.values(inp),
-            &[inp.o, self.kind.features()],
-        )?;
+        let graph = inp.pose_inputs.as_ref().and_then(|g| match self.kind {
+            Summary::Object => g.object_summary.clone(),
+            Summary::Contact => None,
+        });
+        let s = match graph {
+            Some(s) => s,
+            None => host_tensor(
+                device,
+                self.kind.values(inp),
+                &[inp.o, self.kind.features()],
+            )?,
+        };
         let h = self.first.forward_silu(&s, exec.fused)?;
         Ok((tokens + self.last.forward(&h)?)?)
     }
