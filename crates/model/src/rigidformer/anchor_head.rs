@@ -116,7 +116,8 @@ impl AnchorHead {
         let own_tok = self.own_tokens(config, inp, dec, exec)?; // [O, D]
         let query = self.queries(config, inp, point_features, &own_tok, exec)?; // [O, K, D]
         let kv = self.keys_values(dec, exec)?; // [B, nT*T, 2D]
-        let y = if exec.fused {
+        // With graph poses the rotary codes are tensors, which only the composition reads.
+        let y = if exec.fused && inp.pose_inputs.is_none() {
             self.cross_fused(config, inp, dec, &query, &kv, exec)?
         } else {
             self.cross_composed(config, inp, dec, &query, &kv, exec)?

@@ -40,6 +40,9 @@ struct PassContext {
     tau: Vec<f32>,
     key_bias: Arc<Vec<f32>>,
     rope_rows: Arc<RotaryRows>,
+    /// The rotary codes depend on graph poses (a gradient pass): attention takes them as
+    /// tensors (the composition), since the fused kernels read them from the host rows.
+    rope_in_graph: bool,
 }
 
 /// One pre-norm block (`decoder.blocks.{l}.*`).
@@ -127,7 +130,7 @@ impl Block {
         let d = x.dim(2)?;
         let xn = self.norm1.forward_exec(x, exec)?;
         let qkv = self.qkv.forward(&xn)?;
-        let o = if exec.fused {
+        let o = if exec.fused && !ctx.rope_in_graph {
             let op = SelfAttention {
                 heads: self.heads,
                 key_bias: ctx.key_bias.clone(),
@@ -273,6 +276,7 @@ impl Decoder {
             tau: inp.tau.clone(),
             key_bias: Arc::new(mask),
             rope_rows: Arc::new(RotaryRows { cos, sin, pairs: p }),
+            rope_in_graph: inp.pose_inputs.is_some(),
         };
         let mut taps = Vec::with_capacity(self.taps.len());
         for (l, blk) in self.blocks.iter().enumerate() {

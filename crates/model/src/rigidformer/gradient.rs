@@ -236,9 +236,11 @@ impl RigidFormer {
         let now = cat(true)?;
         let before = cat(false)?;
         inp.pose_inputs = Some(pose_inputs(cfg, &requests, &inp, &now, &before, device)?);
+        // The training kernels (with their backward passes) where the CPU has them; attention
+        // is composed of tensor ops with graph poses (the decoder and anchor head see to it).
         let exec = Exec {
             mode: Mode::Training,
-            fused: false,
+            fused: self.fused_kernels && device.is_cpu(),
         };
         let acc = self.network_exec(&inp, exec, None)?; // [O, K, 3]
         let acc_host: Vec<f32> = acc
