@@ -17,6 +17,7 @@ the ground truth, where both executed pusher paths are replayed in rapier by
     python examples/push_planner.py --seeds 0-199 --json planner.json   # ... and every seed's distances
     python examples/push_planner.py --model rapier   # plan in the simulator itself (served beside)
     python examples/push_planner.py --model rigidformer-small-ensemble --risk-weight 1   # avoid what it is unsure of
+    python examples/push_planner.py --refine 4   # and move the best paths down the cost's gradient
 
 Planning in the model's own rollout makes the rapier distance a measure of the model: over many
 seeds, a model whose pushes are forecast better ends closer to the goal more often.
@@ -87,6 +88,27 @@ def risk(spread: np.ndarray) -> np.ndarray:
     return np.sqrt((spread[:, :, BOX, 0] ** 2).sum(axis=1))
 
 
+def velocity_gradient(grad_xy: np.ndarray, dt: float) -> np.ndarray:
+    """The gradient of a cost with respect to the planar velocities ``[candidates, steps, 2]``
+    (per m/s) from its gradient with respect to the pusher's positions ``grad_xy`` (same
+    shape, per m): a velocity moves every later position by ``dt`` times it."""
+    return dt * np.flip(np.cumsum(np.flip(grad_xy, axis=1), axis=1), axis=1)
+
+
+def refine(session: Any, here: np.ndarray, v: np.ndarray, goal: np.ndarray, args: argparse.Namespace, dt: float) -> np.ndarray:
+    """The candidates ``v`` (``[k, steps, 2]`` planar velocities, m/s) moved down the gradient
+    of the box's final distance to the goal (a Gradient call on ``session``, whose pusher is at
+    ``here``): each by ``args.refine_step`` m/s in root-mean-square over its steps, within the
+    speed limit. A candidate whose gradient is zero (the pusher never reaches the box) stays."""
+    paths = [path_from(here[PUSHER, :2], v[i], dt) for i in range(len(v))]
+    cost = {"targets": [{"object": BOX, "position": [goal[0], goal[1], HALF], "position_weight": 1.0}]}
+    g = session.gradient(args.horizon, kinematic=[{PUSHER: p} for p in paths], cost=cost)
+    gv = velocity_gradient(np.asarray(g.translation)[:, :, 0, :2], dt)
+    rms = np.sqrt((gv**2).sum(axis=2).mean(axis=1))[:, None, None]
+    step = np.where(rms > 0, gv / np.maximum(rms, 1e-12), 0.0) * args.refine_step
+    return np.clip(v - step, -args.speed, args.speed)
+
+
 def find_dynaserve(given: Optional[str]) -> Optional[str]:
     """The ``dynaserve`` binary: ``given``, else the repository's release or debug build, else
     the one on ``PATH``; ``None`` when there is none."""
@@ -134,15 +156,16 @@ def parse_seeds(text: str) -> list[int]:
     return seeds
 
 
-def summary(results: list[tuple[float, float, float, float]]) -> str:
-    """Two lines over per-seed ``(planned, random, planned_off, random_off)``: the
+def summary(results: list[tuple[float, ...]]) -> str:
+    """Two lines over per-seed ``(planned, random, planned_off, random_off[, seconds])``: the
     rapier-replayed final distances to the goal (m; their means, medians and on how many seeds
     the plan ended closer than the random path), then how far the model's forecast of the box's
     final position was from rapier's (m; means and medians), for the executed plans and for
     the random paths. Planning exploits forecast errors, so the first of those is usually the
     larger."""
-    r = np.array(results, dtype=float)
+    r = np.array([d[:4] for d in results], dtype=float)
     planned, random_d, planned_off, random_off = r.T
+    seconds = [d[4] for d in results if len(d) > 4]
     wins = int((planned < random_d).sum())
     return (
         f"over {len(results)} seeds (rapier replay): planned mean {planned.mean():.3f} m, "
@@ -151,6 +174,7 @@ def summary(results: list[tuple[float, float, float, float]]) -> str:
         f"the model's final box position against rapier's: planned paths off by mean "
         f"{planned_off.mean():.3f} m (median {np.median(planned_off):.3f}), random paths by mean "
         f"{random_off.mean():.3f} m (median {np.median(random_off):.3f})"
+        + (f"; planning took {np.median(seconds):.1f} s a seed (median)" if seconds else "")
     )
 
 
@@ -159,7 +183,7 @@ SETTINGS = ("goal", "rounds", "horizon", "execute", "samples", "iterations", "sp
 agree (``dynaserve train compare`` refuses them otherwise)."""
 
 
-def record(model: dict, args: argparse.Namespace, results: list[tuple[int, tuple[float, float, float, float]]]) -> dict:
+def record(model: dict, args: argparse.Namespace, results: list[tuple[int, tuple[float, ...]]]) -> dict:
     """The JSON record of a planner run: the model planned with, the settings that shape a plan
     and, per seed, the rapier-replayed final distances to the goal of the executed plan and of
     the random path and how far the model's final box position was from rapier's on each, in m.
@@ -169,9 +193,15 @@ def record(model: dict, args: argparse.Namespace, results: list[tuple[int, tuple
         "planner": "push",
         "model": {"name": model.get("name"), "architecture": model.get("architecture")},
         # The risk weight is recorded only when used, so records without it still compare.
-        "settings": {name: getattr(args, name) for name in SETTINGS + (("risk_weight",) if getattr(args, "risk_weight", 0.0) else ())},
+        "settings": {
+            name: getattr(args, name)
+            for name in SETTINGS
+            + (("risk_weight",) if getattr(args, "risk_weight", 0.0) else ())
+            + (("refine", "refine_step") if getattr(args, "refine", 0) else ())
+        },
         "seeds": [
             {"seed": seed, "planned": d[0], "random": d[1], "planned_off": d[2], "random_off": d[3]}
+            | ({"seconds": d[4]} if len(d) > 4 else {})
             for seed, d in results
         ],
     }
@@ -201,14 +231,17 @@ def plan(client: Any, args: argparse.Namespace, seed: int, dt_frame: float, bina
     d0 = float(np.linalg.norm(start[BOX, :2] - goal))
 
     t0 = time.time()
-    calls, sent = 0, 0
+    calls, sent, gradient_calls = 0, 0, 0
     mean = np.zeros((args.horizon, 2))
     std = np.full((args.horizon, 2), args.speed / 2)
     executed = []
     for _ in range(args.rounds):
         here = session.state()["poses"]
-        for _ in range(args.iterations):
+        refined = np.zeros((0, args.horizon, 2))
+        for iteration in range(args.iterations):
             v = np.clip(mean + std * rng.standard_normal((args.samples, args.horizon, 2)), -args.speed, args.speed)
+            # The paths refined by the gradient last iteration take the place of samples.
+            v[: len(refined)] = refined
             paths = [path_from(here[PUSHER, :2], v[i], dt_frame) for i in range(args.samples)]
             candidates = [{PUSHER: p} for p in paths]
             if args.risk_weight > 0:
@@ -224,14 +257,19 @@ def plan(client: Any, args: argparse.Namespace, seed: int, dt_frame: float, bina
                 if spread is None:
                     raise SystemExit("--risk-weight needs a model that reports a spread (an ensemble)")
                 cost += args.risk_weight * risk(spread)
-            elite = v[np.argsort(cost)[: max(2, args.samples // 8)]]
+            order = np.argsort(cost)
+            elite = v[order[: max(2, args.samples // 8)]]
             mean, std = elite.mean(axis=0), elite.std(axis=0) + 0.05
+            if args.refine > 0 and iteration + 1 < args.iterations:
+                refined = refine(session, here, v[order[: args.refine]], goal, args, dt_frame)
+                gradient_calls += 1
         best = path_from(here[PUSHER, :2], mean, dt_frame)
         session.step(args.execute, kinematic={PUSHER: best[: args.execute]})
         executed.append(best[: args.execute])
         # Warm start: shift the plan by the executed steps.
         mean = np.concatenate([mean[args.execute :], np.zeros((args.execute, 2))])
         std = np.full((args.horizon, 2), args.speed / 2)
+    planning_seconds = time.time() - t0
     model_end = session.state()["poses"][BOX, :2]
     planned = float(np.linalg.norm(model_end - goal))
 
@@ -247,7 +285,8 @@ def plan(client: Any, args: argparse.Namespace, seed: int, dt_frame: float, bina
     print(f"seed {seed}: goal {goal.tolist()} m; box starts {d0:.3f} m away")
     print(
         f"planner: {calls} Predict calls of {args.samples} paths x {args.horizon} steps "
-        f"({sent / max(calls, 1) / 1024:.1f} KiB each), {time.time() - t0:.1f} s"
+        f"({sent / max(calls, 1) / 1024:.1f} KiB each), {gradient_calls} Gradient calls of "
+        f"{args.refine} paths, {time.time() - t0:.1f} s"
     )
     print(f"final distance to the goal (learned model): planned {planned:.3f} m, random plan {random_d:.3f} m")
     if binary is None:
@@ -258,7 +297,7 @@ def plan(client: Any, args: argparse.Namespace, seed: int, dt_frame: float, bina
     off = [float(np.linalg.norm(t - m)) for t, m in zip(truth, (model_end, random_end))]
     print(f"final distance to the goal (rapier replay): planned {rapier[0]:.3f} m, random plan {rapier[1]:.3f} m")
     print(f"the model's final box position against rapier's: planned {off[0]:.3f} m off, random plan {off[1]:.3f} m off")
-    return rapier[0], rapier[1], off[0], off[1]
+    return rapier[0], rapier[1], off[0], off[1], planning_seconds
 
 
 def main() -> None:
@@ -287,6 +326,20 @@ def main() -> None:
         default=0.0,
         help="weight of the model's uncertainty about the box's final position in the cost (m per m; "
         "needs a model that reports a spread, an ensemble; 0: none)",
+    )
+    ap.add_argument(
+        "--refine",
+        type=int,
+        default=0,
+        help="per round, move this many of the best paths down the gradient of the box's final distance "
+        "to the goal (one Gradient call) and try them in the next iteration (needs --iterations >= 2 "
+        "and a model that computes gradients; 0: none)",
+    )
+    ap.add_argument(
+        "--refine-step",
+        type=float,
+        default=0.1,
+        help="how far a refined path moves down the gradient, m/s in root-mean-square over its steps",
     )
     ap.add_argument(
         "--model",

@@ -38,6 +38,17 @@ class Risk(unittest.TestCase):
         np.testing.assert_allclose(planner.risk(spread), [0.05, 0.0])
 
 
+class Refinement(unittest.TestCase):
+    def test_a_velocity_moves_every_later_position(self):
+        # Positions x_t = x_0 + dt * sum_{s <= t} v_s: dC/dv_s = dt * sum_{t >= s} dC/dx_t.
+        grad_xy = np.zeros((1, 3, 2))
+        grad_xy[0, :, 0] = [1.0, 2.0, 4.0]
+        grad_xy[0, 2, 1] = -1.0
+        gv = planner.velocity_gradient(grad_xy, 0.5)
+        np.testing.assert_allclose(gv[0, :, 0], [3.5, 3.0, 2.0])
+        np.testing.assert_allclose(gv[0, :, 1], [-0.5, -0.5, -0.5])
+
+
 class Seeds(unittest.TestCase):
     def test_single_ranges_and_lists(self):
         self.assertEqual(planner.parse_seeds("7"), [7])
@@ -57,6 +68,8 @@ class Seeds(unittest.TestCase):
         self.assertIn("planned closer than random on 2 of 3", line)
         self.assertIn("planned paths off by mean 0.060 m (median 0.050)", line)
         self.assertIn("random paths by mean 0.020 m (median 0.020)", line)
+        timed = planner.summary([(0.10, 0.30, 0.05, 0.01, 4.0), (0.20, 0.10, 0.02, 0.03, 6.0)])
+        self.assertIn("planning took 5.0 s a seed (median)", timed)
 
 
 class Record(unittest.TestCase):
