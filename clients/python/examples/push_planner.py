@@ -197,7 +197,7 @@ def record(model: dict, args: argparse.Namespace, results: list[tuple[int, tuple
             name: getattr(args, name)
             for name in SETTINGS
             + (("risk_weight",) if getattr(args, "risk_weight", 0.0) else ())
-            + (("refine", "refine_step") if getattr(args, "refine", 0) else ())
+            + (("refine", "refine_step", "grad_model") if getattr(args, "refine", 0) else ())
         },
         "seeds": [
             {"seed": seed, "planned": d[0], "random": d[1], "planned_off": d[2], "random_off": d[3]}
@@ -226,6 +226,11 @@ def plan(client: Any, args: argparse.Namespace, seed: int, dt_frame: float, bina
     goal = np.array(args.goal)
     bodies = scene(seed)
     session = client.create_session(bodies, kinematic=[PUSHER], model=args.model)
+    # Gradients from another model (an ensemble computes none): a session of its own, driven
+    # along the same executed path.
+    differentiated = session
+    if args.refine > 0 and args.grad_model and args.grad_model != args.model:
+        differentiated = client.create_session(bodies, kinematic=[PUSHER], model=args.grad_model)
     baseline = session.fork()
     start = session.state()["poses"]
     d0 = float(np.linalg.norm(start[BOX, :2] - goal))
@@ -261,10 +266,12 @@ def plan(client: Any, args: argparse.Namespace, seed: int, dt_frame: float, bina
             elite = v[order[: max(2, args.samples // 8)]]
             mean, std = elite.mean(axis=0), elite.std(axis=0) + 0.05
             if args.refine > 0 and iteration + 1 < args.iterations:
-                refined = refine(session, here, v[order[: args.refine]], goal, args, dt_frame)
+                refined = refine(differentiated, here, v[order[: args.refine]], goal, args, dt_frame)
                 gradient_calls += 1
         best = path_from(here[PUSHER, :2], mean, dt_frame)
         session.step(args.execute, kinematic={PUSHER: best[: args.execute]})
+        if differentiated is not session:
+            differentiated.step(args.execute, kinematic={PUSHER: best[: args.execute]})
         executed.append(best[: args.execute])
         # Warm start: shift the plan by the executed steps.
         mean = np.concatenate([mean[args.execute :], np.zeros((args.execute, 2))])
@@ -281,6 +288,8 @@ def plan(client: Any, args: argparse.Namespace, seed: int, dt_frame: float, bina
     random_d = float(np.linalg.norm(random_end - goal))
     session.delete()
     baseline.delete()
+    if differentiated is not session:
+        differentiated.delete()
 
     print(f"seed {seed}: goal {goal.tolist()} m; box starts {d0:.3f} m away")
     print(
@@ -334,6 +343,11 @@ def main() -> None:
         help="per round, move this many of the best paths down the gradient of the box's final distance "
         "to the goal (one Gradient call) and try them in the next iteration (needs --iterations >= 2 "
         "and a model that computes gradients; 0: none)",
+    )
+    ap.add_argument(
+        "--grad-model",
+        help="the model the gradients are asked of (default: the one planned with); with an ensemble, "
+        "one of its members, stepped along the same executed path in a session of its own",
     )
     ap.add_argument(
         "--refine-step",
