@@ -54,7 +54,8 @@ fn the_calibration_suite_runs_on_a_tiny_generated_split() {
         assert!(h.mean_spread_m > 0.0 && h.mean_spread_m.is_finite());
         assert!(h.mean_error_m.is_finite());
     }
-    // The path length never shrinks with the horizon.
+    // The path length and the accumulated spread never shrink with the horizon, and the
+    // accumulated spread holds at least the step's own.
     for s in report.samples.iter().filter(|s| s.steps == 6) {
         let early = report
             .samples
@@ -62,6 +63,8 @@ fn the_calibration_suite_runs_on_a_tiny_generated_split() {
             .find(|e| e.steps == 2 && e.scene == s.scene && e.object == s.object)
             .unwrap();
         assert!(s.baseline_m >= early.baseline_m);
+        assert!(s.accumulated_m >= early.accumulated_m);
+        assert!(s.accumulated_m + 1e-9 >= f64::from(s.spread.position_m));
     }
     let md = format_calibration_markdown(&report);
     assert!(md.contains("Spearman spread"));

@@ -87,6 +87,10 @@ pub struct CalibrationHorizon {
     pub spearman_spread: Option<f64>,
     /// Spearman correlation of the baseline with the translation error.
     pub spearman_baseline: Option<f64>,
+    /// Spearman correlation of the accumulated spread (the per-step position spreads up to
+    /// the horizon summed in quadrature) with the translation error.
+    #[serde(default)]
+    pub spearman_accumulated: Option<f64>,
     /// Spearman correlation of the orientation spread with the orientation error.
     pub spearman_orientation: Option<f64>,
     /// Mean translation error per decile of the position spread (lowest first).
@@ -112,6 +116,10 @@ pub struct CalibrationSample {
     pub spread: PoseSpread,
     /// Path length in the model's rollout from the start, m.
     pub baseline_m: f64,
+    /// The position spreads of every step up to this one summed in quadrature, m: the error
+    /// independent per-step errors of that size would add up to.
+    #[serde(default)]
+    pub accumulated_m: f64,
 }
 
 /// The calibration report.
@@ -348,11 +356,13 @@ pub fn run_calibration(
                 continue;
             }
             let mut path = 0.0f64;
+            let mut squares = 0.0f64;
             let mut last = start[j].translation;
             let mut step = 0;
             for &h in &horizons {
                 while step < h {
                     let p = poses[step][j].translation;
+                    squares += f64::from(spreads[step][j].position_m).powi(2);
                     path += squared_distance(&last, &p).sqrt();
                     last = p;
                     step += 1;
@@ -367,6 +377,7 @@ pub fn run_calibration(
                     error_deg: geodesic_angle(pred.rotation, o.rotations[f]).to_degrees(),
                     spread: spreads[h - 1][j],
                     baseline_m: path,
+                    accumulated_m: squares.sqrt(),
                 });
             }
         }
@@ -408,6 +419,7 @@ fn summarise(samples: &[CalibrationSample], steps: usize, dt: f64) -> Calibratio
     let spread = col(&|s| f64::from(s.spread.position_m));
     let spread_deg = col(&|s| f64::from(s.spread.orientation_deg));
     let baseline = col(&|s| s.baseline_m);
+    let accumulated = col(&|s| s.accumulated_m);
     CalibrationHorizon {
         steps,
         time_s: steps as f64 * dt,
@@ -417,6 +429,7 @@ fn summarise(samples: &[CalibrationSample], steps: usize, dt: f64) -> Calibratio
         mean_baseline_m: mean(&baseline),
         spearman_spread: spearman(&spread, &error),
         spearman_baseline: spearman(&baseline, &error),
+        spearman_accumulated: spearman(&accumulated, &error),
         spearman_orientation: spearman(&spread_deg, &error_deg),
         spread_deciles: deciles(&spread, &error),
         baseline_deciles: deciles(&baseline, &error),
@@ -446,20 +459,23 @@ pub fn format_calibration_markdown(r: &CalibrationReport) -> String {
         s += &format!("Members: {}.\n\n", r.members.join(", "));
     }
     s += "Error: distance of the predicted centre from the recorded one. Spread: the model's \
-          position spread at that step. Baseline: the path length the object travelled in the \
-          model's own rollout so far. Spearman over objects x scenes.\n\n";
+          position spread at that step; accumulated: the spreads of every step so far summed in \
+          quadrature. Baseline: the path length the object travelled in the model's own \
+          rollout so far. Spearman over objects x scenes.\n\n";
     s += "| horizon | objects | mean error (m) | mean spread (m) | Spearman spread | \
-          Spearman baseline | Spearman orient. spread | error, lowest spread decile (m) | \
-          error, highest spread decile (m) |\n|---|---|---|---|---|---|---|---|---|\n";
+          Spearman accumulated | Spearman baseline | Spearman orient. spread | error, lowest \
+          spread decile (m) | error, highest spread decile (m) |\n\
+          |---|---|---|---|---|---|---|---|---|---|\n";
     for h in &r.horizons {
         s += &format!(
-            "| {} steps ({:.2} s) | {} | {:.4} | {:.4} | {} | {} | {} | {} | {} |\n",
+            "| {} steps ({:.2} s) | {} | {:.4} | {:.4} | {} | {} | {} | {} | {} | {} |\n",
             h.steps,
             h.time_s,
             h.objects,
             h.mean_error_m,
             h.mean_spread_m,
             opt(h.spearman_spread, 3),
+            opt(h.spearman_accumulated, 3),
             opt(h.spearman_baseline, 3),
             opt(h.spearman_orientation, 3),
             opt(h.spread_deciles.first().and_then(|b| b.mean_error), 4),
