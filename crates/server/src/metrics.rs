@@ -284,6 +284,7 @@ pub const METHODS: &[&str] = &[
     "fork_session",
     "delete_session",
     "session_predict",
+    "session_gradient",
     "interact",
     "generate",
 ];
