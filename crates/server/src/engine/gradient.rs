@@ -324,7 +324,7 @@ mod tests {
             action(&[(2, 0.31), (1, -0.29)]),
             action(&[(1, -0.28), (2, 0.32)]),
         ];
-        let paths = candidate_paths(&[ok.clone()], 2, &mask, &start, 0.1).unwrap();
+        let paths = candidate_paths(std::slice::from_ref(&ok), 2, &mask, &start, 0.1).unwrap();
         assert_eq!(paths[0][0], vec![at(-0.29), at(0.31)]);
         let e = candidate_paths(&[ok[..1].to_vec()], 2, &mask, &start, 0.1).unwrap_err();
         assert_eq!(e.field, "candidates[0].actions");
