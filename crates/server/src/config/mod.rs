@@ -76,8 +76,8 @@ pub struct ServeConfig {
     /// RESOURCE_EXHAUSTED / HTTP 429.
     #[arg(long, env = "DYNASERVE_MAX_ACTIVE_ROLLOUTS", default_value_t = 256)]
     pub max_active_rollouts: usize,
-    /// Most scene variants of Predict calls in flight over all models; a call that would go
-    /// past it gets RESOURCE_EXHAUSTED / HTTP 429.
+    /// Most scene variants of Predict calls in flight over all models (a Gradient call's
+    /// candidates count too); a call that would go past it gets RESOURCE_EXHAUSTED / HTTP 429.
     #[arg(long, env = "DYNASERVE_MAX_PREDICT_VARIANTS", default_value_t = 1024)]
     pub max_predict_variants: usize,
     /// Most Generate samples in flight over all PhysiFormer models (a call counts one per

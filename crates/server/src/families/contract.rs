@@ -83,8 +83,8 @@ pub struct Stepped {
 }
 
 /// One Gradient call's work: candidate paths of a scene's kinematic objects, each rolled out
-/// from `state` exactly as a driven Predict rolls it out and scored by `cost`
-/// ([`dynaserve_model::GradientItem`] in the engine's vocabulary). The gradient scheduler's
+/// from `state` exactly as a driven Predict rolls it out and scored by `cost` (what
+/// [`dynaserve_model::GradientItem`] borrows, owned for the queue). The gradient scheduler's
 /// unit of work.
 pub struct GradientJob {
     /// The prepared scene (a session's).
