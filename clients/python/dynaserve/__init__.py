@@ -17,6 +17,7 @@ import re as _re
 
 from .client import AFFINITY_HEADER, AsyncClient, Client, Frame, PosesAndSpread, Session
 from .errors import BodyFrameWarning, DynaserveError, OutOfRangeWarning
+from .gradient import Gradients, gradient_cost
 from .mesh import Generated, MeshObject
 from .scene import Body, box_points, pose_array, pose_doc
 
@@ -42,12 +43,14 @@ __all__ = [
     "DynaserveError",
     "Frame",
     "Generated",
+    "Gradients",
     "MeshObject",
     "OutOfRangeWarning",
     "PosesAndSpread",
     "Session",
     "__version__",
     "box_points",
+    "gradient_cost",
     "pose_array",
     "pose_doc",
 ]

@@ -31,6 +31,7 @@ import numpy as np
 import numpy.typing as npt
 
 from .errors import DynaserveError, warn_out_of_range
+from .gradient import Gradients, candidates_doc, cost_arg, gradients_from_doc
 from .mesh import Collector, Generated, MeshObject, check_sampler, checked_objects
 from .scene import actions_doc, object_state_doc, pose_array, poses_array, scene_doc
 
@@ -625,6 +626,40 @@ class Session:
             {"variants": variants, "steps": steps, "every": every, "timeout_ms": timeout_ms},
         )
         return _trajectories(out, with_spread)
+
+    def gradient(
+        self,
+        steps: int,
+        kinematic: Sequence[Mapping[int, npt.ArrayLike]],
+        cost: Any = None,
+        every: int = 0,
+        timeout_ms: int = 0,
+    ) -> Gradients:
+        """Scores candidate paths of the kinematic objects from the session's state and
+        differentiates the score (``POST /v1/sessions/{id}/gradient``); the session does not
+        move. Returns a :class:`~dynaserve.gradient.Gradients`: ``cost`` ``[candidates]``,
+        ``translation`` and ``rotation`` ``[candidates, steps, kinematic, 3]``, the rollout's
+        ``poses`` ``[candidates, frames, objects, 7]``. A model that computes no gradients (an
+        ensemble, the simulator; ``list_models()``' ``gradients``) raises ``DynaserveError``
+        ``FAILED_PRECONDITION`` (400).
+
+        Args:
+            steps: steps of every candidate.
+            kinematic: candidate ``i``'s paths ``kinematic[i]`` (``{index: [steps, 7]}``), one
+                for every kinematic object, as for :meth:`predict`.
+            cost: the ``GradientCost`` document (see :func:`~dynaserve.gradient_cost`) or a
+                sequence of its targets. Default ``None``: zero.
+            every: also return every ``every``-th step's poses. Default 0: the final step's.
+            timeout_ms: the server's deadline, milliseconds. Default 0: none.
+        """
+        body = {
+            "candidates": candidates_doc(kinematic),
+            "steps": steps,
+            "cost": cost_arg(cost),
+            "every": every,
+            "timeout_ms": timeout_ms,
+        }
+        return gradients_from_doc(self.client.request("POST", f"{self._path}/gradient", body), poses_array)
 
     def delete(self) -> None:
         """Deletes the session on the server."""

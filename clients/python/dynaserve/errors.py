@@ -12,9 +12,10 @@ class DynaserveError(Exception):
     """A request the server refused or failed.
 
     Attributes:
-        status: HTTP status (422 invalid input, 404 unknown session, 429 overload, 503
-            unavailable, 504 deadline exceeded, 500 internal); over gRPC, the status the HTTP
-            API gives the same error (499 for a cancelled call).
+        status: HTTP status (422 invalid input, 404 unknown session, 400 a call the model
+            cannot serve (``FAILED_PRECONDITION``: gradients from a model without them), 429
+            overload, 503 unavailable, 504 deadline exceeded, 500 internal); over gRPC, the
+            status the HTTP API gives the same error (499 for a cancelled call).
         code: gRPC-style code name, e.g. ``INVALID_ARGUMENT`` or ``NOT_FOUND``.
         field: path of the offending field for invalid input, e.g.
             ``actions[3].kinematic[0].pose.rotation`` (over gRPC read from the status's

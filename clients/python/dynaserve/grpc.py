@@ -60,6 +60,7 @@ except ImportError as _missing:  # pragma: no cover - depends on the environment
 
 from .client import Frame, PosesAndSpread
 from .errors import DynaserveError, warn_out_of_range
+from .gradient import Gradients
 from .grpc_async import AsyncFrameStream, AsyncGrpcClient, AsyncGrpcSession, AsyncInteraction
 from .grpc_base import DEFAULT_STREAM_TIMEOUT, _Base, _SessionFields
 from .grpc_convert import (
@@ -71,6 +72,8 @@ from .grpc_convert import (
     _collect,
     _deadline,
     _generate_request,
+    _gradient_request,
+    _gradients,
     _interact_open,
     _interact_step,
     _pairs,
@@ -428,6 +431,24 @@ class GrpcSession(_SessionFields):
             timeout_ms=timeout_ms,
         )
         return _trajectories(self.client._unary(self.client.sessions.Predict, req, timeout), with_spread)
+
+    def gradient(
+        self,
+        steps: int,
+        kinematic: Sequence[Mapping[int, npt.ArrayLike]],
+        cost: Any = None,
+        every: int = 0,
+        timeout_ms: int = 0,
+        timeout: Optional[float] = None,
+    ) -> Gradients:
+        """Scores candidate paths ``kinematic[i]`` (``{index: [steps, 7]}``, every kinematic
+        object) from the session's state by ``cost`` and differentiates the score; the
+        session does not move. Returns :class:`~dynaserve.gradient.Gradients` (``cost``
+        ``[candidates]``, ``translation`` and ``rotation`` ``[candidates, steps, kinematic,
+        3]``). Arguments and defaults as for :meth:`dynaserve.Session.gradient`; ``timeout``:
+        the call's deadline, seconds (default ``None``: the client's ``timeout``)."""
+        req = _gradient_request(self.id, steps, kinematic, cost, every, timeout_ms)
+        return _gradients(self.client._unary(self.client.sessions.Gradient, req, timeout))
 
     def interact(self, step_timeout: Optional[float] = None, timeout: Optional[float] = None) -> "Interaction":
         """A closed loop on this session (see :meth:`GrpcClient.interact`); the session keeps

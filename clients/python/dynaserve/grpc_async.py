@@ -15,6 +15,7 @@ import numpy.typing as npt
 
 from .client import Frame, PosesAndSpread
 from .errors import DynaserveError, warn_out_of_range
+from .gradient import Gradients
 from .grpc_base import DEFAULT_STREAM_TIMEOUT, _Base, _SessionFields
 from .grpc_convert import (
     SESSION_KEY,
@@ -22,6 +23,8 @@ from .grpc_convert import (
     _collect,
     _deadline,
     _generate_request,
+    _gradient_request,
+    _gradients,
     _interact_open,
     _interact_step,
     _pairs,
@@ -318,6 +321,19 @@ class AsyncGrpcSession(_SessionFields):
             timeout_ms=timeout_ms,
         )
         return _trajectories(await self.client._unary(self.client.sessions.Predict, req, timeout), with_spread)
+
+    async def gradient(
+        self,
+        steps: int,
+        kinematic: Sequence[Mapping[int, npt.ArrayLike]],
+        cost: Any = None,
+        every: int = 0,
+        timeout_ms: int = 0,
+        timeout: Optional[float] = None,
+    ) -> Gradients:
+        """See :meth:`GrpcSession.gradient`."""
+        req = _gradient_request(self.id, steps, kinematic, cost, every, timeout_ms)
+        return _gradients(await self.client._unary(self.client.sessions.Gradient, req, timeout))
 
     async def interact(self, step_timeout: Optional[float] = None, timeout: Optional[float] = None) -> "AsyncInteraction":
         """See :meth:`GrpcSession.interact`."""

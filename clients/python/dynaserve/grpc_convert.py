@@ -28,6 +28,7 @@ from google.rpc import error_details_pb2, status_pb2
 
 from .client import Frame, predict_arrays, spread_array
 from .errors import DynaserveError
+from .gradient import Gradients, candidates_doc, cost_arg, gradients_of
 from .mesh import Collector, MeshObject, check_sampler, checked_objects
 from .scene import Body, array_arg, index_arg, kinematic_paths, number
 from .v1 import sessions_pb2 as spb
@@ -45,6 +46,7 @@ SESSION_KEY = "x-dynaserve-session"
 _HTTP_STATUS = {
     "INVALID_ARGUMENT": 422,
     "OUT_OF_RANGE": 422,
+    "FAILED_PRECONDITION": 400,
     "NOT_FOUND": 404,
     "RESOURCE_EXHAUSTED": 429,
     "DEADLINE_EXCEEDED": 504,
@@ -308,7 +310,72 @@ def model_info(m: pb.ModelInfo) -> Dict[str, Any]:
         d["box_half_extent"] = _f32(m.box_half_extent)
     if m.members:
         d["members"] = list(m.members)
+    d["gradients"] = bool(m.gradients)
+    if m.max_gradient_work:
+        d["max_gradient_work"] = int(m.max_gradient_work)
     return d
+
+
+def _gradient_request(
+    session_id: str,
+    steps: int,
+    kinematic: Sequence[Mapping[int, npt.ArrayLike]],
+    cost: Any,
+    every: int,
+    timeout_ms: int,
+) -> spb.SessionGradientRequest:
+    """A session ``Gradient`` request: candidate paths ``[{index: [steps, 7]}]`` and a cost
+    as the HTTP client takes them (see :meth:`dynaserve.Session.gradient`)."""
+    candidates = [
+        spb.GradientCandidate(
+            actions=[
+                spb.Action(kinematic=[spb.ObjectPose(object=k["object"], pose=_pose_doc_pb(k["pose"], "pose")) for k in a["kinematic"]])
+                for a in c["actions"]
+            ]
+        )
+        for c in candidates_doc(kinematic)
+    ]
+    doc = cost_arg(cost)
+    targets = []
+    for t in doc["targets"]:
+        m = spb.CostTarget(
+            object=t["object"],
+            step=t["step"],
+            position=pb.Vec3(x=t["position"][0], y=t["position"][1], z=t["position"][2]),
+            position_weight=t["position_weight"],
+            rotation_weight=t.get("rotation_weight", 0.0),
+        )
+        if "rotation" in t:
+            x, y, z, w = t["rotation"]
+            m.rotation.CopyFrom(pb.Quaternion(x=x, y=y, z=z, w=w))
+        targets.append(m)
+    return spb.SessionGradientRequest(
+        session_id=session_id,
+        candidates=candidates,
+        steps=steps,
+        cost=spb.GradientCost(targets=targets, smoothness=doc["smoothness"]),
+        every=every,
+        timeout_ms=timeout_ms,
+    )
+
+
+def _vec(v: pb.Vec3) -> List[float]:
+    return [v.x, v.y, v.z]
+
+
+def _gradients(resp: spb.GradientResponse) -> Gradients:
+    """A ``GradientResponse`` as :class:`~dynaserve.gradient.Gradients`."""
+    return gradients_of(
+        resp.model,
+        [
+            (
+                c.cost,
+                [[(_vec(g.translation), _vec(g.rotation)) for g in s.kinematic] for s in c.steps],
+                [(int(f.step), poses_np(f.poses)) for f in c.frames],
+            )
+            for c in resp.candidates
+        ],
+    )
 
 
 def mesh_scene_pb(objects: Sequence[MeshObject]) -> pb.MeshScene:

@@ -184,6 +184,8 @@ class Documentation(unittest.TestCase):
             (Session.predict, ["kinematic", "poses"]),
             (GrpcSession.step, ["kinematic"]),
             (GrpcSession.predict, ["kinematic", "poses"]),
+            (Session.gradient, ["kinematic"]),
+            (GrpcSession.gradient, ["kinematic"]),
             (Interaction.step, ["kinematic", "correct", "velocities"]),
             (Body.from_world_points, ["points"]),
         ]

@@ -11,8 +11,13 @@
 
 use serde::{Deserialize, Serialize};
 
+mod gradient;
 mod sampling;
 mod session;
+pub use gradient::{
+    CandidateGradient, CostTarget, GradientCandidate, GradientCost, GradientResponse, PoseGradient,
+    SessionGradientRequest, StepGradient,
+};
 pub use sampling::{
     GenerateDone, GenerateProgress, GenerateRequest, GenerateResponse, GeneratedSample, Material,
     MeshFrame, MeshObject, MeshScene, ObjectFrame, Sampler,
@@ -330,6 +335,15 @@ pub struct ModelInfo {
     /// averages (`config` is the first member's; absent for a single network).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub members: Vec<String>,
+    /// True when the model computes gradients of a driven rollout's cost
+    /// (`POST /v1/sessions/{id}/gradient`); false for ensembles, the simulator and PhysiFormer
+    /// models, and from a server that predates it.
+    #[serde(default)]
+    pub gradients: bool,
+    /// Most work of one gradient call, candidates x steps (`--max-gradient-work`); absent when
+    /// the model computes no gradients.
+    #[serde(default, skip_serializing_if = "is_zero_u64")]
+    pub max_gradient_work: u64,
 }
 
 fn is_zero_f32(v: &f32) -> bool {

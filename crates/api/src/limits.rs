@@ -45,6 +45,9 @@ pub struct Caps {
     /// Cost of one request in object-steps ([`object_steps`]: objects x steps, summed over a
     /// Predict call's variants).
     pub max_request_cost: u64,
+    /// Work of one Gradient call in scene-steps: candidates x steps. The backward pass keeps
+    /// every step's activations of every candidate, so its memory grows with this.
+    pub max_gradient_work: u64,
 }
 
 impl Caps {
@@ -58,6 +61,8 @@ impl Caps {
         max_variants: 256,
         // About 4 minutes of a 2-core machine at ~4,000 object-steps/s (256-object scenes).
         max_request_cost: 1_000_000,
+        // 32 candidates of 64 steps.
+        max_gradient_work: 2048,
     };
 
     /// These caps lowered to the own limits of a model with configuration `model` (objects

@@ -86,9 +86,9 @@ impl Client {
     }
 
     /// Sets a deadline for every following call; `None` removes it. Calls whose request has
-    /// a `timeout_ms` field (Rollout, Predict, Generate, Step, session Predict) send it there,
-    /// where the server enforces it on time (DEADLINE_EXCEEDED, also while the work is
-    /// queued; a smaller `timeout_ms` already in the request is kept). Every call except
+    /// a `timeout_ms` field (Rollout, Predict, Generate, Step, session Predict and Gradient)
+    /// send it there, where the server enforces it on time (DEADLINE_EXCEEDED, also while the
+    /// work is queued; a smaller `timeout_ms` already in the request is kept). Every call except
     /// Interact also sends a `grpc-timeout` [`DEADLINE_BACKSTOP`] later, so a server that
     /// cannot be reached still ends the call. (With `grpc-timeout` alone, tonic's own client
     /// timer fires first and reports CANCELLED instead of the server's answer.) An Interact

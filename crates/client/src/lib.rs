@@ -1,8 +1,8 @@
 //! Rust clients of the Dynaserve API and what callers of a server need around them:
 //!
 //! - [`Client`]: both gRPC services, `WorldModel` (rollouts, Predict, ListModels, Generate) and
-//!   `Sessions` (create, step, state, fork, Predict, Interact, delete); [`http`]: the HTTP
-//!   JSON / Server-Sent Events API;
+//!   `Sessions` (create, step, state, fork, Predict, Gradient, Interact, delete); [`http`]: the
+//!   HTTP JSON / Server-Sent Events API;
 //! - [`scene_file`]: the JSON scene file format, with mesh loading ([`mesh`]: Wavefront OBJ,
 //!   ASCII PLY); [`random_scene`]: seeded random scenes;
 //! - [`prom`]: the Prometheus text format of `/metrics`;

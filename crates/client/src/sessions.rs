@@ -1,5 +1,6 @@
 //! The `dynaserve.v1.Sessions` calls of [`Client`]: create, step, get and set the state of,
-//! fork, predict from, drive ([`Interaction`]) and delete a session. Requests and answers are
+//! fork, predict from, differentiate candidate paths from ([`Client::gradient`]), drive
+//! ([`Interaction`]) and delete a session. Requests and answers are
 //! the wire types ([`v1`]); a session's frames count steps and time from its start.
 //!
 //! A session belongs to its creator (the bearer token, see [`Client::with_bearer_token`], or
@@ -194,6 +195,27 @@ impl Client {
     ) -> Result<v1::PredictResponse, ClientError> {
         request.timeout_ms = self.timeout_ms(request.timeout_ms);
         let resp = self.sessions().predict(self.request(request, true)).await?;
+        Ok(resp.into_inner())
+    }
+
+    /// Scores candidate paths of the session's kinematic objects and differentiates the score
+    /// (bulk priority; concurrent calls on a model share a pass); the session itself does not
+    /// move. Each candidate gives every kinematic object's pose at every step; each answer, in
+    /// candidate order, holds the candidate's cost, its gradient with respect to every
+    /// kinematic pose (`steps[s].kinematic[k]`: translation per metre, rotation per radian of
+    /// a world-axis rotation, objects in index order) and the rollout's frames (every
+    /// `every`-th step plus the final one). FAILED_PRECONDITION when the session's model
+    /// computes no gradients (ListModels' `gradients`), INVALID_ARGUMENT naming the field for
+    /// bad candidates or cost, or more than `max_gradient_work` candidates x steps.
+    pub async fn gradient(
+        &mut self,
+        mut request: v1::SessionGradientRequest,
+    ) -> Result<v1::GradientResponse, ClientError> {
+        request.timeout_ms = self.timeout_ms(request.timeout_ms);
+        let resp = self
+            .sessions()
+            .gradient(self.request(request, true))
+            .await?;
         Ok(resp.into_inner())
     }
 

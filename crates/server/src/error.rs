@@ -74,6 +74,12 @@ impl ApiError {
         ApiError::new(Code::Cancelled, message)
     }
 
+    /// FAILED_PRECONDITION (HTTP 400): the request is well formed but what it names cannot
+    /// do it (a Gradient call on a model that computes no gradients).
+    pub fn failed_precondition(message: impl Into<String>) -> ApiError {
+        ApiError::new(Code::FailedPrecondition, message)
+    }
+
     /// PERMISSION_DENIED (HTTP 403): the caller may not do this to the resource.
     pub fn permission_denied(message: impl Into<String>) -> ApiError {
         ApiError::new(Code::PermissionDenied, message)
@@ -109,9 +115,11 @@ impl ApiError {
     /// The `reason` label of `dynaserve_request_failures_total`.
     pub fn reason(&self) -> &'static str {
         match self.code {
-            Code::InvalidArgument | Code::NotFound | Code::OutOfRange | Code::PermissionDenied => {
-                "invalid_argument"
-            }
+            Code::InvalidArgument
+            | Code::NotFound
+            | Code::OutOfRange
+            | Code::PermissionDenied
+            | Code::FailedPrecondition => "invalid_argument",
             Code::ResourceExhausted => "resource_exhausted",
             Code::DeadlineExceeded => "deadline_exceeded",
             Code::Cancelled => "cancelled",
@@ -126,8 +134,8 @@ impl ApiError {
     }
 
     /// The HTTP status of this error (422 invalid input, 415 non-JSON body, 408 body not
-    /// received in time, 401 unauthenticated, 403 forbidden, 429 overload, 504 deadline, 503 unavailable, 499
-    /// cancelled, 500 otherwise).
+    /// received in time, 400 failed precondition, 401 unauthenticated, 403 forbidden, 429
+    /// overload, 504 deadline, 503 unavailable, 499 cancelled, 500 otherwise).
     pub fn http_status(&self) -> StatusCode {
         if let Some(s) = self.http_override {
             return s;
@@ -136,6 +144,7 @@ impl ApiError {
             Code::Unauthenticated => StatusCode::UNAUTHORIZED,
             Code::InvalidArgument | Code::OutOfRange => StatusCode::UNPROCESSABLE_ENTITY,
             Code::NotFound => StatusCode::NOT_FOUND,
+            Code::FailedPrecondition => StatusCode::BAD_REQUEST,
             Code::PermissionDenied => StatusCode::FORBIDDEN,
             Code::ResourceExhausted => StatusCode::TOO_MANY_REQUESTS,
             Code::DeadlineExceeded => StatusCode::GATEWAY_TIMEOUT,

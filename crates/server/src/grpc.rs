@@ -11,7 +11,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use dynaserve_api::spec::sampling::GenerateSpec;
-use dynaserve_api::spec::{Frame, PredictSpec, RolloutSpec, millis};
+use dynaserve_api::spec::{Frame, PredictSpec, RolloutSpec};
 use dynaserve_api::v1;
 use dynaserve_api::v1::world_model_server::{WorldModel as WorldModelApi, WorldModelServer};
 use futures::{Stream, StreamExt};
@@ -135,22 +135,7 @@ impl WorldModelApi for GrpcService {
         let m = resp.metadata_mut();
         insert(m, "x-request-id", &rid);
         insert_warnings(m, &out.warnings);
-        let t = &out.timing;
-        insert(
-            m,
-            "x-dynaserve-queue-ms",
-            &format!("{:.3}", millis(t.queue)),
-        );
-        insert(
-            m,
-            "x-dynaserve-forward-ms",
-            &format!("{:.3}", millis(t.forward)),
-        );
-        insert(
-            m,
-            "x-dynaserve-total-ms",
-            &format!("{:.3}", millis(t.total)),
-        );
+        sessions::insert_timing(m, &out.timing);
         Ok(resp)
     }
 

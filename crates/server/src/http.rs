@@ -11,14 +11,15 @@
 //! | `GET /metrics` | Prometheus text format |
 //! | `GET /openapi.json` | OpenAPI 3.1 document generated from the handlers and JSON types |
 //! | `GET /`, `GET /dashboard`, `GET /v1/examples` | the browser viewer and the operator dashboard ([`crate::viewer`]) |
-//! | `/v1/sessions...` | sessions: create, step, state, fork, predict, delete ([`sessions`]) |
+//! | `/v1/sessions...` | sessions: create, step, state, fork, predict, gradient, delete ([`sessions`]) |
 //!
 //! Every response carries `x-request-id` (taken from the request header when valid); rollout
 //! and predict responses also carry `x-dynaserve-queue-ms`, `x-dynaserve-forward-ms`,
 //! `x-dynaserve-total-ms` and an equivalent `Server-Timing` header (SSE: per-frame timings in
 //! the events and totals in the final `done` event). Errors are [`json::ErrorResponse`]
-//! documents: 422 invalid input (naming the field), 429 overload (with `Retry-After`), 504
-//! deadline exceeded, 503 unavailable, 500 internal.
+//! documents: 422 invalid input (naming the field), 400 a call the model cannot serve
+//! (FAILED_PRECONDITION: gradients from a model without them), 429 overload (with
+//! `Retry-After`), 504 deadline exceeded, 503 unavailable, 500 internal.
 
 use std::convert::Infallible;
 use std::sync::Arc;

@@ -174,7 +174,8 @@ pub const METRICS: &[MetricSpec] = &[
         "dynaserve_active_predict_variants",
         G,
         &["model"],
-        "Scene variants of admitted Predict calls not yet finished.",
+        "Scene variants of admitted Predict calls (and candidates of Gradient calls) not yet \
+         finished.",
     ),
     spec(
         "dynaserve_sessions_open",
@@ -284,6 +285,7 @@ pub const METHODS: &[&str] = &[
     "fork_session",
     "delete_session",
     "session_predict",
+    "session_gradient",
     "interact",
     "generate",
 ];

@@ -156,3 +156,81 @@ class InteractRequest(_message.Message):
     action: Action
     correct: _containers.RepeatedCompositeFieldContainer[ObjectState]
     def __init__(self, session_id: _Optional[str] = ..., create: _Optional[_Union[CreateSessionRequest, _Mapping]] = ..., action: _Optional[_Union[Action, _Mapping]] = ..., correct: _Optional[_Iterable[_Union[ObjectState, _Mapping]]] = ...) -> None: ...
+
+class GradientCandidate(_message.Message):
+    __slots__ = ("actions",)
+    ACTIONS_FIELD_NUMBER: _ClassVar[int]
+    actions: _containers.RepeatedCompositeFieldContainer[Action]
+    def __init__(self, actions: _Optional[_Iterable[_Union[Action, _Mapping]]] = ...) -> None: ...
+
+class CostTarget(_message.Message):
+    __slots__ = ("object", "step", "position", "position_weight", "rotation", "rotation_weight")
+    OBJECT_FIELD_NUMBER: _ClassVar[int]
+    STEP_FIELD_NUMBER: _ClassVar[int]
+    POSITION_FIELD_NUMBER: _ClassVar[int]
+    POSITION_WEIGHT_FIELD_NUMBER: _ClassVar[int]
+    ROTATION_FIELD_NUMBER: _ClassVar[int]
+    ROTATION_WEIGHT_FIELD_NUMBER: _ClassVar[int]
+    object: int
+    step: int
+    position: _world_model_pb2.Vec3
+    position_weight: float
+    rotation: _world_model_pb2.Quaternion
+    rotation_weight: float
+    def __init__(self, object: _Optional[int] = ..., step: _Optional[int] = ..., position: _Optional[_Union[_world_model_pb2.Vec3, _Mapping]] = ..., position_weight: _Optional[float] = ..., rotation: _Optional[_Union[_world_model_pb2.Quaternion, _Mapping]] = ..., rotation_weight: _Optional[float] = ...) -> None: ...
+
+class GradientCost(_message.Message):
+    __slots__ = ("targets", "smoothness")
+    TARGETS_FIELD_NUMBER: _ClassVar[int]
+    SMOOTHNESS_FIELD_NUMBER: _ClassVar[int]
+    targets: _containers.RepeatedCompositeFieldContainer[CostTarget]
+    smoothness: float
+    def __init__(self, targets: _Optional[_Iterable[_Union[CostTarget, _Mapping]]] = ..., smoothness: _Optional[float] = ...) -> None: ...
+
+class SessionGradientRequest(_message.Message):
+    __slots__ = ("session_id", "candidates", "steps", "cost", "every", "timeout_ms")
+    SESSION_ID_FIELD_NUMBER: _ClassVar[int]
+    CANDIDATES_FIELD_NUMBER: _ClassVar[int]
+    STEPS_FIELD_NUMBER: _ClassVar[int]
+    COST_FIELD_NUMBER: _ClassVar[int]
+    EVERY_FIELD_NUMBER: _ClassVar[int]
+    TIMEOUT_MS_FIELD_NUMBER: _ClassVar[int]
+    session_id: str
+    candidates: _containers.RepeatedCompositeFieldContainer[GradientCandidate]
+    steps: int
+    cost: GradientCost
+    every: int
+    timeout_ms: int
+    def __init__(self, session_id: _Optional[str] = ..., candidates: _Optional[_Iterable[_Union[GradientCandidate, _Mapping]]] = ..., steps: _Optional[int] = ..., cost: _Optional[_Union[GradientCost, _Mapping]] = ..., every: _Optional[int] = ..., timeout_ms: _Optional[int] = ...) -> None: ...
+
+class PoseGradient(_message.Message):
+    __slots__ = ("translation", "rotation")
+    TRANSLATION_FIELD_NUMBER: _ClassVar[int]
+    ROTATION_FIELD_NUMBER: _ClassVar[int]
+    translation: _world_model_pb2.Vec3
+    rotation: _world_model_pb2.Vec3
+    def __init__(self, translation: _Optional[_Union[_world_model_pb2.Vec3, _Mapping]] = ..., rotation: _Optional[_Union[_world_model_pb2.Vec3, _Mapping]] = ...) -> None: ...
+
+class StepGradient(_message.Message):
+    __slots__ = ("kinematic",)
+    KINEMATIC_FIELD_NUMBER: _ClassVar[int]
+    kinematic: _containers.RepeatedCompositeFieldContainer[PoseGradient]
+    def __init__(self, kinematic: _Optional[_Iterable[_Union[PoseGradient, _Mapping]]] = ...) -> None: ...
+
+class CandidateGradient(_message.Message):
+    __slots__ = ("cost", "steps", "frames")
+    COST_FIELD_NUMBER: _ClassVar[int]
+    STEPS_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_FIELD_NUMBER: _ClassVar[int]
+    cost: float
+    steps: _containers.RepeatedCompositeFieldContainer[StepGradient]
+    frames: _containers.RepeatedCompositeFieldContainer[_world_model_pb2.StepFrame]
+    def __init__(self, cost: _Optional[float] = ..., steps: _Optional[_Iterable[_Union[StepGradient, _Mapping]]] = ..., frames: _Optional[_Iterable[_Union[_world_model_pb2.StepFrame, _Mapping]]] = ...) -> None: ...
+
+class GradientResponse(_message.Message):
+    __slots__ = ("candidates", "model")
+    CANDIDATES_FIELD_NUMBER: _ClassVar[int]
+    MODEL_FIELD_NUMBER: _ClassVar[int]
+    candidates: _containers.RepeatedCompositeFieldContainer[CandidateGradient]
+    model: str
+    def __init__(self, candidates: _Optional[_Iterable[_Union[CandidateGradient, _Mapping]]] = ..., model: _Optional[str] = ...) -> None: ...

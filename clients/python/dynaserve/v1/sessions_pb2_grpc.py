@@ -76,6 +76,11 @@ class SessionsStub:
                 request_serializer=dynaserve_dot_v1_dot_sessions__pb2.InteractRequest.SerializeToString,
                 response_deserializer=dynaserve_dot_v1_dot_world__model__pb2.StepFrame.FromString,
                 _registered_method=True)
+        self.Gradient = channel.unary_unary(
+                '/dynaserve.v1.Sessions/Gradient',
+                request_serializer=dynaserve_dot_v1_dot_sessions__pb2.SessionGradientRequest.SerializeToString,
+                response_deserializer=dynaserve_dot_v1_dot_sessions__pb2.GradientResponse.FromString,
+                _registered_method=True)
 
 
 class SessionsServicer:
@@ -147,6 +152,21 @@ class SessionsServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def Gradient(self, request, context):
+        """Scores candidate paths of the session's kinematic objects and differentiates the score:
+        every candidate is rolled out from the session's current state exactly as a session
+        Predict of the same actions (the session itself does not move), its cost is measured on
+        the rollout, and the gradient of the cost with respect to every kinematic pose of the path
+        is found by backpropagation through the rollout. Bulk work: concurrent Gradient calls on a
+        model share one pass. FAILED_PRECONDITION when the session's model does not compute
+        gradients (ModelInfo.gradients false: an ensemble, the simulator); INVALID_ARGUMENT naming
+        the field for a malformed candidate or cost, or work above ModelInfo.max_gradient_work.
+        Response metadata as for Predict.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
 
 def add_SessionsServicer_to_server(servicer, server):
     rpc_method_handlers = {
@@ -189,6 +209,11 @@ def add_SessionsServicer_to_server(servicer, server):
                     servicer.Interact,
                     request_deserializer=dynaserve_dot_v1_dot_sessions__pb2.InteractRequest.FromString,
                     response_serializer=dynaserve_dot_v1_dot_world__model__pb2.StepFrame.SerializeToString,
+            ),
+            'Gradient': grpc.unary_unary_rpc_method_handler(
+                    servicer.Gradient,
+                    request_deserializer=dynaserve_dot_v1_dot_sessions__pb2.SessionGradientRequest.FromString,
+                    response_serializer=dynaserve_dot_v1_dot_sessions__pb2.GradientResponse.SerializeToString,
             ),
     }
     generic_handler = grpc.method_handlers_generic_handler(
@@ -408,6 +433,33 @@ class Sessions:
             '/dynaserve.v1.Sessions/Interact',
             dynaserve_dot_v1_dot_sessions__pb2.InteractRequest.SerializeToString,
             dynaserve_dot_v1_dot_world__model__pb2.StepFrame.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def Gradient(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/dynaserve.v1.Sessions/Gradient',
+            dynaserve_dot_v1_dot_sessions__pb2.SessionGradientRequest.SerializeToString,
+            dynaserve_dot_v1_dot_sessions__pb2.GradientResponse.FromString,
             options,
             channel_credentials,
             insecure,

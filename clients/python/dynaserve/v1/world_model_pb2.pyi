@@ -188,7 +188,7 @@ class ListModelsRequest(_message.Message):
     def __init__(self) -> None: ...
 
 class ModelInfo(_message.Message):
-    __slots__ = ("name", "architecture", "dt_frame", "default_points", "max_objects", "max_points_per_object", "max_steps", "max_dt_steps", "max_variants", "gravity", "config_json", "max_vertices", "max_frames", "max_denoise_steps", "default_denoise_steps", "max_samples", "box_half_extent", "members", "max_request_cost")
+    __slots__ = ("name", "architecture", "dt_frame", "default_points", "max_objects", "max_points_per_object", "max_steps", "max_dt_steps", "max_variants", "gravity", "config_json", "max_vertices", "max_frames", "max_denoise_steps", "default_denoise_steps", "max_samples", "box_half_extent", "members", "max_request_cost", "gradients", "max_gradient_work")
     NAME_FIELD_NUMBER: _ClassVar[int]
     ARCHITECTURE_FIELD_NUMBER: _ClassVar[int]
     DT_FRAME_FIELD_NUMBER: _ClassVar[int]
@@ -208,6 +208,8 @@ class ModelInfo(_message.Message):
     BOX_HALF_EXTENT_FIELD_NUMBER: _ClassVar[int]
     MEMBERS_FIELD_NUMBER: _ClassVar[int]
     MAX_REQUEST_COST_FIELD_NUMBER: _ClassVar[int]
+    GRADIENTS_FIELD_NUMBER: _ClassVar[int]
+    MAX_GRADIENT_WORK_FIELD_NUMBER: _ClassVar[int]
     name: str
     architecture: str
     dt_frame: float
@@ -227,7 +229,9 @@ class ModelInfo(_message.Message):
     box_half_extent: float
     members: _containers.RepeatedScalarFieldContainer[str]
     max_request_cost: int
-    def __init__(self, name: _Optional[str] = ..., architecture: _Optional[str] = ..., dt_frame: _Optional[float] = ..., default_points: _Optional[int] = ..., max_objects: _Optional[int] = ..., max_points_per_object: _Optional[int] = ..., max_steps: _Optional[int] = ..., max_dt_steps: _Optional[int] = ..., max_variants: _Optional[int] = ..., gravity: _Optional[_Union[Vec3, _Mapping]] = ..., config_json: _Optional[str] = ..., max_vertices: _Optional[int] = ..., max_frames: _Optional[int] = ..., max_denoise_steps: _Optional[int] = ..., default_denoise_steps: _Optional[int] = ..., max_samples: _Optional[int] = ..., box_half_extent: _Optional[float] = ..., members: _Optional[_Iterable[str]] = ..., max_request_cost: _Optional[int] = ...) -> None: ...
+    gradients: bool
+    max_gradient_work: int
+    def __init__(self, name: _Optional[str] = ..., architecture: _Optional[str] = ..., dt_frame: _Optional[float] = ..., default_points: _Optional[int] = ..., max_objects: _Optional[int] = ..., max_points_per_object: _Optional[int] = ..., max_steps: _Optional[int] = ..., max_dt_steps: _Optional[int] = ..., max_variants: _Optional[int] = ..., gravity: _Optional[_Union[Vec3, _Mapping]] = ..., config_json: _Optional[str] = ..., max_vertices: _Optional[int] = ..., max_frames: _Optional[int] = ..., max_denoise_steps: _Optional[int] = ..., default_denoise_steps: _Optional[int] = ..., max_samples: _Optional[int] = ..., box_half_extent: _Optional[float] = ..., members: _Optional[_Iterable[str]] = ..., max_request_cost: _Optional[int] = ..., gradients: _Optional[bool] = ..., max_gradient_work: _Optional[int] = ...) -> None: ...
 
 class ListModelsResponse(_message.Message):
     __slots__ = ("models",)

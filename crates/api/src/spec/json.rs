@@ -196,6 +196,8 @@ impl ModelInfo {
             max_samples: v.max_samples,
             box_half_extent: v.box_half_extent,
             members: v.members,
+            gradients: v.gradients,
+            max_gradient_work: v.max_gradient_work,
         }
     }
 }

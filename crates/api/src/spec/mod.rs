@@ -7,6 +7,7 @@
 //!
 //! Units: metres, seconds, kilograms, radians; z up; quaternions `[x, y, z, w]`.
 
+pub mod gradient;
 pub mod json;
 pub mod sampling;
 pub mod session;
@@ -182,6 +183,8 @@ pub struct ModelInfo {
     /// Names of an ensemble's member networks, whose predicted poses each step averages (the
     /// configuration is the first member's); empty for a single network.
     pub members: Vec<String>,
+    /// True when the model computes gradients of a driven rollout's cost (session Gradient).
+    pub gradients: bool,
 }
 
 /// How a resident model is served, with what every family reports about itself

@@ -205,6 +205,10 @@ impl ModelInfo {
                 out.max_variants = l.caps.max_variants as u32;
                 out.max_request_cost = l.caps.max_request_cost;
                 out.gravity = Some(vec3_to(about.gravity));
+                out.gradients = self.gradients;
+                if self.gradients {
+                    out.max_gradient_work = l.caps.max_gradient_work;
+                }
             }
             ModelKind::Sampling { about, limits: l } => {
                 out.architecture = about.architecture.clone();

@@ -76,8 +76,8 @@ pub struct ServeConfig {
     /// RESOURCE_EXHAUSTED / HTTP 429.
     #[arg(long, env = "DYNASERVE_MAX_ACTIVE_ROLLOUTS", default_value_t = 256)]
     pub max_active_rollouts: usize,
-    /// Most scene variants of Predict calls in flight over all models; a call that would go
-    /// past it gets RESOURCE_EXHAUSTED / HTTP 429.
+    /// Most scene variants of Predict calls in flight over all models (a Gradient call's
+    /// candidates count too); a call that would go past it gets RESOURCE_EXHAUSTED / HTTP 429.
     #[arg(long, env = "DYNASERVE_MAX_PREDICT_VARIANTS", default_value_t = 1024)]
     pub max_predict_variants: usize,
     /// Most Generate samples in flight over all PhysiFormer models (a call counts one per
@@ -127,6 +127,13 @@ pub struct ServeConfig {
     /// of a 2-core machine on 256-object scenes.
     #[arg(long, env = "DYNASERVE_MAX_REQUEST_COST", default_value_t = Caps::DEFAULT.max_request_cost)]
     pub max_request_cost: u64,
+    /// Most work of one Gradient call (a session's Gradient) in scene-steps: candidates x
+    /// steps. Also the most work of one gradient pass, which serves concurrent calls together
+    /// (a larger call runs alone). The backward pass keeps every step's activations of every
+    /// candidate, so its memory grows in proportion to this (and to the scene's objects and
+    /// points). A call above it is refused with INVALID_ARGUMENT / 422 naming `candidates`.
+    #[arg(long, env = "DYNASERVE_MAX_GRADIENT_WORK", default_value_t = Caps::DEFAULT.max_gradient_work)]
+    pub max_gradient_work: u64,
     /// Largest request payload in bytes (gRPC message or HTTP body); larger ones are rejected
     /// with INVALID_ARGUMENT / 422 naming `request`.
     #[arg(long, env = "DYNASERVE_MAX_REQUEST_BYTES", default_value_t = 16 << 20)]
@@ -216,6 +223,7 @@ impl ServeConfig {
             // call (reported by ListModels) is the smaller of the two.
             max_variants: self.max_variants.min(self.max_predict_variants),
             max_request_cost: self.max_request_cost,
+            max_gradient_work: self.max_gradient_work,
         }
     }
 
@@ -286,6 +294,9 @@ impl ServeConfig {
         }
         if self.max_request_cost == 0 {
             return Err("--max-request-cost must be at least 1".into());
+        }
+        if self.max_gradient_work == 0 {
+            return Err("--max-gradient-work must be at least 1".into());
         }
         if self.max_generate_cost == 0 {
             return Err("--max-generate-cost must be at least 1".into());

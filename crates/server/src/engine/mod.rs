@@ -12,9 +12,12 @@
 //! - `rollout`, `predict`, `warmup`: the three users of steppers;
 //! - Generate: resolved here, run by the sampling model's family (`crate::families`);
 //! - [`sessions`]: scenes kept with their state between calls (planners), stepped through
-//!   steppers whose kinematic objects follow given poses.
+//!   steppers whose kinematic objects follow given poses;
+//! - `gradient`: the checks, scheduling and answer of Gradient calls (a session's candidate
+//!   paths scored and differentiated in a gradient pass of its model).
 
 pub mod admission;
+mod gradient;
 mod predict;
 pub mod registry;
 pub mod request;
@@ -190,6 +193,9 @@ impl Engine {
     pub fn shutdown_schedulers(&self) {
         for e in self.models.values() {
             e.scheduler.shutdown();
+            if let Some(g) = &e.gradients {
+                g.shutdown();
+            }
         }
         for s in self.samplers.values() {
             s.shutdown();

@@ -10,14 +10,17 @@ use dynaserve_model::{OutOfRange, SceneState};
 use crate::error::ApiError;
 use crate::families::contract::{SteppedScene, SteppingModel};
 use crate::metrics::Metrics;
-use crate::scheduler::{Scheduler, SchedulerConfig, Steps};
+use crate::scheduler::{Gradients, Scheduler, SchedulerConfig, Steps};
 
-/// A resident stepping model: its scheduler, limits and description.
+/// A resident stepping model: its schedulers, limits and description.
 pub struct ModelEntry {
     /// Name used in requests.
     pub name: String,
     /// The scheduler that owns all forward passes of the model.
     pub scheduler: Scheduler<Steps>,
+    /// The scheduler of its gradient passes (bulk work, at most `max_gradient_work`
+    /// candidate-steps a pass), when the model computes gradients.
+    pub gradients: Option<Scheduler<Gradients>>,
     /// Request limits.
     pub limits: Limits,
     /// Description returned by ListModels.
@@ -27,7 +30,8 @@ pub struct ModelEntry {
 }
 
 impl ModelEntry {
-    /// Starts the scheduler of `model` and derives its limits under the server's `caps`.
+    /// Starts the schedulers of `model` (steps, and gradient passes when it computes them)
+    /// and derives its limits under the server's `caps`.
     pub fn start(
         model: Arc<dyn SteppingModel>,
         caps: &Caps,
@@ -38,11 +42,24 @@ impl ModelEntry {
         let limits = model.limits(caps);
         let info = model.info(limits);
         let dt_frame = model.dt_frame();
+        let gradients = match model.gradients_unsupported() {
+            Some(_) => None,
+            None => {
+                let passes = SchedulerConfig {
+                    max_batch_objects: usize::try_from(limits.caps.max_gradient_work)
+                        .unwrap_or(usize::MAX),
+                    ..scheduling.clone()
+                };
+                let family = Arc::new(Gradients::new(model.clone()));
+                Some(Scheduler::start(family, passes, metrics.clone())?)
+            }
+        };
         let scheduler = Scheduler::start(Arc::new(Steps::new(model)), scheduling, metrics.clone())?;
         Ok(ModelEntry {
             info,
             name,
             scheduler,
+            gradients,
             limits,
             dt_frame,
         })

@@ -391,6 +391,7 @@ pub(crate) mod tests {
                 max_dt_steps: 4,
                 max_variants: 8,
                 max_request_cost: 1000,
+                max_gradient_work: 200,
             },
             default_points: 32,
         }

@@ -6,12 +6,12 @@
 
 use std::any::Any;
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use dynaserve_api::limits::{Caps, GenerateCaps, Limits};
 use dynaserve_api::spec::sampling::{GenerateEvent, GenerateSpec};
 use dynaserve_api::spec::{ModelInfo, Scene};
-use dynaserve_model::{Carry, OutOfRange, Pose, PoseSpread, SceneState};
+use dynaserve_model::{Carry, OutOfRange, PathCost, PathGradient, Pose, PoseSpread, SceneState};
 use tokio::sync::{Semaphore, watch};
 
 use crate::config::ServeConfig;
@@ -82,6 +82,35 @@ pub struct Stepped {
     pub spread: Option<Vec<PoseSpread>>,
 }
 
+/// One Gradient call's work: candidate paths of a scene's kinematic objects, each rolled out
+/// from `state` exactly as a driven Predict rolls it out and scored by `cost` (what
+/// [`dynaserve_model::GradientItem`] borrows, owned for the queue). The gradient scheduler's
+/// unit of work.
+pub struct GradientJob {
+    /// The prepared scene (a session's).
+    pub scene: Arc<dyn SteppedScene>,
+    /// The start state.
+    pub state: SceneState,
+    /// Which objects follow the paths, `[objects]`.
+    pub kinematic: Arc<[bool]>,
+    /// Candidate paths `[candidates][steps][kinematic objects]`: every kinematic object's pose
+    /// (in object order) after each step.
+    pub paths: Vec<Vec<Vec<Pose>>>,
+    /// Frames per step.
+    pub dt_steps: u32,
+    /// The cost every candidate is scored by (steps `1..=steps`).
+    pub cost: PathCost,
+    /// The work is abandoned once this passes.
+    pub deadline: Option<Instant>,
+}
+
+impl GradientJob {
+    /// Work in scene-steps, candidates x steps (the unit of `--max-gradient-work`).
+    pub fn work(&self) -> usize {
+        self.paths.len() * self.paths.first().map_or(0, Vec::len)
+    }
+}
+
 /// A model served step by step (Rollout, Predict, Sessions, Interact).
 pub trait SteppingModel: Send + Sync + 'static {
     /// Name used in requests.
@@ -112,6 +141,28 @@ pub trait SteppingModel: Send + Sync + 'static {
     /// `Err` fails the whole pass; an item's own `Err` fails only that item.
     #[allow(clippy::type_complexity)]
     fn step(&self, items: &[&SceneStep]) -> Result<Vec<Result<Stepped, String>>, String>;
+    /// Why the model computes no gradients of a driven rollout's cost (the message of the
+    /// FAILED_PRECONDITION a Gradient call is answered with), or `None` when it does. By
+    /// default it does not.
+    fn gradients_unsupported(&self) -> Option<String> {
+        Some(format!("model {} does not compute gradients", self.name()))
+    }
+    /// Checks a Gradient job against its scene before it is queued (INVALID_ARGUMENT naming
+    /// the field); the engine has checked the request's shapes and limits.
+    fn check_gradient(&self, job: &GradientJob) -> Result<(), ApiError> {
+        let _ = job;
+        Ok(())
+    }
+    /// One gradient pass: every candidate's cost, gradients and rollout for all `jobs` at
+    /// once, `output[i][c]` answering candidate `c` of `jobs[i]`. CPU work, run on the
+    /// gradient scheduler's thread. By default FAILED_PRECONDITION with
+    /// [`SteppingModel::gradients_unsupported`].
+    fn gradients(&self, jobs: &[&GradientJob]) -> Result<Vec<Vec<PathGradient>>, ApiError> {
+        let _ = jobs;
+        Err(ApiError::failed_precondition(
+            self.gradients_unsupported().unwrap_or_default(),
+        ))
+    }
 }
 
 /// A model served by sampling whole trajectories (Generate), as loaded.

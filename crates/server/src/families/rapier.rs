@@ -275,7 +275,16 @@ impl SteppingModel for RapierModel {
                 limits,
             },
             members: Vec::new(),
+            gradients: false,
         }
+    }
+
+    fn gradients_unsupported(&self) -> Option<String> {
+        Some(format!(
+            "model {} is the rapier simulator, which computes no gradients; use a RigidFormer \
+             model for them",
+            self.name
+        ))
     }
 
     fn prepare(

@@ -13,13 +13,14 @@ use dynaserve_model::config::RIGIDFORMER;
 use dynaserve_model::ensemble::ENSEMBLE;
 use dynaserve_model::rigidformer::DEFAULT_MAX_PASS_OBJECTS;
 use dynaserve_model::{
-    Drive, MAX_WORLD_EXTENT, PreparedScene, SceneState, SpreadStep, StepItem, WorldModel,
-    frame_targets,
+    Drive, GradientItem, MAX_WORLD_EXTENT, ModelError, PathGradient, PreparedScene, SceneState,
+    SpreadStep, StepItem, WorldModel, frame_targets,
 };
 
 use super::built_scene::{BuiltScene, build_scene};
 use super::contract::{
-    Models, Prepared, Resident, SceneStep, Stepped, SteppedScene, SteppingModel, pose_in_domain,
+    GradientJob, Models, Prepared, Resident, SceneStep, Stepped, SteppedScene, SteppingModel,
+    pose_in_domain,
 };
 use super::{LoadOptions, ModelFamily};
 use crate::error::ApiError;
@@ -41,12 +42,29 @@ impl ModelFamily for RigidFormerFamily {
 /// A resident [`WorldModel`] served step by step.
 pub struct RigidFormerModel {
     model: Arc<dyn WorldModel>,
+    /// Why the model computes no gradients, `None` when it does.
+    no_gradients: Option<String>,
 }
 
 impl RigidFormerModel {
-    /// Serves `model`.
+    /// Serves `model`. Whether it computes gradients is asked once, with an empty
+    /// [`WorldModel::path_gradients`] call: only [`ModelError::Unsupported`] means no.
     pub fn new(model: Arc<dyn WorldModel>) -> RigidFormerModel {
-        RigidFormerModel { model }
+        let no_gradients = match model.path_gradients(&[]) {
+            Err(ModelError::Unsupported(why)) => Some(match model.member_names().first() {
+                Some(first) => format!(
+                    "{why} (an ensemble of {} networks: serve one of them, e.g. {first}, \
+                     for gradients)",
+                    model.member_names().len()
+                ),
+                None => why,
+            }),
+            _ => None,
+        };
+        RigidFormerModel {
+            model,
+            no_gradients,
+        }
     }
 
     /// One [`WorldModel::step_with_spread`] over `items` (every state usable); each scene's
@@ -198,6 +216,7 @@ impl SteppingModel for RigidFormerModel {
                 limits,
             },
             members: self.model.member_names(),
+            gradients: self.no_gradients.is_none(),
         }
     }
 
@@ -258,6 +277,70 @@ impl SteppingModel for RigidFormerModel {
                     .unwrap_or_else(|| Err("model returned too few scenes".to_string())),
             })
             .collect())
+    }
+
+    fn gradients_unsupported(&self) -> Option<String> {
+        self.no_gradients.clone()
+    }
+
+    fn check_gradient(&self, job: &GradientJob) -> Result<(), ApiError> {
+        let scene = prepared(job.scene.as_ref()).map_err(ApiError::internal)?;
+        gradient_item(job, scene)
+            .validate("candidates")
+            .map_err(gradient_error)
+    }
+
+    /// One [`WorldModel::path_gradients`] over every job; each job's answer is checked to
+    /// hold one entry per candidate.
+    fn gradients(&self, jobs: &[&GradientJob]) -> Result<Vec<Vec<PathGradient>>, ApiError> {
+        let scenes: Vec<&PreparedScene> = jobs
+            .iter()
+            .map(|j| prepared(j.scene.as_ref()))
+            .collect::<Result<_, _>>()
+            .map_err(ApiError::internal)?;
+        let items: Vec<GradientItem<'_>> = jobs
+            .iter()
+            .zip(&scenes)
+            .map(|(j, s)| gradient_item(j, s))
+            .collect();
+        let out = self.model.path_gradients(&items).map_err(gradient_error)?;
+        let shapes_ok =
+            out.len() == jobs.len() && out.iter().zip(jobs).all(|(o, j)| o.len() == j.paths.len());
+        if !shapes_ok {
+            return Err(ApiError::internal(format!(
+                "model returned gradients of {} calls for a pass of {}, or a wrong candidate count",
+                out.len(),
+                jobs.len()
+            )));
+        }
+        Ok(out)
+    }
+}
+
+/// The model's own view of a gradient job on its prepared scene.
+fn gradient_item<'a>(job: &'a GradientJob, scene: &'a PreparedScene) -> GradientItem<'a> {
+    GradientItem {
+        scene,
+        state: &job.state,
+        kinematic: &job.kinematic,
+        paths: &job.paths,
+        dt_steps: job.dt_steps,
+        cost: &job.cost,
+        deadline: job.deadline,
+    }
+}
+
+/// The API error of a failed gradient call: unsupported is FAILED_PRECONDITION, a passed
+/// deadline DEADLINE_EXCEEDED, invalid input INVALID_ARGUMENT naming `candidates`.
+fn gradient_error(e: ModelError) -> ApiError {
+    match e {
+        ModelError::Unsupported(m) => ApiError::failed_precondition(m),
+        ModelError::DeadlineExceeded(m) => ApiError::deadline(format!("deadline exceeded: {m}")),
+        ModelError::InvalidInput(m) => {
+            let m = m.strip_prefix("candidates: ").unwrap_or(&m);
+            ApiError::invalid("candidates", m)
+        }
+        other => ApiError::internal(other.to_string()),
     }
 }
 

@@ -3,10 +3,11 @@
 
 use std::sync::Arc;
 
-use dynaserve_api::spec::Frame;
+use dynaserve_api::spec::gradient::SessionGradientSpec;
 use dynaserve_api::spec::session::{
     CreateSessionSpec, InteractOpen, InteractStep, SessionPredictSpec, SetStateSpec, StepSpec,
 };
+use dynaserve_api::spec::{Frame, Timing, millis};
 use dynaserve_api::v1;
 use dynaserve_api::v1::sessions_server::{Sessions as SessionsApi, SessionsServer};
 use futures::StreamExt;
@@ -17,6 +18,7 @@ use tonic::{Request, Response, Status, Streaming};
 use super::{FrameStream, ctx_of, insert, insert_warnings, with_request_id};
 use crate::engine::{Engine, RequestCtx};
 use crate::error::ApiError;
+use tonic::metadata::MetadataMap;
 
 /// Implementation of the generated `Sessions` service trait.
 pub struct SessionsService {
@@ -70,6 +72,26 @@ fn client_stream_error(s: &Status) -> ApiError {
         return ApiError::invalid("request", m.strip_prefix("request: ").unwrap_or(m));
     }
     ApiError::cancelled(format!("client stream failed: {}", s.message()))
+}
+
+/// The timing metadata of a planner call's answer: `x-dynaserve-queue-ms`,
+/// `x-dynaserve-forward-ms`, `x-dynaserve-total-ms`.
+pub(super) fn insert_timing(m: &mut MetadataMap, t: &Timing) {
+    insert(
+        m,
+        "x-dynaserve-queue-ms",
+        &format!("{:.3}", millis(t.queue)),
+    );
+    insert(
+        m,
+        "x-dynaserve-forward-ms",
+        &format!("{:.3}", millis(t.forward)),
+    );
+    insert(
+        m,
+        "x-dynaserve-total-ms",
+        &format!("{:.3}", millis(t.total)),
+    );
 }
 
 fn frames(rx: tokio::sync::mpsc::Receiver<Result<Frame, ApiError>>) -> FrameStream {
@@ -167,6 +189,22 @@ impl SessionsApi for SessionsService {
         let spec = self.parse(&ctx, "session_predict", &req, SessionPredictSpec::from_v1)?;
         let r = self.engine.session_predict(spec, ctx.clone()).await;
         self.reply(&ctx, r.map(|p| p.to_v1()))
+    }
+
+    async fn gradient(
+        &self,
+        request: Request<v1::SessionGradientRequest>,
+    ) -> Result<Response<v1::GradientResponse>, Status> {
+        let ctx = ctx_of(&request);
+        let req = request.into_inner();
+        let spec = self.parse(&ctx, "session_gradient", &req, SessionGradientSpec::from_v1)?;
+        let r = self.engine.session_gradient(spec, ctx.clone()).await;
+        let timing = r.as_ref().map(|g| g.timing).ok();
+        let mut resp = self.reply(&ctx, r.map(|g| g.to_v1()))?;
+        if let Some(t) = timing {
+            insert_timing(resp.metadata_mut(), &t);
+        }
+        Ok(resp)
     }
 
     async fn interact(

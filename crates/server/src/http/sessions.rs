@@ -9,6 +9,7 @@
 //! | `POST /v1/sessions/{id}/step` | advance it (`StepRequest` -> `StepResponse`) |
 //! | `POST /v1/sessions/{id}/fork` | copy it under a new id (`SessionInfo`) |
 //! | `POST /v1/sessions/{id}/predict` | many variants from its state (`SessionPredictRequest` -> `PredictResponse`) |
+//! | `POST /v1/sessions/{id}/gradient` | candidate paths scored and differentiated from its state (`SessionGradientRequest` -> `GradientResponse`) |
 //! | `DELETE /v1/sessions/{id}` | delete it (204) |
 //!
 //! Unknown or expired ids, and sessions of another caller that are not `shared`, answer 404
@@ -22,6 +23,7 @@ use axum::routing::{get, post, put};
 use axum::{Json, Router};
 use dynaserve_api::FieldError;
 use dynaserve_api::json;
+use dynaserve_api::spec::gradient::SessionGradientSpec;
 use dynaserve_api::spec::session::{CreateSessionSpec, SessionPredictSpec, SetStateSpec, StepSpec};
 use utoipa::OpenApi;
 
@@ -32,7 +34,7 @@ use crate::engine::RequestCtx;
 /// The OpenAPI description of the session routes (merged into the HTTP API's document).
 #[derive(OpenApi)]
 #[openapi(
-    paths(create, get_state, set_state, step, fork, predict, delete),
+    paths(create, get_state, set_state, step, fork, predict, gradient, delete),
     components(schemas(
         json::CreateSessionRequest,
         json::SessionInfo,
@@ -45,6 +47,14 @@ use crate::engine::RequestCtx;
         json::ObjectState,
         json::ObjectPose,
         json::Action,
+        json::SessionGradientRequest,
+        json::GradientCandidate,
+        json::GradientCost,
+        json::CostTarget,
+        json::GradientResponse,
+        json::CandidateGradient,
+        json::StepGradient,
+        json::PoseGradient,
     ))
 )]
 pub struct SessionsDoc;
@@ -58,6 +68,7 @@ pub(super) fn routes() -> Router<AppState> {
         .route("/v1/sessions/{id}/step", post(step))
         .route("/v1/sessions/{id}/fork", post(fork))
         .route("/v1/sessions/{id}/predict", post(predict))
+        .route("/v1/sessions/{id}/gradient", post(gradient))
 }
 
 impl Spec for CreateSessionSpec {
@@ -89,6 +100,14 @@ impl Spec for SessionPredictSpec {
     type Json = json::SessionPredictRequest;
     fn read(r: &json::SessionPredictRequest, session_id: &str) -> Result<Self, FieldError> {
         SessionPredictSpec::from_json(session_id, r)
+    }
+}
+
+impl Spec for SessionGradientSpec {
+    const METHOD: &'static str = "session_gradient";
+    type Json = json::SessionGradientRequest;
+    fn read(r: &json::SessionGradientRequest, session_id: &str) -> Result<Self, FieldError> {
+        Ok(SessionGradientSpec::from_json(session_id, r))
     }
 }
 
@@ -235,6 +254,37 @@ async fn predict(State(s): State<AppState>, call: Call<SessionPredictSpec>) -> R
     let rid = RequestId::of(&call.ctx);
     let prediction = s.engine.session_predict(call.spec, call.ctx).await;
     (rid, prediction.map(Predicted))
+}
+
+/// Score candidate paths of the session's kinematic objects and differentiate the score: each
+/// candidate is rolled out from the session's state as a session Predict would roll it out,
+/// and the answer holds its cost, the cost's gradient with respect to every kinematic pose of
+/// the path and the rollout. The session does not move.
+#[utoipa::path(
+    post,
+    path = "/v1/sessions/{id}/gradient",
+    params(("id" = String, Path, description = "Session id")),
+    request_body = json::SessionGradientRequest,
+    responses(
+        (status = 200, description = "One answer per candidate", body = json::GradientResponse),
+        (status = 400, description = "FAILED_PRECONDITION: the session's model computes no gradients (an ensemble, the simulator)", body = json::ErrorResponse),
+        (status = 404, description = "Unknown or expired session, or another caller's", body = json::ErrorResponse),
+        (status = 422, description = "Invalid input, or more work than --max-gradient-work; `error.field` names the field", body = json::ErrorResponse),
+        (status = 429, description = "Server full; retry after the Retry-After header", body = json::ErrorResponse),
+        (status = 504, description = "Deadline (`timeout_ms`) exceeded, also while queued", body = json::ErrorResponse),
+    )
+)]
+async fn gradient(
+    State(s): State<AppState>,
+    call: Call<SessionGradientSpec>,
+) -> Reply<impl IntoResponse> {
+    let rid = RequestId::of(&call.ctx);
+    let answer = s.engine.session_gradient(call.spec, call.ctx).await;
+    let answer = answer.map(|g| {
+        let body = g.to_json();
+        (Model(body.model.clone()), Timed(body.timing), Json(body))
+    });
+    (rid, answer)
 }
 
 /// Delete the session.

@@ -4,7 +4,10 @@
 
 use std::sync::Arc;
 
-use crate::families::contract::{SceneStep, Stepped, SteppingModel};
+use dynaserve_model::PathGradient;
+
+use crate::error::ApiError;
+use crate::families::contract::{GradientJob, SceneStep, Stepped, SteppingModel};
 
 /// A model family as the scheduler sees it.
 pub trait Family: Send + Sync + 'static {
@@ -30,6 +33,12 @@ pub trait Family: Send + Sync + 'static {
     /// that size: the scheduler then sizes its passes in whole forwards.
     fn forward_objects(&self) -> Option<usize> {
         None
+    }
+    /// True when every item of the family is bulk work (gradient calls): no interactive item
+    /// of this scheduler can wait behind its passes, so they may take the whole pass budget
+    /// (the device gate still shares the device with other schedulers' interactive work).
+    fn only_bulk(&self) -> bool {
+        false
     }
 }
 
@@ -69,5 +78,54 @@ impl Family for Steps {
 
     fn forward_objects(&self) -> Option<usize> {
         self.model.forward_objects()
+    }
+}
+
+/// Gradient calls of a stepping model ([`SteppingModel::gradients`]): an item is one call's
+/// [`GradientJob`], costing its work (candidates x steps); a pass is one `gradients` call over
+/// every job in it. Every job is bulk work. Its scheduler is named `{model}/gradients` in logs
+/// and metric labels, where a "scene" is one call and an "object" one candidate-step.
+pub struct Gradients {
+    model: Arc<dyn SteppingModel>,
+    name: String,
+}
+
+impl Gradients {
+    /// The gradient family of `model`.
+    pub fn new(model: Arc<dyn SteppingModel>) -> Gradients {
+        let name = format!("{}/gradients", model.name());
+        Gradients { model, name }
+    }
+}
+
+impl Family for Gradients {
+    type Item = GradientJob;
+    /// A call's own failure (a passed deadline, a model that computes no gradients) keeps its
+    /// API error.
+    type Output = Result<Vec<PathGradient>, ApiError>;
+
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn cost(&self, item: &GradientJob) -> usize {
+        item.work()
+    }
+
+    /// A failed pass of one call is that call's failure, and a refusal of the model as a whole
+    /// (FAILED_PRECONDITION) every call's; any other failure of a shared pass fails the pass,
+    /// so that the worker runs each call again alone and only the one at fault fails.
+    fn run(&self, items: &[&GradientJob]) -> Result<Vec<Result<Self::Output, String>>, String> {
+        match self.model.gradients(items) {
+            Ok(out) => Ok(out.into_iter().map(|g| Ok(Ok(g))).collect()),
+            Err(e) if items.len() == 1 || e.code == tonic::Code::FailedPrecondition => {
+                Ok(items.iter().map(|_| Ok(Err(e.clone()))).collect())
+            }
+            Err(e) => Err(e.message),
+        }
+    }
+
+    fn only_bulk(&self) -> bool {
+        true
     }
 }

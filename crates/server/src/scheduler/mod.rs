@@ -38,7 +38,7 @@ use std::time::{Duration, Instant};
 
 use tokio::sync::oneshot;
 
-pub use family::{Family, Steps};
+pub use family::{Family, Gradients, Steps};
 pub use gate::PassGate;
 pub use queue::{Dropped, Queue, Queued, Ticket};
 

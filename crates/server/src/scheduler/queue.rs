@@ -271,6 +271,13 @@ impl<T> Queue<T> {
         self
     }
 
+    /// Passes without interactive items may take the whole pass budget: for families whose
+    /// items are all bulk, where no interactive item of this queue can wait behind them.
+    pub fn whole_budget_for_bulk(mut self) -> Queue<T> {
+        self.bulk_budget = self.budget;
+        self
+    }
+
     /// Appends an item; its stream is no longer expected.
     pub fn push(&mut self, item: Queued<T>) {
         self.expected.remove(&item.ticket.stream_id);
@@ -582,6 +589,18 @@ mod tests {
         }
         let batch = q.next_batch();
         assert_eq!(classes(&batch), (5, 1));
+        // A queue of bulk items only (gradient calls) takes the whole budget: all the calls
+        // that fit, by cost, a larger one alone.
+        let mut q = queue(8, 100).whole_budget_for_bulk();
+        for (i, (n, cost)) in [("g0", 40), ("g1", 50), ("g2", 30), ("g3", 500)]
+            .into_iter()
+            .enumerate()
+        {
+            q.push(t.item(n, Priority::Bulk, cost, i as u64, i as u64));
+        }
+        assert_eq!(names(q.next_batch()), ["g0", "g1"]);
+        assert_eq!(names(q.next_batch()), ["g2"]);
+        assert_eq!(names(q.next_batch()), ["g3"]);
     }
 
     #[test]

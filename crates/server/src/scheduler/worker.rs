@@ -55,6 +55,8 @@ impl<F: Family> Worker<F> {
         let queue = Queue::new(budget, config.max_queue_delay, config.bulk_share);
         let queue = if family.separate_forwards() {
             queue.one_bulk_item_per_pass()
+        } else if family.only_bulk() {
+            queue.whole_budget_for_bulk()
         } else {
             queue
         };

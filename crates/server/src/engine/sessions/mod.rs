@@ -6,7 +6,9 @@
 //! - `driven`: a `super::stepper::Stepper` whose kinematic objects follow given poses, and
 //!   the `Step` call;
 //! - `predict`: Predict from a session (variants of its state with their own actions);
-//! - `interact`: the closed loop, one step per client message.
+//! - `interact`: the closed loop, one step per client message;
+//! - `gradient`: Gradient from a session (candidate paths of its kinematic objects scored and
+//!   differentiated from its state, in a gradient pass of its model).
 //!
 //! Steps of a session go through the model's scheduler like any rollout step (interactive
 //! priority; Predict variants bulk), so they share its batches. One call at a time holds a
@@ -22,6 +24,7 @@
 //! to) the caller that forked it.
 
 mod driven;
+mod gradient;
 pub mod input;
 mod interact;
 mod ledger;

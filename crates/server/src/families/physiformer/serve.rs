@@ -70,6 +70,7 @@ impl GeneratorEntry {
                     limits,
                 },
                 members: Vec::new(),
+                gradients: false,
             },
             name,
             scheduler,
