@@ -10,28 +10,21 @@
 //! - a deadline that cannot be met answers DEADLINE_EXCEEDED, also for a call still queued;
 //! - concurrent calls are served, those queued together in one gradient pass.
 //!
-//! Each is checked on the shipped RigidFormer (its own backpropagation) and on a reference
-//! model serving the same network with gradients by finite differences of its driven rollout,
-//! which checks the server's side of the call whatever the network computes.
+//! The gradients themselves are checked against finite differences in
+//! `crates/model/tests/gradients.rs`.
 
 mod common;
 
 use std::path::Path;
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use common::*;
 use dynaserve_api::{json, v1};
-use dynaserve_model::{
-    Drive, GradientItem, ModelConfig, ModelError, ObjectInput, PathCost, PathGradient, Pose,
-    PreparedScene, SceneState, StepItem, WorldModel, path_cost,
-};
+use dynaserve_model::{PathCost, Pose, SceneState, path_cost};
 use dynaserve_server::{Models, ServeConfig};
 
 /// The shipped RigidFormer (backpropagation through its rollout).
 const MODEL: &str = "rigidformer-small";
-/// The same network with gradients by finite differences ([`Differences`]).
-const REFERENCE: &str = "rigidformer-small-differences";
 const ENSEMBLE: &str = "rigidformer-small-ensemble";
 const SIM: &str = "rapier";
 const SIM_DIR: &str = "models/simulators/rapier";
@@ -40,144 +33,13 @@ const STEPS: u32 = 6;
 /// The server's `--max-gradient-work` in these tests.
 const MAX_WORK: u64 = 256;
 
-/// A [`WorldModel`] that differentiates by forward differences: each kinematic coordinate of
-/// each step of a path is moved by `H` (metres, or radians about a world axis) and the driven
-/// rollout run again. Slow and approximate, but it computes the cost and the rollout the way a
-/// session Predict does, which is what the server's side of a Gradient call is checked by.
-struct Differences {
-    inner: Arc<dyn WorldModel>,
-    name: String,
-}
-
-const H: f32 = 1e-3;
-
-impl Differences {
-    /// The driven rollout of `path` (`[steps][kinematic]`) from the item's state, as a session
-    /// Predict rolls it out ([`Drive`]).
-    fn rollout(
-        &self,
-        item: &GradientItem<'_>,
-        path: &[Vec<Pose>],
-    ) -> Result<Vec<Vec<Pose>>, ModelError> {
-        let driven: Vec<usize> = (0..item.kinematic.len())
-            .filter(|&j| item.kinematic[j])
-            .collect();
-        let lead = self.inner.config().dynamics.kinematic_lead;
-        let mut state = item.state.clone();
-        let mut out = Vec::with_capacity(path.len());
-        for poses in path {
-            if item.deadline.is_some_and(|d| Instant::now() >= d) {
-                return Err(ModelError::DeadlineExceeded("between steps".into()));
-            }
-            let targets: Vec<(usize, Pose)> = driven.iter().copied().zip(poses.clone()).collect();
-            let drive = Drive::new(item.kinematic, &targets);
-            let input = drive.input(&state, lead);
-            let step = StepItem {
-                scene: item.scene,
-                state: &input,
-                dt_steps: item.dt_steps,
-            };
-            let next = self.inner.step(&[step])?.remove(0);
-            drive.finish(&mut state, next);
-            out.push(state.current.clone());
-        }
-        Ok(out)
-    }
-
-    fn cost(&self, item: &GradientItem<'_>, path: &[Vec<Pose>]) -> Result<f64, ModelError> {
-        let poses = self.rollout(item, path)?;
-        Ok(path_cost(item.cost, item.state, item.kinematic, &poses))
-    }
-
-    fn differentiate(
-        &self,
-        item: &GradientItem<'_>,
-        path: &[Vec<Pose>],
-    ) -> Result<PathGradient, ModelError> {
-        let poses = self.rollout(item, path)?;
-        let cost = path_cost(item.cost, item.state, item.kinematic, &poses);
-        let kinematic = path[0].len();
-        let mut translation = vec![vec![[0.0f32; 3]; kinematic]; path.len()];
-        let mut rotation = translation.clone();
-        for s in 0..path.len() {
-            for k in 0..kinematic {
-                for axis in 0..3 {
-                    let mut moved = path.to_vec();
-                    moved[s][k].translation[axis] += H;
-                    translation[s][k][axis] =
-                        ((self.cost(item, &moved)? - cost) / f64::from(H)) as f32;
-                    let mut turned = path.to_vec();
-                    turned[s][k].rotation = rotate(turned[s][k].rotation, axis, H);
-                    rotation[s][k][axis] =
-                        ((self.cost(item, &turned)? - cost) / f64::from(H)) as f32;
-                }
-            }
-        }
-        Ok(PathGradient {
-            cost,
-            translation,
-            rotation,
-            poses,
-        })
-    }
-}
-
-/// `q` (`[x, y, z, w]`) turned by `angle` radians about world axis `axis`, on the left.
-fn rotate(q: [f32; 4], axis: usize, angle: f32) -> [f32; 4] {
-    let mut a = [0.0f32; 4];
-    a[axis] = (angle / 2.0).sin();
-    a[3] = (angle / 2.0).cos();
-    let [ax, ay, az, aw] = a;
-    let [bx, by, bz, bw] = q;
-    [
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-        aw * bw - ax * bx - ay * by - az * bz,
-    ]
-}
-
-impl WorldModel for Differences {
-    fn name(&self) -> &str {
-        &self.name
-    }
-    fn config(&self) -> &ModelConfig {
-        self.inner.config()
-    }
-    fn prepare(&self, objects: Vec<ObjectInput>) -> Result<PreparedScene, ModelError> {
-        self.inner.prepare(objects)
-    }
-    fn step(&self, batch: &[StepItem<'_>]) -> Result<Vec<Vec<Pose>>, ModelError> {
-        self.inner.step(batch)
-    }
-    fn path_gradients(
-        &self,
-        items: &[GradientItem<'_>],
-    ) -> Result<Vec<Vec<PathGradient>>, ModelError> {
-        items
-            .iter()
-            .map(|item| {
-                item.validate("candidates")?;
-                item.paths
-                    .iter()
-                    .map(|path| self.differentiate(item, path))
-                    .collect()
-            })
-            .collect()
-    }
-}
-
-/// A server with the shipped RigidFormer, the reference, the shipped ensemble and the rapier
-/// simulator, `--max-gradient-work` [`MAX_WORK`].
+/// A server with the shipped RigidFormer, the shipped ensemble and the rapier simulator,
+/// `--max-gradient-work` [`MAX_WORK`].
 async fn start_all() -> dynaserve_server::RunningServer {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let network = load(&root.join(SHIPPED));
-    let reference: Arc<dyn WorldModel> = Arc::new(Differences {
-        inner: network.clone(),
-        name: REFERENCE.into(),
-    });
     let ensemble = load(&root.join(SHIPPED_ENSEMBLE));
-    let mut models = Models::from(vec![network, reference, ensemble]);
+    let mut models = Models::from(vec![network, ensemble]);
     let sim = dynaserve_server::load_all(&[root.join(SIM_DIR)]).unwrap();
     models.stepping.extend(sim.stepping);
     let mut config = ServeConfig::local(Vec::new());
@@ -535,13 +397,6 @@ async fn answers_like_predict(model: &str) {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
-async fn reference_gradients_answer_like_predict_on_both_transports() {
-    answers_like_predict(REFERENCE).await;
-}
-
-/// Needs the RigidFormer's own `path_gradients`; until it computes them the server answers
-/// FAILED_PRECONDITION ("does not compute gradients").
-#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn rigidformer_gradients_answer_like_predict_on_both_transports() {
     answers_like_predict(MODEL).await;
 }
@@ -559,13 +414,13 @@ async fn refusals_name_the_problem_and_models_without_gradients_say_so() {
     let mut c = client(&server).await;
     let listed = c.list_models().await.unwrap();
     let info = |name: &str| listed.iter().find(|m| m.name == name).unwrap().clone();
-    assert!(info(REFERENCE).gradients);
-    assert_eq!(info(REFERENCE).max_gradient_work, MAX_WORK);
+    assert!(info(MODEL).gradients);
+    assert_eq!(info(MODEL).max_gradient_work, MAX_WORK);
     for name in [ENSEMBLE, SIM] {
         assert!(!info(name).gradients, "{name}");
         assert_eq!(info(name).max_gradient_work, 0, "{name}");
     }
-    let id = create(&mut c, REFERENCE).await;
+    let id = create(&mut c, MODEL).await;
     let good = request(&[path(0.05, STEPS)], STEPS);
     let mut cases: Vec<(&str, json::SessionGradientRequest, &str)> = Vec::new();
     let mut r = good.clone();
@@ -660,7 +515,7 @@ async fn refusals_name_the_problem_and_models_without_gradients_say_so() {
 async fn deadlines_are_kept_while_running_and_while_queued() {
     let server = start_all().await;
     let mut c = client(&server).await;
-    let id = create(&mut c, REFERENCE).await;
+    let id = create(&mut c, MODEL).await;
     let mut req = request(&[path(0.05, STEPS), path(0.04, STEPS)], STEPS);
     req.timeout_ms = 20;
     let s = grpc_error(c.gradient(request_v1(&id, &req)).await);
@@ -675,7 +530,7 @@ async fn deadlines_are_kept_while_running_and_while_queued() {
 
     // A long call holds the gradient scheduler; a call behind it with a short deadline is
     // answered on time and dropped from the queue without running.
-    let long = request(&vec![path(0.05, STEPS); 4], STEPS);
+    let long = request(&vec![path(0.05, STEPS); 32], STEPS);
     let mut c2 = client(&server).await;
     let id2 = id.clone();
     let running = tokio::spawn(async move { c2.gradient(request_v1(&id2, &long)).await });
@@ -691,10 +546,10 @@ async fn deadlines_are_kept_while_running_and_while_queued() {
         asked.elapsed()
     );
     let done = running.await.unwrap().unwrap();
-    assert_eq!(done.candidates.len(), 4);
+    assert_eq!(done.candidates.len(), 32);
     // The scheduler drops the expired call when it next looks at its queue, right after the
     // long pass.
-    let scheduler = format!("{REFERENCE}/gradients");
+    let scheduler = format!("{MODEL}/gradients");
     let series = format!(
         "dynaserve_dropped_steps_total{{model=\"{scheduler}\",reason=\"deadline_exceeded\"}}"
     );
@@ -769,12 +624,6 @@ async fn concurrent_calls_share_a_pass(model: &str, long: usize, steps: u32) {
     server.wait().await.unwrap();
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
-async fn reference_concurrent_calls_share_a_pass() {
-    concurrent_calls_share_a_pass(REFERENCE, 3, STEPS).await;
-}
-
-/// Needs the RigidFormer's own `path_gradients` (FAILED_PRECONDITION until then).
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn rigidformer_concurrent_calls_share_a_pass() {
     concurrent_calls_share_a_pass(MODEL, 32, 8).await;

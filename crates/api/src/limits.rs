@@ -61,8 +61,9 @@ impl Caps {
         max_variants: 256,
         // About 4 minutes of a 2-core machine at ~4,000 object-steps/s (256-object scenes).
         max_request_cost: 1_000_000,
-        // 32 candidates of 64 steps.
-        max_gradient_work: 2048,
+        // 48 candidates of 10 steps, with room: about 5 s and 2 GiB for a box and a pusher on
+        // 2 cores (BENCHMARKS.md), and a pass holds the device that long.
+        max_gradient_work: 512,
     };
 
     /// These caps lowered to the own limits of a model with configuration `model` (objects
