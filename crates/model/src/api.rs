@@ -291,7 +291,8 @@ pub trait WorldModel: Send + Sync {
     /// Costs and gradients of candidate paths of kinematic objects, by backpropagation
     /// through the driven rollout ([`crate::gradient`]): `output[i][c]` answers candidate `c`
     /// of `items[i]`; items of many calls share each step's pass. By default the model cannot
-    /// ([`ModelError::Unsupported`]).
+    /// ([`ModelError::Unsupported`]). An empty `items` asks whether it can: `Ok` (empty) or
+    /// `Unsupported` with the reason.
     fn path_gradients(
         &self,
         items: &[crate::GradientItem<'_>],
