@@ -233,6 +233,29 @@ pub(crate) fn build_inputs<'a>(
     Ok(inp)
 }
 
+/// A scene's world points at t and t-1 (t-2 for history) and their contacts, as the model
+/// with `cfg` reads them for the step `r`.
+pub(crate) fn scene_points(cfg: &ModelConfig, r: &SceneRequest<'_>) -> ScenePoints {
+    let scene = r.scene;
+    let bodies: Vec<Body<'_>> = scene
+        .objects
+        .iter()
+        .map(|o| Body {
+            reference: &o.reference,
+            params: o.params,
+        })
+        .collect();
+    ScenePoints::for_model(
+        cfg,
+        &bodies,
+        || scene.objects.iter().map(|o| o.normals.as_slice()).collect(),
+        &r.current,
+        &r.previous,
+        r.earlier.as_deref(),
+        r.dt_steps,
+    )
+}
+
 /// Points of a scene from which its objects' rows are built in parts over the compute team
 /// ([`team`]; a one-scene step).
 const TEAM_MIN_POINTS: usize = 1024;
@@ -249,24 +272,7 @@ fn scene_chunk(
 ) -> Vec<SceneChunk> {
     let scene = r.scene;
     let m = scene.len();
-    // World points at t and t-1 (t-2 for history) and their contacts.
-    let bodies: Vec<Body<'_>> = scene
-        .objects
-        .iter()
-        .map(|o| Body {
-            reference: &o.reference,
-            params: o.params,
-        })
-        .collect();
-    let points = ScenePoints::for_model(
-        cfg,
-        &bodies,
-        || scene.objects.iter().map(|o| o.normals.as_slice()).collect(),
-        &r.current,
-        &r.previous,
-        r.earlier.as_deref(),
-        r.dt_steps,
-    );
+    let points = scene_points(cfg, r);
     let poses: Vec<_> = r.current.iter().map(rot).collect();
     let centroids = scene
         .objects

@@ -13,10 +13,10 @@ use candle_core::{D, Device, Tensor};
 
 use super::batch::{BatchInputs, PoseInputs, SceneRequest};
 use super::features::{
-    Body, FeatureFrame, SUMMARY_HEIGHT_MAX, SUMMARY_HEIGHT_SCALE, SUMMARY_INCREMENT_SCALE,
-    SUMMARY_LEVER_SCALE, SUMMARY_ROTATION_SCALE, ScenePoints,
+    FeatureFrame, SUMMARY_HEIGHT_MAX, SUMMARY_HEIGHT_SCALE, SUMMARY_INCREMENT_SCALE,
+    SUMMARY_LEVER_SCALE, SUMMARY_ROTATION_SCALE,
 };
-use super::inputs::rope_frequencies;
+use super::inputs::{rope_frequencies, scene_points};
 use super::{host_index, host_tensor};
 use crate::config::APPROACH_FEATURES;
 use crate::{ModelConfig, ModelError};
@@ -114,23 +114,7 @@ fn layout(cfg: &ModelConfig, requests: &[SceneRequest<'_>], inp: &BatchInputs) -
     let mut first_object = 0u32;
     for r in requests {
         let scene = r.scene;
-        let bodies: Vec<Body<'_>> = scene
-            .objects
-            .iter()
-            .map(|o| Body {
-                reference: &o.reference,
-                params: o.params,
-            })
-            .collect();
-        let points = ScenePoints::for_model(
-            cfg,
-            &bodies,
-            || scene.objects.iter().map(|o| o.normals.as_slice()).collect(),
-            &r.current,
-            &r.previous,
-            None,
-            r.dt_steps,
-        );
+        let points = scene_points(cfg, r);
         for (j, obj) in scene.objects.iter().enumerate() {
             let frame = FeatureFrame::new(&cfg.dynamics, r.dt_steps, r.current[j].translation);
             let base = points.offsets[j];
