@@ -207,6 +207,36 @@ def record(model: dict, args: argparse.Namespace, results: list[tuple[int, tuple
     }
 
 
+def paired(reference: dict, candidate: dict) -> str:
+    """One line comparing two planner records (``--json``) seed by seed over the seeds both
+    hold: the candidate's mean rapier-replayed distance to the goal against the reference's,
+    the mean paired difference (negative: the candidate ends closer) with its standard error,
+    on how many seeds the candidate is closer, both records' forecast errors on the planned
+    paths and their median planning times (when recorded)."""
+    a = {s["seed"]: s for s in reference["seeds"]}
+    b = {s["seed"]: s for s in candidate["seeds"]}
+    seeds = sorted(set(a) & set(b))
+    if len(seeds) < 2:
+        raise ValueError(f"the records share {len(seeds)} seeds; two or more are needed")
+    ra = np.array([a[k]["planned"] for k in seeds])
+    rb = np.array([b[k]["planned"] for k in seeds])
+    d = rb - ra
+    se = d.std(ddof=1) / np.sqrt(len(d))
+    off = [np.mean([r[k]["planned_off"] for k in seeds]) for r in (a, b)]
+    secs = [[r[k]["seconds"] for k in seeds if "seconds" in r[k]] for r in (a, b)]
+    timing = (
+        f"; planning {np.median(secs[1]):.1f} s a seed against {np.median(secs[0]):.1f} s (medians)"
+        if all(secs)
+        else ""
+    )
+    return (
+        f"over {len(seeds)} paired seeds: {rb.mean():.3f} m against {ra.mean():.3f} m, difference "
+        f"{d.mean():+.4f} m (paired s.e. {se:.4f} m, {abs(d.mean()) / se if se > 0 else float('inf'):.1f} s.e.), "
+        f"closer on {int((d < 0).sum())} of {len(seeds)}; planned-path forecast off by "
+        f"{off[1]:.3f} m against {off[0]:.3f} m{timing}"
+    )
+
+
 def write_record(path: str, doc: dict) -> None:
     """Writes ``doc`` to ``path`` through a temporary file and a rename, so that a run stopped
     part-way leaves the seeds done so far, never a torn file."""
@@ -372,7 +402,17 @@ def main() -> None:
         help="write every seed's rapier-replayed distances (and the model and settings) to FILE, "
         "rewritten after each seed; needs the rapier replay",
     )
+    ap.add_argument(
+        "--compare",
+        nargs=2,
+        metavar=("REFERENCE", "CANDIDATE"),
+        help="compare two records written by --json seed by seed and exit (no server needed)",
+    )
     args = ap.parse_args()
+    if args.compare:
+        with open(args.compare[0]) as f, open(args.compare[1]) as g:
+            print(paired(json.load(f), json.load(g)))
+        return
     try:
         seeds = parse_seeds(args.seeds) if args.seeds is not None else [args.seed]
     except ValueError as e:

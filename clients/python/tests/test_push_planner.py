@@ -49,6 +49,20 @@ class Refinement(unittest.TestCase):
         np.testing.assert_allclose(gv[0, :, 1], [-0.5, -0.5, -0.5])
 
 
+class Paired(unittest.TestCase):
+    def test_two_records_compare_seed_by_seed(self):
+        ref = {"seeds": [{"seed": k, "planned": p, "planned_off": 0.1, "seconds": 4.0} for k, p in [(0, 0.2), (1, 0.3), (2, 0.1)]]}
+        cand = {"seeds": [{"seed": k, "planned": p, "planned_off": 0.05, "seconds": 5.0} for k, p in [(0, 0.1), (1, 0.2), (3, 0.9)]]}
+        line = planner.paired(ref, cand)
+        self.assertIn("over 2 paired seeds: 0.150 m against 0.250 m", line)
+        self.assertIn("difference -0.1000 m (paired s.e. 0.0000 m", line)
+        self.assertIn("closer on 2 of 2", line)
+        self.assertIn("off by 0.050 m against 0.100 m", line)
+        self.assertIn("planning 5.0 s a seed against 4.0 s", line)
+        with self.assertRaises(ValueError):
+            planner.paired(ref, {"seeds": [{"seed": 9, "planned": 0.1, "planned_off": 0.0}]})
+
+
 class Seeds(unittest.TestCase):
     def test_single_ranges_and_lists(self):
         self.assertEqual(planner.parse_seeds("7"), [7])
