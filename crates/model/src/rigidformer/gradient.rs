@@ -9,7 +9,7 @@ use candle_core::{Device, Tensor, Var};
 use super::RigidFormer;
 use super::batch::SceneRequest;
 use super::features::rotation_translation;
-use super::inputs::build_inputs;
+use super::inputs::build_inputs_and_points;
 use super::pose_inputs::{PoseTensors, check_differentiable, pose_inputs, straight_through};
 use super::projection::{base_shift, project_poses};
 use super::{host_tensor, prepared_for};
@@ -96,6 +96,7 @@ impl RigidFormer {
         check_differentiable(&self.config)?;
         let device = self.device.clone();
         let mut cands = Vec::new();
+        // The item each candidate answers.
         let mut owner = Vec::new();
         for (i, item) in items.iter().enumerate() {
             let what = format!("gradient[{i}]");
@@ -144,18 +145,20 @@ impl RigidFormer {
                     terms: Vec::new(),
                     poses: Vec::with_capacity(steps),
                 });
-                owner.push((i, item.deadline));
+                owner.push(i);
             }
         }
         let longest = cands.iter().map(|c| c.path.len()).max().unwrap_or(0);
         for step in 0..longest {
-            if let Some(late) = owner.iter().zip(&cands).find(|((_, d), c)| {
-                c.path.len() > step && d.is_some_and(|d| d <= std::time::Instant::now())
-            }) {
+            let now = std::time::Instant::now();
+            if let Some((i, item)) = items
+                .iter()
+                .enumerate()
+                .find(|(_, item)| item.steps() > step && item.deadline.is_some_and(|d| d <= now))
+            {
                 return Err(ModelError::DeadlineExceeded(format!(
-                    "gradient[{}]: the deadline passed after {step} of {} steps",
-                    late.0.0,
-                    late.1.path.len()
+                    "gradient[{i}]: the deadline passed after {step} of {} steps",
+                    item.steps()
                 )));
             }
             let active: Vec<usize> = (0..cands.len())
@@ -191,7 +194,7 @@ impl RigidFormer {
                 .collect())
         };
         let mut out: Vec<Vec<PathGradient>> = items.iter().map(|_| Vec::new()).collect();
-        for (c, (item, _)) in cands.iter().zip(&owner) {
+        for (c, item) in cands.iter().zip(&owner) {
             out[*item].push(PathGradient {
                 cost: path_cost(c.cost, &c.start, c.kinematic, &c.poses),
                 translation: read(&c.shift)?,
@@ -222,7 +225,7 @@ impl RigidFormer {
                 dt_steps: cands[c].dt_steps,
             })
             .collect();
-        let mut inp = build_inputs(cfg, &requests)?;
+        let (mut inp, placed) = build_inputs_and_points(cfg, &requests)?;
         let cat = |now: bool| -> candle_core::Result<PoseTensors> {
             let parts: Vec<&PoseTensors> = active
                 .iter()
@@ -235,7 +238,9 @@ impl RigidFormer {
         };
         let now = cat(true)?;
         let before = cat(false)?;
-        inp.pose_inputs = Some(pose_inputs(cfg, &requests, &inp, &now, &before, device)?);
+        inp.pose_inputs = Some(pose_inputs(
+            cfg, &requests, &placed, &inp, &now, &before, device,
+        )?);
         // The training kernels (with their backward passes) where the CPU has them; attention
         // is composed of tensor ops with graph poses (the decoder and anchor head see to it).
         let exec = Exec {

@@ -81,6 +81,15 @@ pub(crate) fn build_inputs<'a>(
     cfg: &ModelConfig,
     requests: &[SceneRequest<'a>],
 ) -> Result<BatchInputs<'a>, ModelError> {
+    Ok(build_inputs_and_points(cfg, requests)?.0)
+}
+
+/// [`build_inputs`], also returning every scene's [`ScenePoints`] (world points and contact
+/// search), in request order, for a caller that reads the contacts again (a gradient pass).
+pub(crate) fn build_inputs_and_points<'a>(
+    cfg: &ModelConfig,
+    requests: &[SceneRequest<'a>],
+) -> Result<(BatchInputs<'a>, Vec<ScenePoints>), ModelError> {
     let key = cfg.prepared_key();
     if requests.iter().any(|r| r.scene.key != key) {
         return Err(ModelError::Internal(
@@ -134,9 +143,13 @@ pub(crate) fn build_inputs<'a>(
     }
     // Scenes over rayon's pool; one scene runs here (`team::map_pooled`).
     let scenes: Vec<_> = requests.iter().zip(&scene_offsets).zip(rows).collect();
-    let chunks = team::map_pooled(scenes, 2, |((r, &first), rows)| {
-        scene_chunk(cfg, r, point_offsets[first], nmax, &freqs, rows)
-    });
+    let (chunks, placed): (Vec<_>, Vec<_>) = team::map_pooled(scenes, 2, |((r, &first), rows)| {
+        let points = scene_points(cfg, r);
+        let chunks = scene_chunk(cfg, r, &points, point_offsets[first], nmax, &freqs, rows);
+        (chunks, points)
+    })
+    .into_iter()
+    .unzip();
     let mut inp = BatchInputs {
         b,
         mmax,
@@ -230,12 +243,12 @@ pub(crate) fn build_inputs<'a>(
         inp.floor_lift.extend(c.floor_lift);
         inp.object_gap.extend(c.object_gap);
     }
-    Ok(inp)
+    Ok((inp, placed))
 }
 
 /// A scene's world points at t and t-1 (t-2 for history) and their contacts, as the model
 /// with `cfg` reads them for the step `r`.
-pub(crate) fn scene_points(cfg: &ModelConfig, r: &SceneRequest<'_>) -> ScenePoints {
+fn scene_points(cfg: &ModelConfig, r: &SceneRequest<'_>) -> ScenePoints {
     let scene = r.scene;
     let bodies: Vec<Body<'_>> = scene
         .objects
@@ -260,11 +273,13 @@ pub(crate) fn scene_points(cfg: &ModelConfig, r: &SceneRequest<'_>) -> ScenePoin
 /// ([`team`]; a one-scene step).
 const TEAM_MIN_POINTS: usize = 1024;
 
-/// One scene's inputs: world points and contacts, then every object's rows, objects split over
-/// the compute team for a large scene outside a scene group. Chunks in object order.
+/// One scene's inputs from its world points and contacts (`points`): every object's rows,
+/// objects split over the compute team for a large scene outside a scene group. Chunks in
+/// object order.
 fn scene_chunk(
     cfg: &ModelConfig,
     r: &SceneRequest<'_>,
+    points: &ScenePoints,
     first_point: usize,
     nmax: usize,
     freqs: &[f32],
@@ -272,7 +287,6 @@ fn scene_chunk(
 ) -> Vec<SceneChunk> {
     let scene = r.scene;
     let m = scene.len();
-    let points = scene_points(cfg, r);
     let poses: Vec<_> = r.current.iter().map(rot).collect();
     let centroids = scene
         .objects
@@ -283,7 +297,7 @@ fn scene_chunk(
     let ctx = ObjectContext {
         cfg,
         r,
-        points: &points,
+        points,
         poses,
         centroids,
         poses_prev: r.previous.iter().map(rot).collect(),

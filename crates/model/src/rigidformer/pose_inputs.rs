@@ -12,11 +12,12 @@
 use candle_core::{D, Device, Tensor};
 
 use super::batch::{BatchInputs, PoseInputs, SceneRequest};
+use super::features::ScenePoints;
 use super::features::{
     FeatureFrame, SUMMARY_HEIGHT_MAX, SUMMARY_HEIGHT_SCALE, SUMMARY_INCREMENT_SCALE,
     SUMMARY_LEVER_SCALE, SUMMARY_ROTATION_SCALE,
 };
-use super::inputs::{rope_frequencies, scene_points};
+use super::inputs::rope_frequencies;
 use super::{host_index, host_tensor};
 use crate::config::APPROACH_FEATURES;
 use crate::{ModelConfig, ModelError};
@@ -95,7 +96,15 @@ struct Layout {
     lowest: Vec<u32>,
 }
 
-fn layout(cfg: &ModelConfig, requests: &[SceneRequest<'_>], inp: &BatchInputs) -> Layout {
+/// The layout of the pass `inp`, built from `requests`, whose scenes' contact searches are
+/// `placed` (as [`build_inputs_and_points`](super::inputs::build_inputs_and_points) returns
+/// them).
+fn layout(
+    cfg: &ModelConfig,
+    requests: &[SceneRequest<'_>],
+    placed: &[ScenePoints],
+    inp: &BatchInputs,
+) -> Layout {
     let p = inp.points;
     let mut l = Layout {
         object: Vec::with_capacity(p),
@@ -112,9 +121,8 @@ fn layout(cfg: &ModelConfig, requests: &[SceneRequest<'_>], inp: &BatchInputs) -
     };
     let mut first_point = 0usize;
     let mut first_object = 0u32;
-    for r in requests {
+    for (r, points) in requests.iter().zip(placed) {
         let scene = r.scene;
-        let points = scene_points(cfg, r);
         for (j, obj) in scene.objects.iter().enumerate() {
             let frame = FeatureFrame::new(&cfg.dynamics, r.dt_steps, r.current[j].translation);
             let base = points.offsets[j];
@@ -162,19 +170,21 @@ fn dot(x: &Tensor, y: &Tensor) -> candle_core::Result<Tensor> {
     (x * y)?.sum_keepdim(1)
 }
 
-/// The pose-dependent inputs of the pass `inp` (built from `requests`) as functions of the
+/// The pose-dependent inputs of the pass `inp` (built from `requests`, whose contact
+/// searches are `placed`) as functions of the
 /// poses at t (`now`) and one step before (`before`), every object of the pass in order,
 /// with the host's discrete choices: their values equal the host's up to float rounding.
 /// The model's switches must pass [`check_differentiable`].
 pub(crate) fn graph_inputs(
     cfg: &ModelConfig,
     requests: &[SceneRequest<'_>],
+    placed: &[ScenePoints],
     inp: &BatchInputs,
     now: &PoseTensors,
     before: &PoseTensors,
     device: &Device,
 ) -> Result<PoseInputs, ModelError> {
-    let l = layout(cfg, requests, inp);
+    let l = layout(cfg, requests, placed, inp);
     let (pts, o, nf) = (inp.points, inp.o, cfg.point_features());
     let (k, s, g) = (cfg.anchors, cfg.sa_centres, cfg.sa_neighbours);
     let pairs = cfg.rope_dim / 2;
@@ -328,12 +338,13 @@ pub(crate) fn graph_inputs(
 pub(crate) fn pose_inputs(
     cfg: &ModelConfig,
     requests: &[SceneRequest<'_>],
+    placed: &[ScenePoints],
     inp: &BatchInputs,
     now: &PoseTensors,
     before: &PoseTensors,
     device: &Device,
 ) -> Result<PoseInputs, ModelError> {
-    let g = graph_inputs(cfg, requests, inp, now, before, device)?;
+    let g = graph_inputs(cfg, requests, placed, inp, now, before, device)?;
     let st = |host: &[f32], graph: &Tensor| -> candle_core::Result<Tensor> {
         straight_through(&host_tensor(device, host, graph.dims())?, graph)
     };
@@ -500,7 +511,7 @@ mod tests {
     use crate::ObjectInput;
     use crate::api::Pose;
     use crate::prepare::prepare_scene;
-    use crate::rigidformer::inputs::build_inputs;
+    use crate::rigidformer::inputs::build_inputs_and_points;
 
     /// `n` points spread over the surface of a cube of half extent `h`, deterministic.
     fn cloud(n: usize, h: f32, salt: u32) -> Vec<[f32; 3]> {
@@ -570,7 +581,7 @@ mod tests {
             earlier: None,
             dt_steps: 2,
         }];
-        let inp = build_inputs(&cfg, &requests).unwrap();
+        let (inp, placed) = build_inputs_and_points(&cfg, &requests).unwrap();
         let device = Device::Cpu;
         let tensors = |poses: &[Pose]| {
             let (mut rot, mut trans) = (Vec::new(), Vec::new());
@@ -587,6 +598,7 @@ mod tests {
         let g = graph_inputs(
             &cfg,
             &requests,
+            &placed,
             &inp,
             &tensors(&current),
             &tensors(&previous),
@@ -619,7 +631,7 @@ mod tests {
             g.object_summary.as_ref().unwrap(),
         );
         // Every kind of contact occurred.
-        let l = layout(&cfg, &requests, &inp);
+        let l = layout(&cfg, &requests, &placed, &inp);
         let points = l.is_point.iter().sum::<f32>();
         let ground = l.is_ground.iter().sum::<f32>();
         assert!(points > 0.0 && ground > 0.0 && points + ground < l.div.len() as f32);
