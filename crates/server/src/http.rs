@@ -39,7 +39,7 @@ use utoipa::OpenApi;
 use crate::engine::{Engine, RequestCtx};
 use crate::error::ApiError;
 use extract::{AppState, Call, Spec, Streamed};
-use reply::{Model, Predicted, Reply, RequestId, Timed, Warnings, collect_frames, sse};
+use reply::{Model, Predicted, Reply, RequestId, Timed, Warnings, collect_frames, sse, sse_event};
 
 mod extract;
 pub mod generate_route;
@@ -199,15 +199,11 @@ fn sse_events(
                     st.timing.add_step(t);
                 }
                 st.steps = f.step;
-                Event::default()
-                    .event("frame")
-                    .data(serde_json::to_string(&f.to_json()).unwrap_or_default())
+                sse_event("frame", &f.to_json())
             }
             Some(Err(e)) => {
                 st.done = true;
-                Event::default()
-                    .event("error")
-                    .data(serde_json::to_string(&e.body()).unwrap_or_default())
+                sse_event("error", &e.body())
             }
             None => {
                 st.done = true;
@@ -217,9 +213,7 @@ fn sse_events(
                     steps: st.steps,
                     timing: st.timing.to_json(),
                 };
-                Event::default()
-                    .event("done")
-                    .data(serde_json::to_string(&done).unwrap_or_default())
+                sse_event("done", &done)
             }
         };
         Some((Ok(event), st))

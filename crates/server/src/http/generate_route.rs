@@ -21,7 +21,7 @@ use tokio::sync::mpsc;
 use utoipa::OpenApi;
 
 use super::extract::{AppState, Spec, Streamed};
-use super::reply::{Model, Reply, RequestId, Timed, sse};
+use super::reply::{Model, Reply, RequestId, Timed, sse, sse_event};
 use crate::error::ApiError;
 
 /// The OpenAPI description of `POST /v1/generate` (merged into the HTTP API's document).
@@ -156,21 +156,15 @@ fn sse_events(
         let event = match st.rx.recv().await {
             Some(Ok(GenerateEvent::Progress(p))) => {
                 st.timing.add_step(&p.timing);
-                Event::default()
-                    .event("progress")
-                    .data(serde_json::to_string(&p.to_json()).unwrap_or_default())
+                sse_event("progress", &p.to_json())
             }
             Some(Ok(GenerateEvent::Sample(s))) => {
                 st.samples += 1;
-                Event::default()
-                    .event("sample")
-                    .data(serde_json::to_string(&s.to_json()).unwrap_or_default())
+                sse_event("sample", &s.to_json())
             }
             Some(Err(e)) => {
                 st.done = true;
-                Event::default()
-                    .event("error")
-                    .data(serde_json::to_string(&e.body()).unwrap_or_default())
+                sse_event("error", &e.body())
             }
             None => {
                 st.done = true;
@@ -180,9 +174,7 @@ fn sse_events(
                     samples: st.samples,
                     timing: st.timing.to_json(),
                 };
-                Event::default()
-                    .event("done")
-                    .data(serde_json::to_string(&done).unwrap_or_default())
+                sse_event("done", &done)
             }
         };
         Some((Ok(event), st))

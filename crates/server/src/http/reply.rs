@@ -122,6 +122,13 @@ impl IntoResponse for Predicted {
     }
 }
 
+/// One Server-Sent Event named `name` whose data is `body` as JSON.
+pub(super) fn sse_event(name: &str, body: &impl serde::Serialize) -> Event {
+    Event::default()
+        .event(name)
+        .data(serde_json::to_string(body).unwrap_or_default())
+}
+
 /// A server-sent-event stream of `events` with keep-alive comments; it holds the caller's
 /// stream `quota` until it ends.
 pub(super) fn sse<S>(events: S, quota: StreamQuota) -> impl IntoResponse
