@@ -82,6 +82,11 @@ fn skew(w: &Tensor) -> candle_core::Result<Tensor> {
     w.matmul(&basis)?.reshape((n, 3, 3))
 }
 
+/// Object indices as index rows.
+fn as_rows(objects: &[usize]) -> Vec<u32> {
+    objects.iter().map(|&j| j as u32).collect()
+}
+
 /// Rows `rows` of `[O, ...]`-shaped `x` (u32 on `device`).
 fn rows(x: &Tensor, rows: &[u32], device: &Device) -> candle_core::Result<Tensor> {
     x.index_select(&super::host_index(device, rows)?, 0)
@@ -104,6 +109,17 @@ impl RigidFormer {
             let scene = prepared_for(&self.config, item.scene, &what)?;
             let start = validate_state(scene, item.state, item.dt_steps, &what)?;
             let driven: Vec<usize> = (0..scene.len()).filter(|&j| item.kinematic[j]).collect();
+            // What every candidate of the item starts from (tensors share their storage).
+            let now = pose_tensors(&start.current, &device)?;
+            let before = pose_tensors(&start.previous, &device)?;
+            let start_driven: Vec<Tensor> = [&before, &now]
+                .iter()
+                .map(|p| rows(&p.trans, &as_rows(&driven), &device))
+                .collect::<Result<_, _>>()?;
+            let host = SceneState {
+                earlier: None,
+                ..start.clone()
+            };
             for (c, path) in item.paths.iter().enumerate() {
                 let path = path
                     .iter()
@@ -118,13 +134,6 @@ impl RigidFormer {
                     })
                     .collect::<Result<Vec<_>, _>>()?;
                 let steps = path.len();
-                let start_driven: Vec<Tensor> = [&start.previous, &start.current]
-                    .iter()
-                    .map(|s| {
-                        let p: Vec<Pose> = driven.iter().map(|&j| s[j]).collect();
-                        Ok(pose_tensors(&p, &device)?.trans)
-                    })
-                    .collect::<Result<_, ModelError>>()?;
                 cands.push(Candidate {
                     scene,
                     dt_steps: item.dt_steps,
@@ -132,16 +141,13 @@ impl RigidFormer {
                     kinematic: item.kinematic,
                     driven: driven.clone(),
                     path,
-                    now: pose_tensors(&start.current, &device)?,
-                    before: pose_tensors(&start.previous, &device)?,
-                    host: SceneState {
-                        earlier: None,
-                        ..start.clone()
-                    },
+                    now: now.clone(),
+                    before: before.clone(),
+                    host: host.clone(),
                     start: start.clone(),
                     turn: Var::zeros((steps, driven.len(), 3), candle_core::DType::F32, &device)?,
                     shift: Var::zeros((steps, driven.len(), 3), candle_core::DType::F32, &device)?,
-                    driven_track: start_driven,
+                    driven_track: start_driven.clone(),
                     terms: Vec::new(),
                     poses: Vec::with_capacity(steps),
                 });
@@ -304,7 +310,7 @@ impl RigidFormer {
             let host = pose_tensors(&next, device)?;
             let rot = straight_through(&host.rot, &fit_rot.narrow(0, first, m)?)?;
             let trans = straight_through(&host.trans, &fit_trans.narrow(0, first, m)?)?;
-            let driven: Vec<u32> = cand.driven.iter().map(|&j| j as u32).collect();
+            let driven = as_rows(&cand.driven);
             let turn = cand.turn.as_tensor().narrow(0, step, 1)?.squeeze(0)?;
             let shift = cand.shift.as_tensor().narrow(0, step, 1)?.squeeze(0)?;
             let path_rot = rows(&host.rot, &driven, device)?;
